@@ -1,0 +1,95 @@
+"""Signal analysis used by the CLI summary and the physics checks: frequencies and decay.
+
+Imports no physics engine. All functions take uniformly sampled series: t_s (n,) in s.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from pendsim_mj.errors import ParameterError
+
+
+def _check_series(t_s: np.ndarray, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    t = np.asarray(t_s, dtype=float)
+    y = np.asarray(x, dtype=float)
+    if t.ndim != 1 or y.shape != t.shape:
+        raise ParameterError(f"expected t_s and x of the same shape (n,), got {t.shape} and {y.shape}")
+    if len(t) < 8:
+        raise ParameterError(f"need at least 8 samples, got {len(t)}")
+    return t, y
+
+
+def spectral_peak_hz(t_s: np.ndarray, x: np.ndarray) -> float:
+    """Dominant frequency of x (Hz): the largest peak of its Hann-windowed spectrum, refined by
+    a parabola through the log-magnitudes of the three bins around it (accuracy well below
+    one bin, 1/duration). The mean is removed first; returns 0.0 for a constant signal."""
+    t, y = _check_series(t_s, x)
+    dt = (t[-1] - t[0]) / (len(t) - 1)
+    y = y - y.mean()
+    if not np.any(y):
+        return 0.0
+    nfft = 1 << (8 * len(y) - 1).bit_length()  # zero-pad 8x: finer grid for the parabola
+    spectrum = np.abs(np.fft.rfft(y * np.hanning(len(y)), n=nfft))
+    k = int(np.argmax(spectrum[1:]) + 1)
+    if 1 <= k < len(spectrum) - 1:
+        a, b, c = np.log(spectrum[k - 1 : k + 2] + 1e-300)
+        denom = a - 2 * b + c
+        shift = 0.5 * (a - c) / denom if denom != 0 else 0.0
+    else:
+        shift = 0.0
+    return float((k + shift) / (nfft * dt))
+
+
+def zero_crossing_hz(t_s: np.ndarray, x: np.ndarray) -> float:
+    """Mean frequency (Hz) from linearly interpolated upward zero crossings of x - mean(x),
+    between the first and the last crossing. Raises ParameterError with fewer than 2."""
+    t, y = _check_series(t_s, x)
+    y = y - y.mean()
+    idx = np.flatnonzero((y[:-1] < 0) & (y[1:] >= 0))
+    if len(idx) < 2:
+        raise ParameterError("fewer than two upward zero crossings: the series is too short to give a frequency")
+    crossings = t[idx] - y[idx] * (t[idx + 1] - t[idx]) / (y[idx + 1] - y[idx])
+    return float((len(crossings) - 1) / (crossings[-1] - crossings[0]))
+
+
+def peak_amplitudes(t_s: np.ndarray, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Times (s) and values of the local maxima of |x|, each refined by a parabola through the
+    sample and its neighbours. Returns two (k,) arrays."""
+    t, y = _check_series(t_s, x)
+    a = np.abs(y)
+    i = np.flatnonzero((a[1:-1] > a[:-2]) & (a[1:-1] >= a[2:])) + 1
+    left, mid, right = a[i - 1], a[i], a[i + 1]
+    denom = left - 2 * mid + right
+    shift = np.where(denom != 0, 0.5 * (left - right) / np.where(denom != 0, denom, 1), 0.0)
+    dt = (t[-1] - t[0]) / (len(t) - 1)
+    return t[i] + shift * dt, mid - 0.25 * (left - right) * shift
+
+
+def log_decrement_damping(
+    t_s: np.ndarray, phi_rad: np.ndarray, inertia_kg_m2: float, window_s: float = 120.0
+) -> tuple[float, float, float, float]:
+    """The paper's damping identification b = 2 J ln(A0 / AT) / t1 from a free decay.
+
+    A0 is the first amplitude peak of |phi| and AT the last peak at most ``window_s`` after it;
+    t1 is the time between them (the paper's t1 = 120 s).
+
+    Returns:
+      (b_n_m_s, a0_rad, at_rad, t1_s).
+    """
+    if not (math.isfinite(inertia_kg_m2) and inertia_kg_m2 > 0):
+        raise ParameterError(f"inertia_kg_m2 must be > 0, got {inertia_kg_m2}")
+    if not (math.isfinite(window_s) and window_s > 0):
+        raise ParameterError(f"window_s must be > 0 s, got {window_s}")
+    tp, ap = peak_amplitudes(t_s, phi_rad)
+    if len(tp) < 2:
+        raise ParameterError("fewer than two amplitude peaks: cannot measure a decay")
+    inside = tp <= tp[0] + window_s + 1e-9
+    t0, a0 = tp[0], ap[0]
+    t_end, a_end = tp[inside][-1], ap[inside][-1]
+    t1 = t_end - t0
+    if t1 <= 0 or a_end <= 0:
+        raise ParameterError("the window holds a single amplitude peak: cannot measure a decay")
+    return 2.0 * inertia_kg_m2 * math.log(a0 / a_end) / t1, float(a0), float(a_end), float(t1)

@@ -1,0 +1,216 @@
+"""The rig's physical parameters: one frozen object, every field with unit and source.
+
+Source of every printed number: B. Ganev, M. B. Marinov, I. Kralov, A. Ivanov, "Modeling and
+Validation of a Spring-Coupled Two-Pendulum System Under Large Free Nonlinear Oscillations",
+Machines 2025, 13(8), 660, doi:10.3390/machines13080660 (cited below as "paper"), as
+transcribed in shared/spec/RIG.md.
+
+Frames (paper): origin O on the pivot axis, x vertically down, y horizontal in the swing plane,
+z along the pivot axis. Angles phi_n from the downward vertical, positive about +z.
+
+Mass derivation (the paper prints no masses; spec section 1 asks us to derive them):
+
+    main rod (OK1 = OK2 = 510 mm, d = 5.1 mm, steel 7850 kg/m^3)
+        m_rod  = 7850 * pi * 0.00255^2 * 0.510            = 0.081778 kg
+    transverse rod on M1 (l23 = 300 mm, d = 3 mm, steel)
+        m_trod = 7850 * pi * 0.0015^2 * 0.300             = 0.016650 kg
+    disk (paper)                                          = 0.100 kg
+    sensor node (paper: "added to the pendulum's weight")  = 0.0128 kg
+
+    m1 = m_rod + m_disk + m_trod + m_node                 = 0.211228 kg
+    m2 = m_rod + m_disk + m_node                          = 0.194578 kg
+
+Check that confirms the approach: M2's rod + disk alone give
+OC = (0.081778*0.255 + 0.1*0.384) / 0.181778 = 0.32597 m (paper 326 mm) and
+J = 0.081778*0.51^2/3 + 0.1*0.384^2 + 0.1*0.03025^2/2 = 0.021882 kg m^2 (paper 0.02188).
+The paper's own OC1, OC2, J1, J2 are used unchanged in the model; the masses are not tuned.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Mapping
+from typing import Any
+
+from pendsim_mj.errors import ParameterError
+
+STEEL_DENSITY_KG_M3 = 7850.0
+
+
+def rod_mass_kg(length_m: float, diameter_m: float, density_kg_m3: float = STEEL_DENSITY_KG_M3) -> float:
+    """Mass of a solid cylindrical rod, kg."""
+    return density_kg_m3 * math.pi * (diameter_m / 2.0) ** 2 * length_m
+
+
+# Component masses, kg (derivation in the module docstring).
+MAIN_ROD_MASS_KG = rod_mass_kg(0.510, 0.0051)
+TRANSVERSE_ROD_MASS_KG = rod_mass_kg(0.300, 0.003)
+DISK_MASS_KG = 0.100
+SENSOR_NODE_MASS_KG = 0.0128
+
+
+# Default damping. The paper identifies b_n by the logarithmic decrement
+# b_n = 2 J_n ln(A0_n / AT_n) / t1 (t1 = 120 s) but prints neither A0 nor AT. We assume the
+# amplitude of each pendulum falls to 20 % of its start over 120 s (a typical free decay of a
+# ball-bearing pendulum; identify the real values from a recording).
+DEFAULT_DECAY_RATIO = 0.2
+DEFAULT_DECAY_WINDOW_S = 120.0
+
+
+def log_decrement_b(j_kg_m2: float, decay_ratio: float, window_s: float) -> float:
+    """The paper's damping formula b = 2 J ln(A0/AT) / t1, N m s/rad, with decay_ratio = AT/A0."""
+    return 2.0 * j_kg_m2 * math.log(1.0 / decay_ratio) / window_s
+
+
+J1_KG_M2 = 0.02592  # paper: J1
+J2_KG_M2 = 0.02188  # paper: J2
+
+
+def _field(default: float, unit: str, source: str) -> Any:
+    return dataclasses.field(default=default, metadata={"unit": unit, "source": source})
+
+
+@dataclasses.dataclass(frozen=True)
+class RigParams:
+    """Physical parameters of the two-pendulum rig, SI units.
+
+    Every field carries its unit and source in ``dataclasses.fields(RigParams)[i].metadata``;
+    ``describe()`` lists them. Build variants with ``with_overrides(b1_n_m_s=0.0, ...)``.
+    """
+
+    # Masses (derived, see module docstring).
+    m1_kg: float = _field(
+        MAIN_ROD_MASS_KG + DISK_MASS_KG + TRANSVERSE_ROD_MASS_KG + SENSOR_NODE_MASS_KG,
+        "kg",
+        "derived: steel rod 510 mm x 5.1 mm + disk 100 g + transverse rod 300 mm x 3 mm + node 12.8 g",
+    )
+    m2_kg: float = _field(
+        MAIN_ROD_MASS_KG + DISK_MASS_KG + SENSOR_NODE_MASS_KG,
+        "kg",
+        "derived: steel rod 510 mm x 5.1 mm + disk 100 g + node 12.8 g",
+    )
+    # Mass distribution (paper).
+    oc1_m: float = _field(0.3274, "m", "paper: OC1, pivot to centre of mass of M1")
+    oc2_m: float = _field(0.326, "m", "paper: OC2, pivot to centre of mass of M2")
+    j1_kg_m2: float = _field(J1_KG_M2, "kg m^2", "paper: J1, inertia of M1 about the pivot axis")
+    j2_kg_m2: float = _field(J2_KG_M2, "kg m^2", "paper: J2, inertia of M2 about the pivot axis")
+    # Geometry of the spring anchor points (paper, Figure 2 and its table).
+    l01_m: float = _field(0.0525, "m", "paper: l01, O to point 1 along M2")
+    l04_m: float = _field(0.187, "m", "paper: l04, O to point 4 along M1")
+    l24_m: float = _field(0.150, "m", "paper: l24, point 4 to point 2, perpendicular to M1")
+    l34_m: float = _field(0.150, "m", "paper: l34, point 4 to point 3, perpendicular to M1")
+    l05_m: float = _field(0.322, "m", "paper: l05, O to point 5 along M2")
+    l08_m: float = _field(0.266, "m", "paper: l08, O to frame point 8 (vertical); X6 = X7")
+    l68_m: float = _field(0.150, "m", "paper: l68, point 8 to fixed point 6 (Y6 = +l68)")
+    l78_m: float = _field(0.150, "m", "paper: l78, point 8 to fixed point 7 (Y7 = -l78)")
+    # Sensor mounts: the disk centres (spec section 6, default mount).
+    om1_m: float = _field(0.417, "m", "paper: OM1, pivot to disk centre of M1 (IMU mount)")
+    om2_m: float = _field(0.384, "m", "paper: OM2, pivot to disk centre of M2 (IMU mount)")
+    # Springs (paper): zero free length, force = c * whole length.
+    c1_n_m: float = _field(6.173, "N/m", "paper: c1, springs 1-2 and 1-3")
+    c2_n_m: float = _field(6.562, "N/m", "paper: c2, springs 5-6 and 5-7")
+    # Hinge damping: assumed, see DEFAULT_DECAY below (paper prints no A0, AT).
+    b1_n_m_s: float = _field(
+        log_decrement_b(J1_KG_M2, DEFAULT_DECAY_RATIO, DEFAULT_DECAY_WINDOW_S),
+        "N m s/rad",
+        "assumed: log decrement b = 2 J ln(A0/AT)/t1 with AT/A0 = 0.2 over t1 = 120 s",
+    )
+    b2_n_m_s: float = _field(
+        log_decrement_b(J2_KG_M2, DEFAULT_DECAY_RATIO, DEFAULT_DECAY_WINDOW_S),
+        "N m s/rad",
+        "assumed: log decrement b = 2 J ln(A0/AT)/t1 with AT/A0 = 0.2 over t1 = 120 s",
+    )
+    g_m_s2: float = _field(9.81, "m/s^2", "paper: g")
+    # Component geometry: drawn by the visual geoms; sets the inertia about the two axes
+    # the planar model does not use (see inertia_about_com_kg_m2).
+    rod_length_m: float = _field(0.510, "m", "paper: OK1 = OK2, steel rod length")
+    rod_diameter_m: float = _field(0.0051, "m", "paper: steel rod diameter d")
+    disk_diameter_m: float = _field(0.0605, "m", "paper: disk D")
+    disk_thickness_m: float = _field(0.0118, "m", "paper: disk h")
+    transverse_rod_length_m: float = _field(0.300, "m", "paper: l23, transverse rod on M1")
+    transverse_rod_diameter_m: float = _field(0.003, "m", "paper: transverse rod d")
+
+    def inertia_about_com_kg_m2(self, pendulum: int) -> tuple[float, float, float]:
+        """Principal inertia of pendulum 1 or 2 about its centre of mass, kg m^2.
+
+        Axes: (in the swing plane perpendicular to the rod, along the pivot axis, along the rod).
+        The pivot-axis value is exactly the paper's J - m OC^2. The other two come from the
+        components (main rod, disk, transverse rod on M1, node as a point at the disk): the
+        difference I_inplane - I_pivot is the sum of the components' own differences (offsets
+        along the rod add equally to both), and I_rod is the sum of the components' own moments
+        about the rod axis. Neither matters for the planar model.
+        """
+        if pendulum not in (1, 2):
+            raise ParameterError(f"pendulum must be 1 or 2, got {pendulum!r}")
+        m = self.m1_kg if pendulum == 1 else self.m2_kg
+        oc = self.oc1_m if pendulum == 1 else self.oc2_m
+        j = self.j1_kg_m2 if pendulum == 1 else self.j2_kg_m2
+        r_rod = self.rod_diameter_m / 2
+        r_disk = self.disk_diameter_m / 2
+        h_disk = self.disk_thickness_m
+        # Own moments (in-plane, pivot, along-rod) of each component about its own centre.
+        rod = (
+            MAIN_ROD_MASS_KG * (3 * r_rod**2 + self.rod_length_m**2) / 12,
+            MAIN_ROD_MASS_KG * (3 * r_rod**2 + self.rod_length_m**2) / 12,
+            MAIN_ROD_MASS_KG * r_rod**2 / 2,
+        )
+        disk_flat = DISK_MASS_KG * (3 * r_disk**2 + h_disk**2) / 12
+        disk = (disk_flat, DISK_MASS_KG * r_disk**2 / 2, disk_flat)
+        parts = [rod, disk]
+        if pendulum == 1:
+            r_t = self.transverse_rod_diameter_m / 2
+            across = TRANSVERSE_ROD_MASS_KG * (3 * r_t**2 + self.transverse_rod_length_m**2) / 12
+            parts.append((TRANSVERSE_ROD_MASS_KG * r_t**2 / 2, across, across))
+        i_pivot = j - m * oc**2
+        i_inplane = i_pivot + sum(p[0] - p[1] for p in parts)
+        i_rod = sum(p[2] for p in parts)
+        return (i_inplane, i_pivot, i_rod)
+
+    def __post_init__(self) -> None:
+        for f in dataclasses.fields(self):
+            value = getattr(self, f.name)
+            if not isinstance(value, (int, float)) or isinstance(value, bool):
+                raise ParameterError(f"{f.name} must be a number, got {value!r}")
+            if not math.isfinite(value):
+                raise ParameterError(f"{f.name} must be finite, got {value}")
+            allowed_zero = f.name in _MAY_BE_ZERO
+            if value < 0 or (value == 0 and not allowed_zero):
+                bound = ">= 0" if allowed_zero else "> 0"
+                raise ParameterError(f"{f.name} must be {bound} {f.metadata['unit']}, got {value}")
+        for n in (1, 2):
+            m = getattr(self, f"m{n}_kg")
+            oc = getattr(self, f"oc{n}_m")
+            j = getattr(self, f"j{n}_kg_m2")
+            if j <= m * oc**2:
+                raise ParameterError(
+                    f"j{n}_kg_m2 = {j} must exceed m{n}_kg * oc{n}_m^2 = {m * oc**2:.6g} "
+                    "(inertia about the pivot includes the point-mass term)"
+                )
+
+    def with_overrides(self, **overrides: float) -> RigParams:
+        """A copy with the named fields replaced; unknown names raise ParameterError."""
+        return self.with_mapping(overrides)
+
+    def with_mapping(self, overrides: Mapping[str, float]) -> RigParams:
+        """Like ``with_overrides`` but from a mapping."""
+        names = {f.name for f in dataclasses.fields(self)}
+        unknown = sorted(set(overrides) - names)
+        if unknown:
+            raise ParameterError(f"unknown parameter(s) {', '.join(unknown)}; allowed: {', '.join(sorted(names))}")
+        return dataclasses.replace(self, **{k: float(v) for k, v in overrides.items()})
+
+    def as_dict(self) -> dict[str, float]:
+        """All fields as a plain dict (name -> value in SI units)."""
+        return dataclasses.asdict(self)
+
+    @staticmethod
+    def describe() -> list[tuple[str, str, str]]:
+        """(name, unit, source) for every field, in declaration order."""
+        return [(f.name, f.metadata["unit"], f.metadata["source"]) for f in dataclasses.fields(RigParams)]
+
+
+_MAY_BE_ZERO = frozenset({"b1_n_m_s", "b2_n_m_s", "c1_n_m", "c2_n_m", "g_m_s2", "l24_m", "l34_m", "l68_m", "l78_m"})
+
+DEFAULT_PARAMS = RigParams()
+"""The rig as the paper describes it, with the assumed default damping."""

@@ -1,0 +1,248 @@
+"""Run the MuJoCo model of the rig at a fixed step, without a per-step Python loop.
+
+``mujoco.rollout`` steps the model in C. After a step MuJoCo's sensor values describe the state
+*before* that step, and rollout stores them beside the state *after* it; we roll out one extra
+step and re-pair them, so every row of the returned Trajectory belongs to one instant.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from collections.abc import Sequence
+
+import mujoco
+import numpy as np
+from mujoco import rollout
+
+from pendsim_mj.checks import broadcast_params, check_energy_bounded, check_initial, check_params, check_step
+from pendsim_mj.errors import ParameterError, SimulationDiverged
+from pendsim_mj.model import BODIES, HINGE_AXIS_WORLD, HINGES, IMU_SITES, SPRING_ENDS, SPRINGS, Clamp, build_model
+from pendsim_mj.params import DEFAULT_PARAMS, RigParams
+from pendsim_mj.trajectory import Trajectory
+
+_STATE = mujoco.mjtState.mjSTATE_FULLPHYSICS
+# Which pendulum carries each spring anchor point (None: the frame).
+_POINT_OWNER = {"point_1": 1, "point_5": 1, "point_2": 0, "point_3": 0, "point_6": None, "point_7": None}
+# MuJoCo resets a simulation whose state exceeds this (mjMAXVAL); we call that divergence.
+_BAD_STATE_WARNINGS = (
+    mujoco.mjtWarning.mjWARN_BADQACC,
+    mujoco.mjtWarning.mjWARN_BADQVEL,
+    mujoco.mjtWarning.mjWARN_BADQPOS,
+)
+
+
+def simulate(
+    params: RigParams = DEFAULT_PARAMS,
+    phi0_rad: Sequence[float] = (math.pi / 6, 0.0),
+    omega0_rad_s: Sequence[float] = (0.0, 0.0),
+    duration_s: float = 120.0,
+    dt_s: float = 0.01,
+    *,
+    clamp: Clamp = Clamp.NONE,
+) -> Trajectory:
+    """Simulate the rig with MuJoCo (RK4, fixed step) from one initial condition.
+
+    Args:
+      params: rig parameters.
+      phi0_rad: (2,) initial angles phi1, phi2, rad.
+      omega0_rad_s: (2,) initial angular velocities, rad/s.
+      duration_s: simulated time, s; the trajectory has duration_s/dt_s + 1 samples.
+      dt_s: integration step, s.
+      clamp: hold M1 or M2 at rest (its initial angle and velocity must then be 0).
+
+    Returns:
+      A Trajectory with arrays of shape (n, ...).
+
+    Raises:
+      ParameterError: bad parameters or initial conditions.
+      SimulationDiverged: the run reached non-finite or runaway values.
+    """
+    return simulate_batch(params, phi0_rad, omega0_rad_s, duration_s, dt_s, nthread=1, clamp=clamp).member(0)
+
+
+def simulate_batch(
+    params: RigParams | Sequence[RigParams] = DEFAULT_PARAMS,
+    phi0_rad: object = (math.pi / 6, 0.0),
+    omega0_rad_s: object = (0.0, 0.0),
+    duration_s: float = 120.0,
+    dt_s: float = 0.01,
+    *,
+    nthread: int | None = None,
+    clamp: Clamp = Clamp.NONE,
+) -> Trajectory:
+    """Simulate many runs at once on a thread pool (``mujoco.rollout``).
+
+    Args:
+      params: one RigParams for all runs, or a sequence of nbatch of them.
+      phi0_rad: (2,) or (nbatch, 2) initial angles, rad.
+      omega0_rad_s: (2,) or (nbatch, 2) initial angular velocities, rad/s.
+      duration_s: simulated time, s.
+      dt_s: integration step, s.
+      nthread: worker threads (default: the CPU count, at most nbatch).
+      clamp: hold M1 or M2 at rest in every run.
+
+    Returns:
+      A batch Trajectory: arrays of shape (nbatch, n, ...); ``.member(i)`` gives one run.
+    """
+    nstep = check_step(duration_s, dt_s)
+    param_list = check_params(params)
+    phi0, omega0 = check_initial(phi0_rad, omega0_rad_s, len(param_list) if len(param_list) > 1 else None)
+    nbatch = len(phi0)
+    param_list = broadcast_params(param_list, nbatch)
+    if clamp is not Clamp.NONE:
+        k = 0 if clamp is Clamp.M1 else 1
+        if np.any(phi0[:, k] != 0) or np.any(omega0[:, k] != 0):
+            raise ParameterError(f"clamped pendulum {clamp.value} must start at phi = omega = 0")
+
+    # One compiled model per distinct parameter set.
+    unique: dict[RigParams, mujoco.MjModel] = {}
+    for p in param_list:
+        if p not in unique:
+            unique[p] = build_model(p, timestep_s=dt_s, clamp=clamp)
+    models = [unique[p] for p in param_list]
+    model = models[0]
+
+    nthread = max(1, min(nthread or os.cpu_count() or 1, nbatch))
+    datas = [mujoco.MjData(model) for _ in range(nthread)]
+    initial = _initial_states(model, phi0, omega0)
+    # nstep + 1 steps: sensors of row k belong to the state before step k, i.e. at t_k.
+    states, sensordata = rollout.rollout(
+        models if len(unique) > 1 else model, datas, initial, nstep=nstep + 1, persistent_pool=False
+    )
+    for d in datas:
+        bad = [mujoco.mjtWarning(w).name for w in _BAD_STATE_WARNINGS if d.warning[w].number > 0]
+        if bad:
+            raise SimulationDiverged(
+                f"simulation diverged (MuJoCo {', '.join(bad)}): the state left the finite range; "
+                f"reduce dt_s (now {dt_s} s) or the stiffness"
+            )
+    # States at t_0..t_n: the initial one, then the post-step states of steps 0..n-1.
+    states = np.concatenate([initial[:, None, :], states[:, :-1, :]], axis=1)
+    if not (np.all(np.isfinite(states)) and np.all(np.isfinite(sensordata))):
+        raise SimulationDiverged(f"simulation produced non-finite values; reduce dt_s (now {dt_s} s)")
+    return _trajectory(models, unique, param_list, states, sensordata, dt_s, nstep, clamp)
+
+
+def _state_offsets(model: mujoco.MjModel) -> tuple[int, int]:
+    qpos = mujoco.mj_stateSize(model, mujoco.mjtState.mjSTATE_TIME)
+    qvel = qpos + model.nq
+    return qpos, qvel
+
+
+def _initial_states(model: mujoco.MjModel, phi0: np.ndarray, omega0: np.ndarray) -> np.ndarray:
+    data = mujoco.MjData(model)
+    template = np.empty(mujoco.mj_stateSize(model, _STATE))
+    mujoco.mj_getState(model, data, template, _STATE)
+    states = np.tile(template, (len(phi0), 1))
+    qpos_at, qvel_at = _state_offsets(model)
+    for k, hinge in enumerate(HINGES):
+        jid = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, hinge)
+        if jid >= 0:
+            states[:, qpos_at + model.jnt_qposadr[jid]] = phi0[:, k]
+            states[:, qvel_at + model.jnt_dofadr[jid]] = omega0[:, k]
+    return states
+
+
+def _sensor(model: mujoco.MjModel, sensordata: np.ndarray, name: str) -> np.ndarray:
+    s = model.sensor(name)
+    return sensordata[..., s.adr[0] : s.adr[0] + s.dim[0]]
+
+
+def _hinge_mass_matrix(model: mujoco.MjModel) -> np.ndarray:
+    """(2, 2) joint-space inertia of (phi1, phi2), kg m^2; a clamped hinge's row and column are 0."""
+    data = mujoco.MjData(model)
+    mujoco.mj_forward(model, data)
+    full = np.zeros((model.nv, model.nv))
+    mujoco.mj_fullM(model, data, full)
+    out = np.zeros((2, 2))
+    dofs = [mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, h) for h in HINGES]
+    for i, ji in enumerate(dofs):
+        for j, jj in enumerate(dofs):
+            if ji >= 0 and jj >= 0:
+                out[i, j] = full[model.jnt_dofadr[ji], model.jnt_dofadr[jj]]
+    return out
+
+
+def _rest_potential_j(model: mujoco.MjModel) -> float:
+    data = mujoco.MjData(model)
+    mujoco.mj_forward(model, data)
+    return float(data.energy[0])
+
+
+def _trajectory(models, unique, param_list, states, sensordata, dt_s, nstep, clamp) -> Trajectory:
+    model = models[0]
+    nbatch, n = states.shape[:2]
+    qpos_at, qvel_at = _state_offsets(model)
+    phi = np.zeros((nbatch, n, 2))
+    omega = np.zeros((nbatch, n, 2))
+    for k, hinge in enumerate(HINGES):
+        jid = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, hinge)
+        if jid >= 0:
+            phi[..., k] = states[..., qpos_at + model.jnt_qposadr[jid]]
+            omega[..., k] = states[..., qvel_at + model.jnt_dofadr[jid]]
+
+    def sens(name: str) -> np.ndarray:
+        return _sensor(model, sensordata, name)
+
+    alpha = np.stack([sens(f"{b}_angacc") @ HINGE_AXIS_WORLD for b in BODIES], axis=-1)
+    accel = np.stack([sens(f"{s}_accel") for s in IMU_SITES], axis=-2)
+    gyro = np.stack([sens(f"{s}_gyro") for s in IMU_SITES], axis=-2)
+    quat = np.stack([sens(f"{s}_quat") for s in IMU_SITES], axis=-2)
+    length = np.concatenate([sens(f"{s}_length") for s in SPRINGS], axis=-1)
+
+    # Per-run constants: stiffness (nbatch, 4), damping (nbatch, 2), rest potential (nbatch,).
+    tendon_ids = [mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_TENDON, s) for s in SPRINGS]
+    stiffness_of = {id(m): m.tendon_stiffness[tendon_ids] for m in unique.values()}
+    stiffness = np.array([stiffness_of[id(m)] for m in models])
+    damping = np.array([[p.b1_n_m_s, p.b2_n_m_s] for p in param_list])
+    if clamp is not Clamp.NONE:
+        damping[:, 0 if clamp is Clamp.M1 else 1] = 0.0
+    rest_energy = {id(m): _rest_potential_j(m) for m in unique.values()}
+    rest = np.array([rest_energy[id(m)] for m in models])
+
+    force = stiffness[:, None, :] * length
+    moment = np.zeros((nbatch, n, 2))
+    for i, (a, b) in enumerate(SPRING_ENDS):
+        pa, pb = sens(f"{a}_pos"), sens(f"{b}_pos")
+        f_on_a = stiffness[:, None, i, None] * (pb - pa)  # zero free length: c * (p_b - p_a)
+        for point, p_point, f in ((a, pa, f_on_a), (b, pb, -f_on_a)):
+            owner = _POINT_OWNER[point]
+            if owner is not None:
+                moment[..., owner] += np.cross(p_point, f) @ HINGE_AXIS_WORLD
+
+    # Kinetic energy 1/2 omega^T M omega from MuJoCo's mass matrix. Not the e_kinetic sensor:
+    # MuJoCo evaluates it before mj_energyVel, so it holds the previous evaluation's value (the
+    # last RK4 stage). M is constant here: each hinge turns a rigid body about a fixed axis.
+    inertia = {id(m): _hinge_mass_matrix(m) for m in unique.values()}
+    mass = np.array([inertia[id(m)] for m in models])  # (nbatch, 2, 2)
+    kinetic = 0.5 * np.einsum("bni,bij,bnj->bn", omega, mass, omega)
+    potential = sens("energy_potential")[..., 0] - rest[:, None]
+    # Dissipated energy: integral of the damping power P = sum b omega^2 by the corrected
+    # trapezoid rule h/2 (P_k + P_k+1) + h^2/12 (P'_k - P'_k+1), P' = sum 2 b omega alpha
+    # (MuJoCo's own alpha at the same instants): fourth order, like the RK4 step.
+    power = np.einsum("bk,bnk->bn", damping, omega**2)
+    dpower = np.einsum("bk,bnk->bn", 2.0 * damping, omega * alpha)
+    interval = 0.5 * dt_s * (power[:, :-1] + power[:, 1:]) + dt_s**2 / 12.0 * (dpower[:, :-1] - dpower[:, 1:])
+    dissipated = np.concatenate([np.zeros((nbatch, 1)), np.cumsum(interval, axis=1)], axis=1)
+
+    scale = np.array([p.m1_kg * p.g_m_s2 * p.oc1_m for p in param_list])
+    check_energy_bounded(kinetic + potential, scale, dt_s)
+    return Trajectory(
+        t_s=np.arange(n) * dt_s,
+        phi_rad=phi,
+        omega_rad_s=omega,
+        alpha_rad_s2=alpha,
+        imu_accel_m_s2=accel,
+        imu_gyro_rad_s=gyro,
+        imu_quat_wxyz=quat,
+        spring_length_m=length,
+        spring_force_n=force,
+        spring_moment_n_m=moment,
+        kinetic_j=kinetic,
+        potential_j=potential,
+        dissipated_j=dissipated,
+        engine="mujoco",
+        dt_s=dt_s,
+        params=tuple(param_list),
+    )
