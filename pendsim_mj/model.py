@@ -18,13 +18,13 @@ from pendsim_mj.params import DEFAULT_PARAMS, RigParams
 
 
 def _models_dir() -> Path:
-    """models/ of a source checkout (editable install), else the copy installed as package data."""
-    source = Path(__file__).resolve().parent.parent / "models"
-    if (source / "pendulums.xml").is_file():
-        return source
-    import importlib.resources
-
-    return Path(str(importlib.resources.files("pendsim_mj.models")))
+    """models/ of a source checkout (editable install), else the copy a wheel installs as
+    package data beside this module (pendsim_mj/models)."""
+    here = Path(__file__).resolve().parent
+    for candidate in (here.parent / "models", here / "models"):
+        if (candidate / "pendulums.xml").is_file():
+            return candidate
+    return here.parent / "models"  # reported as missing by the first build_spec call
 
 
 MODELS_DIR = _models_dir()
