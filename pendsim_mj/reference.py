@@ -226,6 +226,7 @@ def _trajectory(plist: list[RigParams], states: np.ndarray, dt_s: float) -> Traj
     g = np.array([p.g_m_s2 for p in plist])[:, None, None]
     accel = np.stack([radius * alpha + g * np.sin(phi), radius * omega**2 + g * np.cos(phi), np.zeros_like(phi)], -1)
     gyro = np.stack([np.zeros_like(omega), np.zeros_like(omega), omega], axis=-1)
+    angacc = np.stack([np.zeros_like(alpha), np.zeros_like(alpha), alpha], axis=-1)
 
     stiffness = np.stack([k.c1, k.c1, k.c2, k.c2])  # (4, nbatch)
     spring_energy = 0.5 * np.sum(stiffness[:, None, :] * springs.length_m**2, axis=0)  # (n, nbatch)
@@ -242,6 +243,7 @@ def _trajectory(plist: list[RigParams], states: np.ndarray, dt_s: float) -> Traj
         imu_accel_m_s2=accel,
         imu_gyro_rad_s=gyro,
         imu_quat_wxyz=_imu_quat_wxyz(phi),
+        imu_angacc_rad_s2=angacc,
         spring_length_m=per_run(*springs.length_m),
         spring_force_n=per_run(*springs.force_n),
         spring_moment_n_m=per_run(moment1, moment2),

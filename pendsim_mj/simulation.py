@@ -15,6 +15,7 @@ import mujoco
 import numpy as np
 from mujoco import rollout
 
+from pendsim_mj import rotations
 from pendsim_mj.checks import broadcast_params, check_energy_bounded, check_initial, check_params, check_step
 from pendsim_mj.errors import ParameterError, SimulationDiverged
 from pendsim_mj.model import BODIES, HINGE_AXIS_WORLD, HINGES, IMU_SITES, SPRING_ENDS, SPRINGS, Clamp, build_model
@@ -189,6 +190,8 @@ def _trajectory(models, unique, param_list, states, sensordata, dt_s, nstep, cla
     accel = np.stack([sens(f"{s}_accel") for s in IMU_SITES], axis=-2)
     gyro = np.stack([sens(f"{s}_gyro") for s in IMU_SITES], axis=-2)
     quat = np.stack([sens(f"{s}_quat") for s in IMU_SITES], axis=-2)
+    angacc_world = np.stack([sens(f"{b}_angacc") for b in BODIES], axis=-2)
+    angacc = rotations.rotate_into_frame(quat, angacc_world)
     length = np.concatenate([sens(f"{s}_length") for s in SPRINGS], axis=-1)
 
     # Per-run constants: stiffness (nbatch, 4), damping (nbatch, 2), rest potential (nbatch,).
@@ -236,6 +239,7 @@ def _trajectory(models, unique, param_list, states, sensordata, dt_s, nstep, cla
         imu_accel_m_s2=accel,
         imu_gyro_rad_s=gyro,
         imu_quat_wxyz=quat,
+        imu_angacc_rad_s2=angacc,
         spring_length_m=length,
         spring_force_n=force,
         spring_moment_n_m=moment,

@@ -36,6 +36,8 @@ class Trajectory:
         sensor axes, m/s^2. At rest: (0, +g, 0).
       imu_gyro_rad_s: (..., n, 2, 3) gyroscope per IMU, sensor axes, rad/s.
       imu_quat_wxyz: (..., n, 2, 4) orientation of each IMU frame in the world frame.
+      imu_angacc_rad_s2: (..., n, 2, 3) angular acceleration of each pendulum, sensor axes
+        (planar model: (0, 0, alpha)).
       spring_length_m: (..., n, 4) spring lengths, m.
       spring_force_n: (..., n, 4) spring tensions c * L, N.
       spring_moment_n_m: (..., n, 2) moment of the spring forces about the pivot axis on
@@ -55,6 +57,7 @@ class Trajectory:
     imu_accel_m_s2: np.ndarray
     imu_gyro_rad_s: np.ndarray
     imu_quat_wxyz: np.ndarray
+    imu_angacc_rad_s2: np.ndarray
     spring_length_m: np.ndarray
     spring_force_n: np.ndarray
     spring_moment_n_m: np.ndarray
@@ -72,6 +75,7 @@ class Trajectory:
         "imu_accel_m_s2",
         "imu_gyro_rad_s",
         "imu_quat_wxyz",
+        "imu_angacc_rad_s2",
         "spring_length_m",
         "spring_force_n",
         "spring_moment_n_m",

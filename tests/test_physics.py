@@ -40,6 +40,7 @@ def test_mujoco_agrees_with_the_planar_reference_to_1e_9_rad_over_120_s(params):
     # the derived quantities agree too: forces, moments, IMU readings, energies
     np.testing.assert_allclose(mj.spring_moment_n_m, ref.spring_moment_n_m, atol=1e-9)
     np.testing.assert_allclose(mj.imu_accel_m_s2, ref.imu_accel_m_s2, atol=1e-8)
+    np.testing.assert_allclose(mj.imu_angacc_rad_s2, ref.imu_angacc_rad_s2, atol=1e-8)
     np.testing.assert_allclose(mj.potential_j, ref.potential_j, atol=1e-10)
     np.testing.assert_allclose(mj.kinetic_j, ref.kinetic_j, atol=1e-10)
     quat_err = np.minimum(np.abs(mj.imu_quat_wxyz - ref.imu_quat_wxyz), np.abs(mj.imu_quat_wxyz + ref.imu_quat_wxyz))

@@ -36,6 +36,12 @@ def test_accelerometer_pairs_with_phi_omega_alpha_of_its_own_instant(run_30deg):
     np.testing.assert_allclose(tr.imu_accel_m_s2[..., 2], 0.0, atol=1e-9)
 
 
+def test_angular_acceleration_vector_in_sensor_axes_is_alpha_about_z(run_30deg):
+    tr = run_30deg
+    np.testing.assert_allclose(tr.imu_angacc_rad_s2[..., 2], tr.alpha_rad_s2, atol=1e-12)
+    np.testing.assert_allclose(tr.imu_angacc_rad_s2[..., :2], 0.0, atol=1e-12)
+
+
 def test_alpha_is_the_time_derivative_of_omega(run_30deg):
     tr = run_30deg
     w = tr.omega_rad_s
@@ -63,8 +69,9 @@ def test_trajectory_shapes_are_as_documented(engine):
     assert tr.t_s.shape == (n,) and tr.t_s[-1] == pytest.approx(1.0)
     shapes = {
         "phi_rad": (n, 2), "omega_rad_s": (n, 2), "alpha_rad_s2": (n, 2), "imu_accel_m_s2": (n, 2, 3),
-        "imu_gyro_rad_s": (n, 2, 3), "imu_quat_wxyz": (n, 2, 4), "spring_length_m": (n, 4),
-        "spring_force_n": (n, 4), "spring_moment_n_m": (n, 2), "kinetic_j": (n,), "potential_j": (n,),
+        "imu_gyro_rad_s": (n, 2, 3), "imu_quat_wxyz": (n, 2, 4), "imu_angacc_rad_s2": (n, 2, 3),
+        "spring_length_m": (n, 4), "spring_force_n": (n, 4), "spring_moment_n_m": (n, 2), "kinetic_j": (n,),
+        "potential_j": (n,),
         "dissipated_j": (n,),
     }  # fmt: skip
     for name, shape in shapes.items():
