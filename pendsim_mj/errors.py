@@ -15,3 +15,7 @@ class SimulationDiverged(PendsimError, ArithmeticError):
 
 class ModelError(PendsimError):
     """The MJCF model could not be loaded or compiled, or MuJoCo warned while stepping."""
+
+
+class RecordingError(PendsimError):
+    """A recording file is missing, truncated, corrupted or not what was expected."""
