@@ -59,22 +59,68 @@ def _build_parser() -> _Parser:
         description="Simulate the rig from a release and print the dominant frequencies, the start and end "
         "amplitudes and the energy lost. Defaults: M1 released from 30 deg, M2 at rest, 120 s, 10 ms RK4 steps.",
     )
-    sim.add_argument("--phi1-deg", type=_finite_float, default=30.0, help="initial angle of M1, deg (default 30)")
-    sim.add_argument("--phi2-deg", type=_finite_float, default=0.0, help="initial angle of M2, deg (default 0)")
-    sim.add_argument("--omega1-deg-s", type=_finite_float, default=0.0, help="initial rate of M1, deg/s (default 0)")
-    sim.add_argument("--omega2-deg-s", type=_finite_float, default=0.0, help="initial rate of M2, deg/s (default 0)")
-    sim.add_argument("--duration-s", type=_finite_float, default=120.0, help="simulated time, s (default 120)")
-    sim.add_argument("--dt-s", type=_finite_float, default=0.01, help="integration step, s (default 0.01)")
-    sim.add_argument(
+    _add_run_options(sim)
+    sim.add_argument("-o", "--output", type=Path, help="write the trajectory to FILE.npz (all arrays) or FILE.csv")
+
+    rec = sub.add_parser(
+        "record",
+        help="simulate the rig and record both IMUs, joint states and poses to an MCAP file",
+        description="Simulate a run and write one MCAP file (ROS 2 messages: /imu/m1, /imu/m2, /joint_states, "
+        "/tf, ...; metadata and the exact MJCF attached). Defaults: 30 deg release, 120 s, BNO055 noise on, seed 0.",
+    )
+    rec.add_argument("-o", "--output", type=Path, required=True, help="the .mcap file to write")
+    rec.add_argument("--force", action="store_true", help="replace the output file if it exists")
+    _add_run_options(rec)
+    rec.add_argument("--no-noise", action="store_true", help="ideal IMU signals: no noise, clipping or quantisation")
+    rec.add_argument("--seed", type=int, default=0, help="seed of the noise generator (default 0)")
+    rec.add_argument(
+        "--ideal-timing",
+        action="store_true",
+        help="sample at exactly k/80 s instead of reading the latest 100 Hz fused value (the real node's timing)",
+    )
+    rec.add_argument("--compression", default="zstd", help="chunk compression: zstd (default), lz4 or none")
+
+    ins = sub.add_parser(
+        "inspect",
+        help="print the topics, message counts, rates, duration and metadata of an MCAP file",
+        description="Print what an MCAP file holds. A truncated or damaged file is an error (exit 2) that says "
+        "how much is readable; 'pendsim recover' rewrites that part.",
+    )
+    ins.add_argument("path", type=Path, help="the .mcap file")
+
+    rcv = sub.add_parser(
+        "recover",
+        help="rewrite the readable part of a truncated or damaged MCAP file into a valid one",
+        description="Read every complete chunk and record of BROKEN (for instance a recording whose process was "
+        "killed) and write them to FIXED as a complete, indexed MCAP file.",
+    )
+    rcv.add_argument("broken", type=Path, help="the damaged .mcap file (read only)")
+    rcv.add_argument("fixed", type=Path, help="the new .mcap file to write (must not exist)")
+
+    sub.add_parser(
+        "info",
+        help="print every rig parameter with its unit and source",
+        description="Print every rig parameter with value, unit and source.",
+    )
+    return parser
+
+
+def _add_run_options(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--phi1-deg", type=_finite_float, default=30.0, help="initial angle of M1, deg (default 30)")
+    p.add_argument("--phi2-deg", type=_finite_float, default=0.0, help="initial angle of M2, deg (default 0)")
+    p.add_argument("--omega1-deg-s", type=_finite_float, default=0.0, help="initial rate of M1, deg/s (default 0)")
+    p.add_argument("--omega2-deg-s", type=_finite_float, default=0.0, help="initial rate of M2, deg/s (default 0)")
+    p.add_argument("--duration-s", type=_finite_float, default=120.0, help="simulated time, s (default 120)")
+    p.add_argument("--dt-s", type=_finite_float, default=0.01, help="integration step, s (default 0.01)")
+    p.add_argument(
         "--engine", default="mujoco", help="mujoco (the MJCF model) or reference (planar Newtonian RK4); default mujoco"
     )
-    sim.add_argument(
-        "--b1", type=_finite_float, help=f"hinge damping of M1, N m s/rad (default {DEFAULT_PARAMS.b1_n_m_s:.4g})"
-    )
-    sim.add_argument(
-        "--b2", type=_finite_float, help=f"hinge damping of M2, N m s/rad (default {DEFAULT_PARAMS.b2_n_m_s:.4g})"
-    )
-    sim.add_argument(
+    for n in (1, 2):
+        default_b = getattr(DEFAULT_PARAMS, f"b{n}_n_m_s")
+        p.add_argument(
+            f"--b{n}", type=_finite_float, help=f"hinge damping of M{n}, N m s/rad (default {default_b:.4g})"
+        )
+    p.add_argument(
         "--set",
         dest="overrides",
         type=_assignment,
@@ -83,14 +129,6 @@ def _build_parser() -> _Parser:
         metavar="NAME=VALUE",
         help="override any parameter in SI units, e.g. --set c1_n_m=6.0 (see 'pendsim info'); repeatable",
     )
-    sim.add_argument("-o", "--output", type=Path, help="write the trajectory to FILE.npz (all arrays) or FILE.csv")
-
-    sub.add_parser(
-        "info",
-        help="print every rig parameter with its unit and source",
-        description="Print every rig parameter with value, unit and source.",
-    )
-    return parser
 
 
 def _params_from(args: argparse.Namespace) -> RigParams:
@@ -102,24 +140,26 @@ def _params_from(args: argparse.Namespace) -> RigParams:
     return DEFAULT_PARAMS.with_mapping(overrides)
 
 
-def _check_output(path: Path | None) -> None:
+def _check_output(path: Path | None, suffixes: tuple[str, ...], *, force: bool = True) -> None:
     if path is None:
         return
-    if path.suffix.lower() not in OUTPUT_SUFFIXES:
-        raise UsageError(f"output {str(path)!r} must end in .npz or .csv")
+    if path.suffix.lower() not in suffixes:
+        raise UsageError(f"output {str(path)!r} must end in {' or '.join(suffixes)}")
+    if path.exists() and not force and not path.is_dir():
+        raise UsageError(f"output {str(path)!r} exists; choose another name or pass --force to replace it")
     parent = path.parent if str(path.parent) else Path(".")
     if path.is_dir():
-        raise UsageError(f"output {str(path)!r} is a directory; give a file name ending in .npz or .csv")
+        raise UsageError(f"output {str(path)!r} is a directory; give a file name ending in {' or '.join(suffixes)}")
     if not parent.is_dir():
         raise UsageError(f"output directory {str(parent)!r} does not exist")
     if not os.access(parent, os.W_OK):
         raise UsageError(f"output directory {str(parent)!r} is not writable")
 
 
-def _cmd_simulate(args: argparse.Namespace) -> int:
+def _simulate_from_args(args: argparse.Namespace):
+    """Simulate the run the common options describe; returns (params, phi0, omega0, trajectory)."""
     if args.engine not in ENGINES:
         raise UsageError(f"unknown engine {args.engine!r}; allowed: {', '.join(ENGINES)}")
-    _check_output(args.output)
     params = _params_from(args)
     phi0 = (math.radians(args.phi1_deg), math.radians(args.phi2_deg))
     omega0 = (math.radians(args.omega1_deg_s), math.radians(args.omega2_deg_s))
@@ -127,7 +167,12 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
         from pendsim_mj.simulation import simulate as run
     else:
         from pendsim_mj.reference import solve as run
-    traj = run(params, phi0, omega0, args.duration_s, args.dt_s)
+    return params, phi0, omega0, run(params, phi0, omega0, args.duration_s, args.dt_s)
+
+
+def _cmd_simulate(args: argparse.Namespace) -> int:
+    _check_output(args.output, OUTPUT_SUFFIXES)
+    _, _, _, traj = _simulate_from_args(args)
     print(_summary(traj, args.engine))
     if args.output is not None:
         traj.save(args.output)
@@ -169,6 +214,79 @@ def _cmd_info(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_record(args: argparse.Namespace) -> int:
+    from bridge.mcap_writer import COMPRESSIONS
+    from bridge.recording import RunInfo, write_recording
+    from pendsim_mj.model import build_spec
+    from pendsim_mj.sensors import Bno055, sample_imu
+
+    _check_output(args.output, (".mcap",), force=args.force)
+    if args.compression not in COMPRESSIONS:
+        raise UsageError(f"unknown compression {args.compression!r}; allowed: {', '.join(COMPRESSIONS)}")
+    config = Bno055(noise=not args.no_noise, seed=args.seed, fusion_timing=not args.ideal_timing)
+    params, phi0, omega0, traj = _simulate_from_args(args)
+    imu = sample_imu(traj, config)
+    run = RunInfo(engine=args.engine, phi0_rad=phi0, omega0_rad_s=omega0, duration_s=args.duration_s, dt_s=args.dt_s)
+    partial = args.output.with_name(f".{args.output.name}.partial")
+    from tqdm import tqdm
+
+    with tqdm(total=args.duration_s, unit="s", desc="recording", disable=None, leave=False) as bar:
+        write_recording(
+            partial, traj, imu, run, build_spec(params).to_xml(), compression=args.compression, progress=bar.update
+        )
+    partial.replace(args.output)
+    size = args.output.stat().st_size
+    print(f"wrote {args.output}: {args.duration_s:g} s, {len(imu.t_s)} IMU samples per node, {size / 1e6:.2f} MB")
+    return 0
+
+
+def _cmd_inspect(args: argparse.Namespace) -> int:
+    from bridge.mcap_reader import read_mcap
+
+    contents = read_mcap(args.path, strict=True)
+    print(_describe(contents))
+    return 0
+
+
+def _describe(contents) -> str:
+    lines = [f"{contents.path}: {contents.file_size / 1e6:.2f} MB, {contents.chunks} chunks, complete"]
+    starts = [int(m.log_time_ns[0]) for m in contents.messages.values() if len(m)]
+    ends = [int(m.log_time_ns[-1]) for m in contents.messages.values() if len(m)]
+    if starts:
+        t0, t1 = min(starts) / 1e9, max(ends) / 1e9
+        lines.append(f"duration {t1 - t0:.3f} s (log time {t0:.3f} to {t1:.3f} s)")
+    lines.append(f"{'topic':32} {'schema':30} {'messages':>9} {'rate (Hz)':>10}")
+    for cid, ch in sorted(contents.channels.items(), key=lambda kv: kv[1].topic):
+        data = contents.messages.get(cid)
+        count = len(data) if data is not None else 0
+        span = (data.log_time_ns[-1] - data.log_time_ns[0]) / 1e9 if count > 1 else 0.0
+        rate = f"{(count - 1) / span:10.2f}" if span > 0 else f"{'-':>10}"
+        schema = contents.schemas[ch.schema_id].name if ch.schema_id in contents.schemas else "?"
+        lines.append(f"{ch.topic:32} {schema:30} {count:9d} {rate}")
+    for name, values in sorted(contents.metadata.items()):
+        lines.append(f"metadata {name}:")
+        lines += [f"  {k} = {v}" for k, v in values.items()]
+    for name, a in sorted(contents.attachments.items()):
+        lines.append(f"attachment {name} ({a.media_type}, {len(a.data)} bytes)")
+    return "\n".join(lines)
+
+
+def _cmd_recover(args: argparse.Namespace) -> int:
+    from bridge.mcap_tools import recover
+
+    if args.fixed.exists():
+        raise UsageError(f"output {str(args.fixed)!r} exists; recover never overwrites a file")
+    if args.fixed.suffix.lower() != ".mcap":
+        raise UsageError(f"output {str(args.fixed)!r} must end in .mcap")
+    if not args.fixed.parent.is_dir():
+        raise UsageError(f"output directory {str(args.fixed.parent)!r} does not exist")
+    contents = recover(args.broken, args.fixed)
+    state = "was complete" if contents.complete else "; ".join(contents.problems)
+    print(f"{args.broken}: {state}")
+    print(f"wrote {args.fixed}: {contents.summary_line()}")
+    return 0
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``pendsim`` console script; returns the exit code."""
     parser = _build_parser()
@@ -177,7 +295,13 @@ def main(argv: Sequence[str] | None = None) -> int:
         if args.command is None:
             parser.print_help()
             return EXIT_USAGE
-        handler = {"simulate": _cmd_simulate, "info": _cmd_info}[args.command]
+        handler = {
+            "simulate": _cmd_simulate,
+            "info": _cmd_info,
+            "record": _cmd_record,
+            "inspect": _cmd_inspect,
+            "recover": _cmd_recover,
+        }[args.command]
         return handler(args)
     except (UsageError, PendsimError) as exc:
         print(f"pendsim: error: {exc}", file=sys.stderr)

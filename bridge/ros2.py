@@ -126,17 +126,23 @@ def joint_state_layout(joint_names: tuple[str, ...], frame_id: str = "") -> Fixe
     return FixedCdr(fields)
 
 
-def tf_layout(parent_frame: str, child_frames: tuple[str, ...]) -> FixedCdr:
-    """tf2_msgs/msg/TFMessage with one transform per child frame (fields suffixed _0, _1, ...)."""
-    fields = [Field("length", value=len(child_frames))]
-    for i, child in enumerate(child_frames):
+def tf_layout(frames: tuple[tuple[str, str], ...]) -> FixedCdr:
+    """tf2_msgs/msg/TFMessage with one transform per (parent, child) pair; fields suffixed
+    by the transform's index: t0_sec, t0_translation, t0_rotation (x, y, z, w), t1_..."""
+    fields = [Field("length", value=len(frames))]
+    for i, (parent, child) in enumerate(frames):
         fields += [
-            *_header(f"t{i}_", parent_frame),
+            *_header(f"t{i}_", parent),
             Field("string", value=child),
             Field("float64", f"t{i}_translation", 3),
-            Field("float64", f"t{i}_rotation", 4),  # x, y, z, w
+            Field("float64", f"t{i}_rotation", 4),
         ]
     return FixedCdr(fields)
+
+
+def vector3_stamped_layout(frame_id: str) -> FixedCdr:
+    """geometry_msgs/msg/Vector3Stamped with a constant frame_id."""
+    return FixedCdr([*_header("", frame_id), Field("float64", "vector", 3)])
 
 
 def uint8_multiarray_layout(count: int) -> FixedCdr:
@@ -149,6 +155,12 @@ def uint8_multiarray_layout(count: int) -> FixedCdr:
             Field("uint8", "data", count),
         ]
     )
+
+
+def frame_id_of(payload: np.ndarray) -> str:
+    """The header.frame_id of a CDR message that starts with a std_msgs/Header."""
+    length = int(payload[12:16].view("<u4")[0])
+    return bytes(payload[16 : 16 + length - 1]).decode()
 
 
 def split_time(t_ns: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -195,6 +207,9 @@ SCHEMAS: dict[str, bytes] = {
         "MSG: geometry_msgs/Transform\ngeometry_msgs/Vector3 translation\ngeometry_msgs/Quaternion rotation",
         _VECTOR3,
         _QUATERNION,
+    ),
+    "geometry_msgs/msg/Vector3Stamped": _schema(
+        "std_msgs/Header header\ngeometry_msgs/Vector3 vector", _HEADER, _TIME, _VECTOR3
     ),
     "std_msgs/msg/UInt8MultiArray": _schema(
         "std_msgs/MultiArrayLayout layout\nuint8[] data",
