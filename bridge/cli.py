@@ -217,7 +217,7 @@ def _cmd_info(args: argparse.Namespace) -> int:
 def _cmd_record(args: argparse.Namespace) -> int:
     from bridge.mcap_writer import COMPRESSIONS
     from bridge.recording import RunInfo, write_recording
-    from pendsim_mj.model import build_spec
+    from pendsim_mj.model import exact_mjcf
     from pendsim_mj.sensors import Bno055, sample_imu
 
     _check_output(args.output, (".mcap",), force=args.force)
@@ -232,7 +232,13 @@ def _cmd_record(args: argparse.Namespace) -> int:
 
     with tqdm(total=args.duration_s, unit="s", desc="recording", disable=None, leave=False) as bar:
         write_recording(
-            partial, traj, imu, run, build_spec(params).to_xml(), compression=args.compression, progress=bar.update
+            partial,
+            traj,
+            imu,
+            run,
+            exact_mjcf(params, timestep_s=args.dt_s),
+            compression=args.compression,
+            progress=bar.update,
         )
     partial.replace(args.output)
     size = args.output.stat().st_size

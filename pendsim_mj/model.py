@@ -6,9 +6,11 @@ text), so any override reaches the compiled model.
 
 from __future__ import annotations
 
+import dataclasses
 import enum
 import functools
 from pathlib import Path
+from xml.etree import ElementTree
 
 import mujoco
 import numpy as np
@@ -61,35 +63,51 @@ def paper_to_world(x_m: float, y_m: float) -> list[float]:
     return [y_m, 0.0, -x_m]
 
 
-def build_spec(params: RigParams = DEFAULT_PARAMS, *, clamp: Clamp = Clamp.NONE) -> mujoco.MjSpec:
-    """The rig's MjSpec with every field of ``params`` applied.
+@dataclasses.dataclass(frozen=True)
+class Assignment:
+    """One parameter-derived value of the model: element ``tag`` named ``name``.
 
-    Args:
-      params: rig parameters (SI units).
-      clamp: hold one pendulum at phi = 0 by deleting its hinge.
-
-    Returns:
-      An uncompiled ``mujoco.MjSpec``; ``.compile()`` gives the MjModel.
+    ``spec_attr`` is the MjSpec attribute, ``xml_attr`` the MJCF attribute (on the element, or
+    on its ``<inertial>`` child for tag "inertial"); ``xml_value`` defaults to ``spec_value``.
     """
-    try:
-        spec = mujoco.MjSpec.from_string(_xml_text())
-    except ValueError as exc:  # MuJoCo reports XML errors as ValueError
-        raise ModelError(f"{PENDULUMS_XML}: {exc}") from exc
-    spec.modelfiledir = str(MODELS_DIR)
+
+    tag: str
+    name: str | None
+    spec_attr: str
+    xml_attr: str
+    spec_value: float | list[float]
+    xml_value: float | list[float] | None = None
+
+
+def assignments(params: RigParams, timestep_s: float = 0.01) -> list[Assignment]:
+    """Every value the parameters set in the model, in one table (applied to an MjSpec by
+    ``build_spec`` and to MJCF text by ``exact_mjcf``)."""
     p = params
-    spec.option.gravity = [0.0, 0.0, -p.g_m_s2]
-
-    for n, body_name in ((1, "m1"), (2, "m2")):
-        body = spec.body(body_name)
-        body.mass = getattr(p, f"m{n}_kg")
-        body.ipos = [0.0, 0.0, -getattr(p, f"oc{n}_m")]
-        body.inertia = list(p.inertia_about_com_kg_m2(n))
-        body.explicitinertial = True
-        # MuJoCo 4: damping is a polynomial [linear, quadratic, cubic]; the paper's is linear.
-        spec.joint(HINGES[n - 1]).damping = [getattr(p, f"b{n}_n_m_s"), 0.0, 0.0]
-        spec.site(f"imu_m{n}").pos = [0.0, 0.0, -getattr(p, f"om{n}_m")]
-        _set_visuals(spec, n, p)
-
+    out = [
+        Assignment("option", None, "gravity", "gravity", [0.0, 0.0, -p.g_m_s2]),
+        Assignment("option", None, "timestep", "timestep", timestep_s),
+    ]
+    for n, body in ((1, "m1"), (2, "m2")):
+        rod_radius = p.rod_diameter_m / 2
+        disk_size = [p.disk_diameter_m / 2, p.disk_thickness_m / 2]
+        out += [
+            Assignment("inertial", body, "mass", "mass", getattr(p, f"m{n}_kg")),
+            Assignment("inertial", body, "ipos", "pos", [0.0, 0.0, -getattr(p, f"oc{n}_m")]),
+            Assignment("inertial", body, "inertia", "diaginertia", list(p.inertia_about_com_kg_m2(n))),
+            # MuJoCo 4: damping is a polynomial [linear, quadratic, cubic]; the paper's is linear.
+            Assignment("joint", HINGES[n - 1], "damping", "damping", [getattr(p, f"b{n}_n_m_s"), 0.0, 0.0]),
+            Assignment("site", f"imu_m{n}", "pos", "pos", [0.0, 0.0, -getattr(p, f"om{n}_m")]),
+            Assignment("geom", f"m{n}_rod", "fromto", "fromto", [0.0, 0.0, 0.0, 0.0, 0.0, -p.rod_length_m]),
+            Assignment("geom", f"m{n}_rod", "size", "size", [rod_radius, 0.0, 0.0], [rod_radius]),
+            Assignment("geom", f"m{n}_disk", "pos", "pos", [0.0, 0.0, -getattr(p, f"om{n}_m")]),
+            Assignment("geom", f"m{n}_disk", "size", "size", [*disk_size, 0.0], disk_size),
+        ]
+    half = p.transverse_rod_length_m / 2
+    radius = p.transverse_rod_diameter_m / 2
+    out += [
+        Assignment("geom", "m1_transverse_rod", "fromto", "fromto", [-half, 0.0, -p.l04_m, half, 0.0, -p.l04_m]),
+        Assignment("geom", "m1_transverse_rod", "size", "size", [radius, 0.0, 0.0], [radius]),
+    ]
     sites = {
         "point_1": paper_to_world(p.l01_m, 0.0),
         "point_2": paper_to_world(p.l04_m, p.l24_m),
@@ -100,13 +118,42 @@ def build_spec(params: RigParams = DEFAULT_PARAMS, *, clamp: Clamp = Clamp.NONE)
         "point_7": paper_to_world(p.l08_m, -p.l78_m),
         "point_8": paper_to_world(p.l08_m, 0.0),
     }
-    for name, pos in sites.items():
-        spec.site(name).pos = pos
+    out += [Assignment("site", name, "pos", "pos", pos) for name, pos in sites.items()]
     for name in SPRINGS:
-        stiffness = p.c1_n_m if name in ("spring_12", "spring_13") else p.c2_n_m
-        tendon = spec.tendon(name)
-        tendon.stiffness = [stiffness, 0.0, 0.0]  # linear spring, polynomial terms zero
-        tendon.springlength = [0.0, 0.0]  # zero free length (spec section 3)
+        c = p.c1_n_m if name in ("spring_12", "spring_13") else p.c2_n_m
+        # linear spring (polynomial terms zero) of zero free length (spec section 3)
+        out.append(Assignment("tendon", name, "stiffness", "stiffness", [c, 0.0, 0.0]))
+        out.append(Assignment("tendon", name, "springlength", "springlength", [0.0, 0.0]))
+    return out
+
+
+def build_spec(
+    params: RigParams = DEFAULT_PARAMS, *, clamp: Clamp = Clamp.NONE, timestep_s: float = 0.01
+) -> mujoco.MjSpec:
+    """The rig's MjSpec with every field of ``params`` applied.
+
+    Args:
+      params: rig parameters (SI units).
+      clamp: hold one pendulum at phi = 0 by deleting its hinge.
+      timestep_s: integration step, s.
+
+    Returns:
+      An uncompiled ``mujoco.MjSpec``; ``.compile()`` gives the MjModel.
+    """
+    try:
+        spec = mujoco.MjSpec.from_string(_xml_text())
+    except ValueError as exc:  # MuJoCo reports XML errors as ValueError
+        raise ModelError(f"{PENDULUMS_XML}: {exc}") from exc
+    spec.modelfiledir = str(MODELS_DIR)
+    for a in assignments(params, timestep_s):
+        if a.tag == "option":
+            target = spec.option
+        elif a.tag == "inertial":
+            target = spec.body(a.name)
+            target.explicitinertial = True
+        else:
+            target = getattr(spec, a.tag)(a.name)
+        setattr(target, a.spec_attr, a.spec_value)
 
     if clamp is not Clamp.NONE:
         index = 0 if clamp is Clamp.M1 else 1
@@ -117,26 +164,34 @@ def build_spec(params: RigParams = DEFAULT_PARAMS, *, clamp: Clamp = Clamp.NONE)
     return spec
 
 
-def _set_visuals(spec: mujoco.MjSpec, n: int, p: RigParams) -> None:
-    rod = spec.geom(f"m{n}_rod")
-    rod.fromto = [0.0, 0.0, 0.0, 0.0, 0.0, -p.rod_length_m]
-    rod.size = [p.rod_diameter_m / 2, 0.0, 0.0]
-    disk = spec.geom(f"m{n}_disk")
-    disk.pos = [0.0, 0.0, -getattr(p, f"om{n}_m")]
-    disk.size = [p.disk_diameter_m / 2, p.disk_thickness_m / 2, 0.0]
-    if n == 1:
-        trod = spec.geom("m1_transverse_rod")
-        half = p.transverse_rod_length_m / 2
-        trod.fromto = [-half, 0.0, -p.l04_m, half, 0.0, -p.l04_m]
-        trod.size = [p.transverse_rod_diameter_m / 2, 0.0, 0.0]
+def exact_mjcf(params: RigParams = DEFAULT_PARAMS, *, timestep_s: float = 0.01) -> str:
+    """models/pendulums.xml with every parameter written at full precision (17 digits).
+
+    ``MjSpec.to_xml()`` rounds numbers to 6 significant digits, so it cannot reproduce a run;
+    this text compiles to the same model as ``build_model`` (tests/test_model.py checks it).
+    """
+    root = ElementTree.fromstring(_xml_text())
+    for a in assignments(params, timestep_s):
+        if a.tag == "option":
+            element = root.find("option")
+        elif a.tag == "inertial":
+            element = root.find(f".//body[@name='{a.name}']/inertial")
+        else:
+            element = root.find(f".//{'spatial' if a.tag == 'tendon' else a.tag}[@name='{a.name}']")
+        if element is None:
+            raise ModelError(f"{PENDULUMS_XML}: no {a.tag} {a.name!r} to write {a.xml_attr} into")
+        value = a.spec_value if a.xml_value is None else a.xml_value
+        values = value if isinstance(value, list) else [value]
+        element.set(a.xml_attr, " ".join(repr(float(v)) for v in values))
+    root.insert(0, ElementTree.Comment(" pendsim: models/pendulums.xml with this run's parameters, full precision "))
+    return ElementTree.tostring(root, encoding="unicode")
 
 
 def build_model(
     params: RigParams = DEFAULT_PARAMS, *, timestep_s: float = 0.01, clamp: Clamp = Clamp.NONE
 ) -> mujoco.MjModel:
     """Compile the rig with ``params`` at the given step (s), RK4 as in the XML."""
-    spec = build_spec(params, clamp=clamp)
-    spec.option.timestep = timestep_s
+    spec = build_spec(params, clamp=clamp, timestep_s=timestep_s)
     try:
         return spec.compile()
     except ValueError as exc:

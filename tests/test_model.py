@@ -16,6 +16,7 @@ from pendsim_mj.model import (
     SPRINGS,
     Clamp,
     build_model,
+    exact_mjcf,
     paper_to_world,
 )
 from pendsim_mj.params import DEFAULT_PARAMS
@@ -89,6 +90,20 @@ def test_overrides_reach_the_compiled_model_through_mjspec():
     assert m.body("m2").inertia[1] + 0.25 * 0.3**2 == pytest.approx(0.03, rel=1e-14)
     np.testing.assert_allclose(m.site("point_2").pos, [0.12, 0, -p.l04_m])
     assert m.opt.gravity[2] == -9.8
+
+
+def test_exact_mjcf_compiles_to_the_model_build_model_makes():
+    # MjSpec.to_xml() keeps 6 digits; the recording's attachment must reproduce the run exactly
+    p = DEFAULT_PARAMS.with_overrides(c1_n_m=7.123456789, b2_n_m_s=0.000412345678, m1_kg=0.2034567891)
+    built = build_model(p, timestep_s=0.005)
+    from_text = mujoco.MjModel.from_xml_string(exact_mjcf(p, timestep_s=0.005))
+    compared = 0
+    for name in dir(built):
+        value = getattr(built, name)
+        if not name.startswith("_") and isinstance(value, np.ndarray) and value.dtype.kind in "fiu":
+            np.testing.assert_array_equal(getattr(from_text, name), value, err_msg=name)
+            compared += 1
+    assert compared > 100
 
 
 def _named(m, objtype, count):

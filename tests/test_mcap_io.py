@@ -1,0 +1,191 @@
+"""The bulk MCAP writer and the recovering reader: validity for other readers, crash safety,
+truncation, corruption and garbage."""
+
+import os
+import signal
+import subprocess
+import sys
+import textwrap
+
+import numpy as np
+import pytest
+from mcap.reader import make_reader
+from mcap_ros2.writer import Writer as Ros2Writer
+
+from bridge import ros2
+from bridge.mcap_reader import read_mcap
+from bridge.mcap_tools import recover
+from bridge.mcap_writer import BulkMcapWriter
+from pendsim_mj.errors import RecordingError
+
+IMU_SCHEMA = "sensor_msgs/msg/Imu"
+
+
+def _imu_payloads(n, start=0):
+    layout = ros2.imu_layout("imu_m1")
+    t_ns = (np.arange(start, start + n) * 12_500_000).astype(np.int64)
+    sec, nsec = ros2.split_time(t_ns)
+    gyro = np.stack([np.arange(start, start + n, dtype=float), np.zeros(n), np.ones(n)], axis=1)
+    zeros9 = np.zeros(9)
+    payloads = layout.encode(
+        n,
+        sec=sec,
+        nanosec=nsec,
+        orientation=np.tile([0.0, 0.0, 0.0, 1.0], (n, 1)),
+        orientation_covariance=zeros9,
+        angular_velocity=gyro,
+        angular_velocity_covariance=zeros9,
+        linear_acceleration=np.tile([0.0, 9.81, 0.0], (n, 1)),
+        linear_acceleration_covariance=zeros9,
+    )
+    return t_ns, payloads
+
+
+def _write(path, n=1000, chunk=100, compression="zstd"):
+    t_ns, payloads = _imu_payloads(n)
+    with BulkMcapWriter(path, compression=compression, chunk_messages=chunk) as w:
+        sid = w.register_schema(IMU_SCHEMA, "ros2msg", ros2.SCHEMAS[IMU_SCHEMA])
+        cid = w.register_channel("/imu/m1", sid, "cdr")
+        w.add_metadata("pendsim/run", {"engine": "mujoco"})
+        w.add_attachment("pendulums.xml", "application/xml", b"<mujoco/>")
+        w.write_messages(cid, t_ns, payloads)
+    return t_ns, payloads
+
+
+@pytest.mark.parametrize("compression", ["zstd", "lz4", "none"])
+def test_the_official_mcap_reader_validates_and_reads_every_message(tmp_path, compression):
+    path = tmp_path / "a.mcap"
+    t_ns, payloads = _write(path, compression=compression)
+    with open(path, "rb") as f:
+        reader = make_reader(f, validate_crcs=True)
+        summary = reader.get_summary()
+        assert summary.statistics.message_count == 1000 and summary.statistics.chunk_count == 10
+        messages = list(reader.iter_messages())
+        assert [m.log_time for _, _, m in messages] == t_ns.tolist()
+        assert messages[7][2].data == payloads[7].tobytes()
+        assert next(reader.iter_metadata()).metadata == {"engine": "mujoco"}
+        assert next(reader.iter_attachments()).data == b"<mujoco/>"
+
+
+def test_our_reader_reads_a_file_written_by_mcap_ros2_with_interleaved_channels(tmp_path):
+    path = tmp_path / "foreign.mcap"
+    with open(path, "wb") as f:
+        w = Ros2Writer(f)
+        imu = w.register_msgdef(IMU_SCHEMA, ros2.SCHEMAS[IMU_SCHEMA].decode())
+        for i in range(50):
+            for topic, frame in (("/a", "frame_a"), ("/b", "long_frame_b")):
+                msg = {"header": {"stamp": {"sec": i, "nanosec": 0}, "frame_id": frame}}
+                msg["angular_velocity"] = {"x": float(i), "y": 0.0, "z": 0.0}
+                w.write_message(topic, imu, msg, log_time=i * 10**9, publish_time=i * 10**9)
+        w.finish()
+    contents = read_mcap(path, strict=True)
+    assert contents.topics() == {"/a": 50, "/b": 50}
+    b = contents.topic("/b")
+    decoded = ros2.imu_layout("long_frame_b").decode(b.payloads)
+    np.testing.assert_array_equal(decoded["angular_velocity"][:, 0], np.arange(50.0))
+    np.testing.assert_array_equal(b.log_time_ns, np.arange(50) * 10**9)
+
+
+def test_truncation_anywhere_recovers_every_complete_chunk_and_never_crashes(tmp_path):
+    path = tmp_path / "full.mcap"
+    _write(path, n=1000, chunk=100)
+    data = path.read_bytes()
+    with open(path, "rb") as f:
+        chunk_ends = sorted(
+            ci.chunk_start_offset + ci.chunk_length for ci in make_reader(f).get_summary().chunk_indexes
+        )
+    cut_path = tmp_path / "cut.mcap"
+    for cut in [*range(8, 400, 37), *range(400, len(data), max(1, len(data) // 97))]:
+        cut_path.write_bytes(data[:cut])
+        if cut < 8:
+            continue
+        contents = read_mcap(cut_path)
+        expected = 100 * sum(end <= cut for end in chunk_ends)
+        assert contents.message_count == expected, cut
+        if cut < len(data):
+            with pytest.raises(RecordingError, match=rf"cut.mcap: .*recovered {expected} messages"):
+                read_mcap(cut_path, strict=True)
+
+
+def test_a_corrupted_chunk_is_reported_and_the_others_are_kept(tmp_path):
+    path = tmp_path / "bad.mcap"
+    _write(path, n=1000, chunk=100)
+    with open(path, "rb") as f:
+        third = sorted(make_reader(f).get_summary().chunk_indexes, key=lambda c: c.chunk_start_offset)[2]
+    data = bytearray(path.read_bytes())
+    data[third.chunk_start_offset + third.chunk_length - 20] ^= 0xFF  # inside the compressed data
+    path.write_bytes(bytes(data))
+    contents = read_mcap(path)
+    assert contents.message_count == 900
+    assert any("damaged record" in p for p in contents.problems)
+    with pytest.raises(RecordingError, match=r"bad\.mcap: damaged record"):
+        read_mcap(path, strict=True)
+
+
+@pytest.mark.parametrize("content", [b"", b"PK\x03\x04 not an mcap at all" * 20, os.urandom(4096)])
+def test_garbage_is_an_error_that_names_the_file(tmp_path, content):
+    path = tmp_path / "junk.mcap"
+    path.write_bytes(content)
+    with pytest.raises(RecordingError, match=r"junk.mcap: not an MCAP file"):
+        read_mcap(path)
+
+
+def test_a_missing_file_is_an_error_that_names_it(tmp_path):
+    with pytest.raises(RecordingError, match=r"nope.mcap: cannot open"):
+        read_mcap(tmp_path / "nope.mcap")
+
+
+def test_a_writer_killed_with_sigkill_leaves_every_flushed_chunk_readable(tmp_path):
+    path = tmp_path / "killed.mcap"
+    script = textwrap.dedent(
+        f"""
+        import sys, time
+        sys.path.insert(0, {str(os.path.dirname(__file__))!r})
+        from test_mcap_io import _imu_payloads, IMU_SCHEMA
+        from bridge import ros2
+        from bridge.mcap_writer import BulkMcapWriter
+        w = BulkMcapWriter({str(path)!r}, chunk_messages=100)
+        sid = w.register_schema(IMU_SCHEMA, "ros2msg", ros2.SCHEMAS[IMU_SCHEMA])
+        cid = w.register_channel("/imu/m1", sid, "cdr")
+        for k in range(10_000):
+            t_ns, payloads = _imu_payloads(100, start=100 * k)
+            w.write_messages(cid, t_ns, payloads)
+            print(k + 1, flush=True)  # chunks written and flushed so far
+            time.sleep(0.02)
+        """
+    )
+    proc = subprocess.Popen([sys.executable, "-c", script], stdout=subprocess.PIPE, text=True)
+    try:
+        written = 0
+        while written < 8:
+            line = proc.stdout.readline()
+            assert line, "the writer died before writing 8 chunks"
+            written = int(line)
+        proc.send_signal(signal.SIGKILL)
+        proc.wait(timeout=10)
+    finally:
+        proc.kill()
+    assert proc.returncode == -signal.SIGKILL
+    contents = read_mcap(path)
+    assert not contents.complete
+    imu = contents.topic("/imu/m1")
+    assert len(imu) >= 100 * written  # every chunk reported flushed before the kill
+    gyro_x = ros2.imu_layout("imu_m1").decode(imu.payloads)["angular_velocity"][:, 0]
+    np.testing.assert_array_equal(gyro_x, np.arange(len(imu), dtype=float))  # in order, none lost
+
+
+def test_recover_writes_a_complete_file_with_everything_readable(tmp_path):
+    path = tmp_path / "full.mcap"
+    _, payloads = _write(path, n=1000, chunk=100)
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(path.read_bytes()[: int(path.stat().st_size * 0.6)])
+    broken = read_mcap(cut)
+    fixed = tmp_path / "fixed.mcap"
+    recover(cut, fixed)
+    again = read_mcap(fixed, strict=True)
+    assert again.complete and again.message_count == broken.message_count > 0
+    np.testing.assert_array_equal(again.topic("/imu/m1").payloads, payloads[: broken.message_count])
+    assert again.metadata == {"pendsim/run": {"engine": "mujoco"}}
+    assert again.attachments["pendulums.xml"].data == b"<mujoco/>"
+    with open(fixed, "rb") as f:
+        assert make_reader(f, validate_crcs=True).get_summary().statistics.message_count == broken.message_count
