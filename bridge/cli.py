@@ -37,6 +37,13 @@ def _finite_float(text: str) -> float:
     return value
 
 
+def _non_negative_float(text: str) -> float:
+    value = _finite_float(text)
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"must be >= 0, got {text!r}")
+    return value
+
+
 def _assignment(text: str) -> tuple[str, float]:
     name, sep, value = text.partition("=")
     if not sep:
@@ -79,6 +86,26 @@ def _build_parser() -> _Parser:
         help="sample at exactly k/80 s instead of reading the latest 100 Hz fused value (the real node's timing)",
     )
     rec.add_argument("--compression", default="zstd", help="chunk compression: zstd (default), lz4 or none")
+    rec.add_argument(
+        "--static",
+        action="store_true",
+        help="a static noise test: both nodes at rest, IMU topics only (e.g. --duration-s 21600 for 6 h)",
+    )
+    for sensor, unit, what in (("accel", "m-s2", "m/s^2"), ("gyro", "rad-s", "rad/s")):
+        rec.add_argument(
+            f"--{sensor}-bias-instability-{unit}",
+            type=_non_negative_float,
+            default=0.0,
+            metavar="B",
+            help=f"{sensor} bias instability B, {what}, every axis (flicker noise; Allan floor 0.664 B); default 0",
+        )
+        rec.add_argument(
+            f"--{sensor}-random-walk-{unit}-sqrt-s",
+            type=_non_negative_float,
+            default=0.0,
+            metavar="K",
+            help=f"{sensor} bias random walk K, {what}/sqrt(s), every axis (Allan K sqrt(tau/3)); default 0",
+        )
 
     ins = sub.add_parser(
         "inspect",
@@ -87,6 +114,25 @@ def _build_parser() -> _Parser:
         "how much is readable; 'pendsim recover' rewrites that part.",
     )
     ins.add_argument("path", type=Path, help="the .mcap file")
+
+    aln = sub.add_parser(
+        "allan",
+        help="Allan deviation of a static recording: the paper's noise table, noise terms and plots",
+        description="Analyse every accelerometer and gyroscope axis of a static recording (e.g. from "
+        "'pendsim record --static'): overlapping Allan deviation with confidence intervals, the paper's table "
+        "(sigma at tau = 1/fs, mean, CV), the noise terms N, B, K, and a log-log plot per node and sensor.",
+    )
+    aln.add_argument("path", type=Path, help="the .mcap recording")
+    aln.add_argument("--json", action="store_true", help="print the full result (curves included) as JSON instead")
+    aln.add_argument(
+        "--plot-dir", type=Path, help="where to write the PNG plots (default: NAME_allan/ beside the recording)"
+    )
+    aln.add_argument("--no-plots", action="store_true", help="write no plots")
+    aln.add_argument(
+        "--longest-segment",
+        action="store_true",
+        help="if the timestamps have gaps or irregular intervals, analyse the longest uniform stretch",
+    )
 
     rcv = sub.add_parser(
         "recover",
@@ -218,28 +264,45 @@ def _cmd_record(args: argparse.Namespace) -> int:
     from bridge.mcap_writer import COMPRESSIONS
     from bridge.recording import RunInfo, write_recording
     from pendsim_mj.model import exact_mjcf
-    from pendsim_mj.sensors import Bno055, sample_imu
+    from pendsim_mj.sensors import Bno055, ImuNoise, sample_imu, static_imu
 
     _check_output(args.output, (".mcap",), force=args.force)
     if args.compression not in COMPRESSIONS:
         raise UsageError(f"unknown compression {args.compression!r}; allowed: {', '.join(COMPRESSIONS)}")
-    config = Bno055(noise=not args.no_noise, seed=args.seed, fusion_timing=not args.ideal_timing)
-    params, phi0, omega0, traj = _simulate_from_args(args)
-    imu = sample_imu(traj, config)
-    run = RunInfo(engine=args.engine, phi0_rad=phi0, omega0_rad_s=omega0, duration_s=args.duration_s, dt_s=args.dt_s)
+    noise = ImuNoise(
+        accel_bias_instability_m_s2=(args.accel_bias_instability_m_s2,) * 3,
+        gyro_bias_instability_rad_s=(args.gyro_bias_instability_rad_s,) * 3,
+        accel_bias_walk_m_s2_per_sqrt_s=(args.accel_random_walk_m_s2_sqrt_s,) * 3,
+        gyro_bias_walk_rad_s_per_sqrt_s=(args.gyro_random_walk_rad_s_sqrt_s,) * 3,
+    )
+    config = Bno055(noise=not args.no_noise, seed=args.seed, fusion_timing=not args.ideal_timing, noise_model=noise)
+    if args.static:
+        params = _params_from(args)
+        traj = None
+        imu = static_imu(params, args.duration_s, config)
+        run = RunInfo("static", (0.0, 0.0), (0.0, 0.0), args.duration_s, 1 / config.sample_rate_hz, model="static")
+    else:
+        params, phi0, omega0, traj = _simulate_from_args(args)
+        imu = sample_imu(traj, config)
+        run = RunInfo(args.engine, phi0, omega0, args.duration_s, args.dt_s)
     partial = args.output.with_name(f".{args.output.name}.partial")
     from tqdm import tqdm
 
-    with tqdm(total=args.duration_s, unit="s", desc="recording", disable=None, leave=False) as bar:
-        write_recording(
-            partial,
-            traj,
-            imu,
-            run,
-            exact_mjcf(params, timestep_s=args.dt_s),
-            compression=args.compression,
-            progress=bar.update,
-        )
+    try:
+        with tqdm(total=args.duration_s, unit="s", desc="recording", disable=None, leave=False) as bar:
+            write_recording(
+                partial,
+                imu,
+                run,
+                exact_mjcf(params, timestep_s=args.dt_s),
+                params,
+                traj=traj,
+                compression=args.compression,
+                progress=bar.update,
+            )
+    except OSError as exc:
+        partial.unlink(missing_ok=True)
+        raise UsageError(f"cannot write {args.output}: {exc.strerror}") from None
     partial.replace(args.output)
     size = args.output.stat().st_size
     print(f"wrote {args.output}: {args.duration_s:g} s, {len(imu.t_s)} IMU samples per node, {size / 1e6:.2f} MB")
@@ -277,6 +340,33 @@ def _describe(contents) -> str:
     return "\n".join(lines)
 
 
+def _cmd_allan(args: argparse.Namespace) -> int:
+    import json
+
+    from tqdm import tqdm
+
+    from bridge.allan_report import analyse, as_json, plots, table
+
+    if not args.path.is_file():
+        raise UsageError(f"{args.path}: no such file")
+    plot_dir = args.plot_dir or args.path.with_name(f"{args.path.stem}_allan")
+    if not args.no_plots and plot_dir.exists() and not plot_dir.is_dir():
+        raise UsageError(f"plot directory {str(plot_dir)!r} is a file")
+    size = args.path.stat().st_size
+    with tqdm(total=size, unit="B", unit_scale=True, desc="reading", disable=None, leave=False) as bar:
+        report = analyse(args.path, longest_segment=args.longest_segment, progress=bar.update)
+    written = [] if args.no_plots else plots(report, plot_dir)
+    if args.json:
+        result = as_json(report)
+        result["plots"] = [str(p) for p in written]
+        print(json.dumps(result))
+    else:
+        print(table(report))
+        if written:
+            print(f"plots: {', '.join(str(p) for p in written)}")
+    return 0
+
+
 def _cmd_recover(args: argparse.Namespace) -> int:
     from bridge.mcap_tools import recover
 
@@ -307,6 +397,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             "record": _cmd_record,
             "inspect": _cmd_inspect,
             "recover": _cmd_recover,
+            "allan": _cmd_allan,
         }[args.command]
         return handler(args)
     except (UsageError, PendsimError) as exc:

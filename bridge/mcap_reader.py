@@ -15,6 +15,8 @@ import mmap
 import struct
 import zlib
 from collections import defaultdict
+from collections.abc import Callable, Collection
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import numpy as np
@@ -180,13 +182,22 @@ def _parse_chunk_messages(raw: bytes, acc: _Accumulator) -> None:
         offset += 9 + length
 
 
-def read_mcap(path: str | Path, *, strict: bool = False) -> McapContents:
+def read_mcap(
+    path: str | Path,
+    *,
+    strict: bool = False,
+    topics: Collection[str] | None = None,
+    progress: Callable[[int], None] | None = None,
+) -> McapContents:
     """Read every message, schema, channel, metadata and attachment record of an MCAP file.
 
     Args:
       path: the file.
       strict: raise RecordingError if the file is incomplete or damaged (naming the file and how
         much was recovered) instead of returning what could be read.
+      topics: read only the messages of these topics; a chunk whose message index names only
+        other channels is skipped without being decompressed.
+      progress: called with the number of bytes passed after each record.
 
     Raises:
       RecordingError: missing file, not an MCAP file, or (strict) incomplete or damaged.
@@ -202,13 +213,60 @@ def read_mcap(path: str | Path, *, strict: bool = False) -> McapContents:
             raise RecordingError(f"{path}: not an MCAP file (no MCAP magic at the start; {size} bytes)")
         buf = mmap.mmap(f.fileno(), 0, access=mmap.ACCESS_READ) if size else b""
         try:
-            return _scan(path, buf, size, strict)
+            return _scan(path, buf, size, strict, None if topics is None else set(topics), progress)
         finally:
             if isinstance(buf, mmap.mmap):
                 buf.close()
 
 
-def _scan(path: Path, buf, size: int, strict: bool) -> McapContents:
+_PARALLEL_CHUNKS = 64  # chunks decompressed at once on the thread pool
+
+
+def _unpack_chunk(job: tuple[int, str, bytes, int, int]) -> bytes | Exception:
+    """Decompress and CRC-check one chunk (zstd, lz4 and zlib release the GIL)."""
+    _, compression, data, usize, ucrc = job
+    try:
+        raw = _decompress(compression, data, usize)
+        if len(raw) != usize or (ucrc and zlib.crc32(raw) != ucrc):
+            raise ValueError("CRC or size mismatch")
+        return raw
+    except Exception as exc:
+        return exc
+
+
+def _flush_chunks(pending: list, acc: _Accumulator, problems: list[str], pool: ThreadPoolExecutor) -> int:
+    """Decompress the pending chunks in parallel and parse them in file order; returns how many."""
+    read = 0
+    for job, raw in zip(pending, pool.map(_unpack_chunk, pending), strict=True):
+        if isinstance(raw, Exception):
+            problems.append(f"damaged record at byte {job[0]} (opcode 0x06): {type(raw).__name__}: {raw}")
+            continue
+        _parse_chunk_messages(raw, acc)
+        read += 1
+    pending.clear()
+    return read
+
+
+def _indexed_channels(buf, offset: int, size: int) -> set[int] | None:
+    """Channel ids of the message index records right after a chunk (None if there are none)."""
+    channels: set[int] = set()
+    while offset + 9 + 2 <= size:
+        opcode, length = struct.unpack_from("<BQ", buf, offset)
+        if opcode != Opcode.MESSAGE_INDEX:
+            break
+        channels.add(struct.unpack_from("<H", buf, offset + 9)[0])
+        offset += 9 + length
+    return channels or None
+
+
+def _skip_chunk(buf, after: int, size: int, channels: dict[int, Channel], topics: set[str]) -> bool:
+    indexed = _indexed_channels(buf, after, size)
+    if indexed is None or not indexed <= channels.keys():
+        return False  # unknown contents: read it
+    return not any(channels[c].topic in topics for c in indexed)
+
+
+def _scan(path: Path, buf, size: int, strict: bool, topics: set[str] | None, progress) -> McapContents:
     schemas: dict[int, Schema] = {}
     channels: dict[int, Channel] = {}
     metadata: dict[str, dict[str, str]] = {}
@@ -218,6 +276,8 @@ def _scan(path: Path, buf, size: int, strict: bool) -> McapContents:
     offset = len(MCAP_MAGIC)
     complete = False
     chunks = 0
+    pending: list[tuple[int, str, bytes, int, int]] = []
+    pool = ThreadPoolExecutor(max_workers=2)
     while True:
         if offset + 9 > size:
             problems.append(f"file ends inside the data section at byte {offset} (truncated: no footer)")
@@ -246,6 +306,8 @@ def _scan(path: Path, buf, size: int, strict: bool) -> McapContents:
             elif opcode == Opcode.MESSAGE:
                 _, _, channel, _, log, pub = _MESSAGE_PREFIX.unpack_from(buf, offset)
                 acc.add_one(channel, log, pub, bytes(buf[offset + 31 : body_end]))
+            elif opcode == Opcode.CHUNK and topics is not None and _skip_chunk(buf, body_end, size, channels, topics):
+                pass
             elif opcode == Opcode.CHUNK:
                 _, _, usize, ucrc = _CHUNK_HEAD.unpack_from(buf, body_start)
                 p = body_start + _CHUNK_HEAD.size
@@ -253,11 +315,9 @@ def _scan(path: Path, buf, size: int, strict: bool) -> McapContents:
                 compression = bytes(buf[p + 4 : p + 4 + clen]).decode()
                 p += 4 + clen
                 (dlen,) = struct.unpack_from("<Q", buf, p)
-                raw = _decompress(compression, buf[p + 8 : p + 8 + dlen], usize)
-                if len(raw) != usize or (ucrc and zlib.crc32(raw) != ucrc):
-                    raise ValueError("CRC or size mismatch")
-                _parse_chunk_messages(raw, acc)
-                chunks += 1
+                pending.append((offset, compression, bytes(buf[p + 8 : p + 8 + dlen]), usize, ucrc))
+                if len(pending) >= _PARALLEL_CHUNKS:
+                    chunks += _flush_chunks(pending, acc, problems, pool)
             elif opcode == Opcode.METADATA:
                 m = _record(Metadata, content)
                 metadata[m.name] = dict(m.metadata)
@@ -268,12 +328,19 @@ def _scan(path: Path, buf, size: int, strict: bool) -> McapContents:
                 pass  # the summary repeats what the data section held
         except Exception as exc:  # a damaged record: note it, skip it by its length, go on
             problems.append(f"damaged record at byte {offset} (opcode 0x{opcode:02x}): {type(exc).__name__}: {exc}")
+        if progress is not None:
+            progress(body_end - offset)
         offset = body_end
+    chunks += _flush_chunks(pending, acc, problems, pool)
+    pool.shutdown()
+    messages = acc.result()
+    if topics is not None:
+        messages = {cid: data for cid, data in messages.items() if cid in channels and channels[cid].topic in topics}
     contents = McapContents(
         path=path,
         schemas=schemas,
         channels=channels,
-        messages=acc.result(),
+        messages=messages,
         metadata=metadata,
         attachments=attachments,
         complete=complete and not problems,

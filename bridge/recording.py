@@ -24,7 +24,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Collection
 from pathlib import Path
 
 import numpy as np
@@ -70,11 +70,12 @@ def _ns(t_s: np.ndarray, start_time_ns: int) -> np.ndarray:
 
 def write_recording(
     path: str | Path,
-    traj: Trajectory,
     imu: ImuSamples,
     run: RunInfo,
     mjcf_xml: str,
+    params: RigParams,
     *,
+    traj: Trajectory | None = None,
     compression: str = "zstd",
     block_s: float = 30.0,
     start_time_ns: int = 0,
@@ -84,16 +85,17 @@ def write_recording(
 
     Args:
       path: output .mcap file.
-      traj: the simulated trajectory (single run).
-      imu: the BNO055 samples of that run.
+      imu: the BNO055 samples of the run.
       run: initial conditions and settings.
       mjcf_xml: the MJCF used (attached verbatim).
+      params: the rig parameters.
+      traj: the simulated trajectory (single run); None for a static IMU-only recording, which
+        has no /joint_states and /tf.
       compression: chunk compression, "zstd", "lz4" or "none".
       block_s: simulated seconds per block: a chunk per topic per block.
       start_time_ns: log time of t = 0.
       progress: called with the simulated seconds written after each block.
     """
-    params = traj.params[0] if isinstance(traj.params, tuple) else traj.params
     config = imu.config
     cov = config.covariance_diagonals()
     layouts = {
@@ -104,9 +106,10 @@ def write_recording(
         "tf": TF_LAYOUT,
     }
     imu_ns = _ns(imu.t_s, start_time_ns)
-    step_ns = _ns(traj.t_s, start_time_ns)
-    half = traj.phi_rad / 2
-    body_quat_xyzw = np.stack([np.zeros_like(half), -np.sin(half), np.zeros_like(half), np.cos(half)], axis=-1)
+    if traj is not None:
+        step_ns = _ns(traj.t_s, start_time_ns)
+        half = traj.phi_rad / 2
+        body_quat_xyzw = np.stack([np.zeros_like(half), -np.sin(half), np.zeros_like(half), np.cos(half)], axis=-1)
 
     with BulkMcapWriter(path, compression=compression, library=f"pendsim {__version__}") as w:
         _write_metadata(w, params, config, run, compression, start_time_ns)
@@ -120,18 +123,18 @@ def write_recording(
             )
             ch[f"grav_{n}"] = w.register_channel(f"/imu/{n}/gravity", sid["geometry_msgs/msg/Vector3Stamped"], "cdr")
             ch[f"cal_{n}"] = w.register_channel(f"/imu/{n}/calibration", sid["std_msgs/msg/UInt8MultiArray"], "cdr")
-        ch["joint"] = w.register_channel("/joint_states", sid["sensor_msgs/msg/JointState"], "cdr")
-        ch["tf"] = w.register_channel("/tf", sid["tf2_msgs/msg/TFMessage"], "cdr")
+        if traj is not None:
+            ch["joint"] = w.register_channel("/joint_states", sid["sensor_msgs/msg/JointState"], "cdr")
+            ch["tf"] = w.register_channel("/tf", sid["tf2_msgs/msg/TFMessage"], "cdr")
         ch["tf_static"] = w.register_channel("/tf_static", sid["tf2_msgs/msg/TFMessage"], "cdr")
         w.write_messages(ch["tf_static"], imu_ns[:1], _static_tf(params, config, int(imu_ns[0])))
 
         calib_rows = _calibration_rows(imu)
-        duration = float(traj.t_s[-1])
+        duration = float(imu.t_s[-1])
         nblocks = max(1, math.ceil(duration / block_s + 1e-12))
         for b in range(nblocks):
             lo, hi = b * block_s, (b + 1) * block_s if b < nblocks - 1 else math.inf
             si = np.flatnonzero((imu.t_s >= lo - 1e-12) & (imu.t_s < hi - 1e-12))
-            ti = np.flatnonzero((traj.t_s >= lo - 1e-12) & (traj.t_s < hi - 1e-12))
             for k, n in enumerate(NODES):
                 sec, nsec = ros2.split_time(imu_ns[si])
                 payload = layouts["imu"][k].encode(
@@ -152,30 +155,37 @@ def write_recording(
                 ci = si[np.isin(si, calib_rows)]
                 cal = layouts["calib"].encode(len(ci), data_offset=np.zeros(len(ci)), data=imu.calibration[ci, k])
                 w.write_messages(ch[f"cal_{n}"], imu_ns[ci], cal)
-            sec, nsec = ros2.split_time(step_ns[ti])
-            joint = layouts["joint"].encode(
-                len(ti),
-                sec=sec,
-                nanosec=nsec,
-                position=traj.phi_rad[ti],
-                velocity=traj.omega_rad_s[ti],
-                effort=traj.spring_moment_n_m[ti],
-            )
-            w.write_messages(ch["joint"], step_ns[ti], joint)
-            tf_values = {}
-            for k in range(2):
-                tf_values.update(
-                    {
-                        f"t{k}_sec": sec,
-                        f"t{k}_nanosec": nsec,
-                        f"t{k}_translation": np.zeros((len(ti), 3)),
-                        f"t{k}_rotation": body_quat_xyzw[ti, k],
-                    }
-                )
-            w.write_messages(ch["tf"], step_ns[ti], layouts["tf"].encode(len(ti), **tf_values))
+            if traj is not None:
+                _write_joint_block(w, ch, layouts, traj, step_ns, body_quat_xyzw, lo, hi)
             if progress is not None:
                 progress(min(hi, duration) - lo)
     return Path(path)
+
+
+def _write_joint_block(w, ch, layouts, traj, step_ns, body_quat_xyzw, lo, hi) -> None:
+    """/joint_states and /tf for the steps in [lo, hi) s."""
+    ti = np.flatnonzero((traj.t_s >= lo - 1e-12) & (traj.t_s < hi - 1e-12))
+    sec, nsec = ros2.split_time(step_ns[ti])
+    joint = layouts["joint"].encode(
+        len(ti),
+        sec=sec,
+        nanosec=nsec,
+        position=traj.phi_rad[ti],
+        velocity=traj.omega_rad_s[ti],
+        effort=traj.spring_moment_n_m[ti],
+    )
+    w.write_messages(ch["joint"], step_ns[ti], joint)
+    tf_values = {}
+    for k in range(2):
+        tf_values.update(
+            {
+                f"t{k}_sec": sec,
+                f"t{k}_nanosec": nsec,
+                f"t{k}_translation": np.zeros((len(ti), 3)),
+                f"t{k}_rotation": body_quat_xyzw[ti, k],
+            }
+        )
+    w.write_messages(ch["tf"], step_ns[ti], layouts["tf"].encode(len(ti), **tf_values))
 
 
 def _diag(values: np.ndarray) -> np.ndarray:
@@ -356,17 +366,26 @@ def _decode(data: ChannelData, schema_name: str, layout: ros2.FixedCdr | None) -
     return [decoder(bytes(r)) for r in rows]
 
 
-def read_recording(path: str | Path, *, strict: bool = True) -> Recording:
+def read_recording(
+    path: str | Path,
+    *,
+    strict: bool = True,
+    topics: Collection[str] | None = None,
+    progress: Callable[[int], None] | None = None,
+) -> Recording:
     """Read a recording into numpy arrays per topic.
 
     Args:
       path: the .mcap file.
       strict: raise RecordingError (naming the file and how much was recovered) if the file is
         truncated or damaged; with False, return what could be read.
+      topics: read only these topics (others are skipped without decompressing).
+      progress: called with bytes read, for a progress bar.
     """
-    contents = read_mcap(path, strict=strict)
+    contents = read_mcap(path, strict=strict, topics=topics, progress=progress)
+    present = {t for t, count in contents.topics().items() if count}
     imu, lin, grav, cal = {}, {}, {}, {}
-    topics = contents.topics()
+    topics = present
     for n in NODES:
         if imu_topic(n) in topics:
             imu[n] = _read_imu(contents.topic(imu_topic(n)))

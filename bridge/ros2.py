@@ -64,6 +64,12 @@ class FixedCdr:
         self.size = len(template)
         self.template = np.frombuffer(bytes(template), dtype=np.uint8)
         self.dtype = np.dtype({"names": names, "formats": formats, "offsets": offsets, "itemsize": self.size})
+        variable = np.zeros(self.size, bool)
+        for name in names:
+            off = self.dtype.fields[name][1]
+            variable[off : off + self.dtype.fields[name][0].itemsize] = True
+        edges = np.flatnonzero(np.diff(np.concatenate([[True], variable, [True]]).astype(int)))
+        self._constant_runs = [(int(a), int(b)) for a, b in zip(edges[::2], edges[1::2], strict=True)]
 
     def encode(self, n: int, **values: np.ndarray) -> np.ndarray:
         """n messages as an (n, size) uint8 array; ``values`` give every variable field, (n, ...)."""
@@ -81,14 +87,12 @@ class FixedCdr:
         """(n, size) uint8 payloads to an (n,) structured array (checked against the template)."""
         if payload.ndim != 2 or payload.shape[1] != self.size:
             raise ValueError(f"expected payloads of {self.size} bytes, got shape {payload.shape}")
-        constant = self.template != 0
-        for name in self.dtype.names:  # variable bytes may be anything
-            off = self.dtype.fields[name][1]
-            constant[off : off + self.dtype.fields[name][0].itemsize] = False
-        if len(payload) and not np.array_equal(
-            payload[:, constant], np.broadcast_to(self.template[constant], (len(payload), int(constant.sum())))
-        ):
-            raise ValueError("payload does not match the fixed layout (different frame ids, names or lengths)")
+        if len(payload):
+            for lo, hi in self._constant_runs:  # contiguous slices: no large temporaries
+                if not np.array_equal(
+                    payload[:, lo:hi], np.broadcast_to(self.template[lo:hi], (len(payload), hi - lo))
+                ):
+                    raise ValueError("payload does not match the fixed layout (different frame ids, names or lengths)")
         return np.ascontiguousarray(payload).view(self.dtype).reshape(len(payload))
 
 

@@ -20,8 +20,10 @@ What the real node does, and how it is modelled:
   calibration status (system, gyro, accel, mag, 0-3 each).
 - **Noise** (seeded ``np.random.default_rng``): white noise per axis whose total standard
   deviation after quantisation equals the configured sigma (the spec's sigmas are measured on the
-  chip's quantised output: drawn with sqrt(sigma^2 - LSB^2/12)); optional constant bias and bias
-  random walk; clipping at the fusion modes' +-4 g accelerometer range; quantisation to the
+  chip's quantised output: drawn with sqrt(sigma^2 - LSB^2/12)); optional constant bias, bias
+  random walk K (Allan deviation K sqrt(tau/3)) and bias instability B (flicker noise of one-sided
+  PSD B^2/(pi f), whose Allan deviation is flat at sqrt(2 ln 2 / pi) B = 0.664 B); clipping at
+  the fusion modes' +-4 g accelerometer range; quantisation to the
   output resolution (1 m/s^2 = 100 LSB, 1 rad/s = 900 LSB, quaternion 1 = 2^14 LSB).
   ``noise=False`` gives the ideal signal (no noise, clipping or quantisation).
 """
@@ -36,6 +38,7 @@ import numpy as np
 
 from pendsim_mj import rotations
 from pendsim_mj.errors import ParameterError
+from pendsim_mj.params import RigParams
 from pendsim_mj.trajectory import Trajectory
 
 STANDARD_GRAVITY_M_S2 = 9.80665  # the "g" of the chip's range setting
@@ -61,6 +64,8 @@ class ImuNoise:
     gyro_bias_rad_s: Vec3 = (0.0, 0.0, 0.0)
     accel_bias_walk_m_s2_per_sqrt_s: Vec3 = (0.0, 0.0, 0.0)
     gyro_bias_walk_rad_s_per_sqrt_s: Vec3 = (0.0, 0.0, 0.0)
+    accel_bias_instability_m_s2: Vec3 = (0.0, 0.0, 0.0)
+    gyro_bias_instability_rad_s: Vec3 = (0.0, 0.0, 0.0)
 
     def __post_init__(self) -> None:
         for f in dataclasses.fields(self):
@@ -244,8 +249,29 @@ def sample_imu(traj: Trajectory, config: Bno055 = Bno055()) -> ImuSamples:
     if traj.is_batch:
         raise ParameterError("sample_imu takes a single trajectory; use trajectory.member(i)")
     k, fused_t = sample_instants(traj, config)
-    t_s = k / config.sample_rate_hz
     readings = _ideal_readings(traj, fused_t, on_grid=config.fusion_timing)
+    params = traj.params[0] if isinstance(traj.params, tuple) else traj.params
+    return _measure_readings(readings, k / config.sample_rate_hz, fused_t, params.g_m_s2, config)
+
+
+def static_imu(params: RigParams, duration_s: float, config: Bno055 = Bno055()) -> ImuSamples:
+    """Both nodes at rest on the hanging rig for ``duration_s`` (a static noise test): MuJoCo's
+    sensors at the rest pose, repeated at every sample, then the same mount and noise model."""
+    if not (math.isfinite(duration_s) and duration_s > 0):
+        raise ParameterError(f"duration_s must be a finite number > 0 s, got {duration_s!r}")
+    from pendsim_mj.simulation import evaluate_states
+
+    m = math.floor(duration_s * config.sample_rate_hz + 1e-9) + 1
+    t_s = np.arange(m) / config.sample_rate_hz
+    rest = evaluate_states(params, np.zeros((1, 2)), np.zeros((1, 2)))
+    readings = {name: np.broadcast_to(value, (m, *value.shape[1:])) for name, value in rest.items()}
+    return _measure_readings(readings, t_s, t_s, params.g_m_s2, config)
+
+
+def _measure_readings(
+    readings: dict[str, np.ndarray], t_s: np.ndarray, fused_t: np.ndarray, g_m_s2: float, config: Bno055
+) -> ImuSamples:
+    """Mount transform, gravity, linear acceleration and (optionally) noise, for ideal readings."""
     accel = readings["imu_accel_m_s2"]
     gyro = readings["imu_gyro_rad_s"]
     angacc = readings["imu_angacc_rad_s2"]
@@ -260,8 +286,7 @@ def sample_imu(traj: Trajectory, config: Bno055 = Bno055()) -> ImuSamples:
     gyro = np.einsum("kji,mkj->mki", r_mount, gyro)
     quat = rotations.multiply(quat, np.broadcast_to(q_mount, quat.shape))
 
-    params = traj.params[0] if isinstance(traj.params, tuple) else traj.params
-    gravity = rotations.rotate_into_frame(quat, np.array([0.0, 0.0, params.g_m_s2]))
+    gravity = rotations.rotate_into_frame(quat, np.array([0.0, 0.0, g_m_s2]))
     if config.noise:
         accel, gyro, quat, gravity = _measure(accel, gyro, quat, gravity, config, t_s)
     linear = accel - gravity
@@ -279,6 +304,18 @@ def sample_imu(traj: Trajectory, config: Bno055 = Bno055()) -> ImuSamples:
         calibration=calibration,
         config=config,
     )
+
+
+def flicker_noise(rng: np.random.Generator, shape: tuple[int, ...], rate_hz: float, b: np.ndarray) -> np.ndarray:
+    """Flicker (1/f) noise along axis 0 with one-sided PSD B^2 / (pi f), so that its Allan
+    deviation is flat at 0.664 B (IEEE 952 bias instability). ``b`` broadcasts over shape[1:]."""
+    n = shape[0]
+    f = np.fft.rfftfreq(n, d=1.0 / rate_hz)
+    scale = np.zeros_like(f)
+    scale[1:] = np.sqrt(1.0 / (np.pi * f[1:]) * n * rate_hz / 4.0)  # E|X_k|^2 = S(f) n fs / 2
+    spectrum = rng.standard_normal((len(f), *shape[1:])) + 1j * rng.standard_normal((len(f), *shape[1:]))
+    spectrum *= scale.reshape(-1, *([1] * (len(shape) - 1)))
+    return np.fft.irfft(spectrum, n=n, axis=0) * np.asarray(b)
 
 
 def _quantize(x: np.ndarray, lsb: float) -> np.ndarray:
@@ -304,6 +341,9 @@ def _measure(accel, gyro, quat, gravity, config: Bno055, t_s: np.ndarray):
             steps = rng.standard_normal((m, 2, 3)) * (np.asarray(walk) * math.sqrt(dt))
             steps[0] = 0.0
             values += np.cumsum(steps, axis=0)
+    for values, b in ((accel, n.accel_bias_instability_m_s2), (gyro, n.gyro_bias_instability_rad_s)):
+        if any(b):
+            values += flicker_noise(rng, (m, 2, 3), config.sample_rate_hz, np.asarray(b))
     accel = np.clip(accel, -config.accel_range_m_s2, config.accel_range_m_s2)
     return (
         _quantize(accel, ACCEL_LSB_M_S2),

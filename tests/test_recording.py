@@ -33,7 +33,7 @@ def recorded(tmp_path_factory):
     imu = sample_imu(traj, Bno055(seed=5))
     path = tmp_path_factory.mktemp("rec") / "run.mcap"
     run = RunInfo("mujoco", PHI0, (0.0, 0.0), DURATION_S, 0.01)
-    write_recording(path, traj, imu, run, exact_mjcf(params), block_s=7.0)
+    write_recording(path, imu, run, exact_mjcf(params), params, traj=traj, block_s=7.0)
     return path, traj, imu, params
 
 
@@ -70,10 +70,11 @@ def test_imu_messages_follow_rep_145_and_carry_the_noise_covariance(tmp_path):
     config = Bno055(seed=1)
     path = write_recording(
         tmp_path / "rest.mcap",
-        traj,
         sample_imu(traj, config),
         RunInfo("mujoco", (0, 0), (0, 0), 2.0, 0.01),
         "<mujoco/>",
+        DEFAULT_PARAMS,
+        traj=traj,
     )
     rec = read_recording(path)
     imu = rec.imu["m1"]

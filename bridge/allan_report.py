@@ -1,0 +1,237 @@
+"""Allan-deviation analysis of a static recording: the paper's table, noise terms, plots, JSON."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+
+from bridge.recording import NODES, imu_topic, read_recording
+from pendsim_mj.allan import (
+    AllanCurve,
+    NoiseTerms,
+    SamplingReport,
+    allan_curves,
+    check_sampling,
+    longest_uniform_segment,
+    noise_terms,
+)
+from pendsim_mj.errors import RecordingError
+
+SENSORS = (("accel", "m/s^2", "accelerometer"), ("gyro", "rad/s", "gyroscope"))
+# Units of the noise terms per sensor: N, B, K.
+TERM_UNITS = {"accel": ("m/s/sqrt(s)", "m/s^2", "m/s^2/sqrt(s)"), "gyro": ("rad/sqrt(s)", "rad/s", "rad/s/sqrt(s)")}
+
+
+@dataclasses.dataclass(frozen=True)
+class AxisResult:
+    """One sensor axis: the paper's table row, its curve and its noise terms."""
+
+    node: str
+    sensor: str  # "accel" or "gyro"
+    axis: str  # "x", "y", "z"
+    unit: str
+    sigma: float  # Allan deviation at tau = 1/fs (the paper's one-sample sigma)
+    std: float  # plain sample standard deviation, for comparison
+    mean: float
+    cv_percent: float  # sigma / |mean| * 100
+    curve: AllanCurve
+    terms: NoiseTerms
+
+
+@dataclasses.dataclass(frozen=True)
+class AllanReport:
+    path: Path
+    rate_hz: float
+    duration_s: float
+    n_samples: dict[str, int]
+    sampling: dict[str, SamplingReport]
+    segment: dict[str, tuple[float, float]]  # node -> analysed (start, end) s
+    axes: list[AxisResult]
+
+
+def analyse(
+    path: str | Path, *, longest_segment: bool = False, progress: Callable[[int], None] | None = None
+) -> AllanReport:
+    """Read the IMU topics of a recording and analyse every accelerometer and gyro axis.
+
+    Raises:
+      RecordingError: unreadable file, no IMU topic, or (without ``longest_segment``) gaps or
+        irregular timestamps, which Allan deviation cannot take.
+    """
+    path = Path(path)
+    rec = read_recording(path, topics=[imu_topic(n) for n in NODES], progress=progress)
+    if not rec.imu:
+        raise RecordingError(f"{path}: no /imu/m1 or /imu/m2 topic to analyse")
+    rate = float(rec.metadata.get("pendsim/imu", {}).get("sample_rate_hz", "0") or 0)
+    sampling, segments, columns = {}, {}, {}
+    for node, topic in rec.imu.items():
+        if len(topic.t_ns) < 2:
+            raise RecordingError(f"{path}: {imu_topic(node)} has {len(topic.t_ns)} message(s); need at least 20")
+        node_rate = rate or 1e9 / float(np.median(np.diff(topic.t_ns)))
+        report = check_sampling(topic.t_ns, node_rate)
+        sampling[node] = report
+        part = slice(None)
+        if not report.uniform:
+            if not longest_segment:
+                raise RecordingError(
+                    f"{path}: {imu_topic(node)} is not uniformly sampled ({report.describe()}); Allan deviation "
+                    "needs uniform sampling. '--longest-segment' analyses the longest uniform stretch"
+                )
+            part = longest_uniform_segment(topic.t_ns, node_rate)
+        t = topic.t_ns[part]
+        segments[node] = (float(t[0]) * 1e-9, float(t[-1]) * 1e-9)
+        columns[node] = np.concatenate([topic.accel_m_s2[part], topic.gyro_rad_s[part]], axis=1)  # (n, 6)
+        rate = node_rate
+    # Both nodes in one call when their records are equally long (one pool for 12 axes).
+    lengths = {len(c) for c in columns.values()}
+    if len(lengths) == 1:
+        curves = allan_curves(np.concatenate(list(columns.values()), axis=1), rate)
+    else:
+        curves = [c for data in columns.values() for c in allan_curves(data, rate)]
+    axes = []
+    for i, (node, data) in enumerate(columns.items()):
+        for j in range(6):
+            curve = curves[6 * i + j]
+            sensor, unit, _ = SENSORS[j // 3]
+            column = data[:, j]
+            mean = float(column.mean())
+            sigma = float(curve.adev[0])
+            axes.append(
+                AxisResult(
+                    node=node,
+                    sensor=sensor,
+                    axis="xyz"[j % 3],
+                    unit=unit,
+                    sigma=sigma,
+                    std=float(column.std()),
+                    mean=mean,
+                    cv_percent=sigma / abs(mean) * 100 if mean != 0 else math.inf,
+                    curve=curve,
+                    terms=noise_terms(curve),
+                )
+            )
+    counts = {node: len(data) for node, data in columns.items()}
+    duration = max(end - start for start, end in segments.values())
+    return AllanReport(path, rate, duration, counts, sampling, segments, axes)
+
+
+def table(report: AllanReport) -> str:
+    """The paper's table (sigma, mean, CV per axis) and the noise terms, as text."""
+    lines = [
+        f"{report.path}: {report.duration_s / 3600:.2f} h at {report.rate_hz:g} Hz "
+        f"({', '.join(f'{n}: {c} samples' for n, c in report.n_samples.items())})"
+    ]
+    for node, s in report.sampling.items():
+        if not s.uniform:
+            start, end = report.segment[node]
+            lines.append(f"{node}: {s.describe()}; analysed the longest uniform stretch {start:.3f}-{end:.3f} s")
+    lines.append("")
+    head = f"{'node':4} {'sensor':13} {'axis':4}"
+    lines.append(f"{head} {'sigma (tau=1/fs)':>17} {'mean':>12} {'CV %':>9} {'std':>11}  unit")
+    for a in report.axes:
+        sensor = dict((k, name) for k, _, name in SENSORS)[a.sensor]
+        lines.append(
+            f"{a.node:4} {sensor:13} {a.axis:4} {a.sigma:17.5g} {a.mean:12.5g} {a.cv_percent:9.3g} "
+            f"{a.std:11.5g}  {a.unit}"
+        )
+    lines.append("")
+    lines.append(f"{head} {'N (white)':>12} {'B (bias inst.)':>15} {'at tau (s)':>10} {'K (rate RW)':>12}")
+    for a in report.axes:
+        sensor = dict((k, name) for k, _, name in SENSORS)[a.sensor]
+        t = a.terms
+
+        def fmt(v: float | None, width: int) -> str:
+            return f"{v:{width}.4g}" if v is not None else f"{'-':>{width}}"
+
+        lines.append(
+            f"{a.node:4} {sensor:13} {a.axis:4} {fmt(t.white, 12)} {fmt(t.bias_instability, 15)} "
+            f"{fmt(t.bias_instability_tau_s, 10)} {fmt(t.rate_random_walk, 12)}"
+        )
+    lines.append(
+        "units: N "
+        + "; ".join(f"{s}: {u[0]}" for s, u in TERM_UNITS.items())
+        + "; B: the sensor's unit; K: unit/sqrt(s)"
+    )
+    return "\n".join(lines)
+
+
+def as_json(report: AllanReport) -> dict:
+    """Everything in the report, curves included, as plain JSON types."""
+
+    def num(v):
+        return None if v is None or (isinstance(v, float) and not math.isfinite(v)) else v
+
+    return {
+        "file": str(report.path),
+        "rate_hz": report.rate_hz,
+        "duration_s": report.duration_s,
+        "n_samples": report.n_samples,
+        "sampling": {
+            n: {"uniform": s.uniform, "gaps": s.gaps, "irregular": s.irregular, "analysed_s": list(report.segment[n])}
+            for n, s in report.sampling.items()
+        },
+        "axes": [
+            {
+                "node": a.node,
+                "sensor": a.sensor,
+                "axis": a.axis,
+                "unit": a.unit,
+                "sigma": a.sigma,
+                "mean": a.mean,
+                "cv_percent": num(a.cv_percent),
+                "std": a.std,
+                "white_N": num(a.terms.white),
+                "bias_instability_B": num(a.terms.bias_instability),
+                "bias_instability_tau_s": num(a.terms.bias_instability_tau_s),
+                "rate_random_walk_K": num(a.terms.rate_random_walk),
+                "curve": {
+                    "tau_s": a.curve.tau_s.tolist(),
+                    "adev": a.curve.adev.tolist(),
+                    "low": a.curve.low.tolist(),
+                    "high": a.curve.high.tolist(),
+                    "edf": [num(float(e)) for e in a.curve.edf],
+                    "confidence": a.curve.confidence,
+                },
+            }
+            for a in report.axes
+        ],
+    }
+
+
+def plots(report: AllanReport, directory: str | Path, *, processes: int = 2) -> list[Path]:
+    """One log-log plot per node and sensor (x, y, z together), rendered on ``processes``
+    forked workers; returns the PNG paths."""
+    import multiprocessing
+
+    directory = Path(directory)
+    directory.mkdir(parents=True, exist_ok=True)
+    hours = report.duration_s / 3600
+    jobs = []
+    for node in report.n_samples:
+        for sensor, unit, name in SENSORS:
+            chosen = [a for a in report.axes if a.node == node and a.sensor == sensor]
+            jobs.append(
+                (
+                    [a.curve for a in chosen],
+                    [a.terms for a in chosen],
+                    [a.axis for a in chosen],
+                    f"{report.path.name}: {node} {name}, {hours:.2f} h at {report.rate_hz:g} Hz",
+                    unit,
+                    directory / f"allan_{node}_{sensor}.png",
+                )
+            )
+    if processes > 1 and len(jobs) > 1 and "fork" in multiprocessing.get_all_start_methods():
+        with multiprocessing.get_context("fork").Pool(min(processes, len(jobs))) as pool:
+            return pool.map(_render, jobs)
+    return [_render(job) for job in jobs]
+
+
+def _render(job) -> Path:
+    from bridge.plots import allan_plot
+
+    curves, terms, labels, title, unit, path = job
+    return allan_plot(curves, terms, labels, title=title, unit=unit, path=path)
