@@ -1,0 +1,204 @@
+"""Allan deviation: the kernel against allantools, analytic limits, noise-term extraction, gaps,
+and the pendsim allan command."""
+
+import dataclasses
+import json
+import math
+
+import allantools
+import numpy as np
+import pytest
+
+from bridge.cli import main
+from bridge.recording import RunInfo, read_recording, write_recording
+from pendsim_mj.allan import (
+    allan_curves,
+    check_sampling,
+    longest_uniform_segment,
+    noise_terms,
+    overlapping_adev,
+    tau_grid,
+)
+from pendsim_mj.model import exact_mjcf
+from pendsim_mj.params import DEFAULT_PARAMS
+from pendsim_mj.sensors import Bno055, ImuNoise, flicker_noise, static_imu
+
+FS = 80.0
+
+
+def test_kernel_equals_allantools_oadev_in_one_and_two_processes():
+    rng = np.random.default_rng(0)
+    y = rng.normal(size=(800_000, 3)) + np.cumsum(rng.normal(size=(800_000, 3)) * 1e-3, axis=0)
+    m = tau_grid(len(y))
+    parallel = overlapping_adev(y, m, processes=2)  # 2.4 M values: forks two workers
+    serial = overlapping_adev(y, m, processes=1)
+    np.testing.assert_allclose(parallel, serial, rtol=1e-14)  # summation order differs per column set
+    for j in range(3):
+        _, reference, _, _ = allantools.oadev(y[:, j], rate=FS, data_type="freq", taus=m / FS)
+        np.testing.assert_allclose(serial[:, j], reference, rtol=1e-11)
+
+
+def test_white_noise_follows_sigma_over_sqrt_tau_fs_inside_its_confidence_band():
+    sigma = 0.0117
+    y = np.random.default_rng(1).normal(size=int(2 * 3600 * FS)) * sigma
+    curve = allan_curves(y, FS, confidence=0.95)[0]
+    theory = sigma / np.sqrt(curve.tau_s * FS)
+    inside = (curve.low <= theory) & (theory <= curve.high)
+    # neighbouring taus are strongly correlated, so one record's coverage scatters (0.8-1.0 seen)
+    assert inside.mean() >= 0.8, curve.tau_s[~inside]
+    assert curve.tau_s[0] == pytest.approx(1 / FS)
+    assert curve.adev[0] == pytest.approx(sigma, rel=0.03)
+    assert np.all(curve.alpha[: len(curve.alpha) // 2] == 0)  # identified as white noise
+
+
+@pytest.mark.parametrize("confidence", [0.683, 0.95])
+def test_confidence_bands_are_calibrated_over_many_records(confidence):
+    sigma = 0.002
+    coverage = []
+    for seed in range(10):
+        y = np.random.default_rng(100 + seed).normal(size=int(3600 * FS)) * sigma
+        curve = allan_curves(y, FS, confidence=confidence)[0]
+        theory = sigma / np.sqrt(curve.tau_s * FS)
+        coverage.append(np.mean((curve.low <= theory) & (theory <= curve.high)))
+    assert np.mean(coverage) == pytest.approx(confidence, abs=0.08), coverage
+
+
+def test_a_pure_random_walk_has_log_log_slope_plus_one_half():
+    y = np.cumsum(np.random.default_rng(2).normal(size=int(2 * 3600 * FS))) * 1e-4
+    curve = allan_curves(y, FS)[0]
+    slope = np.polyfit(np.log(curve.tau_s), np.log(curve.adev), 1)[0]
+    assert slope == pytest.approx(0.5, abs=0.05)
+
+
+def test_noise_terms_recover_white_noise_and_bias_instability_within_10_percent():
+    # 6 h at 80 Hz (the paper's static test); white N = 5e-4 units*sqrt(s), flicker B = 4e-4 units
+    rng = np.random.default_rng(3)
+    n_white, b = 5e-4, 4e-4
+    n = int(6 * 3600 * FS)
+    y = rng.normal(size=n) * n_white * math.sqrt(FS) + flicker_noise(rng, (n,), FS, b)
+    terms = noise_terms(allan_curves(y, FS)[0])
+    assert terms.white == pytest.approx(n_white, rel=0.10)
+    assert terms.bias_instability == pytest.approx(b, rel=0.10)
+    assert terms.rate_random_walk is None
+
+
+def test_noise_terms_recover_the_rate_random_walk_and_report_no_bias_instability():
+    rng = np.random.default_rng(4)
+    n_white, k = 1e-3, 1e-3
+    n = int(2 * 3600 * FS)
+    y = rng.normal(size=n) * n_white * math.sqrt(FS) + np.cumsum(rng.normal(size=n)) * k / math.sqrt(FS)
+    terms = noise_terms(allan_curves(y, FS)[0])
+    assert terms.white == pytest.approx(n_white, rel=0.10)
+    assert terms.rate_random_walk == pytest.approx(k, rel=0.10)
+    assert terms.bias_instability is None  # the -1/2 to +1/2 crossover is not a flat region
+
+
+def test_gaps_and_irregular_timestamps_are_found():
+    t = np.arange(10_000, dtype=np.int64) * 12_500_000
+    t[5000:] += 3 * 12_500_000  # three samples missing
+    t[200] += 3_000_000  # 3 ms late: irregular
+    report = check_sampling(t, FS)
+    assert not report.uniform
+    assert [(g[0], round(g[2], 4)) for g in report.gaps] == [(4999, 0.0375)]
+    assert report.irregular == 2  # the late sample shortens one interval and lengthens the next
+    assert "1 gap(s), the largest 0.038 s missing after t = 62.488 s" in report.describe()
+    segment = longest_uniform_segment(t, FS)
+    assert (segment.start, segment.stop) == (5000, 10_000)
+
+
+@pytest.fixture(scope="module")
+def static_recording(tmp_path_factory):
+    path = tmp_path_factory.mktemp("allan") / "static.mcap"
+    assert (
+        main(["record", "--static", "--duration-s", "1800", "-o", str(path), "--gyro-bias-instability-rad-s", "2e-4"])
+        == 0
+    )
+    return path
+
+
+def test_allan_command_prints_the_papers_table_and_the_noise_terms(static_recording, capsys):
+    capsys.readouterr()
+    assert main(["allan", str(static_recording), "--no-plots"]) == 0
+    out = capsys.readouterr().out
+    first_table = out.split("\n\n")[1]  # header line, blank, the paper's table, blank, noise terms
+    rows = {tuple(line.split()[:3]): line.split() for line in first_table.splitlines() if line.startswith(("m1", "m2"))}
+    assert len(rows) == 12
+    noise = ImuNoise()
+    for node in ("m1", "m2"):
+        for k, axis in enumerate("xyz"):
+            sigma = float(rows[(node, "accelerometer", axis)][3])
+            assert sigma == pytest.approx(noise.accel_sigma_m_s2[k], rel=0.05)
+            assert float(rows[(node, "gyroscope", axis)][3]) == pytest.approx(noise.gyro_sigma_rad_s[k], rel=0.05)
+        # at rest the y accelerometer reads g: mean and CV = sigma / mean
+        y_row = rows[(node, "accelerometer", "y")]
+        assert float(y_row[4]) == pytest.approx(DEFAULT_PARAMS.g_m_s2, abs=0.01)
+        assert float(y_row[5]) == pytest.approx(100 * noise.accel_sigma_m_s2[1] / DEFAULT_PARAMS.g_m_s2, rel=0.05)
+    assert "N (white)" in out and "B (bias inst.)" in out
+
+
+def test_allan_command_writes_a_plot_per_node_and_sensor_and_json(static_recording, tmp_path, capsys):
+    capsys.readouterr()
+    plot_dir = tmp_path / "plots"
+    assert main(["allan", str(static_recording), "--json", "--plot-dir", str(plot_dir)]) == 0
+    result = json.loads(capsys.readouterr().out)
+    names = sorted(p.name for p in plot_dir.iterdir())
+    assert names == ["allan_m1_accel.png", "allan_m1_gyro.png", "allan_m2_accel.png", "allan_m2_gyro.png"]
+    for p in plot_dir.iterdir():
+        assert p.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and p.stat().st_size > 10_000
+    assert len(result["axes"]) == 12 and result["rate_hz"] == 80.0
+    gyro_x = next(a for a in result["axes"] if a["node"] == "m1" and a["sensor"] == "gyro" and a["axis"] == "x")
+    assert gyro_x["bias_instability_B"] == pytest.approx(2e-4, rel=0.25)  # 30 min: the flat part has few dof
+    curve = gyro_x["curve"]
+    assert len(curve["tau_s"]) == len(curve["adev"]) == len(curve["low"]) > 40
+    assert all(lo <= a <= hi for lo, a, hi in zip(curve["low"], curve["adev"], curve["high"], strict=True))
+
+
+def test_a_recording_with_a_gap_is_reported_not_silently_analysed(tmp_path, capsys):
+    imu = static_imu(DEFAULT_PARAMS, 600.0, Bno055(seed=1))
+    keep = np.ones(len(imu.t_s), bool)
+    keep[20_000:20_400] = False  # 5 s lost
+    gappy = dataclasses.replace(
+        imu,
+        **{
+            f: getattr(imu, f)[keep]
+            for f in (
+                "t_s",
+                "fused_t_s",
+                "gyro_rad_s",
+                "accel_m_s2",
+                "linear_accel_m_s2",
+                "gravity_m_s2",
+                "quat_wxyz",
+                "calibration",
+            )
+        },
+    )
+    path = write_recording(
+        tmp_path / "gap.mcap",
+        gappy,
+        RunInfo("static", (0, 0), (0, 0), 600.0, 0.0125, "static"),
+        exact_mjcf(),
+        DEFAULT_PARAMS,
+    )
+    assert len(read_recording(path).imu["m1"].t_ns) == len(imu.t_s) - 400
+    capsys.readouterr()
+    assert main(["allan", str(path), "--no-plots"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert (
+        len(err) == 1 and "gap.mcap: /imu/m1 is not uniformly sampled (1 gap(s), the largest 5.000 s missing" in err[0]
+    )
+    assert main(["allan", str(path), "--no-plots", "--longest-segment"]) == 0
+    out = capsys.readouterr().out
+    assert (
+        "analysed the longest uniform stretch 0.000-249.988 s" in out
+        or "analysed the longest uniform stretch 255.000-600.000 s" in out
+    )
+
+
+def test_allan_on_a_missing_or_broken_file_is_one_line_exit_2(tmp_path, capsys):
+    assert main(["allan", str(tmp_path / "absent.mcap")]) == 2
+    assert "absent.mcap: no such file" in capsys.readouterr().err
+    bad = tmp_path / "bad.mcap"
+    bad.write_bytes(b"not mcap")
+    assert main(["allan", str(bad)]) == 2
+    assert "bad.mcap: not an MCAP file" in capsys.readouterr().err
