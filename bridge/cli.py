@@ -79,6 +79,12 @@ def _build_parser() -> _Parser:
     rec.add_argument("--force", action="store_true", help="replace the output file if it exists")
     _add_run_options(rec)
     rec.add_argument("--no-noise", action="store_true", help="ideal IMU signals: no noise, clipping or quantisation")
+    rec.add_argument(
+        "--hold-s",
+        type=_non_negative_float,
+        default=0.0,
+        help="start recording this long before the release, the pendulums held still (as real recordings do)",
+    )
     rec.add_argument("--seed", type=int, default=0, help="seed of the noise generator (default 0)")
     rec.add_argument(
         "--ideal-timing",
@@ -134,6 +140,65 @@ def _build_parser() -> _Parser:
         help="if the timestamps have gaps or irregular intervals, analyse the longest uniform stretch",
     )
 
+    val = sub.add_parser(
+        "validate",
+        help="compare a recording with the MuJoCo model and the planar reference (the paper's metrics and figures)",
+        description="Align a recording (detect the release, estimate the release angles), identify or take the "
+        "damping, simulate with MuJoCo and the planar reference from the estimated and the nominal 30 deg release, "
+        "and compare phi1, omega1, omega2 and M1's tangential and normal accelerations over 5 s and the whole run: "
+        "frequency (zero crossings and spectral peak) and its relative error delta, max |Delta|, IAE, ISE. "
+        "Writes report.json and the paper's Figures 9-15. Exit 1 when a --max-* gate is exceeded.",
+    )
+    val.add_argument("path", type=Path, help="the .mcap recording")
+    val.add_argument(
+        "-o", "--out-dir", type=Path, help="where report.json and the figures go (default NAME_validation/)"
+    )
+    val.add_argument(
+        "--damping",
+        default="identified",
+        help="'identified' (least-squares fit on this recording; default), 'recorded' (its metadata) or B1,B2",
+    )
+    val.add_argument("--params-file", type=Path, help="JSON overrides of the rig parameters to validate")
+    val.add_argument(
+        "--set",
+        dest="overrides",
+        type=_assignment,
+        action="append",
+        default=[],
+        metavar="NAME=VALUE",
+        help="override a rig parameter of the model being validated; repeatable",
+    )
+    val.add_argument("--no-plots", action="store_true", help="write report.json only")
+    val.add_argument(
+        "--max-delta",
+        type=_non_negative_float,
+        metavar="X",
+        help="fail if any quantity's relative frequency error (MuJoCo, estimated release, whole run) exceeds X",
+    )
+    val.add_argument(
+        "--max-iae",
+        type=_non_negative_float,
+        metavar="X",
+        help="fail if the IAE of phi1 over the first 5 s (MuJoCo, estimated release) exceeds X rad s",
+    )
+    val.add_argument(
+        "--max-error-phi1",
+        type=_non_negative_float,
+        metavar="RAD",
+        help="fail if max |Delta phi1| over the whole run (MuJoCo, estimated release) exceeds RAD",
+    )
+
+    idn = sub.add_parser(
+        "identify",
+        help="identify the hinge damping b1, b2 from a recorded free decay (log decrement and least squares)",
+        description="Print b1, b2 by the paper's logarithmic decrement (per pendulum, amplitudes over --window-s) "
+        "and by a least-squares fit of the whole measured gyro record (mujoco.sysid), with 95 %% confidence "
+        "intervals. --write saves the fitted values for 'simulate --params-file' and 'record --params-file'.",
+    )
+    idn.add_argument("path", type=Path, help="the .mcap recording")
+    idn.add_argument("--window-s", type=_finite_float, default=120.0, help="log-decrement window, s (default 120)")
+    idn.add_argument("--write", type=Path, metavar="FILE.json", help="write the fitted b1_n_m_s, b2_n_m_s as JSON")
+
     rcv = sub.add_parser(
         "recover",
         help="rewrite the readable part of a truncated or damaged MCAP file into a valid one",
@@ -167,6 +232,11 @@ def _add_run_options(p: argparse.ArgumentParser) -> None:
             f"--b{n}", type=_finite_float, help=f"hinge damping of M{n}, N m s/rad (default {default_b:.4g})"
         )
     p.add_argument(
+        "--params-file",
+        type=Path,
+        help="JSON object of parameter overrides (SI names as in 'pendsim info'), e.g. from 'pendsim identify --write'",
+    )
+    p.add_argument(
         "--set",
         dest="overrides",
         type=_assignment,
@@ -177,13 +247,30 @@ def _add_run_options(p: argparse.ArgumentParser) -> None:
     )
 
 
+def _overrides_from(args: argparse.Namespace) -> dict[str, float]:
+    """Parameter overrides from --params-file, then --set, then --b1/--b2 (later ones win)."""
+    overrides: dict[str, float] = {}
+    if getattr(args, "params_file", None) is not None:
+        import json
+
+        try:
+            loaded = json.loads(args.params_file.read_text())
+        except OSError as exc:
+            raise UsageError(f"cannot read {args.params_file}: {exc.strerror}") from None
+        except json.JSONDecodeError as exc:
+            raise UsageError(f"{args.params_file} is not JSON: {exc.msg} at line {exc.lineno}") from None
+        if not isinstance(loaded, dict) or not all(isinstance(v, (int, float)) for v in loaded.values()):
+            raise UsageError(f'{args.params_file} must hold a JSON object of numbers, e.g. {{"b1_n_m_s": 0.0007}}')
+        overrides.update(loaded)
+    overrides.update(dict(getattr(args, "overrides", [])))
+    for n in (1, 2):
+        if getattr(args, f"b{n}", None) is not None:
+            overrides[f"b{n}_n_m_s"] = getattr(args, f"b{n}")
+    return overrides
+
+
 def _params_from(args: argparse.Namespace) -> RigParams:
-    overrides = dict(args.overrides)
-    if args.b1 is not None:
-        overrides["b1_n_m_s"] = args.b1
-    if args.b2 is not None:
-        overrides["b2_n_m_s"] = args.b2
-    return DEFAULT_PARAMS.with_mapping(overrides)
+    return DEFAULT_PARAMS.with_mapping(_overrides_from(args))
 
 
 def _check_output(path: Path | None, suffixes: tuple[str, ...], *, force: bool = True) -> None:
@@ -283,13 +370,14 @@ def _cmd_record(args: argparse.Namespace) -> int:
         run = RunInfo("static", (0.0, 0.0), (0.0, 0.0), args.duration_s, 1 / config.sample_rate_hz, model="static")
     else:
         params, phi0, omega0, traj = _simulate_from_args(args)
-        imu = sample_imu(traj, config)
-        run = RunInfo(args.engine, phi0, omega0, args.duration_s, args.dt_s)
+        imu = sample_imu(traj, config, hold_s=args.hold_s)
+        release = round(args.hold_s * config.sample_rate_hz) / config.sample_rate_hz
+        run = RunInfo(args.engine, phi0, omega0, args.duration_s, args.dt_s, release_time_s=release)
     partial = args.output.with_name(f".{args.output.name}.partial")
     from tqdm import tqdm
 
     try:
-        with tqdm(total=args.duration_s, unit="s", desc="recording", disable=None, leave=False) as bar:
+        with tqdm(total=float(imu.t_s[-1]), unit="s", desc="recording", disable=None, leave=False) as bar:
             write_recording(
                 partial,
                 imu,
@@ -367,6 +455,101 @@ def _cmd_allan(args: argparse.Namespace) -> int:
     return 0
 
 
+def _validation_params(args: argparse.Namespace) -> RigParams | None:
+    """The recording's own parameters with the command's overrides, or None for no overrides."""
+    overrides = _overrides_from(args)
+    if not overrides:
+        return None
+    from bridge.recording import read_recording
+    from bridge.validate import recorded_params
+
+    return recorded_params(read_recording(args.path, topics=[])).with_mapping(overrides)
+
+
+def _cmd_validate(args: argparse.Namespace) -> int:
+    import json
+
+    from bridge.validate import report_json, table, validate
+
+    if not args.path.is_file():
+        raise UsageError(f"{args.path}: no such file")
+    if args.damping in ("identified", "recorded"):
+        damping = args.damping
+    else:
+        try:
+            b1, b2 = (float(v) for v in args.damping.split(","))
+        except ValueError:
+            raise UsageError(
+                f"--damping must be 'identified', 'recorded' or B1,B2 in N m s/rad, got {args.damping!r}"
+            ) from None
+        if not (math.isfinite(b1) and math.isfinite(b2) and b1 >= 0 and b2 >= 0):
+            raise UsageError(f"--damping values must be finite and >= 0, got {args.damping!r}")
+        damping = (b1, b2)
+    out_dir = args.out_dir or args.path.with_name(f"{args.path.stem}_validation")
+    if out_dir.exists() and not out_dir.is_dir():
+        raise UsageError(f"output directory {str(out_dir)!r} is a file")
+    report = validate(args.path, damping=damping, params=_validation_params(args))
+    out_dir.mkdir(parents=True, exist_ok=True)
+    (out_dir / "report.json").write_text(json.dumps(report_json(report), indent=1))
+    print(table(report))
+    written = [out_dir / "report.json"]
+    if not args.no_plots:
+        from bridge.plots import validation_figures
+
+        written += validation_figures(report, out_dir)
+    print(f"wrote {', '.join(str(p) for p in written)}")
+    failures = []
+    main_case = report.case("mujoco", "estimated", "whole")
+    short = next(c for c in report.cases if c.engine == "mujoco" and c.release == "estimated" and c.window != "whole")
+    if args.max_delta is not None:
+        worst_q, worst = max(((q, c.delta_f) for q, c in main_case.comparisons.items()), key=lambda kv: kv[1])
+        if not worst <= args.max_delta:
+            failures.append(f"relative frequency error of {worst_q} {worst:.3g} > --max-delta {args.max_delta:g}")
+    if args.max_iae is not None:
+        iae = short.comparisons["phi1"].iae
+        if not iae <= args.max_iae:
+            failures.append(f"IAE of phi1 over {short.window} {iae:.4g} rad s > --max-iae {args.max_iae:g}")
+    if args.max_error_phi1 is not None:
+        err = main_case.comparisons["phi1"].max_abs
+        if not err <= args.max_error_phi1:
+            failures.append(f"max |Delta phi1| {err:.4g} rad > --max-error-phi1 {args.max_error_phi1:g}")
+    for f in failures:
+        print(f"pendsim: validation failed: {f}", file=sys.stderr)
+    return 1 if failures else 0
+
+
+def _cmd_identify(args: argparse.Namespace) -> int:
+    import json
+
+    from bridge.validate import identify
+
+    if not args.path.is_file():
+        raise UsageError(f"{args.path}: no such file")
+    if args.write is not None and not args.write.parent.is_dir():
+        raise UsageError(f"output directory {str(args.write.parent)!r} does not exist")
+    result = identify(args.path, window_s=args.window_s)
+    print(
+        f"{args.path}: release at {result.release_time_s:.3f} s, from "
+        f"{math.degrees(result.release_angle_rad[0]):.2f} deg, {math.degrees(result.release_angle_rad[1]):.2f} deg"
+    )
+    print("log decrement b = 2 J ln(A0/AT)/t1 (the paper's; exact only if b1/J1 = b2/J2):")
+    for n, d in enumerate(result.log_decrement, start=1):
+        print(
+            f"  b{n} = {d.b_n_m_s:.5g} N m s/rad  (A0 {math.degrees(d.a0_rad):.3f} deg, "
+            f"AT {math.degrees(d.at_rad):.3f} deg, t1 {d.window_s:.2f} s)"
+        )
+    fit = result.fit
+    print(f"least squares on both gyros (mujoco.sysid, {fit.iterations} iterations, {fit.seconds:.1f} s):")
+    for n in range(2):
+        print(f"  b{n + 1} = {fit.b_n_m_s[n]:.5g} +- {fit.ci95_n_m_s[n]:.2g} N m s/rad (95 %)")
+    print(f"  residual rms {fit.residual_rms_sigma:.3f} gyro noise sigmas (1 = explained to the noise level)")
+    if args.write is not None:
+        values = {"b1_n_m_s": float(fit.b_n_m_s[0]), "b2_n_m_s": float(fit.b_n_m_s[1])}
+        args.write.write_text(json.dumps(values, indent=1) + "\n")
+        print(f"wrote {args.write} (use: pendsim simulate --params-file {args.write})")
+    return 0
+
+
 def _cmd_recover(args: argparse.Namespace) -> int:
     from bridge.mcap_tools import recover
 
@@ -398,6 +581,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             "inspect": _cmd_inspect,
             "recover": _cmd_recover,
             "allan": _cmd_allan,
+            "validate": _cmd_validate,
+            "identify": _cmd_identify,
         }[args.command]
         return handler(args)
     except (UsageError, PendsimError) as exc:

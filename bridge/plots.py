@@ -73,3 +73,73 @@ def allan_plot(
     fig.savefig(path)
     plt.close(fig)
     return path
+
+
+def validation_figures(report, directory: str | Path) -> list[Path]:
+    """The paper's Figures 9-15 for a ValidationReport: measured against computed (MuJoCo and
+    the planar reference, from the estimated release; MuJoCo from the nominal 30 deg dashed)."""
+    from bridge.validate import QUANTITIES
+
+    directory = Path(directory)
+    directory.mkdir(parents=True, exist_ok=True)
+    short = next(c.window for c in report.cases if c.window != "whole")
+
+    def series(quantity: str, window: str):
+        m = report.case("mujoco", "estimated", window).comparisons[quantity]
+        r = report.case("reference", "estimated", window).comparisons[quantity]
+        n = report.case("mujoco", "nominal", window).comparisons[quantity]
+        return m, r, n
+
+    figures = [
+        ("fig09_tangential_acceleration_m1", "tangential_m1", short),
+        ("fig10_normal_acceleration_m1", "normal_m1", short),
+        ("fig11_phi1", "phi1", short),
+        ("fig12_phi1", "phi1", "whole"),
+        ("fig13_omega1", "omega1", short),
+        ("fig15_omega2", "omega2", "whole"),
+    ]
+    out = []
+    for stem, quantity, window in figures:
+        m, r, n = series(quantity, window)
+        label, unit, what = QUANTITIES[quantity]
+        fig, ax = plt.subplots(figsize=(9, 4.2), dpi=100)
+        ax.plot(m.t_s, m.measured, color="black", linewidth=1.0, label="measured (IMU)")
+        ax.plot(m.t_s, m.computed, color="tab:orange", linewidth=1.0, label="computed: MuJoCo, estimated release")
+        ax.plot(r.t_s, r.computed, color="tab:blue", linewidth=0.8, linestyle=":", label="computed: planar reference")
+        ax.plot(
+            n.t_s,
+            n.computed,
+            color="tab:green",
+            linewidth=0.8,
+            linestyle="--",
+            label="computed: MuJoCo, nominal 30 deg",
+        )
+        ax.set_xlabel("time since release t (s)")
+        ax.set_ylabel(f"{label} ({unit})")
+        ax.set_title(f"{what}, {'first ' + window if window != 'whole' else 'whole run'}")
+        ax.grid(True, alpha=0.3)
+        ax.legend(fontsize=7, loc="upper right")
+        fig.tight_layout()
+        path = directory / f"{stem}_{'whole' if window == 'whole' else window.replace(' ', '')}.png"
+        fig.savefig(path)
+        plt.close(fig)
+        out.append(path)
+    # Figure 14: Delta, IAE and ISE of phi1 over the short window.
+    m = report.case("mujoco", "estimated", short).comparisons["phi1"]
+    fig, axes = plt.subplots(3, 1, figsize=(9, 7), dpi=100, sharex=True)
+    for ax, values, ylabel in (
+        (axes[0], m.delta, "Delta phi1 = computed - measured (rad)"),
+        (axes[1], m.iae_curve, "IAE (rad s)"),
+        (axes[2], m.ise_curve, "ISE (rad^2 s)"),
+    ):
+        ax.plot(m.t_s, values, color="tab:red", linewidth=1.0)
+        ax.set_ylabel(ylabel, fontsize=8)
+        ax.grid(True, alpha=0.3)
+    axes[0].set_title(f"phi1 error, MuJoCo from the estimated release, first {short}")
+    axes[2].set_xlabel("time since release t (s)")
+    fig.tight_layout()
+    path = directory / f"fig14_error_phi1_{short.replace(' ', '')}.png"
+    fig.savefig(path)
+    plt.close(fig)
+    out.append(path)
+    return sorted(out)

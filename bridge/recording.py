@@ -62,6 +62,7 @@ class RunInfo:
     duration_s: float
     dt_s: float
     model: str = "planar"
+    release_time_s: float = 0.0  # when the pendulums were let go, on the recording's clock
 
 
 def _ns(t_s: np.ndarray, start_time_ns: int) -> np.ndarray:
@@ -107,7 +108,7 @@ def write_recording(
     }
     imu_ns = _ns(imu.t_s, start_time_ns)
     if traj is not None:
-        step_ns = _ns(traj.t_s, start_time_ns)
+        step_ns = _ns(traj.t_s + run.release_time_s, start_time_ns)
         half = traj.phi_rad / 2
         body_quat_xyzw = np.stack([np.zeros_like(half), -np.sin(half), np.zeros_like(half), np.cos(half)], axis=-1)
 
@@ -156,15 +157,16 @@ def write_recording(
                 cal = layouts["calib"].encode(len(ci), data_offset=np.zeros(len(ci)), data=imu.calibration[ci, k])
                 w.write_messages(ch[f"cal_{n}"], imu_ns[ci], cal)
             if traj is not None:
-                _write_joint_block(w, ch, layouts, traj, step_ns, body_quat_xyzw, lo, hi)
+                _write_joint_block(w, ch, layouts, traj, step_ns, body_quat_xyzw, run.release_time_s, lo, hi)
             if progress is not None:
                 progress(min(hi, duration) - lo)
     return Path(path)
 
 
-def _write_joint_block(w, ch, layouts, traj, step_ns, body_quat_xyzw, lo, hi) -> None:
+def _write_joint_block(w, ch, layouts, traj, step_ns, body_quat_xyzw, release_time_s, lo, hi) -> None:
     """/joint_states and /tf for the steps in [lo, hi) s."""
-    ti = np.flatnonzero((traj.t_s >= lo - 1e-12) & (traj.t_s < hi - 1e-12))
+    step_t = traj.t_s + release_time_s  # on the recording's clock
+    ti = np.flatnonzero((step_t >= lo - 1e-12) & (step_t < hi - 1e-12))
     sec, nsec = ros2.split_time(step_ns[ti])
     joint = layouts["joint"].encode(
         len(ti),
@@ -230,6 +232,7 @@ def _write_metadata(
             "omega0_rad_s": json.dumps(list(run.omega0_rad_s)),
             "duration_s": repr(run.duration_s),
             "dt_s": repr(run.dt_s),
+            "release_time_s": repr(run.release_time_s),
             "b1_n_m_s": repr(params.b1_n_m_s),
             "b2_n_m_s": repr(params.b2_n_m_s),
             "noise": str(config.noise).lower(),
@@ -332,6 +335,7 @@ class Recording:
             duration_s=float(raw["duration_s"]),
             dt_s=float(raw["dt_s"]),
             model=raw.get("model", "planar"),
+            release_time_s=float(raw.get("release_time_s", "0")),
         )
 
     def imu_config(self) -> Bno055:

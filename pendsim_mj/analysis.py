@@ -43,12 +43,37 @@ def spectral_peak_hz(t_s: np.ndarray, x: np.ndarray) -> float:
     return float((k + shift) / (nfft * dt))
 
 
-def zero_crossing_hz(t_s: np.ndarray, x: np.ndarray) -> float:
+def noise_level(x: np.ndarray) -> float:
+    """A robust estimate of the white-noise sigma of a smooth signal plus noise: the median
+    absolute deviation of its second differences / sqrt(6) (the signal's own curvature adds to
+    it, so this errs high for coarse sampling)."""
+    d2 = np.diff(np.asarray(x, dtype=float), 2)
+    if len(d2) == 0:
+        return 0.0
+    return float(1.4826 * np.median(np.abs(d2 - np.median(d2))) / np.sqrt(6.0))
+
+
+def zero_crossing_hz(t_s: np.ndarray, x: np.ndarray, hysteresis: float = 0.0) -> float:
     """Mean frequency (Hz) from linearly interpolated upward zero crossings of x - mean(x),
-    between the first and the last crossing. Raises ParameterError with fewer than 2."""
+    between the first and the last crossing. With ``hysteresis`` h > 0 a crossing counts only
+    once the signal has been below -h and then above +h, so noise near zero adds no crossings
+    (each counted crossing is still interpolated where the signal passes zero). Raises
+    ParameterError with fewer than 2."""
     t, y = _check_series(t_s, x)
     y = y - y.mean()
-    idx = np.flatnonzero((y[:-1] < 0) & (y[1:] >= 0))
+    if hysteresis > 0:
+        state = np.where(y > hysteresis, 1, np.where(y < -hysteresis, -1, 0))
+        known = np.flatnonzero(state)
+        if len(known) < 2:
+            raise ParameterError("fewer than two upward zero crossings: the series is too short to give a frequency")
+        filled = state[known][np.searchsorted(known, np.arange(len(y)), side="right") - 1]
+        filled[: known[0]] = state[known[0]]
+        rises = np.flatnonzero((filled[:-1] == -1) & (filled[1:] == 1)) + 1  # first sample above +h
+        below = np.flatnonzero(y < 0)
+        last_negative = below[np.searchsorted(below, rises, side="right") - 1]  # last sample below 0 before it
+        idx = last_negative
+    else:
+        idx = np.flatnonzero((y[:-1] < 0) & (y[1:] >= 0))
     if len(idx) < 2:
         raise ParameterError("fewer than two upward zero crossings: the series is too short to give a frequency")
     crossings = t[idx] - y[idx] * (t[idx + 1] - t[idx]) / (y[idx + 1] - y[idx])

@@ -236,22 +236,45 @@ def _ideal_readings(traj: Trajectory, fused_t_s: np.ndarray, on_grid: bool) -> d
     return evaluate_states(params, phi, omega)
 
 
-def sample_imu(traj: Trajectory, config: Bno055 = Bno055()) -> ImuSamples:
+def sample_imu(traj: Trajectory, config: Bno055 = Bno055(), *, hold_s: float = 0.0) -> ImuSamples:
     """Sample both BNO055 nodes over a simulated run.
 
     Args:
       traj: a single (not batch) trajectory from either engine.
       config: the node model.
+      hold_s: the recording starts this long before the release, with the pendulums held still
+        at their initial angles (as a real recording does); rounded to whole samples. The
+        trajectory's t = 0 is then at ``hold_s`` in the samples' time.
 
     Returns:
-      ImuSamples with m = floor(duration * sample_rate) + 1 samples.
+      ImuSamples with m = floor(duration * sample_rate) + 1 samples (plus the held ones).
     """
     if traj.is_batch:
         raise ParameterError("sample_imu takes a single trajectory; use trajectory.member(i)")
+    if not (math.isfinite(hold_s) and hold_s >= 0):
+        raise ParameterError(f"hold_s must be a finite number >= 0 s, got {hold_s!r}")
     k, fused_t = sample_instants(traj, config)
     readings = _ideal_readings(traj, fused_t, on_grid=config.fusion_timing)
     params = traj.params[0] if isinstance(traj.params, tuple) else traj.params
-    return _measure_readings(readings, k / config.sample_rate_hz, fused_t, params.g_m_s2, config)
+    t_s = k / config.sample_rate_hz
+    held = round(hold_s * config.sample_rate_hz)
+    if held:
+        # Held still: no rotation, and the accelerometer reads gravity alone (specific force -g).
+        quat = readings["imu_quat_wxyz"][:1]
+        at_rest = {
+            "imu_quat_wxyz": quat,
+            "imu_gyro_rad_s": np.zeros((1, 2, 3)),
+            "imu_angacc_rad_s2": np.zeros((1, 2, 3)),
+            "imu_accel_m_s2": rotations.rotate_into_frame(quat, np.array([0.0, 0.0, params.g_m_s2])),
+        }
+        readings = {
+            name: np.concatenate([np.broadcast_to(at_rest[name], (held, 2, value.shape[-1])), value])
+            for name, value in readings.items()
+        }
+        offset = held / config.sample_rate_hz
+        t_s = np.arange(held + len(t_s)) / config.sample_rate_hz
+        fused_t = np.concatenate([t_s[:held], fused_t + offset])
+    return _measure_readings(readings, t_s, fused_t, params.g_m_s2, config)
 
 
 def static_imu(params: RigParams, duration_s: float, config: Bno055 = Bno055()) -> ImuSamples:

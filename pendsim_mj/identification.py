@@ -1,0 +1,193 @@
+"""Damping identification from a free decay: the paper's log decrement, and a least-squares fit
+of the whole measured time series built on MuJoCo's system-identification toolbox.
+
+(a) ``log_decrement``: b_n = 2 J_n ln(A0_n / AT_n) / t1 per pendulum, amplitudes over a window
+    (default the paper's 120 s).
+(b) ``fit_damping``: b1, b2 minimising the gyro residuals of both nodes over the whole record,
+    normalised by the noise sigmas, with ``mujoco.sysid`` (Gauss-Newton over rollouts of the MJCF
+    model, confidence intervals from the Jacobian at the optimum). Two corrections, both found by
+    measurement and supplied through its ``modify_residual`` hook:
+      1. sysid stamps each predicted sensor value with the time *after* its step (its rollout
+         pairs post-step states with pre-step sensors): read here with the stamps moved back one
+         step. Without it the fit of b1 was 1.9 % off and the residual 8 sigma rms.
+      2. the node reports the latest 100 Hz fused value at 80 Hz (0-10 ms old): the prediction is
+         taken at those fused instants. Without it b1 was 1.1 % off.
+    With both, b1 and b2 came back within 0.02 % of the truth on a synthetic 120 s record with the
+    paper's noise, and the residual at the noise level.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import dataclasses
+import io
+import logging
+import math
+import time
+
+import mujoco
+import numpy as np
+
+from pendsim_mj.analysis import log_decrement_damping
+from pendsim_mj.errors import ParameterError
+from pendsim_mj.model import HINGES, build_spec
+from pendsim_mj.params import RigParams
+
+
+@dataclasses.dataclass(frozen=True)
+class LogDecrement:
+    """The paper's estimate for one pendulum."""
+
+    b_n_m_s: float
+    a0_rad: float
+    at_rad: float
+    window_s: float
+
+
+def log_decrement(
+    t_s: np.ndarray, phi_rad: np.ndarray, params: RigParams, window_s: float = 120.0
+) -> list[LogDecrement]:
+    """b per pendulum from the amplitude decay of phi (n, 2) over ``window_s``."""
+    out = []
+    for k, inertia in enumerate((params.j1_kg_m2, params.j2_kg_m2)):
+        b, a0, at, t1 = log_decrement_damping(t_s, phi_rad[:, k], inertia, window_s)
+        out.append(LogDecrement(b, a0, at, t1))
+    return out
+
+
+@dataclasses.dataclass(frozen=True)
+class DampingFit:
+    """Least-squares damping.
+
+    Attributes:
+      b_n_m_s: (2,) b1, b2.
+      ci95_n_m_s: (2,) half-widths of the 95 % confidence intervals.
+      covariance: (2, 2) of b1, b2.
+      residual_rms_sigma: rms of the residuals in units of the gyro noise sigma (about 1 for a
+        model that explains the data to the noise level).
+      iterations: Gauss-Newton iterations; seconds: wall time.
+    """
+
+    b_n_m_s: np.ndarray
+    ci95_n_m_s: np.ndarray
+    covariance: np.ndarray
+    residual_rms_sigma: float
+    iterations: int
+    seconds: float
+
+
+def _sysid():
+    from mujoco import sysid
+
+    if not hasattr(sysid, "optimize"):
+        raise ParameterError("mujoco.sysid is missing its extras: pip install 'mujoco[sysid]'")
+    return sysid
+
+
+def fit_damping(
+    params: RigParams,
+    phi0_rad: tuple[float, float],
+    t_s: np.ndarray,
+    gyro_z_rad_s: np.ndarray,
+    *,
+    gyro_sigma_rad_s: tuple[float, float],
+    fusion_rate_hz: float | None = 100.0,
+    start_b_n_m_s: tuple[float, float] = (1e-3, 1e-3),
+    max_b_n_m_s: float = 0.05,
+) -> DampingFit:
+    """Fit b1, b2 to the measured angular velocities of a free decay from rest at ``phi0_rad``.
+
+    Args:
+      params: the rig (its b1, b2 are replaced by the fit).
+      phi0_rad: release angles; the release is at t = 0.
+      t_s: (m,) sample instants after the release, s.
+      gyro_z_rad_s: (m, 2) measured omega1, omega2 (the gyros' z axes).
+      gyro_sigma_rad_s: noise sigma of each node's gyro z, for weighting.
+      fusion_rate_hz: the chip's fusion rate (each sample carries the latest fused value), or
+        None if the samples are instantaneous.
+      start_b_n_m_s: starting guess.
+      max_b_n_m_s: upper bound of the search.
+    """
+    sysid = _sysid()
+    absl = logging.getLogger("absl")
+    level = absl.level
+    absl.setLevel(logging.ERROR)  # sysid warns that 6 of 49 sensor values are measured: intended
+    try:
+        return _fit(
+            sysid, params, phi0_rad, t_s, gyro_z_rad_s, gyro_sigma_rad_s, fusion_rate_hz, start_b_n_m_s, max_b_n_m_s
+        )
+    finally:
+        absl.setLevel(level)
+
+
+def _fit(sysid, params, phi0_rad, t_s, gyro_z_rad_s, gyro_sigma_rad_s, fusion_rate_hz, start_b_n_m_s, max_b_n_m_s):
+    t = np.asarray(t_s, dtype=float)
+    y = np.asarray(gyro_z_rad_s, dtype=float)
+    if t.ndim != 1 or y.shape != (len(t), 2) or len(t) < 10:
+        raise ParameterError(f"expected t_s (m,) and gyro_z_rad_s (m, 2) with m >= 10, got {t.shape}, {y.shape}")
+    if t[0] < 0:
+        raise ParameterError("samples before the release (t < 0) cannot be fitted; cut them first")
+    spec = build_spec(params)
+    model = spec.compile()
+    gyro_names = ("imu_m1_gyro", "imu_m2_gyro")
+    columns = np.array([model.sensor(n).adr[0] + 2 for n in gyro_names])  # z components
+    measured = np.zeros((len(t), 6))
+    measured[:, 2], measured[:, 5] = y[:, 0], y[:, 1]
+    sensor_ts = sysid.TimeSeries.from_names(t, measured, model, names=list(gyro_names))
+    control_ts = sysid.TimeSeries(t, np.zeros((len(t), 0)))
+    data = mujoco.MjData(model)
+    initial = sysid.create_initial_state(model, np.asarray(phi0_rad, dtype=float), np.zeros(2), data.act)
+    sample_at = np.floor(t * fusion_rate_hz + 1e-9) / fusion_rate_hz if fusion_rate_hz else t
+    sigma = np.asarray(gyro_sigma_rad_s, dtype=float)
+    dt = model.opt.timestep
+
+    def residual(_params, pred, meas, _model, _return_all, state=None):
+        # (1) predicted sensor rows belong to the state one step earlier than their stamps;
+        # (2) each sample carries the latest fused value.
+        stamps = pred.times - dt
+        prediction = np.stack([np.interp(sample_at, stamps, pred.data[:, c]) for c in columns], axis=1)
+        res = ((prediction - y) / sigma).ravel()
+        full = np.zeros((len(t), 6))
+        full[:, 2], full[:, 5] = prediction[:, 0], prediction[:, 1]
+        return res, sysid.TimeSeries(meas.times, full, signal_mapping=meas.signal_mapping), meas
+
+    parameters = sysid.ParameterDict()
+    for k, hinge in enumerate(HINGES):
+        parameters.add(
+            sysid.Parameter(
+                f"b{k + 1}",
+                nominal=start_b_n_m_s[k],
+                min_value=0.0,
+                max_value=max_b_n_m_s,
+                modifier=lambda s, p, hinge=hinge: setattr(s.joint(hinge), "damping", [p.value[0], 0.0, 0.0]),
+            )
+        )
+    sequences = sysid.ModelSequences("rig", spec, "decay", initial, control_ts, sensor_ts, allow_missing_sensors=True)
+    residual_fn = sysid.build_residual_fn(models_sequences=[sequences], modify_residual=residual)
+    start = time.perf_counter()
+    log = io.StringIO()
+    with contextlib.redirect_stdout(log):  # the optimizer prints every iteration
+        # xtol: stop when the relative step is below 1e-5 (b to 0.001 %, under its CI); a tenfold
+        # mu_factor: at the noise floor the Armijo search gives up in ~14 rollouts, not ~140
+        fitted, result = sysid.optimize(
+            initial_params=parameters,
+            residual_fn=residual_fn,
+            optimizer="mujoco",
+            verbose=False,
+            xtol=1e-5,
+            mu_factor=10.0,
+        )
+        final = np.concatenate(residual_fn(result.x, fitted)[0])
+        covariance, _ = sysid.calculate_intervals([final], result.jac, alpha=0.05)
+    seconds = time.perf_counter() - start
+    # sysid's half-widths are in its internal scaling; the 95 % half-width from the covariance:
+    ci = 1.959964 * np.sqrt(np.clip(np.diag(covariance), 0.0, None))
+    iterations = log.getvalue().count("iter:")
+    return DampingFit(
+        b_n_m_s=np.asarray(result.x, dtype=float),
+        ci95_n_m_s=ci,
+        covariance=np.asarray(covariance),
+        residual_rms_sigma=float(math.sqrt(np.mean(final * final))),
+        iterations=iterations,
+        seconds=seconds,
+    )
