@@ -5,6 +5,7 @@ Imports no physics engine. All functions take uniformly sampled series: t_s (n,)
 
 from __future__ import annotations
 
+import itertools
 import math
 
 import numpy as np
@@ -20,6 +21,16 @@ def _check_series(t_s: np.ndarray, x: np.ndarray) -> tuple[np.ndarray, np.ndarra
     if len(t) < 8:
         raise ParameterError(f"need at least 8 samples, got {len(t)}")
     return t, y
+
+
+def noise_level(x: np.ndarray) -> float:
+    """A robust estimate of the white-noise sigma of a smooth signal plus noise: the median
+    absolute deviation of its second differences / sqrt(6) (the signal's own curvature adds to
+    it, so this errs high for coarse sampling)."""
+    d2 = np.diff(np.asarray(x, dtype=float), 2)
+    if len(d2) == 0:
+        return 0.0
+    return float(1.4826 * np.median(np.abs(d2 - np.median(d2))) / np.sqrt(6.0))
 
 
 def spectral_peak_hz(t_s: np.ndarray, x: np.ndarray) -> float:
@@ -41,16 +52,6 @@ def spectral_peak_hz(t_s: np.ndarray, x: np.ndarray) -> float:
     else:
         shift = 0.0
     return float((k + shift) / (nfft * dt))
-
-
-def noise_level(x: np.ndarray) -> float:
-    """A robust estimate of the white-noise sigma of a smooth signal plus noise: the median
-    absolute deviation of its second differences / sqrt(6) (the signal's own curvature adds to
-    it, so this errs high for coarse sampling)."""
-    d2 = np.diff(np.asarray(x, dtype=float), 2)
-    if len(d2) == 0:
-        return 0.0
-    return float(1.4826 * np.median(np.abs(d2 - np.median(d2))) / np.sqrt(6.0))
 
 
 def zero_crossing_hz(t_s: np.ndarray, x: np.ndarray, hysteresis: float = 0.0) -> float:
@@ -81,16 +82,33 @@ def zero_crossing_hz(t_s: np.ndarray, x: np.ndarray, hysteresis: float = 0.0) ->
 
 
 def peak_amplitudes(t_s: np.ndarray, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Times (s) and values of the local maxima of |x|, each refined by a parabola through the
-    sample and its neighbours. Returns two (k,) arrays."""
+    """The amplitude of each half-cycle: the largest |x| between consecutive zero crossings
+    (crossings counted with a hysteresis of 4 noise sigmas, so noise near zero makes no extra
+    half-cycles), refined by a parabola through the sample and its neighbours. A half-cycle whose
+    largest |x| is at its own edge (a release from an extreme, a record cut mid-swing) has no
+    peak inside and is skipped. Returns two (k,) arrays: times (s) and amplitudes."""
     t, y = _check_series(t_s, x)
+    band = 4.0 * noise_level(y)
+    state = np.where(y > band, 1, np.where(y < -band, -1, 0))
+    known = np.flatnonzero(state)
+    if len(known) < 2:
+        return np.zeros(0), np.zeros(0)
+    filled = state[known][np.searchsorted(known, np.arange(len(y)), side="right") - 1]
+    filled[: known[0]] = state[known[0]]
+    edges = np.flatnonzero(filled[1:] != filled[:-1]) + 1  # where a half-cycle begins
+    bounds = np.concatenate([[0], edges, [len(y)]])
     a = np.abs(y)
-    i = np.flatnonzero((a[1:-1] > a[:-2]) & (a[1:-1] >= a[2:])) + 1
-    left, mid, right = a[i - 1], a[i], a[i + 1]
-    denom = left - 2 * mid + right
-    shift = np.where(denom != 0, 0.5 * (left - right) / np.where(denom != 0, denom, 1), 0.0)
-    dt = (t[-1] - t[0]) / (len(t) - 1)
-    return t[i] + shift * dt, mid - 0.25 * (left - right) * shift
+    times, amps = [], []
+    for lo, hi in itertools.pairwise(bounds):
+        i = lo + int(np.argmax(a[lo:hi]))
+        if i in (lo, hi - 1):
+            continue  # at the edge of its half-cycle: the extreme is not inside it (a start or an end)
+        left, mid, right = a[i - 1], a[i], a[i + 1]
+        denom = left - 2 * mid + right
+        shift = 0.5 * (left - right) / denom if denom != 0 else 0.0
+        times.append(t[i] + shift * (t[1] - t[0]))
+        amps.append(mid - 0.25 * (left - right) * shift)
+    return np.asarray(times), np.asarray(amps)
 
 
 def log_decrement_damping(
