@@ -47,7 +47,7 @@ class MeasuredRun:
     """The measured series after the release; t_s = 0 at the release."""
 
     t_s: np.ndarray  # (m,)
-    series: dict[str, np.ndarray]  # quantity -> (m,)
+    series: dict[str, np.ndarray]  # each of QUANTITIES, and phi2 -> (m,)
     release_time_s: float  # on the recording's clock
     release_angle_rad: tuple[float, float]
     fusion_rate_hz: float | None  # the node's fusion timing, if it has one
@@ -173,7 +173,7 @@ def align(rec: Recording, params: RigParams, *, refine_s: float = 5.0) -> Measur
     sigma2 = math.sqrt(cov2[0, 2, 2]) if cov2[0, 2, 2] > 0 else noise
     return MeasuredRun(
         t_s=t[after] - release,
-        series={name: v[after] for name, v in series.items() if name in QUANTITIES},
+        series={name: v[after] for name, v in series.items()},  # the QUANTITIES and phi2
         release_time_s=release,
         release_angle_rad=release_angle,
         fusion_rate_hz=fusion,
@@ -194,9 +194,13 @@ def identify(path: str | Path, *, window_s: float = 120.0, params: RigParams | N
     """Both damping estimates from a recording's free decay."""
     rec = read_recording(path)
     params = params or recorded_params(rec)
-    run = align(rec, params)
-    phi = np.stack([run.series["phi1"], resample_phi2(rec, run)], axis=1)
-    decrement = log_decrement(run.t_s, phi, params, window_s)
+    return _identify(align(rec, params), params, window_s)
+
+
+def _identify(run: MeasuredRun, params: RigParams, window_s: float) -> Identification:
+    """Log decrement of the measured angles and the least-squares fit of the gyros."""
+    phi = np.stack([run.series["phi1"], run.series["phi2"]], axis=1)
+    decrement = log_decrement(run.t_s, phi, params, min(window_s, float(run.t_s[-1])))
     omega = np.stack([run.series["omega1"], run.series["omega2"]], axis=1)
     fit = fit_damping(
         params,
@@ -207,11 +211,6 @@ def identify(path: str | Path, *, window_s: float = 120.0, params: RigParams | N
         fusion_rate_hz=run.fusion_rate_hz,
     )
     return Identification(decrement, fit, run.release_angle_rad, run.release_time_s)
-
-
-def resample_phi2(rec: Recording, run: MeasuredRun) -> np.ndarray:
-    t, series, _ = measured_series(rec)
-    return np.interp(run.t_s + run.release_time_s, t, series["phi2"])
 
 
 def recorded_params(rec: Recording) -> RigParams:
@@ -266,18 +265,8 @@ def validate(
     run = align(rec, base)
     identification = None
     if damping == "identified":
-        phi = np.stack([run.series["phi1"], resample_phi2(rec, run)], axis=1)
-        omega = np.stack([run.series["omega1"], run.series["omega2"]], axis=1)
-        fit = fit_damping(
-            base,
-            run.release_angle_rad,
-            run.t_s,
-            omega,
-            gyro_sigma_rad_s=run.gyro_sigma_rad_s,
-            fusion_rate_hz=run.fusion_rate_hz,
-        )
-        decrement = log_decrement(run.t_s, phi, base, min(120.0, float(run.t_s[-1])))
-        identification = Identification(decrement, fit, run.release_angle_rad, run.release_time_s)
+        identification = _identify(run, base, 120.0)
+        fit = identification.fit
         model_params = base.with_overrides(b1_n_m_s=float(fit.b_n_m_s[0]), b2_n_m_s=float(fit.b_n_m_s[1]))
         source = "identified (least squares)"
     elif damping == "recorded":
