@@ -68,6 +68,14 @@ def _build_parser() -> _Parser:
     )
     _add_run_options(sim)
     sim.add_argument("-o", "--output", type=Path, help="write the trajectory to FILE.npz (all arrays) or FILE.csv")
+    sim.add_argument(
+        "--rerun",
+        type=Path,
+        nargs="?",
+        const=Path("simulation.rrd"),
+        metavar="FILE.rrd",
+        help="also log the run to Rerun: the rig in 3D and its time series (default file simulation.rrd)",
+    )
 
     rec = sub.add_parser(
         "record",
@@ -199,6 +207,23 @@ def _build_parser() -> _Parser:
     idn.add_argument("--window-s", type=_finite_float, default=120.0, help="log-decrement window, s (default 120)")
     idn.add_argument("--write", type=Path, metavar="FILE.json", help="write the fitted b1_n_m_s, b2_n_m_s as JSON")
 
+    vw = sub.add_parser(
+        "view",
+        help="show a recording in Rerun: the rig in 3D, measured against model time series, phase portraits",
+        description="Log a recording and the model's prediction (re-simulated from its metadata and MJCF) to "
+        "Rerun: the rig in 3D with springs coloured by tension, measured and computed phi, omega and accelerations, "
+        "the phi1 error with cumulative IAE and ISE, phase portraits, on a ready-made layout. Writes an .rrd file "
+        "(default NAME.rrd beside the recording); --spawn opens the desktop viewer, --serve the web viewer.",
+    )
+    vw.add_argument("path", type=Path, help="the .mcap recording")
+    vw.add_argument("--save", type=Path, metavar="FILE.rrd", help="the .rrd file to write (default NAME.rrd)")
+    vw.add_argument("--spawn", action="store_true", help="open the Rerun desktop viewer on the result")
+    vw.add_argument("--serve", action="store_true", help="serve the result to a web browser (Ctrl-C stops)")
+    vw.add_argument(
+        "--bind", default="127.0.0.1", help="address --serve listens on (default 127.0.0.1, this machine only)"
+    )
+    vw.add_argument("--port", type=int, default=9090, help="web viewer port for --serve (default 9090)")
+
     rcv = sub.add_parser(
         "recover",
         help="rewrite the readable part of a truncated or damaged MCAP file into a valid one",
@@ -305,8 +330,16 @@ def _simulate_from_args(args: argparse.Namespace):
 
 def _cmd_simulate(args: argparse.Namespace) -> int:
     _check_output(args.output, OUTPUT_SUFFIXES)
-    _, _, _, traj = _simulate_from_args(args)
+    if args.rerun is not None:
+        _check_output(args.rerun, (".rrd",))
+    params, _, _, traj = _simulate_from_args(args)
     print(_summary(traj, args.engine))
+    if args.rerun is not None:
+        from bridge.rerun_view import view_trajectory
+        from pendsim_mj.model import build_model
+
+        view_trajectory(traj, build_model(params), args.rerun)
+        print(f"wrote {args.rerun} (open it with: rerun {args.rerun})")
     if args.output is not None:
         traj.save(args.output)
         print(f"wrote {args.output}")
@@ -550,6 +583,40 @@ def _cmd_identify(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_view(args: argparse.Namespace) -> int:
+    import contextlib
+    import subprocess
+
+    from bridge.rerun_view import view_recording
+
+    if not args.path.is_file():
+        raise UsageError(f"{args.path}: no such file")
+    rrd = args.save or args.path.with_suffix(".rrd")
+    _check_output(rrd, (".rrd",))
+    view_recording(args.path, rrd)
+    print(f"wrote {rrd} (open it with: rerun {rrd})")
+    rerun_cli = str(Path(sys.executable).with_name("rerun"))
+    if args.spawn:
+        subprocess.Popen([rerun_cli, str(rrd)])
+    if args.serve:
+        grpc_port = args.port + 1
+        command = [
+            rerun_cli,
+            "--serve-web",
+            "--bind",
+            args.bind,
+            "--web-viewer-port",
+            str(args.port),
+            "--port",
+            str(grpc_port),
+            str(rrd),
+        ]
+        print(f"serving on http://{args.bind}:{args.port} (Ctrl-C stops)", flush=True)
+        with contextlib.suppress(KeyboardInterrupt):
+            subprocess.run(command, check=False)
+    return 0
+
+
 def _cmd_recover(args: argparse.Namespace) -> int:
     from bridge.mcap_tools import recover
 
@@ -583,6 +650,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             "allan": _cmd_allan,
             "validate": _cmd_validate,
             "identify": _cmd_identify,
+            "view": _cmd_view,
         }[args.command]
         return handler(args)
     except (UsageError, PendsimError) as exc:
