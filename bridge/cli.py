@@ -207,6 +207,20 @@ def _build_parser() -> _Parser:
     idn.add_argument("--window-s", type=_finite_float, default=120.0, help="log-decrement window, s (default 120)")
     idn.add_argument("--write", type=Path, metavar="FILE.json", help="write the fitted b1_n_m_s, b2_n_m_s as JSON")
 
+    dm = sub.add_parser(
+        "demo",
+        help="the whole chain on built-in defaults: simulate, record, validate, report, plots, Rerun file",
+        description="Simulate the rig from 30 deg, record a synthetic IMU MCAP (BNO055 noise, 2 s held before the "
+        "release), identify the damping and validate the recording against the MuJoCo model and the planar "
+        "reference, and write the report, the paper's figures and a Rerun .rrd; prints where everything is.",
+    )
+    dm.add_argument(
+        "-o", "--out-dir", type=Path, default=Path("pendsim_demo"), help="output folder (default pendsim_demo)"
+    )
+    dm.add_argument(
+        "--duration-s", type=_finite_float, default=120.0, help="simulated time after the release, s (default 120)"
+    )
+
     vw = sub.add_parser(
         "view",
         help="show a recording in Rerun: the rig in 3D, measured against model time series, phase portraits",
@@ -583,6 +597,40 @@ def _cmd_identify(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_demo(args: argparse.Namespace) -> int:
+    import json
+
+    from bridge.plots import validation_figures
+    from bridge.rerun_view import view_recording
+    from bridge.validate import report_json, table, validate
+
+    out = args.out_dir
+    if out.exists() and not out.is_dir():
+        raise UsageError(f"output {str(out)!r} is a file; give a folder")
+    if not (math.isfinite(args.duration_s) and 10 <= args.duration_s <= 3600):
+        raise UsageError(f"--duration-s must be between 10 and 3600 s, got {args.duration_s:g}")
+    out.mkdir(parents=True, exist_ok=True)
+    recording = out / "run.mcap"
+    print(f"1/4 simulating the rig from 30 deg for {args.duration_s:g} s and recording both IMUs to {recording}")
+    code = main(["record", "-o", str(recording), "--force", "--duration-s", f"{args.duration_s:g}", "--hold-s", "2"])
+    if code:
+        return code
+    print("2/4 identifying the damping and validating against the MuJoCo model and the planar reference")
+    report = validate(recording)
+    (out / "report.json").write_text(json.dumps(report_json(report), indent=1))
+    print(table(report))
+    print("3/4 drawing the paper's Figures 9-15")
+    figures = validation_figures(report, out)
+    print("4/4 writing the Rerun view")
+    rrd = view_recording(recording, out / "run.rrd")
+    print("\ndone:")
+    print(f"  recording     {recording}   (pendsim inspect {recording})")
+    print(f"  report        {out / 'report.json'}")
+    print(f"  figures       {', '.join(p.name for p in figures)} in {out}")
+    print(f"  Rerun         {rrd}   (open it with: rerun {rrd})")
+    return 0
+
+
 def _cmd_view(args: argparse.Namespace) -> int:
     import contextlib
     import subprocess
@@ -651,6 +699,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             "validate": _cmd_validate,
             "identify": _cmd_identify,
             "view": _cmd_view,
+            "demo": _cmd_demo,
         }[args.command]
         return handler(args)
     except (UsageError, PendsimError) as exc:

@@ -20,6 +20,6 @@ def test_python_example_runs_and_shapes_match_the_comments():
 def test_first_lines_give_the_two_setup_commands_and_ci_runs_the_test_one():
     first_block = re.search(r"```bash\n(.*?)```", README, re.S).group(1)
     commands = [line.split("#")[0].strip() for line in first_block.strip().splitlines()]
-    assert commands == ["pip install -e . && pendsim simulate", 'pip install -e ".[test]" && python -m pytest']
+    assert commands == ["pip install -e . && pendsim demo", 'pip install -e ".[test]" && python -m pytest']
     ci = (ROOT / ".ci" / "run").read_text()
     assert commands[1] in ci

@@ -119,3 +119,23 @@ def test_serve_listens_on_loopback_only(recording, tmp_path):
     finally:
         proc.terminate()
         proc.wait(timeout=20)
+
+
+def test_demo_runs_the_whole_chain_and_says_where_everything_is(tmp_path, capsys):
+    out = tmp_path / "demo"
+    assert main(["demo", "-o", str(out), "--duration-s", "20"]) == 0
+    text = capsys.readouterr().out
+    names = {p.name for p in out.iterdir()}
+    assert {"run.mcap", "report.json", "run.rrd"} <= names
+    assert len([n for n in names if n.startswith("fig") and n.endswith(".png")]) == 7
+    assert f"Rerun         {out / 'run.rrd'}" in text and "report" in text
+    assert read_recording(out / "run.mcap").complete
+    rows, static, _ = _read_rrd(out / "run.rrd")
+    assert rows["/rig/m1"] > 1900 and static["/rig/m1/geoms"] == 1
+
+
+def test_demo_refuses_a_file_as_its_folder(tmp_path, capsys):
+    target = tmp_path / "taken"
+    target.write_text("x")
+    assert main(["demo", "-o", str(target)]) == 2
+    assert "is a file" in capsys.readouterr().err
