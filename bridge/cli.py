@@ -101,6 +101,14 @@ def _build_parser() -> _Parser:
     )
     rec.add_argument("--compression", default="zstd", help="chunk compression: zstd (default), lz4 or none")
     rec.add_argument(
+        "--rerun",
+        type=Path,
+        nargs="?",
+        const=Path("recording.rrd"),
+        metavar="FILE.rrd",
+        help="also log the simulated run to Rerun, as 'simulate --rerun' does (default file recording.rrd)",
+    )
+    rec.add_argument(
         "--static",
         action="store_true",
         help="a static noise test: both nodes at rest, IMU topics only (e.g. --duration-s 21600 for 6 h)",
@@ -220,6 +228,27 @@ def _build_parser() -> _Parser:
     dm.add_argument(
         "--duration-s", type=_finite_float, default=120.0, help="simulated time after the release, s (default 120)"
     )
+
+    rp = sub.add_parser(
+        "replay",
+        help="re-emit a recording's messages in log-time order, paced, cut and filtered, to terminal, MCAP or Rerun",
+        description="Replay the messages of a recording in log-time order at --speed (1 = real time, 10, or max), "
+        "within --start/--end (s of log time), for --topics, optionally --loop. Prints one line per message, or "
+        "writes them to a new MCAP (-o, cut and filtered; --shift moves the window to t = 0) or to Rerun (--rerun). "
+        "From Python: bridge.replay.replay() yields decoded messages.",
+    )
+    rp.add_argument("path", type=Path, help="the .mcap recording")
+    rp.add_argument("--speed", default="max", help="1 = real time, any factor > 0, or max (default)")
+    rp.add_argument("--start", type=_finite_float, metavar="S", help="first log time to replay, s")
+    rp.add_argument("--end", type=_finite_float, metavar="S", help="last log time to replay, s")
+    rp.add_argument("--topics", help="comma-separated topics (default all)")
+    rp.add_argument("--loop", action="store_true", help="start again after the end (Ctrl-C stops)")
+    rp.add_argument("-o", "--output", type=Path, help="write the replayed messages to a new .mcap")
+    rp.add_argument("--shift", action="store_true", help="with -o: move log times so that the window starts at 0")
+    rp.add_argument(
+        "--rerun", type=Path, metavar="FILE.rrd", help="log the replayed Imu and JointState values to Rerun"
+    )
+    rp.add_argument("--quiet", action="store_true", help="print only the summary")
 
     vw = sub.add_parser(
         "view",
@@ -401,6 +430,8 @@ def _cmd_record(args: argparse.Namespace) -> int:
     from pendsim_mj.sensors import Bno055, ImuNoise, sample_imu, static_imu
 
     _check_output(args.output, (".mcap",), force=args.force)
+    if args.rerun is not None:
+        _check_output(args.rerun, (".rrd",))
     if args.compression not in COMPRESSIONS:
         raise UsageError(f"unknown compression {args.compression!r}; allowed: {', '.join(COMPRESSIONS)}")
     noise = ImuNoise(
@@ -439,6 +470,12 @@ def _cmd_record(args: argparse.Namespace) -> int:
         partial.unlink(missing_ok=True)
         raise UsageError(f"cannot write {args.output}: {exc.strerror}") from None
     partial.replace(args.output)
+    if args.rerun is not None and traj is not None:
+        from bridge.rerun_view import view_trajectory
+        from pendsim_mj.model import build_model
+
+        view_trajectory(traj, build_model(params), args.rerun)
+        print(f"wrote {args.rerun}")
     size = args.output.stat().st_size
     print(f"wrote {args.output}: {args.duration_s:g} s, {len(imu.t_s)} IMU samples per node, {size / 1e6:.2f} MB")
     return 0
@@ -631,6 +668,58 @@ def _cmd_demo(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_replay(args: argparse.Namespace) -> int:
+    from bridge.replay import ReplayStats, log_to_rerun, replay, replay_to_mcap
+
+    if not args.path.is_file():
+        raise UsageError(f"{args.path}: no such file")
+    if args.speed == "max":
+        speed = math.inf
+    else:
+        try:
+            speed = float(args.speed)
+        except ValueError:
+            raise UsageError(f"--speed must be a number > 0 or max, got {args.speed!r}") from None
+        if not (math.isfinite(speed) and speed > 0):
+            raise UsageError(f"--speed must be a number > 0 or max, got {args.speed!r}")
+    topics = [t.strip() for t in args.topics.split(",") if t.strip()] if args.topics else None
+    if args.output is not None:
+        if args.loop:
+            raise UsageError("--loop cannot write to a file (it never ends); drop --loop or -o")
+        _check_output(args.output, (".mcap",), force=False)
+        count = replay_to_mcap(
+            args.path, args.output, topics=topics, start_s=args.start, end_s=args.end, shift_to_zero=args.shift
+        )
+        print(f"wrote {args.output}: {count} messages")
+        return 0
+    if args.rerun is not None:
+        _check_output(args.rerun, (".rrd",))
+        import rerun as rr
+
+        rr.init("pendsim_replay")
+        rr.save(str(args.rerun))
+    stats = ReplayStats()
+    for message in replay(
+        args.path, speed=speed, topics=topics, start_s=args.start, end_s=args.end, loop=args.loop, stats=stats
+    ):
+        if args.rerun is not None and message.schema_name in ("sensor_msgs/msg/Imu", "sensor_msgs/msg/JointState"):
+            log_to_rerun(message)
+        if not args.quiet:
+            print(f"{message.t_s:12.4f}  {message.topic}  {len(message.data)} B")
+    summary = stats.summary()
+    line = f"replayed {summary['messages']} messages"
+    if math.isfinite(speed):
+        late = f"p50 {summary['p50_ms']:.2f} ms, p99 {summary['p99_ms']:.2f} ms, max {summary['max_ms']:.2f} ms"
+        line += f" at {speed:g}x; lateness {late}"
+    print(line)
+    if args.rerun is not None:
+        import rerun as rr
+
+        rr.disconnect()
+        print(f"wrote {args.rerun}")
+    return 0
+
+
 def _cmd_view(args: argparse.Namespace) -> int:
     import contextlib
     import subprocess
@@ -700,6 +789,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             "identify": _cmd_identify,
             "view": _cmd_view,
             "demo": _cmd_demo,
+            "replay": _cmd_replay,
         }[args.command]
         return handler(args)
     except (UsageError, PendsimError) as exc:
