@@ -119,3 +119,9 @@ def test_replay_refuses_a_damaged_file_before_yielding_anything(recording, tmp_p
     assert time.perf_counter() - start < 10
     with pytest.raises(ParameterError, match="speed must be > 0"):
         next(replay(recording, speed=-1))
+
+
+def test_loop_starts_again_at_the_beginning_of_the_window(recording):
+    stream = replay(recording, topics=["/joint_states"], start_s=1.0, end_s=1.05, loop=True)
+    times = [next(stream).log_time_ns for _ in range(18)]  # 6 messages per pass, three passes
+    assert times[:6] == times[6:12] == times[12:18] == [1_000_000_000 + k * 10_000_000 for k in range(6)]
