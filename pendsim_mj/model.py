@@ -34,6 +34,7 @@ PENDULUMS_XML = MODELS_DIR / "pendulums.xml"
 SCENE_XML = MODELS_DIR / "scene.xml"
 
 HINGES = ("hinge_phi1", "hinge_phi2")
+TILTS = ("tilt_m1", "tilt_m2")  # out-of-plane freedoms of the spatial variant
 BODIES = ("m1", "m2")
 IMU_SITES = ("imu_m1", "imu_m2")
 SPRINGS = ("spring_12", "spring_13", "spring_56", "spring_57")
@@ -49,6 +50,29 @@ class Clamp(enum.Enum):
     NONE = "none"
     M1 = "m1"
     M2 = "m2"
+
+
+@dataclasses.dataclass(frozen=True)
+class Variant:
+    """Structural options of the model (the numbers are in RigParams).
+
+    tilt: give each pendulum a hinge about the horizontal axis across the pivot (world x), before
+      its swing hinge, so that the support can rock and the pendulum leave its plane; its
+      stiffness, damping and range are RigParams.tilt_*.
+    fixed_points_plane: the plane points 6, 7 (and 8) lie in: "m1" (y = 0) or "m2" (y = the
+      plane offset). Springs 5-6 and 5-7 are in M2's plane with "m2".
+    """
+
+    tilt: bool = False
+    fixed_points_plane: str = "m2"
+
+    def __post_init__(self) -> None:
+        if self.fixed_points_plane not in ("m1", "m2"):
+            raise ModelError(f"fixed_points_plane must be 'm1' or 'm2', got {self.fixed_points_plane!r}")
+
+
+PLANAR = Variant()
+SPATIAL = Variant(tilt=True)
 
 
 @functools.cache
@@ -79,7 +103,7 @@ class Assignment:
     xml_value: float | list[float] | None = None
 
 
-def assignments(params: RigParams, timestep_s: float = 0.01) -> list[Assignment]:
+def assignments(params: RigParams, timestep_s: float = 0.01, variant: Variant = PLANAR) -> list[Assignment]:
     """Every value the parameters set in the model, in one table (applied to an MjSpec by
     ``build_spec`` and to MJCF text by ``exact_mjcf``)."""
     p = params
@@ -108,6 +132,9 @@ def assignments(params: RigParams, timestep_s: float = 0.01) -> list[Assignment]
         Assignment("geom", "m1_transverse_rod", "fromto", "fromto", [-half, 0.0, -p.l04_m, half, 0.0, -p.l04_m]),
         Assignment("geom", "m1_transverse_rod", "size", "size", [radius, 0.0, 0.0], [radius]),
     ]
+    # M2 and the points it carries sit plane_offset_m behind M1, along the pivot axis (world +y).
+    out.append(Assignment("body", "m2", "pos", "pos", [0.0, p.plane_offset_m, 0.0]))
+    frame_y = p.plane_offset_m if variant.fixed_points_plane == "m2" else 0.0
     sites = {
         "point_1": paper_to_world(p.l01_m, 0.0),
         "point_2": paper_to_world(p.l04_m, p.l24_m),
@@ -118,6 +145,8 @@ def assignments(params: RigParams, timestep_s: float = 0.01) -> list[Assignment]
         "point_7": paper_to_world(p.l08_m, -p.l78_m),
         "point_8": paper_to_world(p.l08_m, 0.0),
     }
+    for name in ("point_6", "point_7", "point_8"):
+        sites[name][1] = frame_y
     out += [Assignment("site", name, "pos", "pos", pos) for name, pos in sites.items()]
     for name in SPRINGS:
         c = p.c1_n_m if name in ("spring_12", "spring_13") else p.c2_n_m
@@ -128,7 +157,11 @@ def assignments(params: RigParams, timestep_s: float = 0.01) -> list[Assignment]
 
 
 def build_spec(
-    params: RigParams = DEFAULT_PARAMS, *, clamp: Clamp = Clamp.NONE, timestep_s: float = 0.01
+    params: RigParams = DEFAULT_PARAMS,
+    *,
+    clamp: Clamp = Clamp.NONE,
+    timestep_s: float = 0.01,
+    variant: Variant = PLANAR,
 ) -> mujoco.MjSpec:
     """The rig's MjSpec with every field of ``params`` applied.
 
@@ -136,6 +169,7 @@ def build_spec(
       params: rig parameters (SI units).
       clamp: hold one pendulum at phi = 0 by deleting its hinge.
       timestep_s: integration step, s.
+      variant: structural options (tilt freedoms, plane of the fixed points).
 
     Returns:
       An uncompiled ``mujoco.MjSpec``; ``.compile()`` gives the MjModel.
@@ -145,7 +179,7 @@ def build_spec(
     except ValueError as exc:  # MuJoCo reports XML errors as ValueError
         raise ModelError(f"{PENDULUMS_XML}: {exc}") from exc
     spec.modelfiledir = str(MODELS_DIR)
-    for a in assignments(params, timestep_s):
+    for a in assignments(params, timestep_s, variant):
         if a.tag == "option":
             target = spec.option
         elif a.tag == "inertial":
@@ -155,6 +189,10 @@ def build_spec(
             target = getattr(spec, a.tag)(a.name)
         setattr(target, a.spec_attr, a.spec_value)
 
+    if variant.tilt:
+        if clamp is not Clamp.NONE:
+            raise ModelError("clamping applies to the planar model only")
+        _add_tilt(spec, params)
     if clamp is not Clamp.NONE:
         index = 0 if clamp is Clamp.M1 else 1
         spec.delete(spec.joint(HINGES[index]))
@@ -164,18 +202,44 @@ def build_spec(
     return spec
 
 
-def exact_mjcf(params: RigParams = DEFAULT_PARAMS, *, timestep_s: float = 0.01) -> str:
+def _add_tilt(spec: mujoco.MjSpec, p: RigParams) -> None:
+    """A tilt hinge about world x before each swing hinge (re-added after it, so that it turns
+    about the rocked axis); keyframes get a zero tilt for each pendulum."""
+    for body_name, hinge, tilt in zip(BODIES, HINGES, TILTS, strict=True):
+        body = spec.body(body_name)
+        swing = spec.joint(hinge)
+        damping = list(swing.damping)
+        spec.delete(swing)
+        body.add_joint(
+            name=tilt,
+            type=mujoco.mjtJoint.mjJNT_HINGE,
+            axis=[1.0, 0.0, 0.0],
+            pos=[0.0, 0.0, 0.0],
+            stiffness=[p.tilt_stiffness_n_m_rad, 0.0, 0.0],
+            damping=[p.tilt_damping_n_m_s_rad, 0.0, 0.0],
+        )
+        body.add_joint(
+            name=hinge, type=mujoco.mjtJoint.mjJNT_HINGE, axis=[0.0, -1.0, 0.0], pos=[0.0, 0.0, 0.0], damping=damping
+        )
+    for key in spec.keys:
+        key.qpos = [0.0, key.qpos[0], 0.0, key.qpos[1]]
+        key.qvel = [0.0, key.qvel[0], 0.0, key.qvel[1]]
+
+
+def exact_mjcf(params: RigParams = DEFAULT_PARAMS, *, timestep_s: float = 0.01, variant: Variant = PLANAR) -> str:
     """models/pendulums.xml with every parameter written at full precision (17 digits).
 
     ``MjSpec.to_xml()`` rounds numbers to 6 significant digits, so it cannot reproduce a run;
     this text compiles to the same model as ``build_model`` (tests/test_model.py checks it).
     """
     root = ElementTree.fromstring(_xml_text())
-    for a in assignments(params, timestep_s):
+    for a in assignments(params, timestep_s, variant):
         if a.tag == "option":
             element = root.find("option")
         elif a.tag == "inertial":
             element = root.find(f".//body[@name='{a.name}']/inertial")
+        elif a.tag == "body":
+            element = root.find(f".//body[@name='{a.name}']")
         else:
             element = root.find(f".//{'spatial' if a.tag == 'tendon' else a.tag}[@name='{a.name}']")
         if element is None:
@@ -183,15 +247,40 @@ def exact_mjcf(params: RigParams = DEFAULT_PARAMS, *, timestep_s: float = 0.01) 
         value = a.spec_value if a.xml_value is None else a.xml_value
         values = value if isinstance(value, list) else [value]
         element.set(a.xml_attr, " ".join(repr(float(v)) for v in values))
+    if variant.tilt:
+        p = params
+        for body_name, hinge, tilt in zip(BODIES, HINGES, TILTS, strict=True):
+            body = root.find(f".//body[@name='{body_name}']")
+            swing = body.find(f"joint[@name='{hinge}']")
+            joint = ElementTree.Element(
+                "joint",
+                {
+                    "name": tilt,
+                    "type": "hinge",
+                    "pos": "0 0 0",
+                    "axis": "1 0 0",
+                    "stiffness": repr(p.tilt_stiffness_n_m_rad),
+                    "damping": repr(p.tilt_damping_n_m_s_rad),
+                },
+            )
+            body.insert(list(body).index(swing), joint)  # before the swing hinge, as build_spec
+        for key in root.iter("key"):
+            for field in ("qpos", "qvel"):
+                a, b = key.get(field, "0 0").split()
+                key.set(field, f"0 {a} 0 {b}")
     root.insert(0, ElementTree.Comment(" pendsim: models/pendulums.xml with this run's parameters, full precision "))
     return ElementTree.tostring(root, encoding="unicode")
 
 
 def build_model(
-    params: RigParams = DEFAULT_PARAMS, *, timestep_s: float = 0.01, clamp: Clamp = Clamp.NONE
+    params: RigParams = DEFAULT_PARAMS,
+    *,
+    timestep_s: float = 0.01,
+    clamp: Clamp = Clamp.NONE,
+    variant: Variant = PLANAR,
 ) -> mujoco.MjModel:
     """Compile the rig with ``params`` at the given step (s), RK4 as in the XML."""
-    spec = build_spec(params, clamp=clamp, timestep_s=timestep_s)
+    spec = build_spec(params, clamp=clamp, timestep_s=timestep_s, variant=variant)
     try:
         return spec.compile()
     except ValueError as exc:

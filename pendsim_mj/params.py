@@ -130,6 +130,16 @@ class RigParams:
     disk_thickness_m: float = _field(0.0118, "m", "paper: disk h")
     transverse_rod_length_m: float = _field(0.300, "m", "paper: l23, transverse rod on M1")
     transverse_rod_diameter_m: float = _field(0.003, "m", "paper: transverse rod d")
+    # Spatial model (issue 7). The planes of the two pendulums are apart along the pivot axis.
+    plane_offset_m: float = _field(
+        0.0, "m", "paper: 50 mm in one place, 23 mm in another (presets); 0 = the planar model"
+    )
+    tilt_stiffness_n_m_rad: float = _field(
+        2.0,
+        "N m/rad",
+        "assumed: support/bearing compliance about the horizontal axis across the pivot; 0 = free tilt",
+    )
+    tilt_damping_n_m_s_rad: float = _field(0.0007, "N m s/rad", "assumed: like the swing damping b1")
 
     def inertia_about_com_kg_m2(self, pendulum: int) -> tuple[float, float, float]:
         """Principal inertia of pendulum 1 or 2 about its centre of mass, kg m^2.
@@ -210,7 +220,13 @@ class RigParams:
         return [(f.name, f.metadata["unit"], f.metadata["source"]) for f in dataclasses.fields(RigParams)]
 
 
-_MAY_BE_ZERO = frozenset({"b1_n_m_s", "b2_n_m_s", "c1_n_m", "c2_n_m", "g_m_s2", "l24_m", "l34_m", "l68_m", "l78_m"})
+_MAY_BE_ZERO = frozenset(
+    {
+        "b1_n_m_s", "b2_n_m_s", "c1_n_m", "c2_n_m", "g_m_s2", "l24_m", "l34_m", "l68_m", "l78_m",
+        "plane_offset_m", "tilt_stiffness_n_m_rad", "tilt_damping_n_m_s_rad",
+    }
+)  # fmt: skip
+PLANE_OFFSET_PRESETS_M = (0.023, 0.050)  # paper: both values appear
 
 DEFAULT_PARAMS = RigParams()
 """The rig as the paper describes it, with the assumed default damping."""

@@ -244,6 +244,7 @@ def _trajectory(plist: list[RigParams], states: np.ndarray, dt_s: float) -> Traj
         imu_gyro_rad_s=gyro,
         imu_quat_wxyz=_imu_quat_wxyz(phi),
         imu_angacc_rad_s2=angacc,
+        tilt_rad=np.zeros_like(phi),
         spring_length_m=per_run(*springs.length_m),
         spring_force_n=per_run(*springs.force_n),
         spring_moment_n_m=per_run(moment1, moment2),

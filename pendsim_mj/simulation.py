@@ -18,7 +18,19 @@ from mujoco import rollout
 from pendsim_mj import rotations
 from pendsim_mj.checks import broadcast_params, check_energy_bounded, check_initial, check_params, check_step
 from pendsim_mj.errors import ParameterError, SimulationDiverged
-from pendsim_mj.model import BODIES, HINGE_AXIS_WORLD, HINGES, IMU_SITES, SPRING_ENDS, SPRINGS, Clamp, build_model
+from pendsim_mj.model import (
+    BODIES,
+    HINGE_AXIS_WORLD,
+    HINGES,
+    IMU_SITES,
+    PLANAR,
+    SPRING_ENDS,
+    SPRINGS,
+    TILTS,
+    Clamp,
+    Variant,
+    build_model,
+)
 from pendsim_mj.params import DEFAULT_PARAMS, RigParams
 from pendsim_mj.trajectory import Trajectory
 
@@ -41,6 +53,8 @@ def simulate(
     dt_s: float = 0.01,
     *,
     clamp: Clamp = Clamp.NONE,
+    variant: Variant = PLANAR,
+    tilt0_rad: Sequence[float] = (0.0, 0.0),
 ) -> Trajectory:
     """Simulate the rig with MuJoCo (RK4, fixed step) from one initial condition.
 
@@ -51,6 +65,8 @@ def simulate(
       duration_s: simulated time, s; the trajectory has duration_s/dt_s + 1 samples.
       dt_s: integration step, s.
       clamp: hold M1 or M2 at rest (its initial angle and velocity must then be 0).
+      variant: PLANAR (default) or SPATIAL (tilt freedoms; see model.Variant).
+      tilt0_rad: (2,) initial tilts of the spatial variant, rad.
 
     Returns:
       A Trajectory with arrays of shape (n, ...).
@@ -59,7 +75,9 @@ def simulate(
       ParameterError: bad parameters or initial conditions.
       SimulationDiverged: the run reached non-finite or runaway values.
     """
-    return simulate_batch(params, phi0_rad, omega0_rad_s, duration_s, dt_s, nthread=1, clamp=clamp).member(0)
+    return simulate_batch(
+        params, phi0_rad, omega0_rad_s, duration_s, dt_s, nthread=1, clamp=clamp, variant=variant, tilt0_rad=tilt0_rad
+    ).member(0)
 
 
 def simulate_batch(
@@ -71,6 +89,8 @@ def simulate_batch(
     *,
     nthread: int | None = None,
     clamp: Clamp = Clamp.NONE,
+    variant: Variant = PLANAR,
+    tilt0_rad: object = (0.0, 0.0),
 ) -> Trajectory:
     """Simulate many runs at once on a thread pool (``mujoco.rollout``).
 
@@ -82,6 +102,8 @@ def simulate_batch(
       dt_s: integration step, s.
       nthread: worker threads (default: the CPU count, at most nbatch).
       clamp: hold M1 or M2 at rest in every run.
+      variant: PLANAR or SPATIAL.
+      tilt0_rad: (2,) or (nbatch, 2) initial tilts (spatial variant).
 
     Returns:
       A batch Trajectory: arrays of shape (nbatch, n, ...); ``.member(i)`` gives one run.
@@ -100,13 +122,16 @@ def simulate_batch(
     unique: dict[RigParams, mujoco.MjModel] = {}
     for p in param_list:
         if p not in unique:
-            unique[p] = build_model(p, timestep_s=dt_s, clamp=clamp)
+            unique[p] = build_model(p, timestep_s=dt_s, clamp=clamp, variant=variant)
     models = [unique[p] for p in param_list]
     model = models[0]
 
     nthread = max(1, min(nthread or os.cpu_count() or 1, nbatch))
     datas = [mujoco.MjData(model) for _ in range(nthread)]
-    initial = _initial_states(model, phi0, omega0)
+    tilt0 = np.broadcast_to(np.asarray(tilt0_rad, dtype=float), (nbatch, 2))
+    if np.any(tilt0 != 0) and not variant.tilt:
+        raise ParameterError("tilt0_rad needs the spatial variant (tilt freedoms)")
+    initial = _initial_states(model, phi0, omega0, tilt0)
     # nstep + 1 steps: sensors of row k belong to the state before step k, i.e. at t_k.
     states, sensordata = rollout.rollout(
         models if len(unique) > 1 else model, datas, initial, nstep=nstep + 1, persistent_pool=False
@@ -161,7 +186,9 @@ def _state_offsets(model: mujoco.MjModel) -> tuple[int, int]:
     return qpos, qvel
 
 
-def _initial_states(model: mujoco.MjModel, phi0: np.ndarray, omega0: np.ndarray) -> np.ndarray:
+def _initial_states(
+    model: mujoco.MjModel, phi0: np.ndarray, omega0: np.ndarray, tilt0: np.ndarray | None = None
+) -> np.ndarray:
     data = mujoco.MjData(model)
     template = np.empty(mujoco.mj_stateSize(model, _STATE))
     mujoco.mj_getState(model, data, template, _STATE)
@@ -172,27 +199,15 @@ def _initial_states(model: mujoco.MjModel, phi0: np.ndarray, omega0: np.ndarray)
         if jid >= 0:
             states[:, qpos_at + model.jnt_qposadr[jid]] = phi0[:, k]
             states[:, qvel_at + model.jnt_dofadr[jid]] = omega0[:, k]
+        tid = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, TILTS[k])
+        if tid >= 0 and tilt0 is not None:
+            states[:, qpos_at + model.jnt_qposadr[tid]] = tilt0[:, k]
     return states
 
 
 def _sensor(model: mujoco.MjModel, sensordata: np.ndarray, name: str) -> np.ndarray:
     s = model.sensor(name)
     return sensordata[..., s.adr[0] : s.adr[0] + s.dim[0]]
-
-
-def _hinge_mass_matrix(model: mujoco.MjModel) -> np.ndarray:
-    """(2, 2) joint-space inertia of (phi1, phi2), kg m^2; a clamped hinge's row and column are 0."""
-    data = mujoco.MjData(model)
-    mujoco.mj_forward(model, data)
-    full = np.zeros((model.nv, model.nv))
-    mujoco.mj_fullM(model, data, full)
-    out = np.zeros((2, 2))
-    dofs = [mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, h) for h in HINGES]
-    for i, ji in enumerate(dofs):
-        for j, jj in enumerate(dofs):
-            if ji >= 0 and jj >= 0:
-                out[i, j] = full[model.jnt_dofadr[ji], model.jnt_dofadr[jj]]
-    return out
 
 
 def _rest_potential_j(model: mujoco.MjModel) -> float:
@@ -207,11 +222,17 @@ def _trajectory(models, unique, param_list, states, sensordata, dt_s, nstep, cla
     qpos_at, qvel_at = _state_offsets(model)
     phi = np.zeros((nbatch, n, 2))
     omega = np.zeros((nbatch, n, 2))
-    for k, hinge in enumerate(HINGES):
+    tilt = np.zeros((nbatch, n, 2))
+    tilt_rate = np.zeros((nbatch, n, 2))
+    for k, (hinge, tilt_joint) in enumerate(zip(HINGES, TILTS, strict=True)):
         jid = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, hinge)
         if jid >= 0:
             phi[..., k] = states[..., qpos_at + model.jnt_qposadr[jid]]
             omega[..., k] = states[..., qvel_at + model.jnt_dofadr[jid]]
+        tid = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, tilt_joint)
+        if tid >= 0:
+            tilt[..., k] = states[..., qpos_at + model.jnt_qposadr[tid]]
+            tilt_rate[..., k] = states[..., qvel_at + model.jnt_dofadr[tid]]
 
     def sens(name: str) -> np.ndarray:
         return _sensor(model, sensordata, name)
@@ -244,12 +265,16 @@ def _trajectory(models, unique, param_list, states, sensordata, dt_s, nstep, cla
             if owner is not None:
                 moment[..., owner] += np.cross(p_point, f) @ HINGE_AXIS_WORLD
 
-    # Kinetic energy 1/2 omega^T M omega from MuJoCo's mass matrix. Not the e_kinetic sensor:
-    # MuJoCo evaluates it before mj_energyVel, so it holds the previous evaluation's value (the
-    # last RK4 stage). M is constant here: each hinge turns a rigid body about a fixed axis.
-    inertia = {id(m): _hinge_mass_matrix(m) for m in unique.values()}
-    mass = np.array([inertia[id(m)] for m in models])  # (nbatch, 2, 2)
-    kinetic = 0.5 * np.einsum("bni,bij,bnj->bn", omega, mass, omega)
+    # Kinetic energy sum 1/2 m v_com^2 + 1/2 w^T I w from per-body sensors at the same instant
+    # (not MuJoCo's e_kinetic sensor, which it reads before mj_energyVel: one evaluation stale).
+    kinetic = np.zeros((nbatch, n))
+    for b in BODIES:
+        bid = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, b)
+        mass = np.array([m.body_mass[bid] for m in models])[:, None]
+        inertia = np.array([m.body_inertia[bid] for m in models])[:, None, :]  # principal, body axes
+        v = sens(f"{b}_com_linvel")
+        w_body = rotations.rotate_into_frame(sens(f"{b}_quat"), sens(f"{b}_angvel"))
+        kinetic += 0.5 * mass * np.sum(v * v, axis=-1) + 0.5 * np.sum(inertia * w_body * w_body, axis=-1)
     potential = sens("energy_potential")[..., 0] - rest[:, None]
     # Dissipated energy: integral of the damping power P = sum b omega^2 by the corrected
     # trapezoid rule h/2 (P_k + P_k+1) + h^2/12 (P'_k - P'_k+1), P' = sum 2 b omega alpha
@@ -257,6 +282,10 @@ def _trajectory(models, unique, param_list, states, sensordata, dt_s, nstep, cla
     power = np.einsum("bk,bnk->bn", damping, omega**2)
     dpower = np.einsum("bk,bnk->bn", 2.0 * damping, omega * alpha)
     interval = 0.5 * dt_s * (power[:, :-1] + power[:, 1:]) + dt_s**2 / 12.0 * (dpower[:, :-1] - dpower[:, 1:])
+    if np.any(tilt_rate):  # tilt damping: trapezoid (no tilt acceleration sensor), second order
+        tilt_b = np.array([p.tilt_damping_n_m_s_rad for p in param_list])[:, None, None]
+        tilt_power = np.sum(tilt_b * tilt_rate**2, axis=-1)
+        interval = interval + 0.5 * dt_s * (tilt_power[:, :-1] + tilt_power[:, 1:])
     dissipated = np.concatenate([np.zeros((nbatch, 1)), np.cumsum(interval, axis=1)], axis=1)
 
     scale = np.array([p.m1_kg * p.g_m_s2 * p.oc1_m for p in param_list])
@@ -270,6 +299,7 @@ def _trajectory(models, unique, param_list, states, sensordata, dt_s, nstep, cla
         imu_gyro_rad_s=gyro,
         imu_quat_wxyz=quat,
         imu_angacc_rad_s2=angacc,
+        tilt_rad=tilt,
         spring_length_m=length,
         spring_force_n=force,
         spring_moment_n_m=moment,

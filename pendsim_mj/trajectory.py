@@ -38,6 +38,8 @@ class Trajectory:
       imu_quat_wxyz: (..., n, 2, 4) orientation of each IMU frame in the world frame.
       imu_angacc_rad_s2: (..., n, 2, 3) angular acceleration of each pendulum, sensor axes
         (planar model: (0, 0, alpha)).
+      tilt_rad: (..., n, 2) out-of-plane tilt of each pendulum's support (spatial variant; 0 in
+        the planar model and the reference).
       spring_length_m: (..., n, 4) spring lengths, m.
       spring_force_n: (..., n, 4) spring tensions c * L, N.
       spring_moment_n_m: (..., n, 2) moment of the spring forces about the pivot axis on
@@ -58,6 +60,7 @@ class Trajectory:
     imu_gyro_rad_s: np.ndarray
     imu_quat_wxyz: np.ndarray
     imu_angacc_rad_s2: np.ndarray
+    tilt_rad: np.ndarray
     spring_length_m: np.ndarray
     spring_force_n: np.ndarray
     spring_moment_n_m: np.ndarray
@@ -76,6 +79,7 @@ class Trajectory:
         "imu_gyro_rad_s",
         "imu_quat_wxyz",
         "imu_angacc_rad_s2",
+        "tilt_rad",
         "spring_length_m",
         "spring_force_n",
         "spring_moment_n_m",
