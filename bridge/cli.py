@@ -109,6 +109,17 @@ def _build_parser() -> _Parser:
         help="also log the simulated run to Rerun, as 'simulate --rerun' does (default file recording.rrd)",
     )
     rec.add_argument(
+        "--model",
+        default="planar",
+        help="planar (default) or spatial: the pendulums' planes --offset-m apart, with tilt freedoms",
+    )
+    rec.add_argument(
+        "--offset-m",
+        type=_non_negative_float,
+        default=0.050,
+        help="with --model spatial: distance between the planes, m (paper: 0.050 or 0.023)",
+    )
+    rec.add_argument(
         "--static",
         action="store_true",
         help="a static noise test: both nodes at rest, IMU topics only (e.g. --duration-s 21600 for 6 h)",
@@ -214,6 +225,32 @@ def _build_parser() -> _Parser:
     idn.add_argument("path", type=Path, help="the .mcap recording")
     idn.add_argument("--window-s", type=_finite_float, default=120.0, help="log-decrement window, s (default 120)")
     idn.add_argument("--write", type=Path, metavar="FILE.json", help="write the fitted b1_n_m_s, b2_n_m_s as JSON")
+
+    cmp = sub.add_parser(
+        "compare",
+        help="planar against spatial model from the same release: in-plane difference, tilt, beats, spectra",
+        description="Run the planar model and the spatial variant (plane offset, tilt freedoms) from the same "
+        "release and report per pendulum the in-plane angle difference, the out-of-plane amplitude, the beat "
+        "period and depth of the swing envelope and the spectrum near the main frequency; writes summary.json and "
+        "PNG plots; --rerun shows both rigs side by side.",
+    )
+    _add_run_options(cmp)
+    cmp.add_argument(
+        "--offset-m",
+        type=_non_negative_float,
+        default=0.050,
+        help="distance between the pendulum planes, m (paper: 0.050 or 0.023; default 0.050)",
+    )
+    cmp.add_argument("--fixed-points-plane", default="m2", help="plane of points 6 and 7: m2 (default) or m1")
+    cmp.add_argument("-o", "--out-dir", type=Path, default=Path("compare"), help="output folder (default compare/)")
+    cmp.add_argument(
+        "--rerun",
+        type=Path,
+        nargs="?",
+        const=Path("compare.rrd"),
+        metavar="FILE.rrd",
+        help="also show both rigs side by side and their angles in Rerun (default compare.rrd)",
+    )
 
     dm = sub.add_parser(
         "demo",
@@ -357,11 +394,19 @@ def _check_output(path: Path | None, suffixes: tuple[str, ...], *, force: bool =
         raise UsageError(f"output directory {str(parent)!r} is not writable")
 
 
-def _simulate_from_args(args: argparse.Namespace):
+def _simulate_from_args(args: argparse.Namespace, *, spatial: bool = False):
     """Simulate the run the common options describe; returns (params, phi0, omega0, trajectory)."""
     if args.engine not in ENGINES:
         raise UsageError(f"unknown engine {args.engine!r}; allowed: {', '.join(ENGINES)}")
     params = _params_from(args)
+    if spatial:
+        from pendsim_mj.model import SPATIAL
+        from pendsim_mj.simulation import simulate
+
+        params = params.with_overrides(plane_offset_m=args.offset_m)
+        phi0 = (math.radians(args.phi1_deg), math.radians(args.phi2_deg))
+        omega0 = (math.radians(args.omega1_deg_s), math.radians(args.omega2_deg_s))
+        return params, phi0, omega0, simulate(params, phi0, omega0, args.duration_s, args.dt_s, variant=SPATIAL)
     phi0 = (math.radians(args.phi1_deg), math.radians(args.phi2_deg))
     omega0 = (math.radians(args.omega1_deg_s), math.radians(args.omega2_deg_s))
     if args.engine == "mujoco":
@@ -426,7 +471,7 @@ def _cmd_info(args: argparse.Namespace) -> int:
 def _cmd_record(args: argparse.Namespace) -> int:
     from bridge.mcap_writer import COMPRESSIONS
     from bridge.recording import RunInfo, write_recording
-    from pendsim_mj.model import exact_mjcf
+    from pendsim_mj.model import PLANAR, SPATIAL, exact_mjcf
     from pendsim_mj.sensors import Bno055, ImuNoise, sample_imu, static_imu
 
     _check_output(args.output, (".mcap",), force=args.force)
@@ -434,6 +479,11 @@ def _cmd_record(args: argparse.Namespace) -> int:
         _check_output(args.rerun, (".rrd",))
     if args.compression not in COMPRESSIONS:
         raise UsageError(f"unknown compression {args.compression!r}; allowed: {', '.join(COMPRESSIONS)}")
+    if args.model not in ("planar", "spatial"):
+        raise UsageError(f"unknown model {args.model!r}; allowed: planar, spatial")
+    spatial = args.model == "spatial"
+    if spatial and (args.engine != "mujoco" or args.static):
+        raise UsageError("--model spatial needs the mujoco engine and a released run (not --static)")
     noise = ImuNoise(
         accel_bias_instability_m_s2=(args.accel_bias_instability_m_s2,) * 3,
         gyro_bias_instability_rad_s=(args.gyro_bias_instability_rad_s,) * 3,
@@ -447,10 +497,10 @@ def _cmd_record(args: argparse.Namespace) -> int:
         imu = static_imu(params, args.duration_s, config)
         run = RunInfo("static", (0.0, 0.0), (0.0, 0.0), args.duration_s, 1 / config.sample_rate_hz, model="static")
     else:
-        params, phi0, omega0, traj = _simulate_from_args(args)
+        params, phi0, omega0, traj = _simulate_from_args(args, spatial=spatial)
         imu = sample_imu(traj, config, hold_s=args.hold_s)
         release = round(args.hold_s * config.sample_rate_hz) / config.sample_rate_hz
-        run = RunInfo(args.engine, phi0, omega0, args.duration_s, args.dt_s, release_time_s=release)
+        run = RunInfo(args.engine, phi0, omega0, args.duration_s, args.dt_s, model=args.model, release_time_s=release)
     partial = args.output.with_name(f".{args.output.name}.partial")
     from tqdm import tqdm
 
@@ -460,7 +510,7 @@ def _cmd_record(args: argparse.Namespace) -> int:
                 partial,
                 imu,
                 run,
-                exact_mjcf(params, timestep_s=args.dt_s),
+                exact_mjcf(params, timestep_s=args.dt_s, variant=SPATIAL if spatial else PLANAR),
                 params,
                 traj=traj,
                 compression=args.compression,
@@ -634,6 +684,57 @@ def _cmd_identify(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_compare(args: argparse.Namespace) -> int:
+    import json
+
+    from bridge.plots import comparison_figures
+    from pendsim_mj.comparison import compare_planar_spatial
+    from pendsim_mj.model import Variant
+
+    if args.fixed_points_plane not in ("m1", "m2"):
+        raise UsageError(f"--fixed-points-plane must be m1 or m2, got {args.fixed_points_plane!r}")
+    if args.engine != "mujoco":
+        raise UsageError("the spatial model runs in MuJoCo only; drop --engine")
+    out = args.out_dir
+    if out.exists() and not out.is_dir():
+        raise UsageError(f"output {str(out)!r} is a file; give a folder")
+    if args.rerun is not None:
+        _check_output(args.rerun, (".rrd",))
+    params = _params_from(args).with_overrides(plane_offset_m=args.offset_m)
+    phi0 = (math.radians(args.phi1_deg), math.radians(args.phi2_deg))
+    result = compare_planar_spatial(
+        params, phi0, args.duration_s, args.dt_s, variant=Variant(tilt=True, fixed_points_plane=args.fixed_points_plane)
+    )  # fmt: skip
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "summary.json").write_text(json.dumps(result.summary, indent=1))
+    figures = comparison_figures(result, out)
+    main_hz = result.summary["main_frequency_hz"]
+    print(
+        f"planar vs spatial ({1000 * args.offset_m:g} mm between the planes, tilt freedoms), {args.duration_s:g} s "
+        f"from {args.phi1_deg:g} deg, {args.phi2_deg:g} deg; main frequency {main_hz:.4f} Hz"
+    )
+    head = f"{'':4} {'max|dphi| (deg)':>16} {'>1 deg after (s)':>17} {'tilt amp (deg)':>15}"
+    print(f"{head} {'beat planar':>12} {'beat spatial':>13}")
+    for name, p in result.summary["pendulums"].items():
+        first = p["first_time_difference_exceeds_1_deg_s"]
+
+        def beat_text(variant: str, p=p) -> str:
+            period = p["beat_period_s"][variant]
+            return f"{period:.1f} s/{100 * p['beat_depth'][variant]:.0f}%" if period else "none"
+
+        first_text = f"{first:.2f}" if first is not None else "-"
+        row = f"{name:4} {math.degrees(p['in_plane_difference_max_rad']):16.2f} {first_text:>17}"
+        tilt = math.degrees(p["out_of_plane_amplitude_rad"])
+        print(f"{row} {tilt:15.2f} {beat_text('planar'):>12} {beat_text('spatial'):>13}")
+    print(f"wrote {out / 'summary.json'}, {', '.join(str(f) for f in figures)}")
+    if args.rerun is not None:
+        from bridge.rerun_view import view_comparison
+
+        view_comparison(result, params, Variant(tilt=True, fixed_points_plane=args.fixed_points_plane), args.rerun)
+        print(f"wrote {args.rerun}")
+    return 0
+
+
 def _cmd_demo(args: argparse.Namespace) -> int:
     import json
 
@@ -789,6 +890,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             "identify": _cmd_identify,
             "view": _cmd_view,
             "demo": _cmd_demo,
+            "compare": _cmd_compare,
             "replay": _cmd_replay,
         }[args.command]
         return handler(args)

@@ -143,3 +143,66 @@ def validation_figures(report, directory: str | Path) -> list[Path]:
     plt.close(fig)
     out.append(path)
     return sorted(out)
+
+
+def comparison_figures(comparison, directory: str | Path) -> list[Path]:
+    """Planar against spatial: angles, in-plane difference, tilt, envelopes, spectra near f0."""
+    from pendsim_mj.comparison import envelope, spectrum_near
+
+    directory = Path(directory)
+    directory.mkdir(parents=True, exist_ok=True)
+    planar, spatial = comparison.planar, comparison.spatial
+    t = planar.t_s
+    f0 = comparison.summary["main_frequency_hz"]
+    offset_mm = 1000 * comparison.summary["plane_offset_m"]
+    out = []
+
+    def save(fig, name):
+        fig.tight_layout()
+        path = directory / name
+        fig.savefig(path)
+        plt.close(fig)
+        out.append(path)
+
+    fig, axes = plt.subplots(2, 1, figsize=(10, 6), dpi=100, sharex=True)
+    for k, ax in enumerate(axes):
+        ax.plot(t, planar.phi_rad[:, k], color="tab:blue", linewidth=0.7, label="planar")
+        ax.plot(t, spatial.phi_rad[:, k], color="tab:orange", linewidth=0.7, label=f"spatial ({offset_mm:g} mm, tilt)")
+        ax.set_ylabel(f"phi{k + 1} (rad)")
+        ax.grid(True, alpha=0.3)
+        ax.legend(fontsize=8, loc="upper right")
+    axes[0].set_title("in-plane angles, planar and spatial, same release")
+    axes[1].set_xlabel("t (s)")
+    save(fig, "compare_angles.png")
+
+    fig, axes = plt.subplots(2, 1, figsize=(10, 5.5), dpi=100, sharex=True)
+    for k in range(2):
+        axes[0].plot(t, spatial.phi_rad[:, k] - planar.phi_rad[:, k], linewidth=0.8, label=f"phi{k + 1}")
+        axes[1].plot(t, spatial.tilt_rad[:, k], linewidth=0.8, label=f"tilt of M{k + 1}")
+    axes[0].set_ylabel("spatial - planar (rad)")
+    axes[0].set_title("in-plane angle difference")
+    axes[1].set_ylabel("out-of-plane tilt (rad)")
+    axes[1].set_title("out-of-plane motion (spatial)")
+    axes[1].set_xlabel("t (s)")
+    for ax in axes:
+        ax.grid(True, alpha=0.3)
+        ax.legend(fontsize=8, loc="upper right")
+    save(fig, "compare_difference_and_tilt.png")
+
+    fig, axes = plt.subplots(2, 2, figsize=(11, 6), dpi=100)
+    for k in range(2):
+        for name, tr, colour in (("planar", planar, "tab:blue"), ("spatial", spatial, "tab:orange")):
+            axes[k, 0].plot(t, envelope(t, tr.phi_rad[:, k]), color=colour, linewidth=0.9, label=name)
+            f, m, _ = spectrum_near(t, tr.phi_rad[:, k], f0)
+            axes[k, 1].plot(f, m, color=colour, linewidth=0.9, label=name)
+        axes[k, 0].set_ylabel(f"envelope of phi{k + 1} (rad)")
+        axes[k, 1].set_ylabel(f"|spectrum| of phi{k + 1} (rel.)")
+        for ax in axes[k]:
+            ax.grid(True, alpha=0.3)
+            ax.legend(fontsize=8, loc="upper right")
+    axes[1, 0].set_xlabel("t (s)")
+    axes[1, 1].set_xlabel("frequency (Hz)")
+    axes[0, 0].set_title("swing envelope (beats)")
+    axes[0, 1].set_title(f"spectrum near the main frequency {f0:.3f} Hz")
+    save(fig, "compare_envelope_and_spectrum.png")
+    return out

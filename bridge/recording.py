@@ -109,8 +109,7 @@ def write_recording(
     imu_ns = _ns(imu.t_s, start_time_ns)
     if traj is not None:
         step_ns = _ns(traj.t_s + run.release_time_s, start_time_ns)
-        half = traj.phi_rad / 2
-        body_quat_xyzw = np.stack([np.zeros_like(half), -np.sin(half), np.zeros_like(half), np.cos(half)], axis=-1)
+        body_quat_xyzw = rotations.wxyz_to_xyzw(traj.body_quat_wxyz())
 
     with BulkMcapWriter(path, compression=compression, library=f"pendsim {__version__}") as w:
         _write_metadata(w, params, config, run, compression, start_time_ns)
@@ -165,6 +164,8 @@ def write_recording(
 
 def _write_joint_block(w, ch, layouts, traj, step_ns, body_quat_xyzw, release_time_s, lo, hi) -> None:
     """/joint_states and /tf for the steps in [lo, hi) s."""
+    params = traj.params[0] if isinstance(traj.params, tuple) else traj.params
+    body_offsets = (np.zeros(3), np.array([0.0, params.plane_offset_m, 0.0]))  # M2 sits behind M1
     step_t = traj.t_s + release_time_s  # on the recording's clock
     ti = np.flatnonzero((step_t >= lo - 1e-12) & (step_t < hi - 1e-12))
     sec, nsec = ros2.split_time(step_ns[ti])
@@ -183,7 +184,7 @@ def _write_joint_block(w, ch, layouts, traj, step_ns, body_quat_xyzw, release_ti
             {
                 f"t{k}_sec": sec,
                 f"t{k}_nanosec": nsec,
-                f"t{k}_translation": np.zeros((len(ti), 3)),
+                f"t{k}_translation": np.broadcast_to(body_offsets[k], (len(ti), 3)),
                 f"t{k}_rotation": body_quat_xyzw[ti, k],
             }
         )

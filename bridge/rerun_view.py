@@ -18,6 +18,7 @@ import numpy as np
 import rerun as rr
 import rerun.blueprint as rrb
 
+from pendsim_mj import rotations
 from pendsim_mj.model import BODIES, SPRING_ENDS, SPRINGS
 from pendsim_mj.trajectory import Trajectory
 
@@ -65,13 +66,13 @@ def _geom_rgba(model: mujoco.MjModel, geoms: list[int]) -> np.ndarray:
     return np.where((matid >= 0)[:, None], model.mat_rgba[np.maximum(matid, 0)], model.geom_rgba[geoms])
 
 
-def log_rig_geometry(model: mujoco.MjModel) -> None:
-    """Static geometry: the frame in the world, each pendulum's geoms and points in its body."""
-    data = mujoco.MjData(model)
-    mujoco.mj_kinematics(model, data)
+def log_rig_geometry(model: mujoco.MjModel, *, root: str = "/rig", x_offset_m: float = 0.0) -> None:
+    """Static geometry: the frame in the world, each pendulum's geoms and points in its body
+    (a rig drawn ``x_offset_m`` to the side, under ``root``)."""
+    rr.log(f"{root}/frame", rr.Transform3D(translation=[x_offset_m, 0.0, 0.0]), static=True)
     for body_id in range(model.nbody):
         name = model.body(body_id).name or "frame"
-        entity = f"/rig/{name}" if name in BODIES else "/rig/frame"
+        entity = f"{root}/{name}" if name in BODIES else f"{root}/frame"
         geoms = [g for g in range(model.ngeom) if model.geom_bodyid[g] == body_id]
         round_types = (int(mujoco.mjtGeom.mjGEOM_CYLINDER), int(mujoco.mjtGeom.mjGEOM_CAPSULE))
         cylinders = [g for g in geoms if int(model.geom_type[g]) in round_types]  # numpy int vs pybind enum
@@ -118,48 +119,60 @@ def log_rig_geometry(model: mujoco.MjModel) -> None:
             )
 
 
-def log_trajectory(traj: Trajectory, model: mujoco.MjModel, *, time_offset_s: float = 0.0) -> None:
-    """The computed run: body poses, springs coloured by tension, and every plotted quantity."""
+def log_trajectory(
+    traj: Trajectory,
+    model: mujoco.MjModel,
+    *,
+    time_offset_s: float = 0.0,
+    root: str = "/rig",
+    x_offset_m: float = 0.0,
+    series: str = "model",
+) -> None:
+    """The computed run: body poses, springs coloured by tension, and every plotted quantity
+    (under /plots/<quantity>/<series>)."""
     times = rr.TimeColumn(TIMELINE, duration=traj.t_s + time_offset_s)
+    n = len(traj.t_s)
+    poses = {}
     for k, body in enumerate(BODIES):
+        quat = traj.body_quat_wxyz()[:, k]
+        position = model.body(body).pos + np.array([x_offset_m, 0.0, 0.0])
+        poses[k] = (rotations.to_matrix(quat), position)
         rr.send_columns(
-            f"/rig/{body}",
+            f"{root}/{body}",
             indexes=[times],
-            columns=rr.Transform3D.columns(quaternion=_quat_xyzw_about_pivot(traj.phi_rad[:, k])),
+            columns=rr.Transform3D.columns(
+                quaternion=rotations.wxyz_to_xyzw(quat), translation=np.broadcast_to(position, (n, 3))
+            ),
         )
-    # Spring end points in the world, from the body rotations applied to the model's site positions.
+    # Spring end points in the world: each body's pose applied to the model's site positions.
     site = {name: model.site(name).pos.copy() for pair in SPRING_ENDS for name in pair}
     owner = {"point_1": 1, "point_5": 1, "point_2": 0, "point_3": 0}
-    c, s = np.cos(traj.phi_rad), np.sin(traj.phi_rad)
 
     def world(name: str) -> np.ndarray:
         p = site[name]
         if name not in owner:
-            return np.broadcast_to(p, (len(traj.t_s), 3))
-        k = owner[name]  # rotation about -y: x' = x c - z s, z' = x s + z c
-        return np.stack(
-            [p[0] * c[:, k] - p[2] * s[:, k], np.full(len(c), p[1]), p[0] * s[:, k] + p[2] * c[:, k]], axis=-1
-        )
+            return np.broadcast_to(p + np.array([x_offset_m, 0.0, 0.0]), (n, 3))
+        matrix, position = poses[owner[name]]
+        return position + matrix @ p
 
     ends = np.stack([np.stack([world(a), world(b)], axis=1) for a, b in SPRING_ENDS], axis=1)  # (n, 4, 2, 3)
     force = traj.spring_force_n
     low, high = float(force.min()), float(force.max())
     share = (force - low) / (high - low) if high > low else np.zeros_like(force)
     colours = np.stack([255 * share, 60 + 0 * share, 255 * (1 - share)], axis=-1).astype(np.uint8)
-    n = len(traj.t_s)
     rr.send_columns(
-        "/rig/springs",
+        f"{root}/springs",
         indexes=[times],
         columns=rr.LineStrips3D.columns(strips=ends.reshape(n * 4, 2, 3), colors=colours.reshape(n * 4, 3)).partition(
             [4] * n
         ),
     )
-    rr.log("/rig/springs", rr.LineStrips3D.from_fields(labels=list(SPRINGS), radii=0.002), static=True)
+    rr.log(f"{root}/springs", rr.LineStrips3D.from_fields(labels=list(SPRINGS), radii=0.002), static=True)
     for name, (_, pick) in PLOTTED.items():
-        rr.send_columns(f"/plots/{name}/model", indexes=[times], columns=rr.Scalars.columns(scalars=pick(traj)))
+        rr.send_columns(f"/plots/{name}/{series}", indexes=[times], columns=rr.Scalars.columns(scalars=pick(traj)))
     for k in range(2):
         strip = np.stack([traj.phi_rad[:, k], -traj.omega_rad_s[:, k]], axis=-1)  # 2D views draw y down
-        rr.log(f"/phase/m{k + 1}/model", rr.LineStrips2D([strip], colors=[255, 140, 0], radii=0.003), static=True)
+        rr.log(f"/phase/m{k + 1}/{series}", rr.LineStrips2D([strip], colors=[255, 140, 0], radii=0.003), static=True)
 
 
 def log_measured(t_s: np.ndarray, series: dict[str, np.ndarray]) -> None:
@@ -218,6 +231,31 @@ def view_recording(path: str | Path, rrd_path: str | Path) -> Path:
     computed = resample(traj.t_s, traj.phi_rad[:, 0], run.t_s[inside])
     error = compare(run.t_s[inside], run.series["phi1"][inside], computed)
     log_error(error.t_s, error.delta, error.iae_curve, error.ise_curve)
+    rr.disconnect()
+    return Path(rrd_path)
+
+
+def view_comparison(comparison, params, variant, rrd_path: str | Path) -> Path:
+    """Planar and spatial rigs side by side (0.8 m apart) and their angles on shared plots."""
+    from pendsim_mj.model import build_model
+
+    start()
+    rr.save(str(rrd_path), default_blueprint=blueprint())
+    planar_model = build_model(params.with_overrides(plane_offset_m=0.0))
+    spatial_model = build_model(params, variant=variant)
+    for root, model, traj, x, series in (
+        ("/rig/planar", planar_model, comparison.planar, -0.4, "planar"),
+        ("/rig/spatial", spatial_model, comparison.spatial, 0.4, "spatial"),
+    ):
+        log_rig_geometry(model, root=root, x_offset_m=x)
+        log_trajectory(traj, model, root=root, x_offset_m=x, series=series)
+    times = rr.TimeColumn(TIMELINE, duration=comparison.spatial.t_s)
+    for k in range(2):
+        rr.send_columns(
+            f"/plots/tilt{k + 1}/spatial",
+            indexes=[times],
+            columns=rr.Scalars.columns(scalars=comparison.spatial.tilt_rad[:, k]),
+        )
     rr.disconnect()
     return Path(rrd_path)
 

@@ -253,6 +253,8 @@ def sample_imu(traj: Trajectory, config: Bno055 = Bno055(), *, hold_s: float = 0
         raise ParameterError("sample_imu takes a single trajectory; use trajectory.member(i)")
     if not (math.isfinite(hold_s) and hold_s >= 0):
         raise ParameterError(f"hold_s must be a finite number >= 0 s, got {hold_s!r}")
+    if not config.fusion_timing and np.any(traj.tilt_rad):
+        raise ParameterError("ideal timing interpolates the planar state only; use fusion timing for the spatial model")
     k, fused_t = sample_instants(traj, config)
     readings = _ideal_readings(traj, fused_t, on_grid=config.fusion_timing)
     params = traj.params[0] if isinstance(traj.params, tuple) else traj.params

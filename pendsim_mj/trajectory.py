@@ -93,6 +93,15 @@ class Trajectory:
         """Kinetic + potential energy above rest, J, shape (..., n)."""
         return self.kinetic_j + self.potential_j
 
+    def body_quat_wxyz(self) -> np.ndarray:
+        """(..., n, 2, 4) orientation of each pendulum body in the world: its tilt about world x
+        (spatial variant), then its swing by phi about the rocked -y axis."""
+        half_t, half_p = self.tilt_rad / 2, self.phi_rad / 2
+        zero = np.zeros_like(half_p)
+        c_t, s_t, c_p, s_p = np.cos(half_t), np.sin(half_t), np.cos(half_p), np.sin(half_p)
+        # (c_t, s_t, 0, 0) * (c_p, 0, -s_p, 0)
+        return np.stack([c_t * c_p, s_t * c_p, -c_t * s_p, -s_t * s_p + zero], axis=-1)
+
     @property
     def is_batch(self) -> bool:
         return self.phi_rad.ndim == 3
