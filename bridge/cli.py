@@ -68,14 +68,7 @@ def _build_parser() -> _Parser:
     )
     _add_run_options(sim)
     sim.add_argument("-o", "--output", type=Path, help="write the trajectory to FILE.npz (all arrays) or FILE.csv")
-    sim.add_argument(
-        "--rerun",
-        type=Path,
-        nargs="?",
-        const=Path("simulation.rrd"),
-        metavar="FILE.rrd",
-        help="also log the run to Rerun: the rig in 3D and its time series (default file simulation.rrd)",
-    )
+    _add_rerun_option(sim, "simulation.rrd", "also log the run to Rerun: the rig in 3D and its time series")
 
     rec = sub.add_parser(
         "record",
@@ -100,14 +93,7 @@ def _build_parser() -> _Parser:
         help="sample at exactly k/80 s instead of reading the latest 100 Hz fused value (the real node's timing)",
     )
     rec.add_argument("--compression", default="zstd", help="chunk compression: zstd (default), lz4 or none")
-    rec.add_argument(
-        "--rerun",
-        type=Path,
-        nargs="?",
-        const=Path("recording.rrd"),
-        metavar="FILE.rrd",
-        help="also log the simulated run to Rerun, as 'simulate --rerun' does (default file recording.rrd)",
-    )
+    _add_rerun_option(rec, "recording.rrd", "also log the simulated run to Rerun, as simulate --rerun does")
     rec.add_argument(
         "--model",
         default="planar",
@@ -243,14 +229,7 @@ def _build_parser() -> _Parser:
     )
     cmp.add_argument("--fixed-points-plane", default="m2", help="plane of points 6 and 7: m2 (default) or m1")
     cmp.add_argument("-o", "--out-dir", type=Path, default=Path("compare"), help="output folder (default compare/)")
-    cmp.add_argument(
-        "--rerun",
-        type=Path,
-        nargs="?",
-        const=Path("compare.rrd"),
-        metavar="FILE.rrd",
-        help="also show both rigs side by side and their angles in Rerun (default compare.rrd)",
-    )
+    _add_rerun_option(cmp, "compare.rrd", "also show both rigs side by side and their angles in Rerun")
 
     dm = sub.add_parser(
         "demo",
@@ -319,6 +298,11 @@ def _build_parser() -> _Parser:
         description="Print every rig parameter with value, unit and source.",
     )
     return parser
+
+
+def _add_rerun_option(p: argparse.ArgumentParser, default: str, what: str) -> None:
+    help_text = f"{what} (default file {default})"
+    p.add_argument("--rerun", type=Path, nargs="?", const=Path(default), metavar="FILE.rrd", help=help_text)
 
 
 def _add_run_options(p: argparse.ArgumentParser) -> None:

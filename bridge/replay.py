@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from bridge.mcap_reader import McapContents, read_mcap
-from bridge.mcap_writer import BulkMcapWriter
+from bridge.mcap_tools import rewrite
 from pendsim_mj.errors import ParameterError
 
 
@@ -187,38 +187,13 @@ def replay_to_mcap(
     contents = read_mcap(path, strict=True)
     ids, rows, times = _select(contents, topics, start_s, end_s)
     shift = int(times[0]) if shift_to_zero and len(times) else 0
-    output = Path(output)
-    partial = output.with_name(f".{output.name}.partial")
-    try:
-        with BulkMcapWriter(partial, library="pendsim replay") as w:
-            for name, values in contents.metadata.items():
-                w.add_metadata(name, values)
-            for a in contents.attachments.values():
-                w.add_attachment(a.name, a.media_type, a.data, a.log_time)
-            schema_ids = {
-                sid: w.register_schema(s.name, s.encoding, s.data) for sid, s in sorted(contents.schemas.items())
-            }
-            for cid, channel in sorted(contents.channels.items()):
-                chosen = rows[ids == cid]
-                if topics is not None and channel.topic not in topics:
-                    continue
-                new = w.register_channel(
-                    channel.topic, schema_ids[channel.schema_id], channel.message_encoding, channel.metadata
-                )
-                if not len(chosen):
-                    continue
-                data = contents.messages[cid]
-                payloads = data.payloads
-                block = (
-                    payloads[chosen]
-                    if isinstance(payloads, np.ndarray)
-                    else np.frombuffer(b"".join(payloads[i] for i in chosen), np.uint8).reshape(len(chosen), -1)
-                )
-                w.write_messages(new, data.log_time_ns[chosen] - shift, block, data.publish_time_ns[chosen] - shift)
-        partial.replace(output)
-    finally:
-        partial.unlink(missing_ok=True)
-    return len(ids)
+
+    def chosen(cid: int, _data) -> np.ndarray | None:
+        if topics is not None and contents.channels[cid].topic not in topics:
+            return None
+        return rows[ids == cid]
+
+    return rewrite(contents, output, rows=chosen, shift_ns=shift, library="pendsim replay")
 
 
 def log_to_rerun(message: ReplayMessage) -> None:
