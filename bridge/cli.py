@@ -573,17 +573,6 @@ def _cmd_allan(args: argparse.Namespace) -> int:
     return 0
 
 
-def _validation_params(args: argparse.Namespace) -> RigParams | None:
-    """The recording's own parameters with the command's overrides, or None for no overrides."""
-    overrides = _overrides_from(args)
-    if not overrides:
-        return None
-    from bridge.recording import read_recording
-    from bridge.validate import recorded_params
-
-    return recorded_params(read_recording(args.path, topics=[])).with_mapping(overrides)
-
-
 def _cmd_validate(args: argparse.Namespace) -> int:
     import json
 
@@ -606,7 +595,7 @@ def _cmd_validate(args: argparse.Namespace) -> int:
     out_dir = args.out_dir or args.path.with_name(f"{args.path.stem}_validation")
     if out_dir.exists() and not out_dir.is_dir():
         raise UsageError(f"output directory {str(out_dir)!r} is a file")
-    report = validate(args.path, damping=damping, params=_validation_params(args))
+    report = validate(args.path, damping=damping, overrides=_overrides_from(args))
     out_dir.mkdir(parents=True, exist_ok=True)
     (out_dir / "report.json").write_text(json.dumps(report_json(report), indent=1))
     print(table(report))

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from collections.abc import Mapping
 from pathlib import Path
 
 import numpy as np
@@ -249,6 +250,7 @@ def validate(
     *,
     damping: str | tuple[float, float] = "identified",
     params: RigParams | None = None,
+    overrides: Mapping[str, float] | None = None,
     short_window_s: float = 5.0,
 ) -> ValidationReport:
     """Compare a recording with the MuJoCo model and the planar reference.
@@ -258,10 +260,11 @@ def validate(
       damping: "identified" (least-squares fit on this recording), "recorded" (the parameters in
         its metadata) or (b1, b2) in N m s/rad.
       params: the rig to validate (default: the recording's parameters, else the paper's).
+      overrides: parameter changes applied on top of that rig (e.g. a deliberately wrong model).
       short_window_s: the paper's short window (5 s).
     """
     rec = read_recording(path)
-    base = params or recorded_params(rec)
+    base = (params or recorded_params(rec)).with_mapping(overrides or {})
     run = align(rec, base)
     identification = None
     if damping == "identified":

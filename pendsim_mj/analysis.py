@@ -33,10 +33,11 @@ def noise_level(x: np.ndarray) -> float:
     return float(1.4826 * np.median(np.abs(d2 - np.median(d2))) / np.sqrt(6.0))
 
 
-def spectral_peak_hz(t_s: np.ndarray, x: np.ndarray) -> float:
-    """Dominant frequency of x (Hz): the largest peak of its Hann-windowed spectrum, refined by
-    a parabola through the log-magnitudes of the three bins around it (accuracy well below
-    one bin, 1/duration). The mean is removed first; returns 0.0 for a constant signal."""
+def spectral_peak_hz(t_s: np.ndarray, x: np.ndarray, max_hz: float = np.inf) -> float:
+    """Dominant frequency of x (Hz), below ``max_hz``: the largest peak of its Hann-windowed
+    spectrum, refined by a parabola through the log-magnitudes of the three bins around it
+    (accuracy well below one bin, 1/duration). The mean is removed first; returns 0.0 for a
+    constant signal or when no bin lies below ``max_hz``."""
     t, y = _check_series(t_s, x)
     dt = (t[-1] - t[0]) / (len(t) - 1)
     y = y - y.mean()
@@ -44,7 +45,10 @@ def spectral_peak_hz(t_s: np.ndarray, x: np.ndarray) -> float:
         return 0.0
     nfft = 1 << (8 * len(y) - 1).bit_length()  # zero-pad 8x: finer grid for the parabola
     spectrum = np.abs(np.fft.rfft(y * np.hanning(len(y)), n=nfft))
-    k = int(np.argmax(spectrum[1:]) + 1)
+    top = min(len(spectrum), int(np.ceil(max_hz * nfft * dt))) if np.isfinite(max_hz) else len(spectrum)
+    if top < 2:
+        return 0.0
+    k = int(np.argmax(spectrum[1:top]) + 1)
     if 1 <= k < len(spectrum) - 1:
         a, b, c = np.log(spectrum[k - 1 : k + 2] + 1e-300)
         denom = a - 2 * b + c
@@ -52,6 +56,18 @@ def spectral_peak_hz(t_s: np.ndarray, x: np.ndarray) -> float:
     else:
         shift = 0.0
     return float((k + shift) / (nfft * dt))
+
+
+def _hysteresis_sign(y: np.ndarray, band: float) -> np.ndarray | None:
+    """+1 / -1 per sample: the side of +-band the signal was last on (the first known side
+    before that); None if it never leaves the band twice."""
+    state = np.where(y > band, 1, np.where(y < -band, -1, 0))
+    known = np.flatnonzero(state)
+    if len(known) < 2:
+        return None
+    filled = state[known][np.searchsorted(known, np.arange(len(y)), side="right") - 1]
+    filled[: known[0]] = state[known[0]]
+    return filled
 
 
 def zero_crossing_hz(t_s: np.ndarray, x: np.ndarray, hysteresis: float = 0.0) -> float:
@@ -63,12 +79,9 @@ def zero_crossing_hz(t_s: np.ndarray, x: np.ndarray, hysteresis: float = 0.0) ->
     t, y = _check_series(t_s, x)
     y = y - y.mean()
     if hysteresis > 0:
-        state = np.where(y > hysteresis, 1, np.where(y < -hysteresis, -1, 0))
-        known = np.flatnonzero(state)
-        if len(known) < 2:
+        filled = _hysteresis_sign(y, hysteresis)
+        if filled is None:
             raise ParameterError("fewer than two upward zero crossings: the series is too short to give a frequency")
-        filled = state[known][np.searchsorted(known, np.arange(len(y)), side="right") - 1]
-        filled[: known[0]] = state[known[0]]
         rises = np.flatnonzero((filled[:-1] == -1) & (filled[1:] == 1)) + 1  # first sample above +h
         below = np.flatnonzero(y < 0)
         last_negative = below[np.searchsorted(below, rises, side="right") - 1]  # last sample below 0 before it
@@ -89,12 +102,9 @@ def peak_amplitudes(t_s: np.ndarray, x: np.ndarray) -> tuple[np.ndarray, np.ndar
     peak inside and is skipped. Returns two (k,) arrays: times (s) and amplitudes."""
     t, y = _check_series(t_s, x)
     band = 4.0 * noise_level(y)
-    state = np.where(y > band, 1, np.where(y < -band, -1, 0))
-    known = np.flatnonzero(state)
-    if len(known) < 2:
+    filled = _hysteresis_sign(y, band)
+    if filled is None:
         return np.zeros(0), np.zeros(0)
-    filled = state[known][np.searchsorted(known, np.arange(len(y)), side="right") - 1]
-    filled[: known[0]] = state[known[0]]
     edges = np.flatnonzero(filled[1:] != filled[:-1]) + 1  # where a half-cycle begins
     bounds = np.concatenate([[0], edges, [len(y)]])
     a = np.abs(y)

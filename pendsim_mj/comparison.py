@@ -54,13 +54,9 @@ def beat(t_s: np.ndarray, x: np.ndarray, *, edge_s: float = 5.0) -> Beat:
     flat = e / np.exp(np.polyval(np.polyfit(t, np.log(e), 1), t))  # the damping decay divided out
     # a beat is an envelope modulation slower than a third of the carrier frequency (faster
     # "modulation" is several modes mixing: see the spectrum)
-    nfft = 1 << (8 * len(flat) - 1).bit_length()
-    spectrum = np.abs(np.fft.rfft((flat - flat.mean()) * np.hanning(len(flat)), n=nfft))
-    freqs = np.fft.rfftfreq(nfft, dt)
-    band = np.flatnonzero((freqs > 0) & (freqs < carrier_hz / 3))
-    if len(band) < 3:
+    f = spectral_peak_hz(t, flat, max_hz=carrier_hz / 3)
+    if f <= 0:
         return Beat(math.inf, 0.0)
-    f = float(freqs[band[np.argmax(spectrum[band])]])
     # depth: peak to peak of the envelope about its running geometric mean over one beat period
     # (exact for a periodic modulation of a decaying swing), 2nd-98th percentiles
     window = round(1.0 / (f * dt))
