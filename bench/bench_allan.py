@@ -19,8 +19,8 @@ from pathlib import Path
 import allantools
 import numpy as np
 
-from bridge import allan_report
-from bridge.recording import RunInfo, imu_topic, read_recording, write_recording
+from pendsim_bridge import allan_report
+from pendsim_bridge.recording import RunInfo, imu_topic, read_recording, write_recording
 from pendsim_mj.allan import allan_curves, noise_terms, tau_grid
 from pendsim_mj.model import exact_mjcf
 from pendsim_mj.params import DEFAULT_PARAMS

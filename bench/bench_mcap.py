@@ -21,9 +21,9 @@ from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
 from mcap_ros2.writer import Writer as Ros2Writer
 
-from bridge import ros2
-from bridge.mcap_reader import read_mcap
-from bridge.mcap_writer import BulkMcapWriter
+from pendsim_bridge import ros2
+from pendsim_bridge.mcap_reader import read_mcap
+from pendsim_bridge.mcap_writer import BulkMcapWriter
 from pendsim_mj import rotations
 from pendsim_mj.sensors import Bno055, ImuNoise, sample_imu
 from pendsim_mj.simulation import simulate
@@ -75,6 +75,7 @@ def write_ours(path, data, compression):
             for k in range(2):
                 payload = encode_block(layouts[k], t_ns[lo:hi], gyro[lo:hi, k], accel[lo:hi, k], quat[lo:hi, k])
                 w.write_messages(channels[k], t_ns[lo:hi], payload)
+            w.flush()  # both channels given up to t_ns[hi]: write them out, interleaved
 
 
 def read_ours(path):

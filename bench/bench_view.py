@@ -11,8 +11,8 @@ import tempfile
 import time
 from pathlib import Path
 
-from bridge.cli import main as cli
-from bridge.rerun_view import view_recording
+from pendsim_bridge.cli import main as cli
+from pendsim_bridge.rerun_view import view_recording
 
 
 def main() -> None:

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bridge.recording import NODES, imu_topic, read_recording
+from pendsim_bridge.recording import NODES, imu_topic, read_recording
 from pendsim_mj.allan import (
     AllanCurve,
     NoiseTerms,
@@ -202,36 +202,44 @@ def as_json(report: AllanReport) -> dict:
     }
 
 
-def plots(report: AllanReport, directory: str | Path, *, processes: int = 2) -> list[Path]:
+def plots(report: AllanReport, directory: str | Path, *, processes: int = 2, replace: bool = False) -> list[Path]:
     """One log-log plot per node and sensor (x, y, z together), rendered on ``processes``
-    forked workers; returns the PNG paths."""
+    forked workers and published together into ``directory`` (``atomic_directory``: never over
+    plots of the same names unless ``replace``); returns the PNG paths."""
     import multiprocessing
 
+    from pendsim_mj.outputs import atomic_directory
+
     directory = Path(directory)
-    directory.mkdir(parents=True, exist_ok=True)
     hours = report.duration_s / 3600
-    jobs = []
-    for node in report.n_samples:
-        for sensor, unit, name in SENSORS:
-            chosen = [a for a in report.axes if a.node == node and a.sensor == sensor]
-            jobs.append(
-                (
-                    [a.curve for a in chosen],
-                    [a.terms for a in chosen],
-                    [a.axis for a in chosen],
-                    f"{report.path.name}: {node} {name}, {hours:.2f} h at {report.rate_hz:g} Hz",
-                    unit,
-                    directory / f"allan_{node}_{sensor}.png",
+    names = []
+    with atomic_directory(directory, replace=replace) as tmp:
+        jobs = []
+        for node in report.n_samples:
+            for sensor, unit, name in SENSORS:
+                chosen = [a for a in report.axes if a.node == node and a.sensor == sensor]
+                names.append(f"allan_{node}_{sensor}.png")
+                jobs.append(
+                    (
+                        [a.curve for a in chosen],
+                        [a.terms for a in chosen],
+                        [a.axis for a in chosen],
+                        f"{report.path.name}: {node} {name}, {hours:.2f} h at {report.rate_hz:g} Hz",
+                        unit,
+                        tmp / names[-1],
+                    )
                 )
-            )
-    if processes > 1 and len(jobs) > 1 and "fork" in multiprocessing.get_all_start_methods():
-        with multiprocessing.get_context("fork").Pool(min(processes, len(jobs))) as pool:
-            return pool.map(_render, jobs)
-    return [_render(job) for job in jobs]
+        if processes > 1 and len(jobs) > 1 and "fork" in multiprocessing.get_all_start_methods():
+            with multiprocessing.get_context("fork").Pool(min(processes, len(jobs))) as pool:
+                pool.map(_render, jobs)
+        else:
+            for job in jobs:
+                _render(job)
+    return [directory / name for name in names]
 
 
 def _render(job) -> Path:
-    from bridge.plots import allan_plot
+    from pendsim_bridge.plots import allan_plot
 
     curves, terms, labels, title, unit, path = job
     return allan_plot(curves, terms, labels, title=title, unit=unit, path=path)

@@ -1,5 +1,12 @@
 """Operations on whole MCAP files: rewriting what was read (all of it, or a selection) into a
-new complete file, and recovering the readable part of a damaged one."""
+new complete file, and recovering the readable part of a damaged one.
+
+Nothing unverified is carried into a new file: content that failed a check is never read, and
+content no CRC covers (metadata in a file cut off before its DataEnd, chunks or attachments
+whose writer left the CRC at 0, schemas and channels outside chunks) is left out unless the
+caller asks to keep it (``keep_unverified``); then the new file lists it in its
+``pendsim/unverified`` metadata.
+"""
 
 from __future__ import annotations
 
@@ -8,8 +15,11 @@ from pathlib import Path
 
 import numpy as np
 
-from bridge.mcap_reader import ChannelData, McapContents, read_mcap
-from bridge.mcap_writer import BulkMcapWriter
+from pendsim_bridge.mcap_reader import ChannelData, McapContents, read_mcap
+from pendsim_bridge.mcap_writer import BulkMcapWriter
+from pendsim_mj.outputs import atomic_output
+
+UNVERIFIED_METADATA = "pendsim/unverified"
 
 
 def rewrite(
@@ -20,38 +30,46 @@ def rewrite(
     shift_ns: int = 0,
     library: str = "pendsim",
     compression: str = "zstd",
+    keep_unverified: bool = False,
+    extra_metadata: dict[str, dict[str, str]] | None = None,
 ) -> int:
     """Write ``contents`` to a new, complete and indexed MCAP file: metadata, attachments,
     schemas, channels, and the messages ``rows(channel_id, data)`` chooses (indices; None drops
-    the channel; default all), log times moved back by ``shift_ns``. The file is written beside
-    ``output`` and renamed into place only when complete. Returns the messages written."""
-    output = Path(output)
-    partial = output.with_name(f".{output.name}.partial")
+    the channel; default all), log times moved back by ``shift_ns``. Unverified content is left
+    out (or, with ``keep_unverified``, kept and listed in ``pendsim/unverified``). The file is
+    published only when complete and never over an existing file. Returns the messages written."""
+    unverified = {(u.kind, u.name) for u in contents.unverified}
     written = 0
-    try:
-        with BulkMcapWriter(partial, compression=compression, library=library) as w:
-            for name, values in contents.metadata.items():
+    with atomic_output(output) as partial, BulkMcapWriter(partial, compression=compression, library=library) as w:
+        for name, values in contents.metadata.items():
+            if keep_unverified or ("metadata", name) not in unverified:
                 w.add_metadata(name, values)
-            for a in contents.attachments.values():
+        for name, values in (extra_metadata or {}).items():
+            w.add_metadata(name, values)
+        if keep_unverified and contents.unverified:
+            w.add_metadata(UNVERIFIED_METADATA, {str(k): str(u) for k, u in enumerate(contents.unverified)})
+        for a in contents.attachments.values():
+            if keep_unverified or ("attachment", a.name) not in unverified:
                 w.add_attachment(a.name, a.media_type, a.data, a.log_time)
-            schema_ids = {
-                sid: w.register_schema(s.name, s.encoding, s.data) for sid, s in sorted(contents.schemas.items())
-            }
-            for cid, ch in sorted(contents.channels.items()):
-                data = contents.messages.get(cid)
-                empty = ChannelData(np.zeros(0, np.int64), np.zeros(0, np.int64), [])
-                chosen = rows(cid, data if data is not None else empty) if rows else None
-                if rows is not None and chosen is None:
-                    continue  # channel dropped
-                schema = schema_ids.get(ch.schema_id) or _placeholder(w)
-                new_id = w.register_channel(ch.topic, schema, ch.message_encoding, ch.metadata)
-                if data is None or not len(data):
-                    continue
-                index = np.arange(len(data)) if chosen is None else np.asarray(chosen)
-                written += _write_rows(w, new_id, data, index, shift_ns)
-        partial.replace(output)
-    finally:
-        partial.unlink(missing_ok=True)
+        schema_ids = {
+            sid: w.register_schema(s.name, s.encoding, s.data)
+            for sid, s in sorted(contents.schemas.items())
+            if keep_unverified or ("schema", str(sid)) not in unverified
+        }
+        for cid, ch in sorted(contents.channels.items()):
+            if not keep_unverified and ("channel", str(cid)) in unverified:
+                continue
+            data = contents.messages.get(cid)
+            empty = ChannelData(np.zeros(0, np.int64), np.zeros(0, np.int64), [])
+            chosen = rows(cid, data if data is not None else empty) if rows else None
+            if rows is not None and chosen is None:
+                continue  # channel dropped
+            schema = schema_ids.get(ch.schema_id) or _placeholder(w)
+            new_id = w.register_channel(ch.topic, schema, ch.message_encoding, ch.metadata)
+            if data is None or not len(data):
+                continue
+            index = np.arange(len(data)) if chosen is None else np.asarray(chosen)
+            written += _write_rows(w, new_id, data, index, shift_ns)
     return written
 
 
@@ -59,6 +77,7 @@ def _write_rows(w: BulkMcapWriter, channel_id: int, data: ChannelData, index: np
     if not len(index):
         return 0
     log, pub = data.log_time_ns[index] - shift_ns, data.publish_time_ns[index] - shift_ns
+    log, pub = np.maximum(log, 0), np.maximum(pub, 0)
     if isinstance(data.payloads, np.ndarray):
         w.write_messages(channel_id, log, data.payloads[index], pub)
         return len(index)
@@ -71,12 +90,15 @@ def _write_rows(w: BulkMcapWriter, channel_id: int, data: ChannelData, index: np
     return len(index)
 
 
-def recover(broken: str | Path, fixed: str | Path, *, compression: str = "zstd") -> McapContents:
-    """Rewrite everything readable in ``broken`` (schemas, channels, messages of every complete
-    chunk, metadata, attachments) into a new, complete and indexed MCAP file ``fixed``.
-    Returns what was read from ``broken``."""
-    contents = read_mcap(broken, strict=False)
-    rewrite(contents, fixed, library="pendsim recover", compression=compression)
+def recover(
+    broken: str | Path, fixed: str | Path, *, compression: str = "zstd", keep_unverified: bool = False
+) -> McapContents:
+    """Rewrite everything readable and verified in ``broken`` (every chunk whose CRC checks,
+    found again after damaged records; metadata, attachments, schemas and channels) into a new,
+    complete and indexed MCAP file ``fixed``. Content no CRC covers is left out unless
+    ``keep_unverified`` (then listed in ``pendsim/unverified``). Returns what was read."""
+    contents = read_mcap(broken, strict=False, verified_only=not keep_unverified)
+    rewrite(contents, fixed, library="pendsim recover", compression=compression, keep_unverified=keep_unverified)
     return contents
 
 

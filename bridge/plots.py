@@ -16,6 +16,20 @@ from pendsim_mj.allan import AllanCurve, NoiseTerms
 AXIS_COLOURS = ("tab:red", "tab:green", "tab:blue")
 
 
+def legend_outside(ax, *, fontsize: float = 7) -> None:
+    """The axes' legend to the right of the plot area, never over the data."""
+    ax.legend(fontsize=fontsize, loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0.0, frameon=False)
+
+
+def save_figure(fig, path: str | Path) -> Path:
+    """Write a figure as PNG, cropped to what is drawn (the legends outside the axes included),
+    and close it."""
+    path = Path(path)
+    fig.savefig(path, bbox_inches="tight", pad_inches=0.1)
+    plt.close(fig)
+    return path
+
+
 def allan_plot(
     curves: Sequence[AllanCurve],
     terms: Sequence[NoiseTerms],
@@ -67,28 +81,33 @@ def allan_plot(
     ax.yaxis.set_minor_formatter(ticker.NullFormatter())
     ax.xaxis.set_major_formatter(ticker.LogFormatter())
     ax.yaxis.set_major_formatter(ticker.LogFormatter())
-    ax.legend(fontsize=7, loc="upper right")
+    legend_outside(ax)
     fig.tight_layout()
-    path = Path(path)
-    fig.savefig(path)
-    plt.close(fig)
-    return path
+    return save_figure(fig, path)
+
+
+def _broken(t, *series, max_gap_s: float):
+    """The instants and series with a NaN inserted in every gap longer than ``max_gap_s``, so
+    that lines break there instead of bridging it."""
+    import numpy as np
+
+    t = np.asarray(t, dtype=float)
+    cuts = np.flatnonzero(np.diff(t) > max_gap_s) + 1
+    if not len(cuts):
+        return (t, *series)
+    return tuple(np.insert(np.asarray(x, dtype=float), cuts, np.nan) for x in (t, *series))
 
 
 def validation_figures(report, directory: str | Path) -> list[Path]:
     """The paper's Figures 9-15 for a ValidationReport: measured against computed (MuJoCo and
-    the planar reference, from the estimated release; MuJoCo from the nominal 30 deg dashed)."""
-    from bridge.validate import QUANTITIES
+    the planar reference, from the estimated start; MuJoCo from the nominal 30 deg dashed when
+    the run starts from rest). Lines break at gaps in the samples."""
+    from pendsim_mj.quantities import BY_NAME
 
     directory = Path(directory)
     directory.mkdir(parents=True, exist_ok=True)
     short = next(c.window for c in report.cases if c.window != "whole")
-
-    def series(quantity: str, window: str):
-        m = report.case("mujoco", "estimated", window).comparisons[quantity]
-        r = report.case("reference", "estimated", window).comparisons[quantity]
-        n = report.case("mujoco", "nominal", window).comparisons[quantity]
-        return m, r, n
+    gap = report.run.max_gap_s
 
     figures = [
         ("fig09_tangential_acceleration_m1", "tangential_m1", short),
@@ -100,48 +119,44 @@ def validation_figures(report, directory: str | Path) -> list[Path]:
     ]
     out = []
     for stem, quantity, window in figures:
-        m, r, n = series(quantity, window)
-        label, unit, what = QUANTITIES[quantity]
+        m = report.case("mujoco", "estimated", window).comparisons[quantity]
+        r = report.case("reference", "estimated", window).comparisons[quantity]
+        q = BY_NAME[quantity]
         fig, ax = plt.subplots(figsize=(9, 4.2), dpi=100)
-        ax.plot(m.t_s, m.measured, color="black", linewidth=1.0, label="measured (IMU)")
-        ax.plot(m.t_s, m.computed, color="tab:orange", linewidth=1.0, label="computed: MuJoCo, estimated release")
-        ax.plot(r.t_s, r.computed, color="tab:blue", linewidth=0.8, linestyle=":", label="computed: planar reference")
-        ax.plot(
-            n.t_s,
-            n.computed,
-            color="tab:green",
-            linewidth=0.8,
-            linestyle="--",
-            label="computed: MuJoCo, nominal 30 deg",
-        )
-        ax.set_xlabel("time since release t (s)")
-        ax.set_ylabel(f"{label} ({unit})")
-        ax.set_title(f"{what}, {'first ' + window if window != 'whole' else 'whole run'}")
+        t, measured, computed, reference = _broken(m.t_s, m.measured, m.computed, r.computed, max_gap_s=gap)
+        ax.plot(t, measured, color="black", linewidth=1.0, label="measured (IMU)")
+        ax.plot(t, computed, color="tab:orange", linewidth=1.0, label="computed: MuJoCo, estimated start")
+        ax.plot(t, reference, color="tab:blue", linewidth=0.8, linestyle=":", label="computed: planar reference")
+        if report.has_nominal:
+            n = report.case("mujoco", "nominal", window).comparisons[quantity]
+            tn, nominal = _broken(n.t_s, n.computed, max_gap_s=gap)
+            label = "computed: MuJoCo, nominal 30 deg"
+            ax.plot(tn, nominal, color="tab:green", linewidth=0.8, linestyle="--", label=label)
+        ax.set_xlabel("time since the start t (s)")
+        ax.set_ylabel(f"{q.label} ({q.unit})")
+        ax.set_title(f"{q.description}, {'first ' + window if window != 'whole' else 'whole run'}")
         ax.grid(True, alpha=0.3)
-        ax.legend(fontsize=7, loc="upper right")
+        legend_outside(ax)
         fig.tight_layout()
-        path = directory / f"{stem}_{'whole' if window == 'whole' else window.replace(' ', '')}.png"
-        fig.savefig(path)
-        plt.close(fig)
-        out.append(path)
+        out.append(
+            save_figure(fig, directory / f"{stem}_{'whole' if window == 'whole' else window.replace(' ', '')}.png")
+        )
     # Figure 14: Delta, IAE and ISE of phi1 over the short window.
     m = report.case("mujoco", "estimated", short).comparisons["phi1"]
     fig, axes = plt.subplots(3, 1, figsize=(9, 7), dpi=100, sharex=True)
+    t, delta, iae, ise = _broken(m.t_s, m.delta, m.iae_curve, m.ise_curve, max_gap_s=gap)
     for ax, values, ylabel in (
-        (axes[0], m.delta, "Delta phi1 = computed - measured (rad)"),
-        (axes[1], m.iae_curve, "IAE (rad s)"),
-        (axes[2], m.ise_curve, "ISE (rad^2 s)"),
+        (axes[0], delta, "Delta phi1 = computed - measured (rad)"),
+        (axes[1], iae, "IAE (rad s)"),
+        (axes[2], ise, "ISE (rad^2 s)"),
     ):
-        ax.plot(m.t_s, values, color="tab:red", linewidth=1.0)
+        ax.plot(t, values, color="tab:red", linewidth=1.0)
         ax.set_ylabel(ylabel, fontsize=8)
         ax.grid(True, alpha=0.3)
-    axes[0].set_title(f"phi1 error, MuJoCo from the estimated release, first {short}")
-    axes[2].set_xlabel("time since release t (s)")
+    axes[0].set_title(f"phi1 error, MuJoCo from the estimated start, first {short}")
+    axes[2].set_xlabel("time since the start t (s)")
     fig.tight_layout()
-    path = directory / f"fig14_error_phi1_{short.replace(' ', '')}.png"
-    fig.savefig(path)
-    plt.close(fig)
-    out.append(path)
+    out.append(save_figure(fig, directory / f"fig14_error_phi1_{short.replace(' ', '')}.png"))
     return sorted(out)
 
 
@@ -159,10 +174,7 @@ def comparison_figures(comparison, directory: str | Path) -> list[Path]:
 
     def save(fig, name):
         fig.tight_layout()
-        path = directory / name
-        fig.savefig(path)
-        plt.close(fig)
-        out.append(path)
+        out.append(save_figure(fig, directory / name))
 
     fig, axes = plt.subplots(2, 1, figsize=(10, 6), dpi=100, sharex=True)
     for k, ax in enumerate(axes):
@@ -170,7 +182,7 @@ def comparison_figures(comparison, directory: str | Path) -> list[Path]:
         ax.plot(t, spatial.phi_rad[:, k], color="tab:orange", linewidth=0.7, label=f"spatial ({offset_mm:g} mm, tilt)")
         ax.set_ylabel(f"phi{k + 1} (rad)")
         ax.grid(True, alpha=0.3)
-        ax.legend(fontsize=8, loc="upper right")
+        legend_outside(ax, fontsize=8)
     axes[0].set_title("in-plane angles, planar and spatial, same release")
     axes[1].set_xlabel("t (s)")
     save(fig, "compare_angles.png")
@@ -186,7 +198,7 @@ def comparison_figures(comparison, directory: str | Path) -> list[Path]:
     axes[1].set_xlabel("t (s)")
     for ax in axes:
         ax.grid(True, alpha=0.3)
-        ax.legend(fontsize=8, loc="upper right")
+        legend_outside(ax, fontsize=8)
     save(fig, "compare_difference_and_tilt.png")
 
     fig, axes = plt.subplots(2, 2, figsize=(11, 6), dpi=100)
@@ -199,10 +211,29 @@ def comparison_figures(comparison, directory: str | Path) -> list[Path]:
         axes[k, 1].set_ylabel(f"|spectrum| of phi{k + 1} (rel.)")
         for ax in axes[k]:
             ax.grid(True, alpha=0.3)
-            ax.legend(fontsize=8, loc="upper right")
+    legend_outside(axes[0, 1], fontsize=8)  # one key for all four: to the right of the right column
     axes[1, 0].set_xlabel("t (s)")
     axes[1, 1].set_xlabel("frequency (Hz)")
     axes[0, 0].set_title("swing envelope (beats)")
     axes[0, 1].set_title(f"spectrum near the main frequency {f0:.3f} Hz")
     save(fig, "compare_envelope_and_spectrum.png")
     return out
+
+
+COMPARISON_FILES = (
+    "summary.json", "compare_angles.png", "compare_difference_and_tilt.png", "compare_envelope_and_spectrum.png",
+)  # fmt: skip
+
+
+def write_comparison(comparison, out_dir: str | Path, *, replace: bool = False) -> list[Path]:
+    """summary.json and the three comparison PNGs (``COMPARISON_FILES``) into ``out_dir``,
+    published together (never over files of the same names unless ``replace``)."""
+    import json
+
+    from pendsim_mj.outputs import atomic_directory
+
+    out = Path(out_dir)
+    with atomic_directory(out, replace=replace) as tmp:
+        (tmp / "summary.json").write_text(json.dumps(comparison.summary, indent=1))
+        names = ["summary.json"] + [p.name for p in comparison_figures(comparison, tmp)]
+    return [out / name for name in names]

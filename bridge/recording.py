@@ -1,7 +1,8 @@
 """One MCAP file per run: what the IMUs measured, the joint states, the poses, and everything
 needed to re-simulate the run from the file alone.
 
-Topics (ROS 2 messages, CDR; log_time and header stamps in integer ns from ``start_time_ns``):
+Topics (ROS 2 messages, CDR; log_time and header stamps in integer UTC ns from ``start_time_ns``,
+recorded in ``pendsim/run``; the arrays read back count ns from that start):
 
 - ``/imu/m1``, ``/imu/m2``: sensor_msgs/msg/Imu at 80 Hz, frame ``imu_m1``/``imu_m2``:
   orientation (x, y, z, w), angular_velocity, linear_acceleration with gravity (REP-145), and
@@ -13,10 +14,16 @@ Topics (ROS 2 messages, CDR; log_time and header stamps in integer ns from ``sta
 - ``/joint_states``: sensor_msgs/msg/JointState at every simulation step: hinge_phi1/2 position
   (rad), velocity (rad/s), effort = spring moment on each pendulum (N m).
 - ``/tf``: tf2_msgs/msg/TFMessage at every step, world -> m1 and world -> m2 (rotation about the
-  pivot axis); ``/tf_static``: m1 -> imu_m1, m2 -> imu_m2 (the mounts), once.
+  pivot axis; translation = the support's displacement in a run that moves it, plus M2's plane
+  offset); ``/tf_static``: m1 -> imu_m1, m2 -> imu_m2 (the mounts), once.
+- ``/drive`` (driven runs only): std_msgs/msg/Float64MultiArray at every simulation step, the
+  inputs held over the step that starts at its log time (``pendsim_mj.drives``): data =
+  [torque_m1 N m, torque_m2 N m, support_x m/s^2, pivot_z m/s^2], one layout dimension whose
+  label lists them (DRIVE_LABEL).
 
-Metadata records ``pendsim/run``, ``pendsim/rig_parameters``, ``pendsim/imu``; attachment
-``pendulums.xml``: the exact MJCF the run used (parameters applied).
+Metadata records ``pendsim/run``, ``pendsim/rig_parameters``, ``pendsim/imu``, and for a driven
+run ``pendsim/drive`` (each driven input's signal as JSON, the channel order, the sampling);
+attachment ``pendulums.xml``: the exact MJCF the run used (parameters and drive actuators applied).
 """
 
 from __future__ import annotations
@@ -26,26 +33,39 @@ import json
 import math
 from collections.abc import Callable, Collection
 from pathlib import Path
+from typing import Any, ClassVar
 
 import numpy as np
+from numpy.typing import NDArray
 
-from bridge import ros2
-from bridge.mcap_reader import ChannelData, McapContents, read_mcap
-from bridge.mcap_writer import BulkMcapWriter
+from pendsim_bridge import ros2
+from pendsim_bridge.mcap_reader import ChannelData, McapFile, scan_mcap
+from pendsim_bridge.mcap_writer import BulkMcapWriter
 from pendsim_mj import __version__, rotations
-from pendsim_mj.errors import RecordingError
+from pendsim_mj.drives import CHANNEL_LABELS, NCHANNEL, Drive
+from pendsim_mj.errors import ParameterError, RecordingError
+from pendsim_mj.imperfections import Imperfections
 from pendsim_mj.params import RigParams
 from pendsim_mj.sensors import Bno055, ImuNoise, ImuSamples
 from pendsim_mj.trajectory import Trajectory
 
 NODES = ("m1", "m2")
 JOINT_NAMES = ("hinge_phi1", "hinge_phi2")
+SPATIAL_JOINT_NAMES = ("tilt_m1", "tilt_m2")  # pendsim_mj.model.TILTS: the spatial variant's extra joints
 WORLD_FRAME = "world"
 MJCF_ATTACHMENT = "pendulums.xml"
-# The IMU site's axes in its body at rest (models/pendulums.xml: xyaxes="1 0 0 0 0 1").
-SITE_QUAT_WXYZ = np.array([math.cos(math.pi / 4), math.sin(math.pi / 4), 0.0, 0.0])
+SITE_QUAT_WXYZ = rotations.IMU_SITE_QUAT_WXYZ  # the IMU site's axes in its body at rest
 TF_LAYOUT = ros2.tf_layout(((WORLD_FRAME, "m1"), (WORLD_FRAME, "m2")))
 STATIC_TF_LAYOUT = ros2.tf_layout((("m1", "imu_m1"), ("m2", "imu_m2")))
+STATIC_WORLD_TF_LAYOUT = ros2.tf_layout(
+    ((WORLD_FRAME, "m1"), (WORLD_FRAME, "m2"), ("m1", "imu_m1"), ("m2", "imu_m2"))
+)  # a static recording: the pendulums at rest under the world root, then the mounts
+DEFAULT_START_NS = 1_735_689_600_000_000_000  # 2025-01-01T00:00:00Z: a fixed UTC start for files made in memory
+
+
+DRIVE_TOPIC = "/drive"
+DRIVE_LABEL = ",".join(CHANNEL_LABELS)
+DRIVE_LAYOUT = ros2.float64_multiarray_layout(DRIVE_LABEL, NCHANNEL)
 
 
 def imu_topic(node: str) -> str:
@@ -65,10 +85,6 @@ class RunInfo:
     release_time_s: float = 0.0  # when the pendulums were let go, on the recording's clock
 
 
-def _ns(t_s: np.ndarray, start_time_ns: int) -> np.ndarray:
-    return start_time_ns + np.rint(np.asarray(t_s) * 1e9).astype(np.int64)
-
-
 def write_recording(
     path: str | Path,
     imu: ImuSamples,
@@ -78,11 +94,9 @@ def write_recording(
     *,
     traj: Trajectory | None = None,
     compression: str = "zstd",
-    block_s: float = 30.0,
-    start_time_ns: int = 0,
-    progress: Callable[[float], None] | None = None,
+    start_time_ns: int = DEFAULT_START_NS,
 ) -> Path:
-    """Write a run to one MCAP file, block by block (each block's chunks flushed as written).
+    """Write a whole run held in memory to one MCAP file (``record`` streams instead).
 
     Args:
       path: output .mcap file.
@@ -93,173 +107,22 @@ def write_recording(
       traj: the simulated trajectory (single run); None for a static IMU-only recording, which
         has no /joint_states and /tf.
       compression: chunk compression, "zstd", "lz4" or "none".
-      block_s: simulated seconds per block: a chunk per topic per block.
-      start_time_ns: log time of t = 0.
-      progress: called with the simulated seconds written after each block.
+      start_time_ns: UTC log time of t = 0, ns.
     """
-    config = imu.config
-    cov = config.covariance_diagonals()
-    layouts = {
-        "imu": [ros2.imu_layout(f"imu_{n}") for n in NODES],
-        "vec": [ros2.vector3_stamped_layout(f"imu_{n}") for n in NODES],
-        "calib": ros2.uint8_multiarray_layout(4),
-        "joint": ros2.joint_state_layout(JOINT_NAMES),
-        "tf": TF_LAYOUT,
-    }
-    imu_ns = _ns(imu.t_s, start_time_ns)
-    if traj is not None:
-        step_ns = _ns(traj.t_s + run.release_time_s, start_time_ns)
-        body_quat_xyzw = rotations.wxyz_to_xyzw(traj.body_quat_wxyz())
+    from pendsim_bridge.recording_writer import RecordingWriter
 
     with BulkMcapWriter(path, compression=compression, library=f"pendsim {__version__}") as w:
-        _write_metadata(w, params, config, run, compression, start_time_ns)
-        w.add_attachment(MJCF_ATTACHMENT, "application/xml", mjcf_xml.encode(), start_time_ns)
-        sid = {name: w.register_schema(name, "ros2msg", text) for name, text in ros2.SCHEMAS.items()}
-        ch = {}
-        for n in NODES:
-            ch[f"imu_{n}"] = w.register_channel(imu_topic(n), sid["sensor_msgs/msg/Imu"], "cdr")
-            ch[f"lin_{n}"] = w.register_channel(
-                f"/imu/{n}/linear_acceleration", sid["geometry_msgs/msg/Vector3Stamped"], "cdr"
-            )
-            ch[f"grav_{n}"] = w.register_channel(f"/imu/{n}/gravity", sid["geometry_msgs/msg/Vector3Stamped"], "cdr")
-            ch[f"cal_{n}"] = w.register_channel(f"/imu/{n}/calibration", sid["std_msgs/msg/UInt8MultiArray"], "cdr")
+        rw = RecordingWriter(
+            w, params=params, config=imu.config, run=run, mjcf_xml=mjcf_xml, start_time_ns=start_time_ns,
+            compression=compression, static=traj is None,
+            spatial=traj is not None and traj.tilt_rate_rad_s is not None,
+            drive=traj.drive if traj is not None and isinstance(traj.drive, Drive) else None,
+        )  # fmt: skip
+        rw.write_imu(imu)
         if traj is not None:
-            ch["joint"] = w.register_channel("/joint_states", sid["sensor_msgs/msg/JointState"], "cdr")
-            ch["tf"] = w.register_channel("/tf", sid["tf2_msgs/msg/TFMessage"], "cdr")
-        ch["tf_static"] = w.register_channel("/tf_static", sid["tf2_msgs/msg/TFMessage"], "cdr")
-        w.write_messages(ch["tf_static"], imu_ns[:1], _static_tf(params, config, int(imu_ns[0])))
-
-        calib_rows = _calibration_rows(imu)
-        duration = float(imu.t_s[-1])
-        nblocks = max(1, math.ceil(duration / block_s + 1e-12))
-        for b in range(nblocks):
-            lo, hi = b * block_s, (b + 1) * block_s if b < nblocks - 1 else math.inf
-            si = np.flatnonzero((imu.t_s >= lo - 1e-12) & (imu.t_s < hi - 1e-12))
-            for k, n in enumerate(NODES):
-                sec, nsec = ros2.split_time(imu_ns[si])
-                payload = layouts["imu"][k].encode(
-                    len(si),
-                    sec=sec,
-                    nanosec=nsec,
-                    orientation=rotations.wxyz_to_xyzw(imu.quat_wxyz[si, k]),
-                    orientation_covariance=_diag(cov["orientation"][k]),
-                    angular_velocity=imu.gyro_rad_s[si, k],
-                    angular_velocity_covariance=_diag(cov["gyro"][k]),
-                    linear_acceleration=imu.accel_m_s2[si, k],
-                    linear_acceleration_covariance=_diag(cov["accel"][k]),
-                )
-                w.write_messages(ch[f"imu_{n}"], imu_ns[si], payload)
-                for key, values in (("lin", imu.linear_accel_m_s2), ("grav", imu.gravity_m_s2)):
-                    vec = layouts["vec"][k].encode(len(si), sec=sec, nanosec=nsec, vector=values[si, k])
-                    w.write_messages(ch[f"{key}_{n}"], imu_ns[si], vec)
-                ci = si[np.isin(si, calib_rows)]
-                cal = layouts["calib"].encode(len(ci), data_offset=np.zeros(len(ci)), data=imu.calibration[ci, k])
-                w.write_messages(ch[f"cal_{n}"], imu_ns[ci], cal)
-            if traj is not None:
-                _write_joint_block(w, ch, layouts, traj, step_ns, body_quat_xyzw, run.release_time_s, lo, hi)
-            if progress is not None:
-                progress(min(hi, duration) - lo)
+            rw.write_steps(traj, 0, last=True)
+        rw.flush()
     return Path(path)
-
-
-def _write_joint_block(w, ch, layouts, traj, step_ns, body_quat_xyzw, release_time_s, lo, hi) -> None:
-    """/joint_states and /tf for the steps in [lo, hi) s."""
-    params = traj.params[0] if isinstance(traj.params, tuple) else traj.params
-    body_offsets = (np.zeros(3), np.array([0.0, params.plane_offset_m, 0.0]))  # M2 sits behind M1
-    step_t = traj.t_s + release_time_s  # on the recording's clock
-    ti = np.flatnonzero((step_t >= lo - 1e-12) & (step_t < hi - 1e-12))
-    sec, nsec = ros2.split_time(step_ns[ti])
-    joint = layouts["joint"].encode(
-        len(ti),
-        sec=sec,
-        nanosec=nsec,
-        position=traj.phi_rad[ti],
-        velocity=traj.omega_rad_s[ti],
-        effort=traj.spring_moment_n_m[ti],
-    )
-    w.write_messages(ch["joint"], step_ns[ti], joint)
-    tf_values = {}
-    for k in range(2):
-        tf_values.update(
-            {
-                f"t{k}_sec": sec,
-                f"t{k}_nanosec": nsec,
-                f"t{k}_translation": np.broadcast_to(body_offsets[k], (len(ti), 3)),
-                f"t{k}_rotation": body_quat_xyzw[ti, k],
-            }
-        )
-    w.write_messages(ch["tf"], step_ns[ti], layouts["tf"].encode(len(ti), **tf_values))
-
-
-def _diag(values: np.ndarray) -> np.ndarray:
-    return np.diag(values).ravel()
-
-
-def _calibration_rows(imu: ImuSamples) -> np.ndarray:
-    """Sample indices at which calibration is published: every second and on any change."""
-    rate = round(imu.config.sample_rate_hz)
-    k = np.arange(len(imu.t_s))
-    changed = np.zeros(len(k), bool)
-    changed[1:] = np.any(imu.calibration[1:] != imu.calibration[:-1], axis=(1, 2))
-    return k[(k % rate == 0) | changed]
-
-
-def _static_tf(params: RigParams, config: Bno055, t_ns: int) -> np.ndarray:
-    """/tf_static: m1 -> imu_m1 and m2 -> imu_m2, the mount position and axes in the body."""
-    sec, nsec = ros2.split_time(np.array([t_ns]))
-    site_rotation = rotations.to_matrix(SITE_QUAT_WXYZ)
-    values = {}
-    for k, radius in enumerate((params.om1_m, params.om2_m)):
-        offset = site_rotation @ np.asarray(config.mount_offset_m[k])
-        quat = rotations.multiply(SITE_QUAT_WXYZ, np.asarray(config.mount_quat_wxyz[k]))
-        values[f"t{k}_sec"] = sec
-        values[f"t{k}_nanosec"] = nsec
-        values[f"t{k}_translation"] = (np.array([0.0, 0.0, -radius]) + offset)[None]
-        values[f"t{k}_rotation"] = rotations.wxyz_to_xyzw(quat)[None]
-    return STATIC_TF_LAYOUT.encode(1, **values)
-
-
-def _write_metadata(
-    w: BulkMcapWriter, params: RigParams, config: Bno055, run: RunInfo, compression: str, t0: int
-) -> None:
-    import mujoco
-
-    w.add_metadata(
-        "pendsim/run",
-        {
-            "engine": run.engine,
-            "model": run.model,
-            "phi0_rad": json.dumps(list(run.phi0_rad)),
-            "omega0_rad_s": json.dumps(list(run.omega0_rad_s)),
-            "duration_s": repr(run.duration_s),
-            "dt_s": repr(run.dt_s),
-            "release_time_s": repr(run.release_time_s),
-            "b1_n_m_s": repr(params.b1_n_m_s),
-            "b2_n_m_s": repr(params.b2_n_m_s),
-            "noise": str(config.noise).lower(),
-            "seed": str(config.seed),
-            "start_time_ns": str(t0),
-            "compression": compression,
-            "pendsim_version": __version__,
-            "mujoco_version": mujoco.__version__,
-        },
-    )
-    w.add_metadata("pendsim/rig_parameters", {k: repr(v) for k, v in params.as_dict().items()})
-    w.add_metadata("pendsim/imu", _imu_metadata(config))
-
-
-def _imu_metadata(config: Bno055) -> dict[str, str]:
-    out = {}
-    for f in dataclasses.fields(config):
-        value = getattr(config, f.name)
-        if f.name == "noise_model":
-            for g in dataclasses.fields(value):
-                out[f"noise_model.{g.name}"] = json.dumps(list(getattr(value, g.name)))
-        else:
-            out[f.name] = json.dumps(
-                value if not isinstance(value, tuple) else [list(v) if isinstance(v, tuple) else v for v in value]
-            )
-    return out
 
 
 # --------------------------------------------------------------------------------------------
@@ -268,7 +131,8 @@ def _imu_metadata(config: Bno055) -> dict[str, str]:
 
 @dataclasses.dataclass(frozen=True)
 class ImuTopic:
-    """One node's sensor_msgs/Imu messages as arrays (n messages)."""
+    """One node's sensor_msgs/Imu messages as arrays (n messages); times in ns since the
+    recording's start (``Recording.start_time_ns``)."""
 
     t_ns: np.ndarray  # (n,) log time
     stamp_ns: np.ndarray  # (n,) header stamp
@@ -276,7 +140,7 @@ class ImuTopic:
     quat_wxyz: np.ndarray  # (n, 4)
     gyro_rad_s: np.ndarray  # (n, 3)
     accel_m_s2: np.ndarray  # (n, 3) with gravity (REP-145)
-    orientation_covariance: np.ndarray  # (n, 3, 3)
+    orientation_covariance: np.ndarray  # (n, 3, 3) (a broadcast view when constant)
     gyro_covariance: np.ndarray  # (n, 3, 3)
     accel_covariance: np.ndarray  # (n, 3, 3)
 
@@ -287,7 +151,7 @@ class ImuTopic:
 
 @dataclasses.dataclass(frozen=True)
 class JointStates:
-    """/joint_states as arrays: n messages of the two hinges."""
+    """/joint_states as arrays: n messages of the two hinges (ns since the recording's start)."""
 
     t_ns: np.ndarray
     position_rad: np.ndarray  # (n, 2)
@@ -299,76 +163,156 @@ class JointStates:
         return self.t_ns * 1e-9
 
 
+Series = tuple[NDArray[np.int64], NDArray]  # (t_ns since the start, values)
+
+
 @dataclasses.dataclass(frozen=True)
 class Recording:
-    """A recording read back: arrays per topic, metadata, the MJCF, and what was recovered."""
+    """A recording read back: arrays per topic (times in ns since ``start_time_ns``), metadata,
+    the MJCF, and what was wrong with the file (non-strict reads)."""
 
     path: Path
     imu: dict[str, ImuTopic]
-    linear_accel_m_s2: dict[str, tuple[np.ndarray, np.ndarray]]  # node -> (t_ns, (n, 3))
-    gravity_m_s2: dict[str, tuple[np.ndarray, np.ndarray]]
-    calibration: dict[str, tuple[np.ndarray, np.ndarray]]  # node -> (t_ns, (n, 4) uint8)
+    linear_accel_m_s2: dict[str, Series]  # node -> (t_ns, (n, 3))
+    gravity_m_s2: dict[str, Series]
+    calibration: dict[str, Series]  # node -> (t_ns, (n, 4) uint8)
     joint_states: JointStates | None
-    tf_rotation_wxyz: tuple[np.ndarray, np.ndarray] | None  # (t_ns, (n, 2, 4)) world -> m1, m2
+    tf_rotation_wxyz: Series | None  # (t_ns, (n, 2, 4)) world -> m1, m2
     metadata: dict[str, dict[str, str]]
     mjcf_xml: str | None
-    contents: McapContents
+    start_time_ns: int  # UTC log time of the recording's t = 0
+    problems: tuple[str, ...] = ()
+    unverified: tuple[str, ...] = ()
+    drive_input: Series | None = None  # (t_ns, (n, 4)) the /drive topic of a driven run
 
     @property
     def complete(self) -> bool:
-        return self.contents.complete
+        return not self.problems
 
     def params(self) -> RigParams:
-        """The rig parameters recorded in the metadata."""
-        raw = self.metadata.get("pendsim/rig_parameters")
-        if raw is None:
-            raise RecordingError(f"{self.path}: no pendsim/rig_parameters metadata (not a pendsim recording?)")
-        return RigParams().with_mapping({k: float(v) for k, v in raw.items()})
+        """The rig parameters recorded in the metadata (RecordingError if they are not valid)."""
+        raw = self._metadata("pendsim/rig_parameters")
+        values = {k: _finite(self.path, "pendsim/rig_parameters", k, v) for k, v in raw.items()}
+        try:
+            return RigParams().with_mapping(values)
+        except ParameterError as exc:
+            raise RecordingError(f"{self.path}: metadata pendsim/rig_parameters: {exc}") from None
 
     def run_info(self) -> RunInfo:
-        raw = self.metadata.get("pendsim/run")
-        if raw is None:
-            raise RecordingError(f"{self.path}: no pendsim/run metadata (not a pendsim recording?)")
+        """How the run was made (RecordingError if the metadata are not valid)."""
+        raw = self._metadata("pendsim/run")
+        where = "pendsim/run"
+        engine = raw.get("engine", "")
+        if engine not in ("mujoco", "reference", "static"):
+            raise RecordingError(
+                f"{self.path}: metadata {where}: engine = {engine!r}; allowed: mujoco, reference, static"
+            )
+        model = raw.get("model", "planar")
+        if model not in ("planar", "spatial", "static"):
+            raise RecordingError(f"{self.path}: metadata {where}: model = {model!r}; allowed: planar, spatial, static")
+        duration = _finite(self.path, where, "duration_s", raw.get("duration_s"), low=0.0, high=1e7)
+        dt = _finite(self.path, where, "dt_s", raw.get("dt_s"), low=0.0, high=10.0)
+        release = _finite(self.path, where, "release_time_s", raw.get("release_time_s", "0"), low=0.0, high=1e7)
+        if dt <= 0 or duration <= 0:
+            raise RecordingError(f"{self.path}: metadata {where}: duration_s and dt_s must be > 0")
         return RunInfo(
-            engine=raw["engine"],
-            phi0_rad=tuple(json.loads(raw["phi0_rad"])),
-            omega0_rad_s=tuple(json.loads(raw["omega0_rad_s"])),
-            duration_s=float(raw["duration_s"]),
-            dt_s=float(raw["dt_s"]),
-            model=raw.get("model", "planar"),
-            release_time_s=float(raw.get("release_time_s", "0")),
+            engine=engine,
+            phi0_rad=_pair(self.path, where, "phi0_rad", raw.get("phi0_rad"), 2 * math.pi),
+            omega0_rad_s=_pair(self.path, where, "omega0_rad_s", raw.get("omega0_rad_s"), 1e3),
+            duration_s=duration,
+            dt_s=dt,
+            model=model,
+            release_time_s=release,
         )
 
     def imu_config(self) -> Bno055:
-        raw = self.metadata.get("pendsim/imu")
-        if raw is None:
-            raise RecordingError(f"{self.path}: no pendsim/imu metadata (not a pendsim recording?)")
-        noise = ImuNoise(
-            **{k.split(".", 1)[1]: tuple(json.loads(v)) for k, v in raw.items() if k.startswith("noise_model.")}
-        )
-        kwargs = {}
-        for k, v in raw.items():
-            if k.startswith("noise_model."):
-                continue
-            value = json.loads(v)
-            kwargs[k] = (
-                tuple(tuple(x) if isinstance(x, list) else x for x in value) if isinstance(value, list) else value
-            )
-        return Bno055(noise_model=noise, **kwargs)
-
-
-def _decode(data: ChannelData, schema_name: str, layout: ros2.FixedCdr | None) -> np.ndarray | list:
-    """Bulk decode with the fixed layout when it fits, else per message with mcap_ros2."""
-    if layout is not None and isinstance(data.payloads, np.ndarray):
+        """The node model recorded in the metadata (RecordingError if it is not valid)."""
+        raw = self._metadata("pendsim/imu")
         try:
-            return layout.decode(data.payloads)
-        except ValueError:
-            pass
-    from mcap_ros2._dynamic import generate_dynamic
+            nested: dict[str, dict[str, Any]] = {"noise_model": {}, "imperfections": {}}
+            kwargs: dict[str, Any] = {}
+            for k, v in raw.items():
+                head, dot, name = k.partition(".")
+                value = _tuple(json.loads(v, parse_constant=_no_constant))
+                if dot and head in nested:
+                    nested[head][name] = value
+                elif dot:
+                    raise ParameterError(f"unknown entry {k!r}")
+                else:
+                    kwargs[k] = value
+            noise = ImuNoise(**nested["noise_model"])
+            imperfections = Imperfections(**nested["imperfections"])
+            for name in ("sample_rate_hz", "fusion_rate_hz", "accel_range_m_s2"):
+                if name in kwargs and not (_number(kwargs[name]) and 0 < kwargs[name] <= 1e6):
+                    raise ParameterError(f"{name} = {kwargs[name]!r} is not a number in (0, 1e6]")
+            for name in ("fusion_timing", "noise"):
+                if name in kwargs and not isinstance(kwargs[name], bool):
+                    raise ParameterError(f"{name} = {kwargs[name]!r} is not true or false")
+            if "seed" in kwargs and not (isinstance(kwargs["seed"], int) and 0 <= kwargs["seed"] < 2**63):
+                raise ParameterError(f"seed = {kwargs['seed']!r} is not an integer in [0, 2^63)")
+            return Bno055(noise_model=noise, imperfections=imperfections, **kwargs)
+        except (ValueError, TypeError, ParameterError) as exc:  # JSONDecodeError is a ValueError
+            message = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+            raise RecordingError(f"{self.path}: metadata pendsim/imu is not valid: {message}") from None
 
-    decoder = generate_dynamic(schema_name, ros2.SCHEMAS[schema_name].decode())[schema_name]
-    rows = data.payloads if isinstance(data.payloads, list) else [p.tobytes() for p in data.payloads]
-    return [decoder(bytes(r)) for r in rows]
+    def _metadata(self, name: str) -> dict[str, str]:
+        raw = self.metadata.get(name)
+        if raw is None:
+            raise RecordingError(f"{self.path}: no {name} metadata (not a pendsim recording?)")
+        return raw
+
+
+def _no_constant(text: str) -> float:
+    raise ValueError(f"{text} is not a finite number")
+
+
+def _number(value: object) -> bool:
+    return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
+
+
+def _tuple(value: Any) -> Any:
+    if isinstance(value, list):
+        return tuple(_tuple(v) for v in value)
+    return value
+
+
+def _finite(path: Path, where: str, key: str, text: str | None, *, low: float = -1e300, high: float = 1e300) -> float:
+    """A metadata value that must be a finite number in [low, high]; RecordingError naming it."""
+    try:
+        value = float(text) if text is not None else math.nan
+    except ValueError:
+        value = math.nan
+    if not (math.isfinite(value) and low <= value <= high):
+        raise RecordingError(
+            f"{path}: metadata {where}: {key} = {text!r} is not a finite number in [{low:g}, {high:g}]"
+        )
+    return value
+
+
+def _pair(path: Path, where: str, key: str, text: str | None, bound: float) -> tuple[float, float]:
+    try:
+        value = json.loads(text, parse_constant=_no_constant) if text is not None else None
+    except ValueError:
+        value = None
+    if not (isinstance(value, list) and len(value) == 2 and all(_number(v) and abs(v) <= bound for v in value)):
+        raise RecordingError(f"{path}: metadata {where}: {key} = {text!r} is not two finite numbers within +-{bound:g}")
+    return float(value[0]), float(value[1])
+
+
+# The schema each known topic must carry.
+EXPECTED_SCHEMAS = {
+    **{imu_topic(n): "sensor_msgs/msg/Imu" for n in NODES},
+    **{
+        f"/imu/{n}/{key}": "geometry_msgs/msg/Vector3Stamped"
+        for n in NODES
+        for key in ("linear_acceleration", "gravity")
+    },
+    **{f"/imu/{n}/calibration": "std_msgs/msg/UInt8MultiArray" for n in NODES},
+    "/joint_states": "sensor_msgs/msg/JointState",
+    "/tf": "tf2_msgs/msg/TFMessage",
+    "/tf_static": "tf2_msgs/msg/TFMessage",
+    DRIVE_TOPIC: "std_msgs/msg/Float64MultiArray",
+}
 
 
 def read_recording(
@@ -378,89 +322,309 @@ def read_recording(
     topics: Collection[str] | None = None,
     progress: Callable[[int], None] | None = None,
 ) -> Recording:
-    """Read a recording into numpy arrays per topic.
+    """Read a recording into numpy arrays per topic, chunk by chunk: each chunk's messages are
+    decoded straight into per-field arrays (payloads are never all held at once).
 
     Args:
       path: the .mcap file.
-      strict: raise RecordingError (naming the file and how much was recovered) if the file is
-        truncated or damaged; with False, return what could be read.
-      topics: read only these topics (others are skipped without decompressing).
+      strict: raise RecordingError (naming the file, the damaged region and how much is
+        readable) if the file is truncated, damaged or inconsistent; with False, return what
+        could be read (and the problems).
+      topics: read only these topics (others are skipped without inflating their chunks).
       progress: called with bytes read, for a progress bar.
+
+    Raises:
+      RecordingError: a damaged file (strict), or a known topic with an unexpected schema.
     """
-    contents = read_mcap(path, strict=strict, topics=topics, progress=progress)
-    present = {t for t, count in contents.topics().items() if count}
-    imu, lin, grav, cal = {}, {}, {}, {}
-    topics = present
+    path = Path(path)
+    mcap = scan_mcap(path)
+    try:
+        if strict and mcap.problems:
+            raise RecordingError(mcap.error_text())
+        wanted_topics = set(EXPECTED_SCHEMAS) - {"/tf_static"} if topics is None else set(topics)
+        decoders = _topic_decoders(path, mcap, wanted_topics)
+        for chunk in mcap.chunks(channels=set(decoders), progress=progress):
+            for cid, data in chunk.channels.items():
+                if cid in decoders:
+                    decoders[cid].add(data)
+            if strict and mcap.problems:
+                raise RecordingError(mcap.error_text())
+        start = _start_time_ns(path, mcap)
+        by_topic = {d.topic: d for d in decoders.values()}
+        attachment = mcap.attachments.get(MJCF_ATTACHMENT)
+        rec = _assemble(path, by_topic, start, mcap, attachment.data if attachment is not None else None)
+        _check_metadata(rec)
+        return rec
+    finally:
+        mcap.close()
+
+
+def _check_metadata(rec: Recording) -> None:
+    """Every pendsim metadata record the file has must hold valid values (RecordingError)."""
+    checks: dict[str, Callable[[], object]] = {
+        "pendsim/rig_parameters": rec.params,
+        "pendsim/run": rec.run_info,
+        "pendsim/imu": rec.imu_config,
+    }
+    for name, check in checks.items():
+        if name in rec.metadata:
+            check()
+
+
+def _start_time_ns(path: Path, mcap: McapFile) -> int:
+    """The recording's t = 0: ``pendsim/run`` start_time_ns, else its first message."""
+    text = mcap.metadata.get("pendsim/run", {}).get("start_time_ns")
+    if text is not None:
+        if not (text.isdigit() and int(text) < 2**63):
+            raise RecordingError(f"{path}: metadata pendsim/run: start_time_ns = {text!r} is not a time in ns")
+        return int(text)
+    return min((r.start_ns for r in mcap.chunk_refs), default=0)
+
+
+def _topic_decoders(path: Path, mcap: McapFile, topics: set[str]) -> dict[int, _TopicDecoder]:
+    """A decoder per channel of the wanted known topics, after checking its schema."""
+    out: dict[int, _TopicDecoder] = {}
+    for cid, channel in mcap.channels.items():
+        expected = EXPECTED_SCHEMAS.get(channel.topic)
+        if expected is None or channel.topic not in topics:
+            continue
+        schema = mcap.schemas.get(channel.schema_id)
+        name = schema.name if schema is not None else "(no schema)"
+        if (
+            schema is None
+            or schema.name != expected
+            or schema.encoding != "ros2msg"
+            or channel.message_encoding != "cdr"
+        ):
+            encoding = f"{schema.encoding if schema else '?'}/{channel.message_encoding}"
+            raise RecordingError(
+                f"{path}: topic {channel.topic} carries schema {name!r} ({encoding}); pendsim expects {expected} "
+                "(ros2msg/cdr)"
+            )
+        count = sum(r.index_count(cid) for r in mcap.chunk_refs)
+        out[cid] = _TopicDecoder(path, channel.topic, schema, count)
+    return out
+
+
+class _Column:
+    """One decoded field, growing chunk by chunk into a preallocated array; a field whose value
+    never changes (covariances) is kept once and returned as a broadcast view."""
+
+    def __init__(self, capacity: int) -> None:
+        self.capacity = max(capacity, 1)
+        self.data: NDArray | None = None
+        self.constant: NDArray | None = None
+        self.n = 0
+
+    def add(self, values: NDArray, *, may_be_constant: bool = False) -> None:
+        m = len(values)
+        if not m:
+            return
+        if may_be_constant and self.data is None:
+            first = values[0]
+            same = self.n == 0 if self.constant is None else np.array_equal(first, self.constant)
+            if same and np.all(values == first):
+                self.constant = np.array(first)
+                self.n += m
+                return
+        if self.data is None:
+            self.data = np.empty((max(self.capacity, self.n + m), *values.shape[1:]), values.dtype)
+            if self.constant is not None:
+                self.data[: self.n] = self.constant
+                self.constant = None
+        elif self.n + m > len(self.data):  # more than the index said (a chunk without index)
+            grown = np.empty((max(2 * len(self.data), self.n + m), *values.shape[1:]), values.dtype)
+            grown[: self.n] = self.data[: self.n]
+            self.data = grown
+        self.data[self.n : self.n + m] = values
+        self.n += m
+
+    def result(self, shape: tuple[int, ...], dtype: Any = np.float64) -> NDArray:
+        if self.constant is not None:
+            return np.broadcast_to(self.constant.reshape(shape), (self.n, *shape))
+        if self.data is None:
+            return np.zeros((0, *shape), dtype)
+        return self.data[: self.n].reshape(self.n, *shape)
+
+
+class _TopicDecoder:
+    """Decodes one topic's chunks into columns: in bulk with the fixed CDR layout when the
+    messages have it, else message by message with the file's own schema (mcap_ros2)."""
+
+    FIELDS: ClassVar[dict[str, tuple[str, ...]]] = {
+        "sensor_msgs/msg/Imu": ("sec", "nanosec", "orientation", "angular_velocity", "linear_acceleration",
+                                "orientation_covariance", "angular_velocity_covariance",
+                                "linear_acceleration_covariance"),
+        "geometry_msgs/msg/Vector3Stamped": ("vector",),
+        "std_msgs/msg/UInt8MultiArray": ("data",),
+        "sensor_msgs/msg/JointState": ("position", "velocity", "effort"),
+        "tf2_msgs/msg/TFMessage": ("t0_rotation", "t1_rotation"),
+        "std_msgs/msg/Float64MultiArray": ("data",),
+    }  # fmt: skip
+    CONSTANT = frozenset({"orientation_covariance", "angular_velocity_covariance", "linear_acceleration_covariance"})
+
+    def __init__(self, path: Path, topic: str, schema: Any, count: int) -> None:
+        self.path, self.topic, self.schema = path, topic, schema
+        self.columns = {name: _Column(count) for name in ("log", *self.FIELDS[schema.name])}
+        self.layout: ros2.FixedCdr | None = None
+        self.frame_id = ""
+        self._decoder: Callable[[bytes], Any] | None = None
+
+    def add(self, data: ChannelData) -> None:
+        if not len(data):
+            return
+        fields = self._bulk(data.payloads) if isinstance(data.payloads, np.ndarray) else None
+        if fields is None:
+            fields = self._one_by_one(data.payloads)
+        self.columns["log"].add(data.log_time_ns)
+        for name, values in fields.items():
+            self.columns[name].add(values, may_be_constant=name in self.CONSTANT)
+
+    def _layout_for(self, payloads: NDArray[np.uint8]) -> ros2.FixedCdr | None:
+        name = self.schema.name
+        if name in ("sensor_msgs/msg/Imu", "geometry_msgs/msg/Vector3Stamped"):
+            if payloads.shape[1] < 20:
+                return None
+            try:
+                frame = ros2.frame_id_of(payloads[0])
+            except (UnicodeDecodeError, ValueError):
+                return None
+            self.frame_id = frame
+            return ros2.imu_layout(frame) if name == "sensor_msgs/msg/Imu" else ros2.vector3_stamped_layout(frame)
+        if name == "std_msgs/msg/UInt8MultiArray":
+            return ros2.uint8_multiarray_layout(4)
+        if name == "std_msgs/msg/Float64MultiArray":
+            return DRIVE_LAYOUT
+        if name == "sensor_msgs/msg/JointState":
+            for names in (JOINT_NAMES, JOINT_NAMES + SPATIAL_JOINT_NAMES):
+                layout = ros2.joint_state_layout(names)
+                if layout.size == payloads.shape[1]:
+                    return layout
+            return None
+        return TF_LAYOUT
+
+    def _bulk(self, payloads: NDArray[np.uint8]) -> dict[str, NDArray] | None:
+        if self.schema.data != ros2.SCHEMAS[self.schema.name]:
+            return None  # another definition of the type: decode with it
+        if self.layout is None or self.layout.size != payloads.shape[1]:
+            self.layout = self._layout_for(payloads)
+        if self.layout is None:
+            return None
+        try:
+            dec = self.layout.decode(payloads)
+        except ValueError:
+            return None
+        out = {name: np.array(dec[name]) for name in self.FIELDS[self.schema.name] if name in (dec.dtype.names or ())}
+        if self.schema.name == "sensor_msgs/msg/JointState":  # the hinges (first two joints)
+            out = {k: v.reshape(len(dec), -1)[:, :2] for k, v in out.items()}
+        return out
+
+    def _one_by_one(self, payloads: NDArray[np.uint8] | list[bytes]) -> dict[str, NDArray]:
+        """Per message with the file's own schema (slow; for messages without our fixed layout)."""
+        rows = [bytes(p) for p in payloads]
+        try:
+            if self._decoder is None:
+                self._decoder = ros2.decoder_for(self.schema)
+            messages = [self._decoder(r) for r in rows]
+            return self._extract(messages)
+        except Exception as exc:  # struct.error, AttributeError, IndexError, ...: not this type
+            raise RecordingError(
+                f"{self.path}: topic {self.topic}: a message does not decode as {self.schema.name} "
+                f"({type(exc).__name__})"
+            ) from None
+
+    def _extract(self, messages: list[Any]) -> dict[str, NDArray]:
+        name = self.schema.name
+        if name == "sensor_msgs/msg/Imu":
+            self.frame_id = messages[0].header.frame_id
+            xyz = ("x", "y", "z")
+            return {
+                "sec": np.array([m.header.stamp.sec for m in messages], np.int64),
+                "nanosec": np.array([m.header.stamp.nanosec for m in messages], np.int64),
+                "orientation": np.array([[m.orientation.x, m.orientation.y, m.orientation.z, m.orientation.w]
+                                         for m in messages]),
+                "angular_velocity": np.array([[getattr(m.angular_velocity, a) for a in xyz] for m in messages]),
+                "linear_acceleration": np.array([[getattr(m.linear_acceleration, a) for a in xyz] for m in messages]),
+                **{f: np.array([list(getattr(m, f)) for m in messages], float) for f in self.CONSTANT},
+            }  # fmt: skip
+        if name == "geometry_msgs/msg/Vector3Stamped":
+            return {"vector": np.array([[m.vector.x, m.vector.y, m.vector.z] for m in messages])}
+        if name == "std_msgs/msg/UInt8MultiArray":
+            return {"data": np.array([list(m.data)[:4] for m in messages], np.uint8).reshape(-1, 4)}
+        if name == "std_msgs/msg/Float64MultiArray":
+            return {"data": np.array([list(m.data)[:NCHANNEL] for m in messages], float).reshape(-1, NCHANNEL)}
+        if name == "sensor_msgs/msg/JointState":
+            order = [list(messages[0].name).index(j) for j in JOINT_NAMES]
+            return {f: np.array([[list(getattr(m, f))[i] for i in order] for m in messages]) for f in
+                    ("position", "velocity", "effort")}  # fmt: skip
+        out = {}
+        for k, child in enumerate(("m1", "m2")):
+            rot = []
+            for m in messages:
+                t = next(t for t in m.transforms if t.child_frame_id == child)
+                rot.append([t.transform.rotation.x, t.transform.rotation.y, t.transform.rotation.z,
+                            t.transform.rotation.w])  # fmt: skip
+            out[f"t{k}_rotation"] = np.array(rot)
+        return out
+
+
+def _assemble(
+    path: Path, topics: dict[str, _TopicDecoder], start: int, mcap: McapFile, mjcf: bytes | None
+) -> Recording:
+    def log(d: _TopicDecoder) -> NDArray[np.int64]:
+        return d.columns["log"].result((), np.int64) - start
+
+    imu: dict[str, ImuTopic] = {}
+    lin: dict[str, Series] = {}
+    grav: dict[str, Series] = {}
+    cal: dict[str, Series] = {}
     for n in NODES:
-        if imu_topic(n) in topics:
-            imu[n] = _read_imu(contents.topic(imu_topic(n)))
+        d = topics.get(imu_topic(n))
+        if d is not None and d.columns["log"].n:
+            c = d.columns
+            stamp = c["sec"].result((), np.int64).astype(np.int64) * 1_000_000_000 + c["nanosec"].result(()) - start
+            imu[n] = ImuTopic(
+                log(d), stamp.astype(np.int64), d.frame_id,
+                rotations.xyzw_to_wxyz(c["orientation"].result((4,))),
+                c["angular_velocity"].result((3,)), c["linear_acceleration"].result((3,)),
+                c["orientation_covariance"].result((3, 3)), c["angular_velocity_covariance"].result((3, 3)),
+                c["linear_acceleration_covariance"].result((3, 3)),
+            )  # fmt: skip
         for key, store in (("linear_acceleration", lin), ("gravity", grav)):
-            topic = f"/imu/{n}/{key}"
-            if topic in topics:
-                d = contents.topic(topic)
-                dec = _decode(d, "geometry_msgs/msg/Vector3Stamped", ros2.vector3_stamped_layout(f"imu_{n}"))
-                vec = (
-                    dec["vector"]
-                    if isinstance(dec, np.ndarray)
-                    else np.array([[m.vector.x, m.vector.y, m.vector.z] for m in dec])
-                )
-                store[n] = (d.log_time_ns, vec.reshape(-1, 3))
-        topic = f"/imu/{n}/calibration"
-        if topic in topics:
-            d = contents.topic(topic)
-            dec = _decode(d, "std_msgs/msg/UInt8MultiArray", ros2.uint8_multiarray_layout(4))
-            levels = dec["data"] if isinstance(dec, np.ndarray) else np.array([list(m.data) for m in dec], np.uint8)
-            cal[n] = (d.log_time_ns, levels.reshape(-1, 4))
+            d = topics.get(f"/imu/{n}/{key}")
+            if d is not None and d.columns["log"].n:
+                store[n] = (log(d), d.columns["vector"].result((3,)))
+        d = topics.get(f"/imu/{n}/calibration")
+        if d is not None and d.columns["log"].n:
+            cal[n] = (log(d), d.columns["data"].result((4,), np.uint8))
     joints = None
-    if "/joint_states" in topics:
-        d = contents.topic("/joint_states")
-        dec = _decode(d, "sensor_msgs/msg/JointState", ros2.joint_state_layout(JOINT_NAMES))
-        if isinstance(dec, np.ndarray):
-            pos, vel, eff = dec["position"], dec["velocity"], dec["effort"]
-        else:
-            pos, vel, eff = (np.array([getattr(m, f) for m in dec]) for f in ("position", "velocity", "effort"))
-        joints = JointStates(d.log_time_ns, pos.reshape(-1, 2), vel.reshape(-1, 2), eff.reshape(-1, 2))
+    d = topics.get("/joint_states")
+    if d is not None and d.columns["log"].n:
+        c = d.columns
+        joints = JointStates(log(d), c["position"].result((2,)), c["velocity"].result((2,)), c["effort"].result((2,)))
     tf = None
-    if "/tf" in topics:
-        d = contents.topic("/tf")
-        dec = _decode(d, "tf2_msgs/msg/TFMessage", TF_LAYOUT)
-        if isinstance(dec, np.ndarray):
-            xyzw = np.stack([dec["t0_rotation"], dec["t1_rotation"]], axis=1)
-            tf = (d.log_time_ns, rotations.xyzw_to_wxyz(xyzw))
-    attachment = contents.attachments.get(MJCF_ATTACHMENT)
+    d = topics.get("/tf")
+    if d is not None and d.columns["log"].n:
+        xyzw = np.stack([d.columns["t0_rotation"].result((4,)), d.columns["t1_rotation"].result((4,))], axis=1)
+        tf = (log(d), rotations.xyzw_to_wxyz(xyzw))
+    drive_input = None
+    d = topics.get(DRIVE_TOPIC)
+    if d is not None and d.columns["log"].n:
+        drive_input = (log(d), d.columns["data"].result((NCHANNEL,)))
+    # not UTF-8 (a foreign or hostile file): replaced characters; the MJCF guard then judges the text
+    mjcf_xml = mjcf.decode("utf-8", errors="replace") if mjcf is not None else None
     return Recording(
-        path=Path(path),
+        path=path,
         imu=imu,
         linear_accel_m_s2=lin,
         gravity_m_s2=grav,
         calibration=cal,
         joint_states=joints,
         tf_rotation_wxyz=tf,
-        metadata=contents.metadata,
-        mjcf_xml=attachment.data.decode() if attachment is not None else None,
-        contents=contents,
+        metadata=mcap.metadata,
+        mjcf_xml=mjcf_xml,
+        start_time_ns=start,
+        problems=tuple(mcap.problems),
+        unverified=tuple(str(u) for u in mcap.unverified),
+        drive_input=drive_input,
     )
-
-
-def _read_imu(d: ChannelData) -> ImuTopic:
-    frame = ros2.frame_id_of(d.payloads[0]) if isinstance(d.payloads, np.ndarray) and len(d) else ""
-    dec = _decode(d, "sensor_msgs/msg/Imu", ros2.imu_layout(frame) if frame else None)
-    if isinstance(dec, np.ndarray):
-        stamp = dec["sec"].astype(np.int64) * 1_000_000_000 + dec["nanosec"]
-        quat = rotations.xyzw_to_wxyz(dec["orientation"])
-        gyro, accel = dec["angular_velocity"], dec["linear_acceleration"]
-        covs = [
-            dec[f].reshape(-1, 3, 3)
-            for f in ("orientation_covariance", "angular_velocity_covariance", "linear_acceleration_covariance")
-        ]
-    else:
-        stamp = np.array([m.header.stamp.sec * 1_000_000_000 + m.header.stamp.nanosec for m in dec], np.int64)
-        quat = np.array([[m.orientation.w, m.orientation.x, m.orientation.y, m.orientation.z] for m in dec])
-        gyro = np.array([[m.angular_velocity.x, m.angular_velocity.y, m.angular_velocity.z] for m in dec])
-        accel = np.array([[m.linear_acceleration.x, m.linear_acceleration.y, m.linear_acceleration.z] for m in dec])
-        covs = [
-            np.array([getattr(m, f) for m in dec]).reshape(-1, 3, 3)
-            for f in ("orientation_covariance", "angular_velocity_covariance", "linear_acceleration_covariance")
-        ]
-        frame = dec[0].header.frame_id if dec else ""
-    return ImuTopic(d.log_time_ns, stamp, frame, quat, gyro, accel, *covs)

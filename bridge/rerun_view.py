@@ -10,8 +10,12 @@ drawn from the compiled MjModel; the four springs are line strips whose colour r
 
 from __future__ import annotations
 
+import contextlib
 import math
+import sys
+from collections.abc import Callable, Iterator
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import mujoco
 import numpy as np
@@ -19,45 +23,126 @@ import rerun as rr
 import rerun.blueprint as rrb
 
 from pendsim_mj import rotations
-from pendsim_mj.model import BODIES, SPRING_ENDS, SPRINGS
+from pendsim_mj.drives import Drive, drive_from_held_inputs
+from pendsim_mj.errors import ModelError, OutputError
+from pendsim_mj.mjcf_guard import compile_untrusted
+from pendsim_mj.model import BODIES, SPRING_ENDS, SPRING_POINT_OWNER, SPRINGS
+from pendsim_mj.outputs import atomic_output
+from pendsim_mj.quantities import QUANTITIES
 from pendsim_mj.trajectory import Trajectory
+
+if TYPE_CHECKING:
+    from pendsim_bridge.validate import ValidationReport
+    from pendsim_mj.alignment import MeasuredRun
 
 TIMELINE = "time"
 APPLICATION_ID = "pendsim"
-PLOTTED = {
-    "phi1": ("phi1 (rad)", lambda tr: tr.phi_rad[:, 0]),
-    "phi2": ("phi2 (rad)", lambda tr: tr.phi_rad[:, 1]),
-    "omega1": ("omega1 (rad/s)", lambda tr: tr.omega_rad_s[:, 0]),
-    "omega2": ("omega2 (rad/s)", lambda tr: tr.omega_rad_s[:, 1]),
-    "tangential_m1": ("tangential acceleration M1, accelerometer x (m/s^2)", lambda tr: tr.imu_accel_m_s2[:, 0, 0]),
-    "normal_m1": ("normal acceleration M1, accelerometer y (m/s^2)", lambda tr: tr.imu_accel_m_s2[:, 0, 1]),
+
+
+SERIES_STYLE: dict[str, tuple[str, tuple[int, int, int, int], float]] = {
+    # series: (colour name for the view titles, RGBA, line width in points). The measurement is a
+    # wide blue band, the model a narrow orange line over it (Rerun draws a plot's series in entity
+    # order, "measured" before "model", and ignores alpha): where they agree, the orange line runs
+    # inside the blue band; where they differ, each shows on its own.
+    "measured": ("blue", (30, 90, 230, 255), 4.0),
+    "model": ("orange", (255, 140, 0, 255), 1.5),
+    "planar": ("blue", (30, 90, 230, 255), 4.0),
+    "spatial": ("orange", (255, 140, 0, 255), 1.5),
+    "delta": ("red", (210, 30, 30, 255), 1.5),
+    "iae": ("green", (30, 150, 60, 255), 1.5),
+    "ise": ("purple", (130, 60, 180, 255), 1.5),
 }
+PHASE_DRAW_ORDER = {"measured": 10.0, "planar": 10.0, "model": 20.0, "spatial": 20.0}
+"""Higher is drawn on top: as in the plots, the model's narrow line over the measured band."""
 
 
-def blueprint() -> rrb.Blueprint:
-    """3D rig on the left, stacked plots on the right, phase portraits below them."""
-    plots = [rrb.TimeSeriesView(origin=f"/plots/{name}", name=label) for name, (label, _) in PLOTTED.items()]
-    plots.append(rrb.TimeSeriesView(origin="/plots/error_phi1", name="phi1 error: Delta, IAE, ISE"))
+def _key(series: tuple[str, ...]) -> str:
+    """The colour key written into view titles (Rerun's legends would cover the data)."""
+    return ", ".join(f"{name} {SERIES_STYLE[name][0]}" for name in series)
+
+
+def blueprint(series: tuple[str, ...] = ("measured", "model")) -> rrb.Blueprint:
+    """3D rig on the left, stacked plots on the right, phase portraits below them. The plots'
+    legends are off (they cover the first seconds); each title says which colour is which."""
+    key = _key(series)
+    no_legend = rrb.PlotLegend(visible=False)
+    plots = [
+        rrb.TimeSeriesView(origin=f"/plots/{q.name}", name=f"{q.title}: {key}", plot_legend=no_legend)
+        for q in QUANTITIES
+    ]
+    if "measured" in series:
+        plots.append(
+            rrb.TimeSeriesView(
+                origin="/plots/error_phi1",
+                name=f"phi1 error: {_key(('delta', 'iae', 'ise'))} (Delta rad, IAE rad s, ISE rad^2 s)",
+                plot_legend=no_legend,
+            )
+        )
+    if "spatial" in series:
+        plots.append(rrb.TimeSeriesView(origin="/plots/tilt1", name="tilt of M1 (rad): spatial", plot_legend=no_legend))
+        plots.append(rrb.TimeSeriesView(origin="/plots/tilt2", name="tilt of M2 (rad): spatial", plot_legend=no_legend))
+    phase = [rrb.Spatial2DView(origin=f"/phase/m{k}", name=f"phase portrait M{k}: {key}") for k in (1, 2)]
     return rrb.Blueprint(
         rrb.Horizontal(
             rrb.Spatial3DView(origin="/rig", name="rig (computed)"),
-            rrb.Vertical(
-                rrb.Vertical(*plots),
-                rrb.Horizontal(
-                    rrb.Spatial2DView(origin="/phase/m1", name="phase portrait M1 (phi, omega)"),
-                    rrb.Spatial2DView(origin="/phase/m2", name="phase portrait M2 (phi, omega)"),
-                ),
-                row_shares=[4, 1],
-            ),
+            rrb.Vertical(rrb.Vertical(*plots), rrb.Horizontal(*phase), row_shares=[3, 2]),
             column_shares=[2, 3],
         ),
         collapse_panels=True,
     )
 
 
-def _quat_xyzw_about_pivot(phi: np.ndarray) -> np.ndarray:
-    """Rotation by phi about the world -y axis (the hinges), x, y, z, w."""
-    return np.stack([np.zeros_like(phi), -np.sin(phi / 2), np.zeros_like(phi), np.cos(phi / 2)], axis=-1)
+@contextlib.contextmanager
+def rrd_output(
+    path: str | Path,
+    *,
+    replace: bool = False,
+    series: tuple[str, ...] | None = ("measured", "model"),
+    application_id: str = APPLICATION_ID,
+) -> Iterator[None]:
+    """Log to a new Rerun recording and publish it as the .rrd file ``path`` when the block
+    completes: ``with rrd_output("run.rrd"): rr.log(...)``.
+
+    The bytes come from Rerun's in-memory stream (one read at the end: each read is a whole RRD
+    stream, and concatenated streams fail Rerun's CRC check) and are written by Python, so a full
+    disk or a permission error is an ``OutputError`` here, never a warning on a background thread
+    and a truncated file. The file is written under
+    a temporary name and published atomically (``pendsim_mj.outputs.atomic_output``): never over
+    an existing file unless ``replace``, and nothing is left behind by a failure.
+
+    Args:
+      path: the .rrd file.
+      replace: replace an existing file (``--force``).
+      series: the series the views show (``blueprint``); None: no blueprint (Rerun's own layout).
+      application_id: Rerun's application id.
+    """
+    layout = blueprint(series) if series is not None else None
+    with atomic_output(path, replace=replace) as tmp, open(tmp, "wb") as f:
+        rr.init(application_id, default_blueprint=layout)
+        stream = rr.binary_stream()
+        if layout is not None:
+            rr.send_blueprint(layout, make_active=True, make_default=True)
+
+        try:
+            yield
+            data = stream.read(flush=True)
+            if not data:
+                raise OutputError(f"Rerun produced no data for {str(path)!r}")
+            f.write(data)
+        finally:
+            rr.disconnect()
+
+
+def log_series_styles(series: tuple[str, ...]) -> None:
+    """Colour, width and name of each plotted series (static)."""
+    styled = [(f"/plots/{q.name}/{s}", s) for q in QUANTITIES for s in series]
+    if "spatial" in series:
+        styled += [(f"/plots/tilt{k}/spatial", "spatial") for k in (1, 2)]
+    if "measured" in series:
+        styled += [(f"/plots/error_phi1/{s}", s) for s in ("delta", "iae", "ise")]
+    for entity, s in styled:
+        _, rgba, width = SERIES_STYLE[s]
+        rr.log(entity, rr.SeriesLines(colors=[rgba], widths=[width], names=[s]), static=True)
 
 
 def _geom_rgba(model: mujoco.MjModel, geoms: list[int]) -> np.ndarray:
@@ -66,10 +151,14 @@ def _geom_rgba(model: mujoco.MjModel, geoms: list[int]) -> np.ndarray:
     return np.where((matid >= 0)[:, None], model.mat_rgba[np.maximum(matid, 0)], model.geom_rgba[geoms])
 
 
-def log_rig_geometry(model: mujoco.MjModel, *, root: str = "/rig", x_offset_m: float = 0.0) -> None:
+def log_rig_geometry(
+    model: mujoco.MjModel, *, root: str = "/rig", x_offset_m: float = 0.0, moving_frame: bool = False
+) -> None:
     """Static geometry: the frame in the world, each pendulum's geoms and points in its body
-    (a rig drawn ``x_offset_m`` to the side, under ``root``)."""
-    rr.log(f"{root}/frame", rr.Transform3D(translation=[x_offset_m, 0.0, 0.0]), static=True)
+    (a rig drawn ``x_offset_m`` to the side, under ``root``). With ``moving_frame`` (a run that
+    moves the support) the frame's pose is left to ``log_trajectory``."""
+    if not moving_frame:
+        rr.log(f"{root}/frame", rr.Transform3D(translation=[x_offset_m, 0.0, 0.0]), static=True)
     for body_id in range(model.nbody):
         name = model.body(body_id).name or "frame"
         entity = f"{root}/{name}" if name in BODIES else f"{root}/frame"
@@ -132,26 +221,30 @@ def log_trajectory(
     (under /plots/<quantity>/<series>)."""
     times = rr.TimeColumn(TIMELINE, duration=traj.t_s + time_offset_s)
     n = len(traj.t_s)
+    # the support's displacement (a driven run; zero otherwise) moves the frame and both pendulums
+    support = np.zeros((n, 3))
+    support[:, 0], support[:, 2] = traj.support_m[:, 0], traj.support_m[:, 1]
+    frame = support + np.array([x_offset_m, 0.0, 0.0])
+    if np.any(support):
+        rr.send_columns(f"{root}/frame", indexes=[times], columns=rr.Transform3D.columns(translation=frame))
     poses = {}
     for k, body in enumerate(BODIES):
         quat = traj.body_quat_wxyz()[:, k]
-        position = model.body(body).pos + np.array([x_offset_m, 0.0, 0.0])
+        position = model.body(body).pos + frame
         poses[k] = (rotations.to_matrix(quat), position)
         rr.send_columns(
             f"{root}/{body}",
             indexes=[times],
-            columns=rr.Transform3D.columns(
-                quaternion=rotations.wxyz_to_xyzw(quat), translation=np.broadcast_to(position, (n, 3))
-            ),
+            columns=rr.Transform3D.columns(quaternion=rotations.wxyz_to_xyzw(quat), translation=position),
         )
     # Spring end points in the world: each body's pose applied to the model's site positions.
     site = {name: model.site(name).pos.copy() for pair in SPRING_ENDS for name in pair}
-    owner = {"point_1": 1, "point_5": 1, "point_2": 0, "point_3": 0}
+    owner = SPRING_POINT_OWNER
 
     def world(name: str) -> np.ndarray:
         p = site[name]
         if name not in owner:
-            return np.broadcast_to(p + np.array([x_offset_m, 0.0, 0.0]), (n, 3))
+            return p + frame
         matrix, position = poses[owner[name]]
         return position + matrix @ p
 
@@ -168,23 +261,18 @@ def log_trajectory(
         ),
     )
     rr.log(f"{root}/springs", rr.LineStrips3D.from_fields(labels=list(SPRINGS), radii=0.002), static=True)
-    for name, (_, pick) in PLOTTED.items():
-        rr.send_columns(f"/plots/{name}/{series}", indexes=[times], columns=rr.Scalars.columns(scalars=pick(traj)))
-    for k in range(2):
-        strip = np.stack([traj.phi_rad[:, k], -traj.omega_rad_s[:, k]], axis=-1)  # 2D views draw y down
-        rr.log(f"/phase/m{k + 1}/{series}", rr.LineStrips2D([strip], colors=[255, 140, 0], radii=0.003), static=True)
+    for q in QUANTITIES:
+        values = rr.Scalars.columns(scalars=q.computed(traj))
+        rr.send_columns(f"/plots/{q.name}/{series}", indexes=[times], columns=values)
 
 
-def log_measured(t_s: np.ndarray, series: dict[str, np.ndarray]) -> None:
-    """Measured series (seconds since the release) beside the model's."""
-    times = rr.TimeColumn(TIMELINE, duration=t_s)
-    for name, values in series.items():
-        if name in PLOTTED:
-            rr.send_columns(f"/plots/{name}/measured", indexes=[times], columns=rr.Scalars.columns(scalars=values))
-    for k in (1, 2):
-        if f"phi{k}" in series and f"omega{k}" in series:
-            strip = np.stack([series[f"phi{k}"], -series[f"omega{k}"]], axis=-1)
-            rr.log(f"/phase/m{k}/measured", rr.LineStrips2D([strip], colors=[30, 30, 30], radii=0.002), static=True)
+def log_measured(run: MeasuredRun) -> None:
+    """Measured series (seconds since the start, each node at its own instants; gaps stay gaps)
+    beside the model's."""
+    for q in QUANTITIES:
+        t, values, _ = run.series(q)
+        times = rr.TimeColumn(TIMELINE, duration=t)
+        rr.send_columns(f"/plots/{q.name}/measured", indexes=[times], columns=rr.Scalars.columns(scalars=values))
 
 
 def log_error(t_s: np.ndarray, delta: np.ndarray, iae: np.ndarray, ise: np.ndarray) -> None:
@@ -194,79 +282,211 @@ def log_error(t_s: np.ndarray, delta: np.ndarray, iae: np.ndarray, ise: np.ndarr
         rr.send_columns(f"/plots/error_phi1/{name}", indexes=[times], columns=rr.Scalars.columns(scalars=values))
 
 
-def start(application_id: str = APPLICATION_ID, *, spawn: bool = False) -> None:
-    rr.init(application_id, spawn=spawn, default_blueprint=blueprint())
+def nice_ticks(low: float, high: float, *, count: int = 5) -> np.ndarray:
+    """About ``count`` round tick values (1, 2 or 5 times a power of ten apart) within [low, high]."""
+    span = high - low
+    if not (math.isfinite(span) and span > 0):
+        return np.array([low]) if math.isfinite(low) else np.zeros(0)
+    raw = span / max(1, count - 1)
+    power = 10.0 ** math.floor(math.log10(raw))
+    step = next(m * power for m in (1.0, 2.0, 5.0, 10.0) if m * power >= raw)
+    first = math.ceil(low / step) * step
+    ticks = np.arange(first, high + step * 1e-9, step)
+    return np.where(np.abs(ticks) < step * 1e-9, 0.0, ticks)
 
 
-def save(path: str | Path) -> Path:
-    """Write everything logged so far (and the blueprint) to an .rrd file."""
-    rr.save(str(path), default_blueprint=blueprint())
-    return Path(path)
+def log_phase_portraits(curves: dict[str, list[tuple[np.ndarray, np.ndarray]]]) -> None:
+    """Phase portraits (omega over phi) of each pendulum with drawn, labelled axes.
+
+    Args:
+      curves: series name (a key of SERIES_STYLE) -> per pendulum (M1, M2) its (phi_rad (n,),
+        omega_rad_s (n,)); the lengths may differ (each node has its own instants).
+
+    Rerun's 2D view keeps one scale for both directions, so omega is drawn scaled by
+    (phi span / omega span) to fill a square; the tick labels give the real omega in rad/s. The
+    view's y grows downward, so omega is drawn negated (up is positive). Entities:
+    ``/phase/m{k}/{series}`` (the traces), ``/phase/m{k}/axes`` (lines, ticks, labels).
+    """
+    for k in range(2):
+        phi = np.concatenate([c[k][0] for c in curves.values()])
+        omega = np.concatenate([c[k][1] for c in curves.values()])
+        phi, omega = phi[np.isfinite(phi)], omega[np.isfinite(omega)]
+        if not len(phi) or not len(omega):
+            continue
+        p_low, p_high = min(float(phi.min()), 0.0), max(float(phi.max()), 0.0)
+        w_low, w_high = min(float(omega.min()), 0.0), max(float(omega.max()), 0.0)
+        p_span, w_span = max(p_high - p_low, 1e-9), max(w_high - w_low, 1e-9)
+        scale = p_span / w_span  # display units per rad/s
+        size = p_span  # the square's side, display units
+        root = f"/phase/m{k + 1}"
+        for name, pendulums in curves.items():
+            _, rgba, width = SERIES_STYLE[name]
+            phi_rad, omega_rad_s = pendulums[k]
+            strip = np.stack([phi_rad, -scale * omega_rad_s], axis=-1)
+            strip = strip[np.all(np.isfinite(strip), axis=1)]
+            rr.log(
+                f"{root}/{name}",
+                rr.LineStrips2D(
+                    [strip], colors=[rgba], radii=[0.002 * width * size], draw_order=PHASE_DRAW_ORDER.get(name, 15.0)
+                ),
+                static=True,
+            )
+        pad = 0.06 * size
+        tick = 0.015 * size
+        x0, x1, y0, y1 = p_low - pad, p_high + pad, -scale * w_high - pad, -scale * w_low + pad
+        p_ticks, w_ticks = nice_ticks(p_low, p_high), nice_ticks(w_low, w_high)
+        lines = [[[x0, 0.0], [x1, 0.0]], [[0.0, y0], [0.0, y1]]]
+        lines += [[[p, -tick], [p, tick]] for p in p_ticks]
+        lines += [[[-tick, -scale * w], [tick, -scale * w]] for w in w_ticks]
+        grey = (110, 110, 110, 255)
+        rr.log(f"{root}/axes/lines", rr.LineStrips2D(lines, colors=[grey], radii=[0.002 * size]), static=True)
+        labels = [f"{p:g}" for p in p_ticks] + [f"{w:g}" for w in w_ticks if w != 0]
+        positions = [[p, 3 * tick] for p in p_ticks] + [[-4 * tick, -scale * w] for w in w_ticks if w != 0]
+        labels += [f"phi{k + 1} (rad)", f"omega{k + 1} (rad/s)"]
+        positions += [[x1 + 0.1 * size, 0.0], [0.0, y0 - 0.05 * size]]  # beyond the axes' ends
+        rr.log(
+            f"{root}/axes/labels",
+            rr.Points2D(positions, radii=[0.0005 * size], colors=[grey], labels=labels, show_labels=True),
+            static=True,
+        )
 
 
-def view_recording(path: str | Path, rrd_path: str | Path) -> Path:
-    """A recording and the model's prediction (re-simulated from the recording's parameters and
-    MJCF attachment, from the estimated release) to an .rrd file."""
-    from bridge.recording import read_recording
-    from bridge.validate import align, recorded_params
+def _warn_stderr(message: str) -> None:
+    print(f"pendsim: warning: {' '.join(message.split())}", file=sys.stderr)
+
+
+def _pendulums(traj: Trajectory) -> list[tuple[np.ndarray, np.ndarray]]:
+    return [(traj.phi_rad[:, k], traj.omega_rad_s[:, k]) for k in range(2)]
+
+
+def view_recording(
+    path: str | Path,
+    rrd_path: str | Path,
+    *,
+    release_s: float | None = None,
+    max_gap_s: float | None = None,
+    drive: Drive | None = None,
+    replace: bool = False,
+    warn: Callable[[str], None] = _warn_stderr,
+) -> Path:
+    """A recording and the model's prediction (re-simulated from the recording's parameters, from
+    the estimated start) to an .rrd file, the rig drawn from its MJCF attachment where that is
+    safe (``rig_model``).
+
+    Args:
+      release_s, max_gap_s: as ``validate.align_recording`` (the start on the recording's clock
+        instead of finding it; the longest gap interpolated across).
+      drive: the drive of the re-simulation, from the start on; by default the one the recording
+        holds on its /drive topic from the start on (none for a free run). The start is found by
+        the free model over its first second (``pendsim_mj.alignment``).
+      replace: replace an existing .rrd file (``--force``).
+      warn: receives a warning line (an MJCF attachment ignored).
+    """
+    from pendsim_bridge.recording import read_recording
+    from pendsim_bridge.validate import align_recording, recorded_params
+    from pendsim_mj.engines import whole_steps_s
     from pendsim_mj.simulation import simulate
-    from pendsim_mj.validation import compare, resample
+    from pendsim_mj.timing import DEFAULT_MAX_GAP_S
 
     rec = read_recording(path)  # a truncated or damaged file fails here, before Rerun sees it
     params = recorded_params(rec)
-    run = align(rec, params)
-    duration = math.floor(float(run.t_s[-1]) / 0.01) * 0.01
-    traj = simulate(params, run.release_angle_rad, (0.0, 0.0), duration)
-    model = mujoco.MjModel.from_xml_string(rec.mjcf_xml) if rec.mjcf_xml else None
-    if model is None:
-        from pendsim_mj.model import build_model
+    gap = DEFAULT_MAX_GAP_S if max_gap_s is None else max_gap_s
+    run = align_recording(rec, params, release_s=release_s, max_gap_s=gap)
+    duration = whole_steps_s(run.duration_s + 0.02)
+    if drive is None and rec.drive_input is not None:
+        t_ns, held = rec.drive_input
+        t = t_ns * 1e-9 - run.start.time_s  # since the start (the drive's steps begin at the release)
+        step = float(np.median(np.diff(t))) if len(t) > 1 else 0.0
+        after = t >= -0.5 * step
+        if np.count_nonzero(after) >= 2:
+            drive = drive_from_held_inputs(t[after], held[after])
+            duration = min(duration, whole_steps_s(float(t[after][-1] - t[after][0])))
+    traj = simulate(params, run.start.phi_rad, run.start.omega_rad_s, duration, drive=drive)
+    return view_aligned(run, traj, rec.mjcf_xml, rrd_path, replace=replace, warn=warn)
 
-        model = build_model(params)
-    start()
-    rr.save(str(rrd_path), default_blueprint=blueprint())
-    log_rig_geometry(model)
-    log_trajectory(traj, model)
-    log_measured(run.t_s, run.series)
-    inside = run.t_s <= traj.t_s[-1]
-    computed = resample(traj.t_s, traj.phi_rad[:, 0], run.t_s[inside])
-    error = compare(run.t_s[inside], run.series["phi1"][inside], computed)
-    log_error(error.t_s, error.delta, error.iae_curve, error.ise_curve)
-    rr.disconnect()
+
+def view_report(
+    report: ValidationReport, rrd_path: str | Path, *, replace: bool = False, warn: Callable[[str], None] = _warn_stderr
+) -> Path:
+    """A validation's measured run and its MuJoCo run (no second read, alignment or simulation)."""
+    return view_aligned(report.run, report.model_run, report.mjcf_xml, rrd_path, replace=replace, warn=warn)
+
+
+def rig_model(mjcf_xml: str | None, traj: Trajectory, *, warn: Callable[[str], None] = _warn_stderr) -> mujoco.MjModel:
+    """The model to draw: the recording's MJCF attachment if ``pendsim_mj.mjcf_guard`` accepts it
+    (no file references, within size limits) and it compiles, else the run's parameters (with a
+    warning naming the reason)."""
+    from pendsim_mj.model import build_model
+
+    if mjcf_xml:
+        try:
+            return compile_untrusted(mjcf_xml)
+        except ModelError as exc:
+            warn(f"ignoring the recording's MJCF attachment ({exc}); drawing the rig from the recorded parameters")
+    targets = traj.drive.targets if isinstance(traj.drive, Drive) else ()
+    return build_model(traj.single_params, drive_targets=targets)
+
+
+def view_aligned(
+    run: MeasuredRun,
+    traj: Trajectory,
+    mjcf_xml: str | None,
+    rrd_path: str | Path,
+    *,
+    replace: bool = False,
+    warn: Callable[[str], None] = _warn_stderr,
+) -> Path:
+    """Measured series (t = 0 at the start) beside a model run, the rig drawn by ``rig_model``,
+    published as the .rrd file ``rrd_path`` (``rrd_output``)."""
+    from pendsim_mj.quantities import BY_NAME
+    from pendsim_mj.validation import compare, resample
+
+    model = rig_model(mjcf_xml, traj, warn=warn)
+    with rrd_output(rrd_path, replace=replace, series=("measured", "model")):
+        log_series_styles(("measured", "model"))
+        log_rig_geometry(model, moving_frame=bool(np.any(traj.support_m)))
+        log_trajectory(traj, model)
+        log_measured(run)
+        t, phi1, at = run.series(BY_NAME["phi1"])
+        inside = at <= traj.t_s[-1]
+        computed = resample(traj.t_s, traj.phi_rad[:, 0], np.clip(at[inside], 0.0, None))
+        error = compare(t[inside], phi1[inside], computed, max_gap_s=run.max_gap_s)
+        log_error(error.t_s, error.delta, error.iae_curve, error.ise_curve)
+        measured = [(node.phi_rad, node.omega_rad_s) for node in run.nodes]
+        log_phase_portraits({"measured": measured, "model": _pendulums(traj)})
     return Path(rrd_path)
 
 
-def view_comparison(comparison, params, variant, rrd_path: str | Path) -> Path:
+def view_comparison(comparison, params, variant, rrd_path: str | Path, *, replace: bool = False) -> Path:
     """Planar and spatial rigs side by side (0.8 m apart) and their angles on shared plots."""
     from pendsim_mj.model import build_model
 
-    start()
-    rr.save(str(rrd_path), default_blueprint=blueprint())
     planar_model = build_model(params.with_overrides(plane_offset_m=0.0))
     spatial_model = build_model(params, variant=variant)
-    for root, model, traj, x, series in (
-        ("/rig/planar", planar_model, comparison.planar, -0.4, "planar"),
-        ("/rig/spatial", spatial_model, comparison.spatial, 0.4, "spatial"),
-    ):
-        log_rig_geometry(model, root=root, x_offset_m=x)
-        log_trajectory(traj, model, root=root, x_offset_m=x, series=series)
-    times = rr.TimeColumn(TIMELINE, duration=comparison.spatial.t_s)
-    for k in range(2):
-        rr.send_columns(
-            f"/plots/tilt{k + 1}/spatial",
-            indexes=[times],
-            columns=rr.Scalars.columns(scalars=comparison.spatial.tilt_rad[:, k]),
-        )
-    rr.disconnect()
+    with rrd_output(rrd_path, replace=replace, series=("planar", "spatial")):
+        log_series_styles(("planar", "spatial"))
+        for root, model, traj, x, series in (
+            ("/rig/planar", planar_model, comparison.planar, -0.4, "planar"),
+            ("/rig/spatial", spatial_model, comparison.spatial, 0.4, "spatial"),
+        ):
+            log_rig_geometry(model, root=root, x_offset_m=x, moving_frame=bool(np.any(traj.support_m)))
+            log_trajectory(traj, model, root=root, x_offset_m=x, series=series)
+        times = rr.TimeColumn(TIMELINE, duration=comparison.spatial.t_s)
+        for k in range(2):
+            rr.send_columns(
+                f"/plots/tilt{k + 1}/spatial",
+                indexes=[times],
+                columns=rr.Scalars.columns(scalars=comparison.spatial.tilt_rad[:, k]),
+            )
+        log_phase_portraits({"planar": _pendulums(comparison.planar), "spatial": _pendulums(comparison.spatial)})
     return Path(rrd_path)
 
 
-def view_trajectory(
-    traj: Trajectory, model: mujoco.MjModel, rrd_path: str | Path | None, *, spawn: bool = False
-) -> None:
-    """A simulated run (no measurement): to an .rrd file and/or a spawned viewer."""
-    start(spawn=spawn)
-    if rrd_path is not None:
-        rr.save(str(rrd_path), default_blueprint=blueprint())
-    log_rig_geometry(model)
-    log_trajectory(traj, model)
-    rr.disconnect()
+def view_trajectory(traj: Trajectory, model: mujoco.MjModel, rrd_path: str | Path, *, replace: bool = False) -> Path:
+    """A simulated run (no measurement) to an .rrd file."""
+    with rrd_output(rrd_path, replace=replace, series=("model",)):
+        log_series_styles(("model",))
+        log_rig_geometry(model, moving_frame=bool(np.any(traj.support_m)))
+        log_trajectory(traj, model)
+        log_phase_portraits({"model": _pendulums(traj)})
+    return Path(rrd_path)

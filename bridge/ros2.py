@@ -11,6 +11,9 @@ bytes against ``mcap_ros2``'s own encoder and decoder.
 from __future__ import annotations
 
 import dataclasses
+import functools
+from collections.abc import Callable
+from typing import Any
 
 import numpy as np
 
@@ -43,7 +46,9 @@ class FixedCdr:
 
     def __init__(self, fields: list[Field]) -> None:
         template = bytearray(ENCAPSULATION_CDR_LE)
-        names, formats, offsets = [], [], []
+        names: list[str] = []
+        formats: list[str | tuple[str, tuple[int]]] = []
+        offsets: list[int] = []
         for f in fields:
             if f.kind == "string":
                 _align(template, 4)
@@ -65,9 +70,8 @@ class FixedCdr:
         self.template = np.frombuffer(bytes(template), dtype=np.uint8)
         self.dtype = np.dtype({"names": names, "formats": formats, "offsets": offsets, "itemsize": self.size})
         variable = np.zeros(self.size, bool)
-        for name in names:
-            off = self.dtype.fields[name][1]
-            variable[off : off + self.dtype.fields[name][0].itemsize] = True
+        for layout, off in zip(formats, offsets, strict=True):
+            variable[off : off + np.dtype(layout).itemsize] = True
         edges = np.flatnonzero(np.diff(np.concatenate([[True], variable, [True]]).astype(int)))
         self._constant_runs = [(int(a), int(b)) for a, b in zip(edges[::2], edges[1::2], strict=True)]
 
@@ -76,7 +80,7 @@ class FixedCdr:
         out = np.empty((n, self.size), dtype=np.uint8)
         out[:] = self.template
         view = out.view(self.dtype).reshape(n)
-        missing = set(self.dtype.names) - set(values)
+        missing = set(self.dtype.names or ()) - set(values)
         if missing:
             raise ValueError(f"missing fields: {', '.join(sorted(missing))}")
         for name, value in values.items():
@@ -161,10 +165,43 @@ def uint8_multiarray_layout(count: int) -> FixedCdr:
     )
 
 
+def float64_multiarray_layout(label: str, count: int) -> FixedCdr:
+    """std_msgs/msg/Float64MultiArray with one layout dimension (``label``, size and stride
+    ``count``) and ``count`` values."""
+    return FixedCdr(
+        [
+            Field("length", value=1),
+            Field("string", value=label),
+            Field("uint32", "size"),
+            Field("uint32", "stride"),
+            Field("uint32", "data_offset"),
+            Field("length", value=count),
+            Field("float64", "data", count),
+        ]
+    )
+
+
 def frame_id_of(payload: np.ndarray) -> str:
     """The header.frame_id of a CDR message that starts with a std_msgs/Header."""
     length = int(payload[12:16].view("<u4")[0])
     return bytes(payload[16 : 16 + length - 1]).decode()
+
+
+def decoder_for(schema: Any) -> Callable[[bytes], Any]:
+    """A per-message decoder for a ros2msg schema record (``mcap_ros2``'s public DecoderFactory).
+
+    Raises:
+      ValueError: the schema is not a ROS 2 message definition mcap_ros2 can parse.
+    """
+    from mcap_ros2.decoder import DecoderFactory
+
+    try:
+        decoder = DecoderFactory().decoder_for("cdr", schema)
+    except Exception as exc:  # McapROS2DecodeError and parse errors of the definition text
+        raise ValueError(f"schema {schema.name!r} cannot be parsed ({type(exc).__name__})") from None
+    if decoder is None:
+        raise ValueError(f"schema {schema.name!r} ({schema.encoding}) is not a ROS 2 message definition")
+    return decoder
 
 
 def split_time(t_ns: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -220,4 +257,60 @@ SCHEMAS: dict[str, bytes] = {
         "MSG: std_msgs/MultiArrayLayout\nstd_msgs/MultiArrayDimension[] dim\nuint32 data_offset",
         "MSG: std_msgs/MultiArrayDimension\nstring label\nuint32 size\nuint32 stride",
     ),
+    "std_msgs/msg/Float64MultiArray": _schema(
+        "std_msgs/MultiArrayLayout layout\nfloat64[] data",
+        "MSG: std_msgs/MultiArrayLayout\nstd_msgs/MultiArrayDimension[] dim\nuint32 data_offset",
+        "MSG: std_msgs/MultiArrayDimension\nstring label\nuint32 size\nuint32 stride",
+    ),
+    "diagnostic_msgs/msg/DiagnosticArray": _schema(
+        "std_msgs/Header header\ndiagnostic_msgs/DiagnosticStatus[] status",
+        _HEADER,
+        _TIME,
+        "MSG: diagnostic_msgs/DiagnosticStatus\nbyte OK=0\nbyte WARN=1\nbyte ERROR=2\nbyte STALE=3\nbyte level\n"
+        "string name\nstring message\nstring hardware_id\ndiagnostic_msgs/KeyValue[] values",
+        "MSG: diagnostic_msgs/KeyValue\nstring key\nstring value",
+    ),
 }
+
+
+@dataclasses.dataclass(frozen=True)
+class DiagnosticStatus:
+    """One diagnostic_msgs/DiagnosticStatus: ``level`` 0 OK, 1 WARN, 2 ERROR, 3 STALE."""
+
+    level: int
+    name: str
+    message: str
+    hardware_id: str
+    values: tuple[tuple[str, str], ...]
+
+
+@functools.cache
+def _diagnostic_encoder() -> Callable[[Any], bytes]:
+    from mcap_ros2._dynamic import serialize_dynamic
+
+    name = "diagnostic_msgs/msg/DiagnosticArray"
+    return serialize_dynamic(name, SCHEMAS[name].decode())[name]
+
+
+def encode_diagnostic_array(t_ns: int, statuses: list[DiagnosticStatus]) -> bytes:
+    """A diagnostic_msgs/msg/DiagnosticArray (strings of any length: encoded per message by
+    mcap_ros2; at 1 Hz that costs nothing)."""
+    encoder = _diagnostic_encoder()
+    sec, nanosec = divmod(int(t_ns), 1_000_000_000)
+    return bytes(
+        encoder(
+            {
+                "header": {"stamp": {"sec": sec, "nanosec": nanosec}, "frame_id": ""},
+                "status": [
+                    {
+                        "level": s.level,
+                        "name": s.name,
+                        "message": s.message,
+                        "hardware_id": s.hardware_id,
+                        "values": [{"key": k, "value": v} for k, v in s.values],
+                    }
+                    for s in statuses
+                ],
+            }
+        )
+    )

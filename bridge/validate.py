@@ -1,186 +1,113 @@
 """Validate the model against a recording: what the IMUs measured against what the MuJoCo model
 and the planar reference compute, with the paper's metrics (spec RIG.md sections 5-7).
 
-Only the IMU topics are used as the measurement (never /joint_states, which a simulated recording
-holds as ground truth): phi_n from each node's orientation, omega_n from its gyro z, and M1's
-tangential and normal accelerations from its accelerometer x and y (what the sensor reads, gravity
-included; the computed ones are the model's accelerometer at the same mount, which is the paper's
-computed normal acceleration with the projection of g added).
+This module reads and wires; the physics layer does the work on arrays:
+``pendsim_mj.alignment`` (clocks, start, swing frames, fusion timing, coverage),
+``pendsim_mj.validation`` (metrics on covered samples), ``pendsim_mj.identification`` (damping)
+and ``pendsim_mj.quantities`` (what is compared).
 
-Alignment: the release is the first sample where the gyros leave their rest noise (walked back
-to where the motion starts), refined by least-squares cross-correlation of the measured omega1
-against the model's over the first seconds (1 ms grid, parabolic refinement). The release angles
-are estimated from the accelerometers while the pendulums are held (gravity direction), or from
-the orientation at the first sample if the recording starts in motion. Both comparisons the paper
-discusses are made: from the estimated release and from the nominal 30 deg.
+Only the IMU topics are used as the measurement (never /joint_states, which a simulated recording
+holds as ground truth): phi_n from each node's orientation about its hinge axis, omega_n from its
+gyro about that axis, and M1's tangential and normal accelerations from its accelerometer along
+its swing frame (what the sensor reads, gravity included; the computed ones are the model's
+accelerometer at the same mount, the paper's computed normal acceleration with g projected).
+Both comparisons the paper discusses are made: from the estimated start and, when the run starts
+from rest, from the nominal 30 deg.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import json
 import math
 from collections.abc import Mapping
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
-from bridge.recording import Recording, read_recording
-from pendsim_mj import rotations
+from pendsim_bridge.recording import NODES, Recording, imu_topic, read_recording
+from pendsim_mj import engines
+from pendsim_mj.alignment import MeasuredRun, NodeSamples, align
+from pendsim_mj.engines import whole_steps_s
 from pendsim_mj.errors import ParameterError, RecordingError
 from pendsim_mj.identification import DampingFit, LogDecrement, fit_damping, log_decrement
+from pendsim_mj.outputs import atomic_directory
 from pendsim_mj.params import DEFAULT_PARAMS, RigParams
-from pendsim_mj.sensors import Bno055
+from pendsim_mj.quantities import VALIDATED, Quantity
+from pendsim_mj.timing import DEFAULT_MAX_GAP_S
 from pendsim_mj.trajectory import Trajectory
 from pendsim_mj.validation import Comparison, compare, resample
 
-QUANTITIES = {
-    "phi1": ("phi1", "rad", "angle of M1"),
-    "omega1": ("omega1", "rad/s", "angular velocity of M1"),
-    "omega2": ("omega2", "rad/s", "angular velocity of M2"),
-    "tangential_m1": ("a_t M1", "m/s^2", "tangential acceleration of M1 (accelerometer x, with gravity)"),
-    "normal_m1": ("a_n M1", "m/s^2", "normal acceleration of M1 (accelerometer y, with gravity)"),
-}
 NOMINAL_RELEASE_RAD = (math.pi / 6, 0.0)  # paper: the simulation releases M1 from 30 deg
+AT_REST_RAD_S = 0.1  # a start whose estimated rates are below this is a start from rest
 
 
-@dataclasses.dataclass(frozen=True)
-class MeasuredRun:
-    """The measured series after the release; t_s = 0 at the release."""
-
-    t_s: np.ndarray  # (m,)
-    series: dict[str, np.ndarray]  # each of QUANTITIES, and phi2 -> (m,)
-    release_time_s: float  # on the recording's clock
-    release_angle_rad: tuple[float, float]
-    fusion_rate_hz: float | None  # the node's fusion timing, if it has one
-    rate_hz: float
-    gyro_sigma_rad_s: tuple[float, float]
-
-
-def _phi_from_quat(quat_wxyz: np.ndarray) -> np.ndarray:
-    y_axis = rotations.to_matrix(quat_wxyz)[..., :, 1]  # the IMU's y (toward the pivot) in the world
-    return np.arctan2(-y_axis[..., 0], y_axis[..., 2])
-
-
-def measured_series(rec: Recording) -> tuple[np.ndarray, dict[str, np.ndarray], np.ndarray]:
-    """Recording clock (m,), the quantities (m,), and the raw accelerometers (m, 2, 3)."""
-    if "m1" not in rec.imu or "m2" not in rec.imu:
-        raise RecordingError(f"{rec.path}: validation needs both /imu/m1 and /imu/m2")
-    m1, m2 = rec.imu["m1"], rec.imu["m2"]
-    n = min(len(m1.t_ns), len(m2.t_ns))
-    if n < 100:
-        raise RecordingError(f"{rec.path}: {n} IMU samples; too few to validate")
-    if not np.array_equal(m1.t_ns[:n], m2.t_ns[:n]):
-        raise RecordingError(f"{rec.path}: /imu/m1 and /imu/m2 are not sampled at the same instants")
-    t = (m1.t_ns[:n] - m1.t_ns[0]) * 1e-9
-    series = {
-        "phi1": np.unwrap(_phi_from_quat(m1.quat_wxyz[:n])),
-        "omega1": m1.gyro_rad_s[:n, 2],
-        "omega2": m2.gyro_rad_s[:n, 2],
-        "tangential_m1": m1.accel_m_s2[:n, 0],
-        "normal_m1": m1.accel_m_s2[:n, 1],
-        "phi2": np.unwrap(_phi_from_quat(m2.quat_wxyz[:n])),
-    }
-    accel = np.stack([m1.accel_m_s2[:n], m2.accel_m_s2[:n]], axis=1)
-    return t, series, accel
+def node_samples(rec: Recording) -> tuple[NodeSamples, NodeSamples]:
+    """Both nodes' /imu/mN samples as arrays (log times and header stamps in s)."""
+    missing = [imu_topic(n) for n in NODES if n not in rec.imu]
+    if missing:
+        raise RecordingError(f"{rec.path}: validation needs both /imu/m1 and /imu/m2; {', '.join(missing)} missing")
+    out = []
+    for n in NODES:
+        topic = rec.imu[n]
+        stamps = topic.stamp_ns
+        out.append(
+            NodeSamples(
+                log_t_s=topic.t_ns * 1e-9,
+                quat_wxyz=topic.quat_wxyz,
+                gyro_rad_s=topic.gyro_rad_s,
+                accel_m_s2=topic.accel_m_s2,
+                stamp_s=stamps * 1e-9 if np.any(stamps != stamps[0]) else None,  # constant stamps: none
+                gyro_covariance=topic.gyro_covariance[0] if len(topic.gyro_covariance) else None,
+            )
+        )
+    return out[0], out[1]
 
 
-def detect_release(t_s: np.ndarray, omega: np.ndarray) -> int:
-    """Index of the first sample of the motion: where |omega1| + |omega2| leaves the rest noise
-    (8 sigma of the first 0.25 s, at least 0.03 rad/s), walked back to 3 sigma."""
-    speed = np.abs(omega[:, 0]) + np.abs(omega[:, 1])
-    head = speed[t_s <= t_s[0] + 0.25]
-    sigma = float(np.std(head)) if len(head) > 4 else 0.0
-    threshold = max(8 * sigma + float(np.mean(head)), 0.03)
-    above = np.flatnonzero(speed > threshold)
-    if len(above) == 0:
-        raise ParameterError("no release found: the gyros never leave their rest noise")
-    i = int(above[0])
-    quiet = 3 * sigma + float(np.mean(head)) if sigma > 0 else threshold / 2
-    while i > 0 and speed[i - 1] > quiet:
-        i -= 1
-    return i
+def fusion_rate_of(rec: Recording) -> float | None:
+    """The nodes' fusion rate from the recording's metadata (a recording from elsewhere: a BNO055
+    in NDOF mode, 100 Hz)."""
+    imu_meta = rec.metadata.get("pendsim/imu", {})
+    if imu_meta.get("fusion_timing", "true") != "true":
+        return None
+    return float(imu_meta.get("fusion_rate_hz", "100"))
 
 
-def _model_at(traj: Trajectory, t_s: np.ndarray, fusion_rate_hz: float | None) -> dict[str, np.ndarray]:
-    """The computed quantities at measured instants (the latest fused value if the node fuses)."""
-    at = np.floor(t_s * fusion_rate_hz + 1e-9) / fusion_rate_hz if fusion_rate_hz else t_s
-    values = {
-        "phi1": traj.phi_rad[:, 0],
-        "omega1": traj.omega_rad_s[:, 0],
-        "omega2": traj.omega_rad_s[:, 1],
-        "tangential_m1": traj.imu_accel_m_s2[:, 0, 0],
-        "normal_m1": traj.imu_accel_m_s2[:, 0, 1],
-    }
-    return {name: resample(traj.t_s, v, np.clip(at, 0.0, traj.t_s[-1])) for name, v in values.items()}
+def align_recording(
+    rec: Recording,
+    params: RigParams,
+    *,
+    release_s: float | None = None,
+    max_gap_s: float = DEFAULT_MAX_GAP_S,
+) -> MeasuredRun:
+    """The measured run of a recording (``pendsim_mj.alignment.align`` on its IMU topics)."""
+    try:
+        return align(
+            node_samples(rec), params, fusion_rate_hz=fusion_rate_of(rec), release_s=release_s, max_gap_s=max_gap_s
+        )
+    except RecordingError as exc:
+        raise RecordingError(f"{rec.path}: {exc}") from None
 
 
 def _runs(
-    engine: str, params: RigParams, releases: list[tuple[float, float]], duration_s: float, dt_s: float = 0.01
+    engine: str,
+    params: RigParams,
+    starts: list[tuple[tuple[float, float], tuple[float, float]]],
+    duration_s: float,
+    dt_s: float = 0.01,
 ) -> list[Trajectory]:
-    """One trajectory per release, from rest, computed as one batch."""
-    steps = math.floor(duration_s / dt_s + 1e-9)
-    if engine == "mujoco":
-        from pendsim_mj.simulation import simulate_batch as run
-    else:
-        from pendsim_mj.reference import solve_batch as run
-    batch = run(params, np.array(releases, dtype=float), (0.0, 0.0), steps * dt_s, dt_s)
-    return [batch.member(i) for i in range(len(releases))]
+    """One trajectory per start state (angles, rates), computed as one batch."""
+    phi0 = np.array([s[0] for s in starts], dtype=float)
+    omega0 = np.array([s[1] for s in starts], dtype=float)
+    batch = engines.run_batch(engine, params, phi0, omega0, whole_steps_s(duration_s, dt_s), dt_s)
+    return [batch.member(i) for i in range(len(starts))]  # fmt: skip
 
 
-def align(rec: Recording, params: RigParams, *, refine_s: float = 5.0) -> MeasuredRun:
-    """Find the release, estimate the release angles, refine the time offset against the model."""
-    t, series, accel = measured_series(rec)
-    omega = np.stack([series["omega1"], series["omega2"]], axis=1)
-    i = detect_release(t, omega)
-    if i >= 8:  # held before the release: the accelerometers see gravity alone
-        held = accel[max(0, i - 80) : i - 2]
-        angles = np.arctan2(held[..., 0], held[..., 1]).mean(axis=0)
-        release_angle = (float(angles[0]), float(angles[1]))
-    else:
-        release_angle = (float(series["phi1"][0]), float(series["phi2"][0]))
-    imu_meta = rec.metadata.get("pendsim/imu", {})
-    fusion = None
-    if imu_meta.get("fusion_timing", "true") == "true":
-        fusion = float(imu_meta.get("fusion_rate_hz", "100"))
-    rate = float(imu_meta.get("sample_rate_hz", 0) or 1 / np.median(np.diff(t)))
-    coarse = float(t[i])
-    # Refine: least squares of measured omega1 against the model's over the first seconds.
-    window = (t >= coarse - 0.1) & (t <= coarse + refine_s)
-    model = _runs("mujoco", params, [release_angle], refine_s + 0.3)[0]
-    lags = np.arange(-0.05, 0.0501, 0.001)
-    costs = []
-    for lag in lags:
-        since = t[window] - coarse - lag
-        valid = since >= 0
-        at = since[valid]
-        at = np.floor(at * fusion + 1e-9) / fusion if fusion else at
-        prediction = resample(model.t_s, model.omega_rad_s[:, 0], np.clip(at, 0.0, model.t_s[-1]))
-        measured = series["omega1"][window][valid]
-        before = series["omega1"][window][~valid]  # before the release the model is at rest
-        costs.append((np.sum((prediction - measured) ** 2) + np.sum(before**2)) / max(1, window.sum()))
-    k = int(np.argmin(costs))
-    shift = lags[k]
-    if 0 < k < len(lags) - 1:
-        a, b, c = costs[k - 1], costs[k], costs[k + 1]
-        denom = a - 2 * b + c
-        if denom > 0:
-            shift += 0.5 * (a - c) / denom * (lags[1] - lags[0])
-    release = coarse + float(shift)
-    after = t >= release - 1e-9
-    noise = Bno055().noise_model.gyro_sigma_rad_s[2]
-    cov = rec.imu["m1"].gyro_covariance
-    sigma1 = math.sqrt(cov[0, 2, 2]) if cov[0, 2, 2] > 0 else noise
-    cov2 = rec.imu["m2"].gyro_covariance
-    sigma2 = math.sqrt(cov2[0, 2, 2]) if cov2[0, 2, 2] > 0 else noise
-    return MeasuredRun(
-        t_s=t[after] - release,
-        series={name: v[after] for name, v in series.items()},  # the QUANTITIES and phi2
-        release_time_s=release,
-        release_angle_rad=release_angle,
-        fusion_rate_hz=fusion,
-        rate_hz=rate,
-        gyro_sigma_rad_s=(sigma1, sigma2),
-    )
+def model_at(traj: Trajectory, run: MeasuredRun, quantity: Quantity) -> np.ndarray:
+    """A quantity of a model run at the instants its node's measured values belong to."""
+    at = run.nodes[quantity.node].value_t_s
+    return resample(traj.t_s, quantity.computed(traj), np.clip(at, 0.0, traj.t_s[-1]))
 
 
 @dataclasses.dataclass(frozen=True)
@@ -189,29 +116,58 @@ class Identification:
     fit: DampingFit
     release_angle_rad: tuple[float, float]
     release_time_s: float
+    release_rate_rad_s: tuple[float, float] = (0.0, 0.0)
+    start_kind: str = "release"
 
 
-def identify(path: str | Path, *, window_s: float = 120.0, params: RigParams | None = None) -> Identification:
+def identify(
+    path: str | Path,
+    *,
+    window_s: float = 120.0,
+    params: RigParams | None = None,
+    release_s: float | None = None,
+    max_gap_s: float = DEFAULT_MAX_GAP_S,
+) -> Identification:
     """Both damping estimates from a recording's free decay."""
     rec = read_recording(path)
     params = params or recorded_params(rec)
-    return _identify(align(rec, params), params, window_s)
+    return _identify(align_recording(rec, params, release_s=release_s, max_gap_s=max_gap_s), params, window_s)
+
+
+def _per_node(run: MeasuredRun, names: tuple[str, str]) -> tuple[np.ndarray, np.ndarray]:
+    """Two quantities of the two nodes as (m, 2) arrays of their own instants and values, NaN
+    where one node has fewer samples."""
+    m = max(len(n.t_s) for n in run.nodes)
+    t = np.full((m, 2), np.nan)
+    values = np.full((m, 2), np.nan)
+    for k, name in enumerate(names):
+        tk, vk, _ = run.series(name)
+        t[: len(tk), k], values[: len(tk), k] = tk, vk
+    return t, values
 
 
 def _identify(run: MeasuredRun, params: RigParams, window_s: float) -> Identification:
-    """Log decrement of the measured angles and the least-squares fit of the gyros."""
-    phi = np.stack([run.series["phi1"], run.series["phi2"]], axis=1)
-    decrement = log_decrement(run.t_s, phi, params, min(window_s, float(run.t_s[-1])))
-    omega = np.stack([run.series["omega1"], run.series["omega2"]], axis=1)
+    """Log decrement of the measured angles and the least-squares fit of the gyros (the one call
+    into ``pendsim_mj.identification``)."""
+    t_phi, phi = _per_node(run, ("phi1", "phi2"))
+    decrement = log_decrement(t_phi, phi, params, min(window_s, run.duration_s))
+    t_omega, omega = _per_node(run, ("omega1", "omega2"))
+    # the fit evaluates the model at the fused instants itself: give it the sample instants
+    # moved by each node's fusion age (value instants) and no fusion rate
+    values_t = np.full_like(t_omega, np.nan)
+    for k, node in enumerate(run.nodes):
+        values_t[: len(node.value_t_s), k] = node.value_t_s
+    start = run.start
     fit = fit_damping(
         params,
-        run.release_angle_rad,
-        run.t_s,
+        start.phi_rad,
+        np.clip(values_t, 0.0, None),
         omega,
         gyro_sigma_rad_s=run.gyro_sigma_rad_s,
-        fusion_rate_hz=run.fusion_rate_hz,
+        fusion_rate_hz=None,
+        omega0_rad_s=start.omega_rad_s,
     )
-    return Identification(decrement, fit, run.release_angle_rad, run.release_time_s)
+    return Identification(decrement, fit, start.phi_rad, start.time_s, start.omega_rad_s, start.kind)
 
 
 def recorded_params(rec: Recording) -> RigParams:
@@ -237,12 +193,19 @@ class ValidationReport:
     identification: Identification | None
     run: MeasuredRun
     cases: list[CaseResult]
+    model_run: Trajectory  # MuJoCo from the estimated start, with the validated parameters
+    mjcf_xml: str | None  # the recording's MJCF attachment, if any
 
     def case(self, engine: str = "mujoco", release: str = "estimated", window: str = "whole") -> CaseResult:
         for c in self.cases:
             if (c.engine, c.release, c.window) == (engine, release, window):
                 return c
         raise KeyError((engine, release, window))
+
+    @property
+    def has_nominal(self) -> bool:
+        """The nominal 30 deg release is compared too (the run starts from rest)."""
+        return any(c.release == "nominal" for c in self.cases)
 
 
 def validate(
@@ -252,6 +215,8 @@ def validate(
     params: RigParams | None = None,
     overrides: Mapping[str, float] | None = None,
     short_window_s: float = 5.0,
+    release_s: float | None = None,
+    max_gap_s: float = DEFAULT_MAX_GAP_S,
 ) -> ValidationReport:
     """Compare a recording with the MuJoCo model and the planar reference.
 
@@ -262,10 +227,12 @@ def validate(
       params: the rig to validate (default: the recording's parameters, else the paper's).
       overrides: parameter changes applied on top of that rig (e.g. a deliberately wrong model).
       short_window_s: the paper's short window (5 s).
+      release_s: the start (release) on the recording's clock, s, instead of detecting it.
+      max_gap_s: spacing of samples above which nothing is interpolated or integrated, s.
     """
     rec = read_recording(path)
     base = (params or recorded_params(rec)).with_mapping(overrides or {})
-    run = align(rec, base)
+    run = align_recording(rec, base, release_s=release_s, max_gap_s=max_gap_s)
     identification = None
     if damping == "identified":
         identification = _identify(run, base, 120.0)
@@ -279,24 +246,81 @@ def validate(
         source = "given"
     else:
         raise ParameterError(f"damping must be 'identified', 'recorded' or (b1, b2), got {damping!r}")
-    duration = float(run.t_s[-1])
+    duration = run.duration_s
     cases = []
-    releases = {"estimated": run.release_angle_rad, "nominal": NOMINAL_RELEASE_RAD}
+    start = run.start
+    starts = {"estimated": (start.phi_rad, start.omega_rad_s)}
+    if max(abs(w) for w in start.omega_rad_s) < AT_REST_RAD_S:
+        starts["nominal"] = (NOMINAL_RELEASE_RAD, (0.0, 0.0))
+    model_run = None
     for engine in ("mujoco", "reference"):
-        trajectories = _runs(engine, model_params, list(releases.values()), duration + 0.02)
-        for release_name, traj in zip(releases, trajectories, strict=True):
-            computed = _model_at(traj, run.t_s, run.fusion_rate_hz)
+        trajectories = _runs(engine, model_params, list(starts.values()), duration + 0.02)
+        model_run = model_run or trajectories[0]
+        for release_name, traj in zip(starts, trajectories, strict=True):
             for window_name, limit in ((f"{short_window_s:g} s", short_window_s), ("whole", math.inf)):
-                inside = run.t_s <= limit + 1e-9
-                comparisons = {
-                    q: compare(run.t_s[inside], run.series[q][inside], computed[q][inside]) for q in QUANTITIES
-                }
+                comparisons = {}
+                for q in VALIDATED:
+                    t, measured, _ = run.series(q)
+                    inside = t <= limit + 1e-9
+                    computed = model_at(traj, run, q)
+                    comparisons[q.name] = compare(t[inside], measured[inside], computed[inside], max_gap_s=max_gap_s)
                 cases.append(CaseResult(engine, release_name, window_name, comparisons))
-    return ValidationReport(Path(path), model_params, source, identification, run, cases)
+    assert model_run is not None
+    return ValidationReport(Path(path), model_params, source, identification, run, cases, model_run, rec.mjcf_xml)
 
 
-def report_json(report: ValidationReport) -> dict:
-    """Everything a machine needs: alignment, damping, and every metric of every case."""
+@dataclasses.dataclass(frozen=True)
+class Gates:
+    """Pass/fail thresholds for CI (None: not checked).
+
+    Attributes:
+      max_delta: relative frequency error of any quantity (MuJoCo, estimated release, whole run).
+      max_iae: IAE of phi1 over the short window (MuJoCo, estimated release), rad s.
+      max_error_phi1: max |Delta phi1| over the whole run (MuJoCo, estimated release), rad.
+    """
+
+    max_delta: float | None = None
+    max_iae: float | None = None
+    max_error_phi1: float | None = None
+
+
+def gate_failures(report: ValidationReport, gates: Gates) -> list[str]:
+    """One line per exceeded threshold (empty when the model passes)."""
+    failures = []
+    main_case = report.case("mujoco", "estimated", "whole")
+    short = next(c for c in report.cases if c.engine == "mujoco" and c.release == "estimated" and c.window != "whole")
+    if gates.max_delta is not None:
+        worst_q, worst = max(((q, c.delta_f) for q, c in main_case.comparisons.items()), key=lambda kv: kv[1])
+        if not worst <= gates.max_delta:
+            failures.append(f"relative frequency error of {worst_q} {worst:.3g} > --max-delta {gates.max_delta:g}")
+    if gates.max_iae is not None:
+        iae = short.comparisons["phi1"].iae
+        if not iae <= gates.max_iae:
+            failures.append(f"IAE of phi1 over {short.window} {iae:.4g} rad s > --max-iae {gates.max_iae:g}")
+    if gates.max_error_phi1 is not None:
+        err = main_case.comparisons["phi1"].max_abs
+        if not err <= gates.max_error_phi1:
+            failures.append(f"max |Delta phi1| {err:.4g} rad > --max-error-phi1 {gates.max_error_phi1:g}")
+    return failures
+
+
+def write_outputs(
+    report: ValidationReport, out_dir: str | Path, *, plots: bool = True, replace: bool = False
+) -> list[Path]:
+    """report.json and (with ``plots``) the paper's Figures 9-15 into ``out_dir``, published
+    together when all are written (``atomic_directory``: never over files of the same names
+    unless ``replace``). Returns the paths written."""
+    from pendsim_bridge.plots import validation_figures
+
+    out = Path(out_dir)
+    with atomic_directory(out, replace=replace) as tmp:
+        (tmp / "report.json").write_text(json.dumps(report_json(report), indent=1))
+        names = ["report.json"] + ([p.name for p in validation_figures(report, tmp)] if plots else [])
+    return [out / name for name in names]
+
+
+def report_json(report: ValidationReport) -> dict[str, Any]:
+    """Everything a machine needs: alignment, coverage, damping, and every metric of every case."""
 
     def clean(v):
         return None if isinstance(v, float) and not math.isfinite(v) else v
@@ -317,13 +341,33 @@ def report_json(report: ValidationReport) -> dict:
                 "seconds": i.fit.seconds,
             },
         }
+    run = report.run
+    nodes = {}
+    for name, node in zip(NODES, run.nodes, strict=True):
+        frame = node.frame
+        nodes[name] = {
+            "hinge_axis": frame.hinge_axis.tolist(),
+            "toward_pivot": frame.toward_pivot.tolist(),
+            "tangential": frame.tangential.tolist(),
+            "radius_m": frame.radius_m,
+            "mirrored_axes": frame.mirrored,
+            "frame_fit_rms_m_s2": frame.fit_rms_m_s2,
+            "clock_drift_ppm": node.clock.drift_ppm if node.clock is not None else None,
+            "fusion_phase_s": node.fusion_phase_s,
+            "coverage": node.coverage.summary(),
+        }
     return {
         "file": str(report.path),
         "release": {
-            "time_s": report.run.release_time_s,
-            "estimated_angle_rad": list(report.run.release_angle_rad),
-            "nominal_angle_rad": list(NOMINAL_RELEASE_RAD),
+            "kind": run.start.kind,
+            "time_s": run.start.time_s,
+            "estimated_angle_rad": list(run.start.phi_rad),
+            "estimated_rate_rad_s": list(run.start.omega_rad_s),
+            "start_fit_rms_sigma": run.start.fit_rms,
+            "nominal_angle_rad": list(NOMINAL_RELEASE_RAD) if report.has_nominal else None,
         },
+        "nodes": nodes,
+        "max_gap_s": run.max_gap_s,
         "damping": {
             "source": report.damping_source,
             "b1_n_m_s": report.params.b1_n_m_s,
@@ -342,12 +386,41 @@ def report_json(report: ValidationReport) -> dict:
     }
 
 
+def start_line(path: str | Path, run: MeasuredRun) -> str:
+    """Where the run starts, how, and from what state; one line."""
+    s = run.start
+    phi1, phi2 = (math.degrees(a) for a in s.phi_rad)
+    how = {
+        "release": "release from rest found",
+        "in motion": "the recording starts in motion; the model starts from the state at its first samples",
+        "given": "start given",
+    }[s.kind]
+    rates = ""
+    if s.kind != "release":
+        rates = f", {math.degrees(s.omega_rad_s[0]):.2f} deg/s, {math.degrees(s.omega_rad_s[1]):.2f} deg/s"
+    return f"{path}: {how} at {s.time_s:.3f} s on the recording's clock; from {phi1:.2f} deg, {phi2:.2f} deg{rates}"
+
+
+def coverage_line(run: MeasuredRun) -> str:
+    """How much of the run each node's samples cover; one line."""
+    parts = []
+    for name, node in zip(NODES, run.nodes, strict=True):
+        c = node.coverage
+        part = (
+            f"{name} {100 * c.covered_fraction:.1f} % ({c.samples} samples, {100 * c.lost_fraction:.1f} % lost, "
+            f"{c.gaps} gaps over {run.max_gap_s:g} s, longest {c.longest_gap_s:.3f} s"
+        )
+        if node.clock is not None and abs(node.clock.drift_ppm) >= 1:
+            part += f", clock {node.clock.drift_ppm:+.0f} ppm"
+        parts.append(part + ")")
+    return f"covered: {'; '.join(parts)}"
+
+
 def table(report: ValidationReport) -> str:
     """Per quantity: measured and computed frequency and delta, max |Delta|, IAE, ISE."""
-    r = report.run
     lines = [
-        f"{report.path}: release at {r.release_time_s:.3f} s on the recording's clock, estimated release angles "
-        f"{math.degrees(r.release_angle_rad[0]):.2f} deg, {math.degrees(r.release_angle_rad[1]):.2f} deg",
+        start_line(report.path, report.run),
+        coverage_line(report.run),
         f"damping {report.damping_source}: b1 = {report.params.b1_n_m_s:.5g}, "
         f"b2 = {report.params.b2_n_m_s:.5g} N m s/rad",
     ]
@@ -355,19 +428,20 @@ def table(report: ValidationReport) -> str:
         if case.release != "estimated":
             continue
         lines.append("")
-        lines.append(f"{case.engine} model, from the estimated release, {case.window}:")
+        lines.append(f"{case.engine} model, from the estimated start, {case.window}:")
         head = f"  {'quantity':14} {'f meas (Hz)':>11} {'f comp (Hz)':>11} {'delta':>9}"
         lines.append(f"{head} {'max|Delta|':>11} {'IAE':>10} {'ISE':>10}  unit")
-        for q, cmp in case.comparisons.items():
-            label, unit, _ = QUANTITIES[q]
+        for q in VALIDATED:
+            cmp = case.comparisons[q.name]
             lines.append(
-                f"  {label:14} {cmp.f_measured_hz:11.5f} {cmp.f_computed_hz:11.5f} {cmp.delta_f:9.2e} "
-                f"{cmp.max_abs:11.4g} {cmp.iae:10.4g} {cmp.ise:10.4g}  {unit}"
+                f"  {q.label:14} {cmp.f_measured_hz:11.5f} {cmp.f_computed_hz:11.5f} {cmp.delta_f:9.2e} "
+                f"{cmp.max_abs:11.4g} {cmp.iae:10.4g} {cmp.ise:10.4g}  {q.unit}"
             )
-    nominal = report.case("mujoco", "nominal", "whole").comparisons["phi1"]
-    lines.append("")
-    lines.append(
-        f"from the nominal 30 deg instead (the paper's simulation): phi1 max|Delta| {nominal.max_abs:.4g} rad, "
-        f"IAE {nominal.iae:.4g} rad s over the whole run"
-    )
+    if report.has_nominal:
+        nominal = report.case("mujoco", "nominal", "whole").comparisons["phi1"]
+        lines.append("")
+        lines.append(
+            f"from the nominal 30 deg instead (the paper's simulation): phi1 max|Delta| {nominal.max_abs:.4g} rad, "
+            f"IAE {nominal.iae:.4g} rad s over the whole run"
+        )
     return "\n".join(lines)

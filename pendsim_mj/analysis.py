@@ -5,12 +5,14 @@ Imports no physics engine. All functions take uniformly sampled series: t_s (n,)
 
 from __future__ import annotations
 
+import dataclasses
 import itertools
 import math
 
 import numpy as np
 
 from pendsim_mj.errors import ParameterError
+from pendsim_mj.trajectory import Trajectory
 
 
 def _check_series(t_s: np.ndarray, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -39,23 +41,47 @@ def spectral_peak_hz(t_s: np.ndarray, x: np.ndarray, max_hz: float = np.inf) -> 
     (accuracy well below one bin, 1/duration). The mean is removed first; returns 0.0 for a
     constant signal or when no bin lies below ``max_hz``."""
     t, y = _check_series(t_s, x)
-    dt = (t[-1] - t[0]) / (len(t) - 1)
-    y = y - y.mean()
-    if not np.any(y):
-        return 0.0
-    nfft = 1 << (8 * len(y) - 1).bit_length()  # zero-pad 8x: finer grid for the parabola
-    spectrum = np.abs(np.fft.rfft(y * np.hanning(len(y)), n=nfft))
-    top = min(len(spectrum), int(np.ceil(max_hz * nfft * dt))) if np.isfinite(max_hz) else len(spectrum)
+    return float(spectral_peak_hz_batch(t, y[None, :], max_hz)[0])
+
+
+# Rows transformed at once by spectral_peak_hz_batch: bounds its memory (rows x nfft/2 complex).
+_SPECTRUM_BYTES = 64 * 2**20
+
+
+def spectral_peak_hz_batch(t_s: np.ndarray, x: np.ndarray, max_hz: float = np.inf) -> np.ndarray:
+    """``spectral_peak_hz`` of each row of x (m, n) sampled at t_s (n,): (m,) Hz, in blocks of rows
+    of bounded memory. A row with a non-finite value gives NaN."""
+    t = np.asarray(t_s, dtype=float)
+    rows = np.asarray(x, dtype=float)
+    if rows.ndim != 2 or rows.shape[1:] != t.shape:
+        raise ParameterError(f"expected x of shape (m, {t.shape[0] if t.ndim == 1 else 'n'}), got {rows.shape}")
+    _check_series(t, rows[0] if len(rows) else t)
+    n = len(t)
+    dt = (t[-1] - t[0]) / (n - 1)
+    nfft = 1 << (8 * n - 1).bit_length()  # zero-pad 8x: finer grid for the parabola
+    nbins = nfft // 2 + 1
+    top = min(nbins, int(np.ceil(max_hz * nfft * dt))) if np.isfinite(max_hz) else nbins
+    out = np.zeros(len(rows))
     if top < 2:
-        return 0.0
-    k = int(np.argmax(spectrum[1:top]) + 1)
-    if 1 <= k < len(spectrum) - 1:
-        a, b, c = np.log(spectrum[k - 1 : k + 2] + 1e-300)
+        return out
+    window = np.hanning(n)
+    block = max(1, _SPECTRUM_BYTES // (16 * nbins))
+    for lo in range(0, len(rows), block):
+        y = rows[lo : lo + block]
+        y = y - y.mean(axis=1, keepdims=True)
+        spectrum = np.abs(np.fft.rfft(y * window, n=nfft, axis=1))
+        k = np.argmax(spectrum[:, 1:top], axis=1) + 1
+        inside = k < nbins - 1
+        kk = np.where(inside, k, 1)
+        a, b, c = (np.log(spectrum[np.arange(len(y)), kk + d] + 1e-300) for d in (-1, 0, 1))
         denom = a - 2 * b + c
-        shift = 0.5 * (a - c) / denom if denom != 0 else 0.0
-    else:
-        shift = 0.0
-    return float((k + shift) / (nfft * dt))
+        with np.errstate(divide="ignore", invalid="ignore"):
+            shift = np.where(inside & (denom != 0), 0.5 * (a - c) / np.where(denom != 0, denom, 1.0), 0.0)
+        freq = (k + shift) / (nfft * dt)
+        freq[~np.any(y != 0, axis=1)] = 0.0
+        freq[~np.all(np.isfinite(y), axis=1)] = np.nan
+        out[lo : lo + block] = freq
+    return out
 
 
 def _hysteresis_sign(y: np.ndarray, band: float) -> np.ndarray | None:
@@ -70,27 +96,33 @@ def _hysteresis_sign(y: np.ndarray, band: float) -> np.ndarray | None:
     return filled
 
 
-def zero_crossing_hz(t_s: np.ndarray, x: np.ndarray, hysteresis: float = 0.0) -> float:
-    """Mean frequency (Hz) from linearly interpolated upward zero crossings of x - mean(x),
-    between the first and the last crossing. With ``hysteresis`` h > 0 a crossing counts only
-    once the signal has been below -h and then above +h, so noise near zero adds no crossings
-    (each counted crossing is still interpolated where the signal passes zero). Raises
-    ParameterError with fewer than 2."""
-    t, y = _check_series(t_s, x)
+def upward_crossings(t_s: np.ndarray, x: np.ndarray, hysteresis: float = 0.0) -> np.ndarray:
+    """Instants (s) of the upward zero crossings of x - mean(x), linearly interpolated. With
+    ``hysteresis`` h > 0 a crossing counts only once the signal has been below -h and then above
+    +h, so noise near zero adds no crossings (each counted crossing is still interpolated where
+    the signal passes zero). Works on any increasing instants (n,)."""
+    t = np.asarray(t_s, dtype=float)
+    y = np.asarray(x, dtype=float)
     y = y - y.mean()
     if hysteresis > 0:
         filled = _hysteresis_sign(y, hysteresis)
         if filled is None:
-            raise ParameterError("fewer than two upward zero crossings: the series is too short to give a frequency")
+            return np.zeros(0)
         rises = np.flatnonzero((filled[:-1] == -1) & (filled[1:] == 1)) + 1  # first sample above +h
         below = np.flatnonzero(y < 0)
-        last_negative = below[np.searchsorted(below, rises, side="right") - 1]  # last sample below 0 before it
-        idx = last_negative
+        idx = below[np.searchsorted(below, rises, side="right") - 1]  # last sample below 0 before it
     else:
         idx = np.flatnonzero((y[:-1] < 0) & (y[1:] >= 0))
-    if len(idx) < 2:
+    return t[idx] - y[idx] * (t[idx + 1] - t[idx]) / (y[idx + 1] - y[idx])
+
+
+def zero_crossing_hz(t_s: np.ndarray, x: np.ndarray, hysteresis: float = 0.0) -> float:
+    """Mean frequency (Hz) from the upward zero crossings of x - mean(x) (``upward_crossings``),
+    between the first and the last crossing. Raises ParameterError with fewer than 2."""
+    t, y = _check_series(t_s, x)
+    crossings = upward_crossings(t, y, hysteresis)
+    if len(crossings) < 2:
         raise ParameterError("fewer than two upward zero crossings: the series is too short to give a frequency")
-    crossings = t[idx] - y[idx] * (t[idx + 1] - t[idx]) / (y[idx + 1] - y[idx])
     return float((len(crossings) - 1) / (crossings[-1] - crossings[0]))
 
 
@@ -146,3 +178,85 @@ def log_decrement_damping(
     if t1 <= 0 or a_end <= 0:
         raise ParameterError("the window holds a single amplitude peak: cannot measure a decay")
     return 2.0 * inertia_kg_m2 * math.log(a0 / a_end) / t1, float(a0), float(a_end), float(t1)
+
+
+@dataclasses.dataclass(frozen=True)
+class RunSummary:
+    """What ``pendsim simulate`` prints about a run (single trajectory).
+
+    Attributes:
+      dominant_hz: (2,) spectral peak of phi1, phi2, Hz.
+      start_amplitude_rad, end_amplitude_rad: (2,) first and last half-cycle amplitude of each
+        angle (|phi| at the start or end where no half-cycle peak exists), rad.
+      energy_start_j, energy_end_j: total energy above rest at the first and last instant, J.
+      dissipated_j: energy dissipated by hinge damping over the run, J.
+      input_work_j: work done on the pendulums by the drive over the run (``input_work_j``), J.
+    """
+
+    duration_s: float
+    dt_s: float
+    samples: int
+    dominant_hz: tuple[float, float]
+    start_amplitude_rad: tuple[float, float]
+    end_amplitude_rad: tuple[float, float]
+    energy_start_j: float
+    energy_end_j: float
+    dissipated_j: float
+    input_work_j: float = 0.0
+
+    @property
+    def energy_lost_j(self) -> float:
+        return self.energy_start_j - self.energy_end_j
+
+    @property
+    def balance_residual_j(self) -> float:
+        """Energy lost plus the drive's work minus energy dissipated: the integration error."""
+        return self.energy_lost_j + self.input_work_j - self.dissipated_j
+
+
+def summarize(traj: Trajectory) -> RunSummary:
+    """Frequencies, amplitudes and the energy balance of a single run."""
+    freqs, starts, ends = [], [], []
+    for k in range(2):
+        x = traj.phi_rad[:, k]
+        freqs.append(spectral_peak_hz(traj.t_s, x))
+        _, amps = peak_amplitudes(traj.t_s, x)
+        starts.append(float(amps[0]) if len(amps) else abs(float(x[0])))
+        ends.append(float(amps[-1]) if len(amps) else abs(float(x[-1])))
+    energy = traj.total_energy_j
+    return RunSummary(
+        duration_s=float(traj.t_s[-1]),
+        dt_s=traj.dt_s,
+        samples=len(traj.t_s),
+        dominant_hz=(freqs[0], freqs[1]),
+        start_amplitude_rad=(starts[0], starts[1]),
+        end_amplitude_rad=(ends[0], ends[1]),
+        energy_start_j=float(energy[0]),
+        energy_end_j=float(energy[-1]),
+        dissipated_j=float(traj.dissipated_j[-1]),
+        input_work_j=float(input_work_j(traj)[-1]),
+    )
+
+
+def input_work_j(traj: Trajectory) -> np.ndarray:
+    """(n,) work done on the pendulums by the drive since t = 0, J (zeros without a drive).
+
+    In the support's frame the power is sum_n tau_n omega_n - m_n OC_n omega_n (a_v sin phi_n +
+    a_h cos phi_n) (torques, and the inertial force of the support's acceleration at each centre
+    of mass; see ``pendsim_mj.reference``). Each step's held input is integrated with the
+    trapezoid rule over the states at both ends of the step: second order in dt (the planar
+    rig; the spatial variant's tilt is not counted).
+    """
+    if traj.drive is None:
+        return np.zeros(len(traj.t_s))
+    p = traj.single_params
+    u = traj.drive_input[:-1]
+    moc = np.array([p.m1_kg * p.oc1_m, p.m2_kg * p.oc2_m])
+
+    def power(w: np.ndarray, phi: np.ndarray) -> np.ndarray:
+        support = u[:, 3:4] * np.sin(phi) + u[:, 2:3] * np.cos(phi)
+        return np.asarray(np.sum(u[:, :2] * w - moc * w * support, axis=1))
+
+    w, phi = traj.omega_rad_s, traj.phi_rad
+    step = 0.5 * traj.dt_s * (power(w[:-1], phi[:-1]) + power(w[1:], phi[1:]))
+    return np.concatenate([[0.0], np.cumsum(step)])

@@ -18,6 +18,7 @@ import numpy as np
 from scipy.signal import find_peaks, hilbert
 
 from pendsim_mj.analysis import spectral_peak_hz
+from pendsim_mj.drives import Drive
 from pendsim_mj.model import PLANAR, SPATIAL, Variant
 from pendsim_mj.params import RigParams
 from pendsim_mj.simulation import simulate
@@ -100,12 +101,14 @@ def compare_planar_spatial(
     dt_s: float = 0.01,
     *,
     variant: Variant = SPATIAL,
+    drive: Drive | None = None,
 ) -> Comparison3D:
     """Run the planar model and the spatial variant (params.plane_offset_m, tilt freedoms) from
-    the same release and summarise the differences (see the module docstring)."""
+    the same release, both under ``drive`` if given, and summarise the differences (see the
+    module docstring)."""
     planar_params = params.with_overrides(plane_offset_m=0.0)
-    planar = simulate(planar_params, phi0_rad, (0.0, 0.0), duration_s, dt_s, variant=PLANAR)
-    spatial = simulate(params, phi0_rad, (0.0, 0.0), duration_s, dt_s, variant=variant)
+    planar = simulate(planar_params, phi0_rad, (0.0, 0.0), duration_s, dt_s, variant=PLANAR, drive=drive)
+    spatial = simulate(params, phi0_rad, (0.0, 0.0), duration_s, dt_s, variant=variant, drive=drive)
     t = planar.t_s
     main_hz = spectral_peak_hz(t, planar.phi_rad[:, 0])
     pendulums = {}

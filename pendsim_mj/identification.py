@@ -32,6 +32,7 @@ from pendsim_mj.analysis import log_decrement_damping
 from pendsim_mj.errors import ParameterError
 from pendsim_mj.model import HINGES, build_spec
 from pendsim_mj.params import RigParams
+from pendsim_mj.sensors import fused_instants
 
 
 @dataclasses.dataclass(frozen=True)
@@ -47,12 +48,23 @@ class LogDecrement:
 def log_decrement(
     t_s: np.ndarray, phi_rad: np.ndarray, params: RigParams, window_s: float = 120.0
 ) -> list[LogDecrement]:
-    """b per pendulum from the amplitude decay of phi (n, 2) over ``window_s``."""
+    """b per pendulum from the amplitude decay of phi (n, 2) over ``window_s``; t_s (n,) common
+    instants, or (n, 2) each node's own (NaN where a node has fewer samples)."""
     out = []
     for k, inertia in enumerate((params.j1_kg_m2, params.j2_kg_m2)):
-        b, a0, at, t1 = log_decrement_damping(t_s, phi_rad[:, k], inertia, window_s)
+        t, phi = _node_column(t_s, phi_rad, k)
+        b, a0, at, t1 = log_decrement_damping(t, phi, inertia, window_s)
         out.append(LogDecrement(b, a0, at, t1))
     return out
+
+
+def _node_column(t_s: np.ndarray, values: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
+    """Node k's instants and values from common (n,) or per-node (n, 2) instants, NaNs dropped."""
+    t = np.asarray(t_s, dtype=float)
+    t = t[:, k] if t.ndim == 2 else t
+    v = np.asarray(values, dtype=float)[:, k]
+    ok = np.isfinite(t) & np.isfinite(v)
+    return t[ok], v[ok]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -94,19 +106,22 @@ def fit_damping(
     fusion_rate_hz: float | None = 100.0,
     start_b_n_m_s: tuple[float, float] = (1e-3, 1e-3),
     max_b_n_m_s: float = 0.05,
+    omega0_rad_s: tuple[float, float] = (0.0, 0.0),
 ) -> DampingFit:
-    """Fit b1, b2 to the measured angular velocities of a free decay from rest at ``phi0_rad``.
+    """Fit b1, b2 to the measured angular velocities of a free decay from ``phi0_rad``.
 
     Args:
       params: the rig (its b1, b2 are replaced by the fit).
-      phi0_rad: release angles; the release is at t = 0.
-      t_s: (m,) sample instants after the release, s.
-      gyro_z_rad_s: (m, 2) measured omega1, omega2 (the gyros' z axes).
+      phi0_rad: angles at the start (the release); the start is at t = 0.
+      t_s: (m,) sample instants after the start, s; or (m, 2) each node's own instants (NaN
+        where a node has fewer samples: lost packets).
+      gyro_z_rad_s: (m, 2) measured omega1, omega2 (NaN where missing).
       gyro_sigma_rad_s: noise sigma of each node's gyro z, for weighting.
       fusion_rate_hz: the chip's fusion rate (each sample carries the latest fused value), or
         None if the samples are instantaneous.
       start_b_n_m_s: starting guess.
       max_b_n_m_s: upper bound of the search.
+      omega0_rad_s: rates at the start (a run that starts mid-swing), rad/s.
     """
     sysid = _sysid()
     absl = logging.getLogger("absl")
@@ -114,41 +129,52 @@ def fit_damping(
     absl.setLevel(logging.ERROR)  # sysid warns that 6 of 49 sensor values are measured: intended
     try:
         return _fit(
-            sysid, params, phi0_rad, t_s, gyro_z_rad_s, gyro_sigma_rad_s, fusion_rate_hz, start_b_n_m_s, max_b_n_m_s
-        )
+            sysid, params, phi0_rad, t_s, gyro_z_rad_s, gyro_sigma_rad_s, fusion_rate_hz, start_b_n_m_s, max_b_n_m_s,
+            omega0_rad_s,
+        )  # fmt: skip
     finally:
         absl.setLevel(level)
 
 
-def _fit(sysid, params, phi0_rad, t_s, gyro_z_rad_s, gyro_sigma_rad_s, fusion_rate_hz, start_b_n_m_s, max_b_n_m_s):
-    t = np.asarray(t_s, dtype=float)
+def _fit(
+    sysid, params, phi0_rad, t_s, gyro_z_rad_s, gyro_sigma_rad_s, fusion_rate_hz, start_b_n_m_s, max_b_n_m_s,
+    omega0_rad_s,
+):  # fmt: skip
+    times = np.asarray(t_s, dtype=float)
     y = np.asarray(gyro_z_rad_s, dtype=float)
-    if t.ndim != 1 or y.shape != (len(t), 2) or len(t) < 10:
-        raise ParameterError(f"expected t_s (m,) and gyro_z_rad_s (m, 2) with m >= 10, got {t.shape}, {y.shape}")
-    if t[0] < 0:
+    per_node = times if times.ndim == 2 else np.stack([times, times], axis=1)
+    if per_node.shape != y.shape or y.shape[-1:] != (2,) or len(y) < 10:
+        raise ParameterError(
+            f"expected t_s (m,) or (m, 2) and gyro_z_rad_s (m, 2) with m >= 10, got {times.shape}, {y.shape}"
+        )
+    if np.nanmin(per_node) < 0:
         raise ParameterError("samples before the release (t < 0) cannot be fitted; cut them first")
+    columns_t = [_node_column(per_node, y, k) for k in range(2)]
+    # sysid rolls out over its measured series' span: a grid from 0 to the last sample
     spec = build_spec(params)
     model = spec.compile()
+    dt = model.opt.timestep
+    t = dt * np.arange(math.ceil(max(float(c[0][-1]) for c in columns_t) / dt) + 2)
     gyro_names = ("imu_m1_gyro", "imu_m2_gyro")
     columns = np.array([model.sensor(n).adr[0] + 2 for n in gyro_names])  # z components
     measured = np.zeros((len(t), 6))
-    measured[:, 2], measured[:, 5] = y[:, 0], y[:, 1]
     sensor_ts = sysid.TimeSeries.from_names(t, measured, model, names=list(gyro_names))
     control_ts = sysid.TimeSeries(t, np.zeros((len(t), 0)))
     data = mujoco.MjData(model)
-    initial = sysid.create_initial_state(model, np.asarray(phi0_rad, dtype=float), np.zeros(2), data.act)
-    sample_at = np.floor(t * fusion_rate_hz + 1e-9) / fusion_rate_hz if fusion_rate_hz else t
+    initial = sysid.create_initial_state(
+        model, np.asarray(phi0_rad, dtype=float), np.asarray(omega0_rad_s, dtype=float), data.act
+    )
+    sample_at = [fused_instants(c[0], fusion_rate_hz) for c in columns_t]
     sigma = np.asarray(gyro_sigma_rad_s, dtype=float)
-    dt = model.opt.timestep
 
     def residual(_params, pred, meas, _model, _return_all, state=None):
         # (1) predicted sensor rows belong to the state one step earlier than their stamps;
         # (2) each sample carries the latest fused value.
         stamps = pred.times - dt
-        prediction = np.stack([np.interp(sample_at, stamps, pred.data[:, c]) for c in columns], axis=1)
-        res = ((prediction - y) / sigma).ravel()
+        predictions = [np.interp(sample_at[k], stamps, pred.data[:, columns[k]]) for k in range(2)]
+        res = np.concatenate([(predictions[k] - columns_t[k][1]) / sigma[k] for k in range(2)])
         full = np.zeros((len(t), 6))
-        full[:, 2], full[:, 5] = prediction[:, 0], prediction[:, 1]
+        full[:, 2], full[:, 5] = (np.interp(t, stamps, pred.data[:, c]) for c in columns)
         return res, sysid.TimeSeries(meas.times, full, signal_mapping=meas.signal_mapping), meas
 
     parameters = sysid.ParameterDict()

@@ -9,12 +9,15 @@ from __future__ import annotations
 import dataclasses
 import enum
 import functools
+from collections.abc import Collection
 from pathlib import Path
 from xml.etree import ElementTree
 
 import mujoco
 import numpy as np
 
+from pendsim_mj import mujoco_warnings  # noqa: F401  (MuJoCo's warnings captured, no MUJOCO_LOG.TXT)
+from pendsim_mj.drives import Target
 from pendsim_mj.errors import ModelError
 from pendsim_mj.params import DEFAULT_PARAMS, RigParams
 
@@ -40,8 +43,28 @@ IMU_SITES = ("imu_m1", "imu_m2")
 SPRINGS = ("spring_12", "spring_13", "spring_56", "spring_57")
 # (point on one end, point on the other end) for each spring, as in SPRINGS.
 SPRING_ENDS = (("point_1", "point_2"), ("point_1", "point_3"), ("point_5", "point_6"), ("point_5", "point_7"))
+# Which pendulum carries each spring anchor point (0: M1, 1: M2; absent: the frame).
+SPRING_POINT_OWNER = {"point_1": 1, "point_5": 1, "point_2": 0, "point_3": 0}
 # World direction of the hinge axis (paper +z): a positive phi is a rotation about it.
 HINGE_AXIS_WORLD = np.array([0.0, -1.0, 0.0])
+
+# Drives (pendsim_mj.drives). A torque is a motor actuator on the hinge (gear 1: ctrl in N m).
+# Support motion: every part of the frame (pivot axis, points 6-8, frame geoms) and both
+# pendulums move into a body "support" on slide joints (world x: horizontal in the swing plane,
+# world z: vertical), only those driven. The support's motion is prescribed by its acceleration:
+# the slide carries an armature of SUPPORT_ARMATURE_KG and a motor of that gear, so ctrl = 1 gives
+# the support 1 m/s^2; the pendulums' reactions (under 10 N) change it by under 1e-11 m/s^2, below
+# the integration's round-off (tests/test_drives.py checks the engines agree to 1e-9 rad). The
+# support's own 1 kg is weightless (gravcomp) and only keeps the compiler's positive-mass rule.
+SUPPORT_BODY = "support"
+SUPPORT_ARMATURE_KG = 1e12
+SUPPORT_JOINTS = {Target.SUPPORT_X: ("support_x", "1 0 0"), Target.PIVOT_Z: ("support_z", "0 0 1")}
+DRIVE_ACTUATORS = {
+    Target.TORQUE_M1: "drive_torque_m1",
+    Target.TORQUE_M2: "drive_torque_m2",
+    Target.SUPPORT_X: "drive_support_x",
+    Target.PIVOT_Z: "drive_support_z",
+}
 
 
 class Clamp(enum.Enum):
@@ -80,6 +103,50 @@ def _xml_text() -> str:
     if not PENDULUMS_XML.is_file():
         raise ModelError(f"model file not found: {PENDULUMS_XML}")
     return PENDULUMS_XML.read_text()
+
+
+def _drive_targets(targets: Collection[Target]) -> tuple[Target, ...]:
+    try:
+        return tuple(t for t in Target if t in set(targets))
+    except TypeError:
+        raise ModelError(f"drive_targets must be drives.Target values, got {targets!r}") from None
+
+
+@functools.cache
+def _model_xml(targets: tuple[Target, ...]) -> str:
+    """models/pendulums.xml with the structure the driven targets need (see DRIVE_ACTUATORS);
+    the text itself when nothing is driven."""
+    if not targets:
+        return _xml_text()
+    root = ElementTree.fromstring(_xml_text())
+    slides = [SUPPORT_JOINTS[t] for t in targets if t.is_support]
+    if slides:
+        world = root.find("worldbody")
+        assert world is not None, "models/pendulums.xml has a worldbody"
+        support = ElementTree.Element("body", {"name": SUPPORT_BODY, "gravcomp": "1"})
+        support.append(ElementTree.Comment(" the frame, on slides whose acceleration is prescribed (model.py) "))
+        support.append(ElementTree.Element("inertial", {"pos": "0 0 0", "mass": "1", "diaginertia": "1 1 1"}))
+        for name, axis in slides:
+            support.append(
+                ElementTree.Element(
+                    "joint", {"name": name, "type": "slide", "axis": axis, "armature": repr(SUPPORT_ARMATURE_KG)}
+                )
+            )
+        for child in list(world):
+            world.remove(child)
+            support.append(child)
+        world.append(support)
+        for key in root.iter("key"):  # the support's coordinates come first in qpos and qvel
+            for field in ("qpos", "qvel"):
+                key.set(field, " ".join(["0"] * len(slides) + key.get(field, "0 0").split()))
+    actuator = ElementTree.Element("actuator")
+    for t in targets:
+        joint = {Target.TORQUE_M1: HINGES[0], Target.TORQUE_M2: HINGES[1]}.get(t) or SUPPORT_JOINTS[t][0]
+        gear = "1" if not t.is_support else repr(SUPPORT_ARMATURE_KG)
+        actuator.append(ElementTree.Element("motor", {"name": DRIVE_ACTUATORS[t], "joint": joint, "gear": gear}))
+    sensor = root.find("sensor")
+    root.insert(list(root).index(sensor) if sensor is not None else len(root), actuator)
+    return ElementTree.tostring(root, encoding="unicode")
 
 
 def paper_to_world(x_m: float, y_m: float) -> list[float]:
@@ -162,6 +229,7 @@ def build_spec(
     clamp: Clamp = Clamp.NONE,
     timestep_s: float = 0.01,
     variant: Variant = PLANAR,
+    drive_targets: Collection[Target] = (),
 ) -> mujoco.MjSpec:
     """The rig's MjSpec with every field of ``params`` applied.
 
@@ -170,12 +238,17 @@ def build_spec(
       clamp: hold one pendulum at phi = 0 by deleting its hinge.
       timestep_s: integration step, s.
       variant: structural options (tilt freedoms, plane of the fixed points).
+      drive_targets: the inputs to drive (``drives.Target``): motors at the hinges, the support
+        on slides (see DRIVE_ACTUATORS); ctrl then holds the inputs in ``Target`` order.
 
     Returns:
       An uncompiled ``mujoco.MjSpec``; ``.compile()`` gives the MjModel.
     """
+    targets = _drive_targets(drive_targets)
+    if clamp is not Clamp.NONE and any(t.value == f"torque_{clamp.value}" for t in targets):
+        raise ModelError(f"pendulum {clamp.value} is clamped: it cannot carry a torque drive")
     try:
-        spec = mujoco.MjSpec.from_string(_xml_text())
+        spec = mujoco.MjSpec.from_string(_model_xml(targets))
     except ValueError as exc:  # MuJoCo reports XML errors as ValueError
         raise ModelError(f"{PENDULUMS_XML}: {exc}") from exc
     spec.modelfiledir = str(MODELS_DIR)
@@ -196,9 +269,11 @@ def build_spec(
     if clamp is not Clamp.NONE:
         index = 0 if clamp is Clamp.M1 else 1
         spec.delete(spec.joint(HINGES[index]))
-        for key in spec.keys:
-            key.qpos = [key.qpos[1 - index]]
-            key.qvel = [key.qvel[1 - index]]
+        for key in spec.keys:  # the hinges' coordinates are the last two (after the support's)
+            *qpos, a, b = list(key.qpos)
+            key.qpos = [*qpos, (b, a)[index]]
+            *qvel, a, b = list(key.qvel)
+            key.qvel = [*qvel, (b, a)[index]]
     return spec
 
 
@@ -221,18 +296,26 @@ def _add_tilt(spec: mujoco.MjSpec, p: RigParams) -> None:
         body.add_joint(
             name=hinge, type=mujoco.mjtJoint.mjJNT_HINGE, axis=[0.0, -1.0, 0.0], pos=[0.0, 0.0, 0.0], damping=damping
         )
-    for key in spec.keys:
-        key.qpos = [0.0, key.qpos[0], 0.0, key.qpos[1]]
-        key.qvel = [0.0, key.qvel[0], 0.0, key.qvel[1]]
+    for key in spec.keys:  # after the support's coordinates, if any
+        *qpos, a, b = list(key.qpos)
+        key.qpos = [*qpos, 0.0, a, 0.0, b]
+        *qvel, a, b = list(key.qvel)
+        key.qvel = [*qvel, 0.0, a, 0.0, b]
 
 
-def exact_mjcf(params: RigParams = DEFAULT_PARAMS, *, timestep_s: float = 0.01, variant: Variant = PLANAR) -> str:
+def exact_mjcf(
+    params: RigParams = DEFAULT_PARAMS,
+    *,
+    timestep_s: float = 0.01,
+    variant: Variant = PLANAR,
+    drive_targets: Collection[Target] = (),
+) -> str:
     """models/pendulums.xml with every parameter written at full precision (17 digits).
 
     ``MjSpec.to_xml()`` rounds numbers to 6 significant digits, so it cannot reproduce a run;
     this text compiles to the same model as ``build_model`` (tests/test_model.py checks it).
     """
-    root = ElementTree.fromstring(_xml_text())
+    root = ElementTree.fromstring(_model_xml(_drive_targets(drive_targets)))
     for a in assignments(params, timestep_s, variant):
         if a.tag == "option":
             element = root.find("option")
@@ -251,7 +334,9 @@ def exact_mjcf(params: RigParams = DEFAULT_PARAMS, *, timestep_s: float = 0.01, 
         p = params
         for body_name, hinge, tilt in zip(BODIES, HINGES, TILTS, strict=True):
             body = root.find(f".//body[@name='{body_name}']")
-            swing = body.find(f"joint[@name='{hinge}']")
+            swing = body.find(f"joint[@name='{hinge}']") if body is not None else None
+            if body is None or swing is None:
+                raise ModelError(f"{PENDULUMS_XML}: no body {body_name!r} with joint {hinge!r}")
             joint = ElementTree.Element(
                 "joint",
                 {
@@ -266,8 +351,8 @@ def exact_mjcf(params: RigParams = DEFAULT_PARAMS, *, timestep_s: float = 0.01, 
             body.insert(list(body).index(swing), joint)  # before the swing hinge, as build_spec
         for key in root.iter("key"):
             for field in ("qpos", "qvel"):
-                a, b = key.get(field, "0 0").split()
-                key.set(field, f"0 {a} 0 {b}")
+                *support, first, second = key.get(field, "0 0").split()
+                key.set(field, " ".join([*support, "0", first, "0", second]))
     root.insert(0, ElementTree.Comment(" pendsim: models/pendulums.xml with this run's parameters, full precision "))
     return ElementTree.tostring(root, encoding="unicode")
 
@@ -278,9 +363,11 @@ def build_model(
     timestep_s: float = 0.01,
     clamp: Clamp = Clamp.NONE,
     variant: Variant = PLANAR,
+    drive_targets: Collection[Target] = (),
 ) -> mujoco.MjModel:
-    """Compile the rig with ``params`` at the given step (s), RK4 as in the XML."""
-    spec = build_spec(params, clamp=clamp, timestep_s=timestep_s, variant=variant)
+    """Compile the rig with ``params`` at the given step (s), RK4 as in the XML, with the
+    actuators and support slides of ``drive_targets`` (see build_spec)."""
+    spec = build_spec(params, clamp=clamp, timestep_s=timestep_s, variant=variant, drive_targets=drive_targets)
     try:
         return spec.compile()
     except ValueError as exc:

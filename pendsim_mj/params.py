@@ -30,8 +30,11 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
 
 from pendsim_mj.errors import ParameterError
 
@@ -182,21 +185,7 @@ class RigParams:
             value = getattr(self, f.name)
             if not isinstance(value, (int, float)) or isinstance(value, bool):
                 raise ParameterError(f"{f.name} must be a number, got {value!r}")
-            if not math.isfinite(value):
-                raise ParameterError(f"{f.name} must be finite, got {value}")
-            allowed_zero = f.name in _MAY_BE_ZERO
-            if value < 0 or (value == 0 and not allowed_zero):
-                bound = ">= 0" if allowed_zero else "> 0"
-                raise ParameterError(f"{f.name} must be {bound} {f.metadata['unit']}, got {value}")
-        for n in (1, 2):
-            m = getattr(self, f"m{n}_kg")
-            oc = getattr(self, f"oc{n}_m")
-            j = getattr(self, f"j{n}_kg_m2")
-            if j <= m * oc**2:
-                raise ParameterError(
-                    f"j{n}_kg_m2 = {j} must exceed m{n}_kg * oc{n}_m^2 = {m * oc**2:.6g} "
-                    "(inertia about the pivot includes the point-mass term)"
-                )
+        check_values({f.name: getattr(self, f.name) for f in dataclasses.fields(self)})
 
     def with_overrides(self, **overrides: float) -> RigParams:
         """A copy with the named fields replaced; unknown names raise ParameterError."""
@@ -226,7 +215,138 @@ _MAY_BE_ZERO = frozenset(
         "plane_offset_m", "tilt_stiffness_n_m_rad", "tilt_damping_n_m_s_rad",
     }
 )  # fmt: skip
+
+
+def check_values(values: Mapping[str, ArrayLike], *, case_ids: Sequence[int] | None = None) -> None:
+    """The rules of every RigParams, on all fields at once; each value may be an array of cases.
+
+    A field must be finite and > 0 (>= 0 for those that may be zero), and each pendulum's
+    inertia about the pivot must exceed its point-mass term m OC^2. Used by ``RigParams`` on its own
+    values and by sweeps on columns of thousands of cases without building each object.
+
+    Args:
+      values: every field by name: a number or an array (one value per case).
+      case_ids: with arrays, the case numbers named in the message (default: positions).
+
+    Raises:
+      ParameterError: the first rule broken ("case 12: c1_n_m must be >= 0 N/m, got -1.0" with
+        arrays).
+    """
+    arrays = {name: np.asarray(v, dtype=float) for name, v in values.items()}
+
+    def first(bad: NDArray[np.bool_]) -> tuple[int, str]:
+        """Position of the first bad case and the message prefix naming it ("" for scalars)."""
+        if bad.ndim == 0:
+            return 0, ""
+        i = int(np.flatnonzero(bad)[0])
+        return i, f"case {i if case_ids is None else case_ids[i]}: "
+
+    for name, unit in _UNITS.items():
+        value = arrays[name]
+        allowed_zero = name in _MAY_BE_ZERO
+        for bad, rule in (
+            (~np.isfinite(value), "must be finite"),
+            ((value < 0) | ((value == 0) & (not allowed_zero)), f"must be {'>= 0' if allowed_zero else '> 0'} {unit}"),
+        ):
+            if np.any(bad):
+                i, prefix = first(bad)
+                raise ParameterError(f"{prefix}{name} {rule}, got {value.flat[i]}")
+        low, high = PARAMETER_LIMITS[name]
+        bad = (value > high) | ((value != 0) & (value < low))
+        if np.any(bad):
+            i, prefix = first(bad)
+            raise ParameterError(
+                f"{prefix}{name} must be {'0 or ' if allowed_zero else ''}between {low:g} and {high:g} {unit}, "
+                f"got {value.flat[i]:g}"
+            )
+    for n in (1, 2):
+        m, oc, j = arrays[f"m{n}_kg"], arrays[f"oc{n}_m"], arrays[f"j{n}_kg_m2"]
+        shape = np.broadcast_shapes(m.shape, oc.shape, j.shape)
+        point = np.broadcast_to(m * oc**2, shape)
+        bad = np.broadcast_to(j, shape) <= point
+        if np.any(bad):
+            i, prefix = first(bad)
+            raise ParameterError(
+                f"{prefix}j{n}_kg_m2 = {np.broadcast_to(j, shape).flat[i]} must exceed m{n}_kg * oc{n}_m^2 = "
+                f"{point.flat[i]:.6g} (inertia about the pivot includes the point-mass term)"
+            )
+
+
 PLANE_OFFSET_PRESETS_M = (0.023, 0.050)  # paper: both values appear
+_UNITS = {f.name: f.metadata["unit"] for f in dataclasses.fields(RigParams)}
+FIELD_NAMES = tuple(_UNITS)
+"""Every RigParams field, in declaration order."""
+
+
+@dataclasses.dataclass(frozen=True)
+class ParamColumns:
+    """Many parameter sets as columns (a sweep's thousands of cases without thousands of objects).
+
+    Attributes:
+      values: (ncases, len(FIELD_NAMES)): ``values[:, i]`` is field ``FIELD_NAMES[i]`` of every case.
+    """
+
+    values: NDArray[np.float64]
+
+    @classmethod
+    def from_params(cls, params: Sequence[RigParams]) -> ParamColumns:
+        return cls(
+            np.array([[getattr(p, n) for n in FIELD_NAMES] for p in params], dtype=float).reshape(-1, len(FIELD_NAMES))
+        )
+
+    @classmethod
+    def from_base(
+        cls, base: RigParams, ncases: int, columns: Mapping[str, ArrayLike], *, case_ids: Sequence[int] | None = None
+    ) -> ParamColumns:
+        """``base`` for every case, with the named fields set per case (arrays of ncases); checked
+        by ``check_values`` (the error names the case by ``case_ids``)."""
+        unknown = sorted(set(columns) - set(FIELD_NAMES))
+        if unknown:
+            raise ParameterError(
+                f"unknown parameter(s) {', '.join(unknown)}; allowed: {', '.join(sorted(FIELD_NAMES))}"
+            )
+        values = np.tile(np.array([getattr(base, n) for n in FIELD_NAMES], dtype=float), (ncases, 1))
+        for name, column in columns.items():
+            values[:, FIELD_NAMES.index(name)] = np.asarray(column, dtype=float)
+        check_values({n: values[:, i] for i, n in enumerate(FIELD_NAMES)}, case_ids=case_ids)
+        return cls(values)
+
+    def __len__(self) -> int:
+        return len(self.values)
+
+    def column(self, name: str) -> NDArray[np.float64]:
+        """One field of every case, (ncases,)."""
+        return self.values[:, FIELD_NAMES.index(name)]
+
+    def to_params(self) -> list[RigParams]:
+        """A RigParams per case (each distinct set built once)."""
+        built: dict[bytes, RigParams] = {}
+        out = []
+        for row in self.values:
+            key = row.tobytes()
+            if key not in built:
+                built[key] = RigParams(**{n: float(v) for n, v in zip(FIELD_NAMES, row, strict=True)})
+            out.append(built[key])
+        return out
+
+
+_LIMITS_BY_UNIT = {
+    # unit: (smallest non-zero value, largest value). Far beyond any tabletop rig, yet inside the
+    # range where the simulation's arithmetic (squares, products of these) stays finite and the
+    # MuJoCo compiler's minimum mass and inertia (mjMINVAL = 1e-15) hold.
+    "kg": (1e-6, 1e3),
+    "m": (1e-6, 10.0),
+    "kg m^2": (1e-9, 1e3),
+    "N/m": (1e-9, 1e6),
+    "N m s/rad": (1e-12, 1e3),
+    "m/s^2": (1e-3, 100.0),
+    "N m/rad": (1e-9, 1e6),
+}
+PARAMETER_LIMITS: dict[str, tuple[float, float]] = {
+    f.name: _LIMITS_BY_UNIT[f.metadata["unit"]] for f in dataclasses.fields(RigParams)
+}
+"""Allowed range of every parameter (name: (smallest non-zero, largest), SI units); zero is
+allowed only where the parameter may vanish (damping, stiffness, offsets, g)."""
 
 DEFAULT_PARAMS = RigParams()
 """The rig as the paper describes it, with the assumed default damping."""

@@ -2,11 +2,13 @@
 
 What the real node does, and how it is modelled:
 
-- **Sampling**: the ESP32 node reads the chip at 80 Hz; samples carry timestamps k/80 s.
+- **Sampling**: the ESP32 node reads the chip at 80 Hz; samples carry timestamps k/80 s on the
+  node's clock.
 - **Fusion timing** (``fusion_timing=True``, default): in NDOF mode the chip fuses at 100 Hz, and
   the node reads the latest fused value, so each sample is 0-10 ms old and about one fused value
-  in five is never read. The fused instants lie on the 10 ms simulation grid, so the values are
-  the trajectory's own rows, exactly.
+  in five is never read. By default the fusion ticks fall on the release and the 10 ms
+  simulation grid, so the values are the trajectory's own rows, exactly; with a fusion phase or
+  clock drift (``imperfections``) they fall between steps and are interpolated as below.
 - **Ideal timing** (``fusion_timing=False``): values at the sample instants themselves. The state
   (phi, omega) is interpolated inside each step with a quintic Hermite polynomial through phi,
   omega and alpha at both ends, and MuJoCo's sensors are evaluated at those states
@@ -26,18 +28,22 @@ What the real node does, and how it is modelled:
   the fusion modes' +-4 g accelerometer range; quantisation to the
   output resolution (1 m/s^2 = 100 LSB, 1 rad/s = 900 LSB, quaternion 1 = 2^14 LSB).
   ``noise=False`` gives the ideal signal (no noise, clipping or quantisation).
+- **Imperfections** of real nodes (heading, axis remap, fusion error and phase, packet loss,
+  clocks, hand wobble; all off by default): ``pendsim_mj.imperfections``.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import math
-from fractions import Fraction
 
 import numpy as np
+from numpy.typing import NDArray
 
+from pendsim_mj import imperfections as imp
 from pendsim_mj import rotations
 from pendsim_mj.errors import ParameterError
+from pendsim_mj.imperfections import Imperfections
 from pendsim_mj.params import RigParams
 from pendsim_mj.trajectory import Trajectory
 
@@ -90,6 +96,7 @@ class Bno055:
     mount_quat_wxyz: tuple[tuple[float, float, float, float], ...] = ((1.0, 0.0, 0.0, 0.0), (1.0, 0.0, 0.0, 0.0))
     calibration: tuple[int, int, int, int] = (3, 3, 3, 3)
     seed: int = 0
+    imperfections: Imperfections = dataclasses.field(default_factory=Imperfections)
 
     def __post_init__(self) -> None:
         for name in ("sample_rate_hz", "fusion_rate_hz", "accel_range_m_s2"):
@@ -131,8 +138,10 @@ class ImuSamples:
     """Both nodes' samples; m samples at t_s = k / sample_rate_hz. Sensor axes, SI units.
 
     Attributes:
-      t_s: (m,) sample instants, s.
-      fused_t_s: (m,) instant of the value each sample carries (= t_s without fusion timing).
+      t_s: (m,) sample instants k / sample_rate_hz on the nodes' clocks, s (the true instants too
+        when the clocks are perfect).
+      fused_t_s: (m,) true instant of the value each of M1's samples carries (= t_s without fusion
+        timing or clock imperfections).
       gyro_rad_s: (m, 2, 3) angular velocity.
       accel_m_s2: (m, 2, 3) acceleration including gravity (specific force).
       linear_accel_m_s2: (m, 2, 3) acceleration with gravity removed.
@@ -140,6 +149,11 @@ class ImuSamples:
       quat_wxyz: (m, 2, 4) orientation of the sensor frame in the world frame.
       calibration: (m, 2, 4) uint8 status 0-3 of (system, gyro, accel, mag).
       config: the Bno055 configuration that made them.
+      value_t_s: (m, 2) true instant of the value each node's sample carries, s (None: fused_t_s).
+      stamp_s: (m, 2) header stamp of each sample: its node's clock, s (None: t_s).
+      log_t_s: (m, 2) when the recorder logged it: the true instant plus transport latency, s
+        (None: t_s).
+      received: (m, 2) False where the packet was lost (None: all arrived).
     """
 
     t_s: np.ndarray
@@ -151,6 +165,18 @@ class ImuSamples:
     quat_wxyz: np.ndarray
     calibration: np.ndarray
     config: Bno055
+    value_t_s: np.ndarray | None = None
+    stamp_s: np.ndarray | None = None
+    log_t_s: np.ndarray | None = None
+    received: np.ndarray | None = None
+
+    def node_times(self, node: int) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.bool_]]:
+        """Header stamps (node clock), log times (recorder clock), both s, and the arrival mask of
+        one node's samples, each (m,)."""
+        stamp = self.t_s if self.stamp_s is None else self.stamp_s[:, node]
+        log = self.t_s if self.log_t_s is None else self.log_t_s[:, node]
+        received = np.ones(len(self.t_s), bool) if self.received is None else self.received[:, node]
+        return stamp, log, received
 
     @property
     def tangential_m_s2(self) -> np.ndarray:
@@ -173,27 +199,57 @@ class ImuSamples:
         return self.linear_accel_m_s2[..., 1]
 
 
-def _grid_ratio(a_hz: float, b_hz: float) -> Fraction:
-    return Fraction(a_hz).limit_denominator(10**6) / Fraction(b_hz).limit_denominator(10**6)
+def fused_instants(t_s: NDArray[np.float64], fusion_rate_hz: float | None) -> NDArray[np.float64]:
+    """The instant (s) of the value a node reports at each sample time ``t_s`` (s): the latest
+    fusion instant at or before it (the chip fuses at ``fusion_rate_hz``), or ``t_s`` itself
+    for a node without fusion timing (None)."""
+    t = np.asarray(t_s, dtype=float)
+    if not fusion_rate_hz:
+        return t
+    return np.floor(t * fusion_rate_hz + 1e-9) / fusion_rate_hz
 
 
-def sample_instants(traj: Trajectory, config: Bno055) -> tuple[np.ndarray, np.ndarray]:
-    """Sample indices k and the instants (s) of the values they carry, as (m,) arrays."""
-    duration = traj.t_s[-1]
-    m = math.floor(duration * config.sample_rate_hz + 1e-9) + 1
-    k = np.arange(m)
-    if config.fusion_timing:
-        # latest fused value: j = floor(k * fusion / sample), exactly, with rational rates
-        ratio = _grid_ratio(config.fusion_rate_hz, config.sample_rate_hz)
-        j = (k * ratio.numerator) // ratio.denominator
-        return k, j / config.fusion_rate_hz
-    return k, k / config.sample_rate_hz
+def node_instants(
+    config: Bno055, m: int, hold_s: float, *, first: int = 0
+) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+    """When each node samples, and the instant of the value it carries.
+
+    Sample k is taken at k / sample_rate_hz on each node's clock, which runs ``clock_drift_ppm``
+    fast; the chip's fusion ticks fall on that clock at the release plus the fusion phase plus
+    whole fusion periods, and a sample carries the latest fused value.
+
+    Args:
+      config: the node model.
+      m: number of samples.
+      hold_s: when the release happens, s after the recording's start.
+      first: the number of the first sample (samples first .. first + m - 1; each is computed
+        on its own, so any range gives the values of the whole run).
+
+    Returns:
+      The nodes' clock times k / rate (m,), the true sample instants (m, 2) and the true instants
+      of the values (m, 2), all s from the recording's start.
+    """
+    imperfect = config.imperfections
+    clock_t = np.arange(first, first + m) / config.sample_rate_hz
+    sample_t = np.empty((m, 2))
+    value_t = np.empty((m, 2))
+    for n in range(2):
+        rate = 1.0 + imperfect.clock_drift_ppm[n] * 1e-6
+        sample_t[:, n] = clock_t / rate
+        if config.fusion_timing:
+            first_tick = hold_s + imperfect.fusion_phase_s[n]
+            value_clock = first_tick + fused_instants(clock_t - first_tick, config.fusion_rate_hz)
+            value_t[:, n] = value_clock / rate
+        else:
+            value_t[:, n] = sample_t[:, n]
+    return clock_t, sample_t, value_t
 
 
-def _hermite_states(traj: Trajectory, t_s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """phi, omega (m, 2) at arbitrary instants: quintic Hermite through (phi, omega, alpha)."""
+def _hermite_states(traj: Trajectory, t_s: np.ndarray, first_row: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """phi, omega (m, 2) at arbitrary instants: quintic Hermite through (phi, omega, alpha).
+    ``traj`` may be a block of a run whose first row is the run's row ``first_row``."""
     h = traj.dt_s
-    i = np.clip(np.floor(t_s / h + 1e-9).astype(int), 0, len(traj.t_s) - 2)
+    i = np.clip(np.floor(t_s / h + 1e-9).astype(int), first_row, first_row + len(traj.t_s) - 2) - first_row
     s = ((t_s - traj.t_s[i]) / h)[:, None]
     p0, p1 = traj.phi_rad[i], traj.phi_rad[i + 1]
     v0, v1 = traj.omega_rad_s[i] * h, traj.omega_rad_s[i + 1] * h
@@ -215,25 +271,71 @@ def _hermite_states(traj: Trajectory, t_s: np.ndarray) -> tuple[np.ndarray, np.n
     return phi, omega
 
 
-def _ideal_readings(traj: Trajectory, fused_t_s: np.ndarray, on_grid: bool) -> dict[str, np.ndarray]:
-    if on_grid:
-        steps = fused_t_s / traj.dt_s
-        idx = np.rint(steps).astype(int)
-        if np.max(np.abs(steps - idx)) > 1e-6 or idx[-1] >= len(traj.t_s):
-            raise ParameterError(
-                f"fusion timing needs a simulation step that divides the fusion period; got dt_s = {traj.dt_s} s"
-            )
-        return {
-            "imu_accel_m_s2": traj.imu_accel_m_s2[idx],
-            "imu_gyro_rad_s": traj.imu_gyro_rad_s[idx],
-            "imu_quat_wxyz": traj.imu_quat_wxyz[idx],
-            "imu_angacc_rad_s2": traj.imu_angacc_rad_s2[idx],
-        }
+def _trajectory_readings(traj: Trajectory, t_s: np.ndarray, first_row: int = 0) -> dict[str, np.ndarray]:
+    """MuJoCo's IMU readings (both nodes) at instants t_s (m,) of the run (0 <= t <= end): the
+    trajectory's own rows where t_s lies on its step grid, else the quintic Hermite state there.
+    ``traj`` may be a block of the run starting at its row ``first_row``."""
+    steps = t_s / traj.dt_s
+    idx = np.rint(steps).astype(int) - first_row
+    names = ("imu_accel_m_s2", "imu_gyro_rad_s", "imu_quat_wxyz", "imu_angacc_rad_s2")
+    if len(t_s) and np.max(np.abs(steps - idx - first_row)) <= 1e-6 and idx.min() >= 0 and idx.max() < len(traj.t_s):
+        return {name: getattr(traj, name)[idx] for name in names}
+    if np.any(traj.tilt_rad):
+        raise ParameterError(
+            "values between simulation steps are interpolated for the planar model only; the spatial model needs "
+            "fusion timing, no fusion phase or clock drift, and a step dividing the 10 ms fusion period"
+        )
     from pendsim_mj.simulation import evaluate_states
 
-    params = traj.params[0] if isinstance(traj.params, tuple) else traj.params
-    phi, omega = _hermite_states(traj, fused_t_s)
-    return evaluate_states(params, phi, omega)
+    phi, omega = _hermite_states(traj, t_s, first_row)
+    return evaluate_states(traj.single_params, phi, omega)
+
+
+def _held_readings(traj: Trajectory, t_s: np.ndarray, config: Bno055, g_m_s2: float) -> dict[str, np.ndarray]:
+    """Both nodes while the pendulums are held at their initial angles (t_s < 0, s from the
+    release): still, the accelerometer reading gravity alone; with hand wobble, turned by the
+    tremor angle about the hinge with the pendulum kinematics of that motion."""
+    m = len(t_s)
+    quat = np.broadcast_to(traj.imu_quat_wxyz[:1], (m, 2, 4)).copy()
+    rate = np.zeros((m, 2))
+    alpha = np.zeros((m, 2))
+    wobble = config.imperfections.hold_wobble_rad
+    if wobble > 0 and m:
+        rng = np.random.default_rng([config.seed, 4])
+        angle, rate, alpha = imp.hold_wobble(rng, t_s, wobble)
+        from pendsim_mj.model import HINGE_AXIS_WORLD
+
+        turn = rotations.from_rotvec(angle[..., None] * HINGE_AXIS_WORLD)  # world side: about the hinge
+        quat = rotations.multiply(turn, quat)
+    params = traj.single_params
+    radius = np.array([params.om1_m, params.om2_m])
+    zeros = np.zeros((m, 2))
+    kinematic = np.stack([radius * alpha, radius * rate**2, zeros], axis=-1)  # r phi'', r phi'^2, 0
+    return {
+        "imu_quat_wxyz": quat,
+        "imu_gyro_rad_s": np.stack([zeros, zeros, rate], axis=-1),
+        "imu_angacc_rad_s2": np.stack([zeros, zeros, alpha], axis=-1),
+        "imu_accel_m_s2": rotations.rotate_into_frame(quat, np.array([0.0, 0.0, g_m_s2])) + kinematic,
+    }
+
+
+def _readings_at(traj: Trajectory, t_s: np.ndarray, config: Bno055, first_row: int = 0) -> dict[str, np.ndarray]:
+    """Both nodes' ideal readings at instants t_s (m,) from the release (held before it);
+    ``traj`` may be a block of the run starting at its row ``first_row`` (held instants: the first)."""
+    held = t_s < -1e-9
+    g = traj.single_params.g_m_s2
+    if not held.any():
+        return _trajectory_readings(traj, np.maximum(t_s, 0.0), first_row)
+    parts = [
+        _held_readings(traj, t_s[held], config, g),
+        _trajectory_readings(traj, np.maximum(t_s[~held], 0.0), first_row),
+    ]
+    out = {}
+    for name, value in parts[0].items():
+        full = np.empty((len(t_s), *value.shape[1:]))
+        full[held], full[~held] = value, parts[1][name]
+        out[name] = full
+    return out
 
 
 def sample_imu(traj: Trajectory, config: Bno055 = Bno055(), *, hold_s: float = 0.0) -> ImuSamples:
@@ -247,7 +349,8 @@ def sample_imu(traj: Trajectory, config: Bno055 = Bno055(), *, hold_s: float = 0
         trajectory's t = 0 is then at ``hold_s`` in the samples' time.
 
     Returns:
-      ImuSamples with m = floor(duration * sample_rate) + 1 samples (plus the held ones).
+      ImuSamples with m = floor(duration * sample_rate) + 1 samples (plus the held ones; less the
+      last ones a slow node clock did not reach by the end of the run).
     """
     if traj.is_batch:
         raise ParameterError("sample_imu takes a single trajectory; use trajectory.member(i)")
@@ -255,28 +358,19 @@ def sample_imu(traj: Trajectory, config: Bno055 = Bno055(), *, hold_s: float = 0
         raise ParameterError(f"hold_s must be a finite number >= 0 s, got {hold_s!r}")
     if not config.fusion_timing and np.any(traj.tilt_rad):
         raise ParameterError("ideal timing interpolates the planar state only; use fusion timing for the spatial model")
-    k, fused_t = sample_instants(traj, config)
-    readings = _ideal_readings(traj, fused_t, on_grid=config.fusion_timing)
-    params = traj.params[0] if isinstance(traj.params, tuple) else traj.params
-    t_s = k / config.sample_rate_hz
-    held = round(hold_s * config.sample_rate_hz)
-    if held:
-        # Held still: no rotation, and the accelerometer reads gravity alone (specific force -g).
-        quat = readings["imu_quat_wxyz"][:1]
-        at_rest = {
-            "imu_quat_wxyz": quat,
-            "imu_gyro_rad_s": np.zeros((1, 2, 3)),
-            "imu_angacc_rad_s2": np.zeros((1, 2, 3)),
-            "imu_accel_m_s2": rotations.rotate_into_frame(quat, np.array([0.0, 0.0, params.g_m_s2])),
-        }
-        readings = {
-            name: np.concatenate([np.broadcast_to(at_rest[name], (held, 2, value.shape[-1])), value])
-            for name, value in readings.items()
-        }
-        offset = held / config.sample_rate_hz
-        t_s = np.arange(held + len(t_s)) / config.sample_rate_hz
-        fused_t = np.concatenate([t_s[:held], fused_t + offset])
-    return _measure_readings(readings, t_s, fused_t, params.g_m_s2, config)
+    rate = config.sample_rate_hz
+    held = round(hold_s * rate)
+    hold = held / rate
+    m = held + math.floor(float(traj.t_s[-1]) * rate + 1e-9) + 1
+    clock_t, sample_t, value_t = node_instants(config, m, hold)
+    m = int(np.count_nonzero(np.all(value_t - hold <= traj.t_s[-1] + 1e-9, axis=1)))  # a slow clock ends early
+    clock_t, sample_t, value_t = clock_t[:m], sample_t[:m], value_t[:m]
+    if np.array_equal(value_t[:, 0], value_t[:, 1]):
+        readings = _readings_at(traj, value_t[:, 0] - hold, config)
+    else:  # each node at its own instants
+        per_node = [_readings_at(traj, value_t[:, n] - hold, config) for n in range(2)]
+        readings = {name: np.stack([per_node[n][name][:, n] for n in range(2)], axis=1) for name in per_node[0]}
+    return _measure_readings(readings, clock_t, value_t, traj.single_params.g_m_s2, config, sample_t)
 
 
 def static_imu(params: RigParams, duration_s: float, config: Bno055 = Bno055()) -> ImuSamples:
@@ -287,20 +381,146 @@ def static_imu(params: RigParams, duration_s: float, config: Bno055 = Bno055()) 
     from pendsim_mj.simulation import evaluate_states
 
     m = math.floor(duration_s * config.sample_rate_hz + 1e-9) + 1
-    t_s = np.arange(m) / config.sample_rate_hz
+    clock_t, sample_t, _ = node_instants(config, m, 0.0)
     rest = evaluate_states(params, np.zeros((1, 2)), np.zeros((1, 2)))
     readings = {name: np.broadcast_to(value, (m, *value.shape[1:])) for name, value in rest.items()}
-    return _measure_readings(readings, t_s, t_s, params.g_m_s2, config)
+    return _measure_readings(readings, clock_t, sample_t, params.g_m_s2, config, sample_t)
+
+
+class ImuSampler:
+    """Both BNO055 nodes sampled block by block over a run simulated block by block (memory
+    independent of the duration).
+
+    The blocks' samples, concatenated, are those of ``sample_imu`` (or ``static_imu``) on the
+    whole run: each sample's value comes from the block that holds its instant, node timing is
+    computed sample by sample, and the noise comes from streams that do not depend on how the
+    run is cut (``_NoiseStreams``). Fusion error, packet loss and latency are processes over the
+    whole run: a node model with them is sampled whole (``sample_imu``), not here.
+
+    Args:
+      config: the node model.
+      params: the rig (gravity; the sensors at rest for a static test).
+      end_t_s: the run's last simulation instant (n_steps * dt_s), or the static duration, s.
+      hold_s: the recording starts this long before the release (rounded to whole samples).
+      static: both nodes at rest for the whole duration (a noise test): use ``static_block``.
+
+    Raises:
+      ParameterError: a node model with whole-run imperfections, or a bad hold.
+    """
+
+    def __init__(
+        self, config: Bno055, params: RigParams, *, end_t_s: float, hold_s: float = 0.0, static: bool = False
+    ) -> None:
+        if not (math.isfinite(hold_s) and hold_s >= 0):
+            raise ParameterError(f"hold_s must be a finite number >= 0 s, got {hold_s!r}")
+        if not streamable(config):
+            raise ParameterError(
+                "fusion error, packet loss and latency are drawn over the whole run: sample it with sample_imu"
+            )
+        self.config, self.params, self.static = config, params, static
+        rate = config.sample_rate_hz
+        self.held = 0 if static else round(hold_s * rate)
+        self.hold_s = self.held / rate
+        self.total = self.held + math.floor(end_t_s * rate + 1e-9) + 1  # at most (a slow clock ends early)
+        self._next = 0
+        self._done = False
+        self._noise = _NoiseStreams(config, self.total) if config.noise else None
+        self._rest: dict[str, np.ndarray] | None = None
+
+    @property
+    def done(self) -> bool:
+        return self._done or self._next >= self.total
+
+    def block(self, traj: Trajectory, *, first_row: int = 0, last: bool = False) -> ImuSamples:
+        """The samples whose values lie in this block of the run.
+
+        Args:
+          traj: rows ``first_row`` .. ``first_row + len - 1`` of the run (single, not batch);
+            consecutive blocks share their boundary row.
+          first_row: the run row of ``traj``'s first row.
+          last: the run's final block.
+        """
+        if traj.is_batch:
+            raise ParameterError("sample_imu takes a single trajectory; use trajectory.member(i)")
+        config = self.config
+        if not config.fusion_timing and np.any(traj.tilt_rad):
+            raise ParameterError(
+                "ideal timing interpolates the planar state only; use fusion timing for the spatial model"
+            )
+        end_row = first_row + len(traj.t_s) - 1
+        span = math.ceil(len(traj.t_s) * traj.dt_s * config.sample_rate_hz) + 4 + (self.held if not self._next else 0)
+        m = min(span, self.total - self._next)
+        clock_t, sample_t, value_t = node_instants(config, m, self.hold_s, first=self._next)
+        run_t = value_t - self.hold_s  # from the release
+        if last:
+            count = int(np.count_nonzero(np.all(run_t <= traj.t_s[-1] + 1e-9, axis=1)))
+            self._done = True
+        else:
+            rows = np.floor(np.max(run_t, axis=1) / traj.dt_s + 1e-9)
+            count = int(np.searchsorted(rows, end_row, side="left"))
+        clock_t, sample_t, value_t, run_t = clock_t[:count], sample_t[:count], value_t[:count], run_t[:count]
+        if np.array_equal(value_t[:, 0], value_t[:, 1]):
+            readings = _readings_at(traj, run_t[:, 0], config, first_row)
+        else:
+            per_node = [_readings_at(traj, run_t[:, n], config, first_row) for n in range(2)]
+            readings = {name: np.stack([per_node[n][name][:, n] for n in range(2)], axis=1) for name in per_node[0]}
+        self._next += count
+        g = traj.single_params.g_m_s2
+        return _measure_readings(readings, clock_t, value_t, g, config, sample_t, noise=self._noise)
+
+    def static_block(self, count: int) -> ImuSamples:
+        """The next ``count`` samples (fewer at the end) of a static test."""
+        if not self.static:
+            raise ParameterError("static_block is for static tests (ImuSampler(..., static=True))")
+        if self._rest is None:
+            from pendsim_mj.simulation import evaluate_states
+
+            self._rest = evaluate_states(self.params, np.zeros((1, 2)), np.zeros((1, 2)))
+        m = min(count, self.total - self._next)
+        clock_t, sample_t, _ = node_instants(self.config, m, 0.0, first=self._next)
+        self._next += m
+        readings = {name: np.broadcast_to(value, (m, *value.shape[1:])) for name, value in self._rest.items()}
+        return _measure_readings(
+            readings, clock_t, sample_t, self.params.g_m_s2, self.config, sample_t, noise=self._noise
+        )
+
+
+def streamable(config: Bno055) -> bool:
+    """Whether a node model can be sampled block by block (no whole-run imperfection process)."""
+    imperfect = config.imperfections
+    return not (imperfect.fusion_error_rad > 0 or imperfect.packet_loss > 0 or imperfect.latency_s > 0)
+
+
+def _fusion_error(config: Bno055, value_t: np.ndarray) -> np.ndarray:
+    """(m, 2, 4) small rotations of the fused orientation (sensor axes) at the value instants."""
+    imperfect = config.imperfections
+    rng = np.random.default_rng([config.seed, 3])
+    period = imperfect.fusion_error_period_s
+    errors = []
+    for n in range(2):
+        e, _, _ = imp.smooth_process(rng, value_t[:, n], imperfect.fusion_error_rad, 1 / (3 * period), 3 / period, (3,))
+        errors.append(rotations.from_rotvec(e))
+    return np.stack(errors, axis=1)
 
 
 def _measure_readings(
-    readings: dict[str, np.ndarray], t_s: np.ndarray, fused_t: np.ndarray, g_m_s2: float, config: Bno055
+    readings: dict[str, np.ndarray],
+    t_s: np.ndarray,
+    value_t: np.ndarray,
+    g_m_s2: float,
+    config: Bno055,
+    sample_t: np.ndarray,
+    noise: _NoiseStreams | None = None,
 ) -> ImuSamples:
-    """Mount transform, gravity, linear acceleration and (optionally) noise, for ideal readings."""
+    """Mount transform, fusion error, gravity, axis remap, heading, linear acceleration, noise,
+    packet loss and clocks, for ideal readings at the value instants ``value_t`` (m, 2).
+    ``t_s`` (m,): the nodes' clock times k / rate; ``sample_t`` (m, 2): the true sample instants;
+    ``noise``: the run's noise streams when it is measured block by block (default: a new run)."""
     accel = readings["imu_accel_m_s2"]
     gyro = readings["imu_gyro_rad_s"]
     angacc = readings["imu_angacc_rad_s2"]
     quat = readings["imu_quat_wxyz"]
+    imperfect = config.imperfections
 
     # Mount: offset by rigid-body kinematics, then the mount rotation.
     d = np.asarray(config.mount_offset_m, dtype=float)  # (2, 3)
@@ -310,17 +530,43 @@ def _measure_readings(
     accel = np.einsum("kji,mkj->mki", r_mount, accel)
     gyro = np.einsum("kji,mkj->mki", r_mount, gyro)
     quat = rotations.multiply(quat, np.broadcast_to(q_mount, quat.shape))
+    if imperfect.fusion_error_rad > 0:  # the fused orientation is off by a slowly varying small angle
+        quat = rotations.multiply(quat, _fusion_error(config, value_t))
 
     gravity = rotations.rotate_into_frame(quat, np.array([0.0, 0.0, g_m_s2]))
+    remaps = [imp.axis_remap_matrix(imperfect.axis_map_config[n], imperfect.axis_map_sign[n]) for n in range(2)]
+    if any(not np.array_equal(p, np.eye(3)) for p in remaps):
+        p = np.stack(remaps)  # (2, 3, 3): output = P @ chip axes
+        accel, gyro, gravity = (np.einsum("kij,mkj->mki", p, v) for v in (accel, gyro, gravity))
+        q_remap = np.stack([imp.remap_quaternion(r) for r in remaps])
+        quat = rotations.multiply(quat, np.broadcast_to(q_remap, quat.shape))
+    if imperfect.heading_rad:  # the quaternions' world frame is turned by the heading about the vertical
+        north = rotations.from_rotvec(np.array([0.0, 0.0, imperfect.heading_rad]))
+        quat = rotations.multiply(np.broadcast_to(rotations.conjugate(north), quat.shape), quat)
+
     if config.noise:
-        accel, gyro, quat, gravity = _measure(accel, gyro, quat, gravity, config, t_s)
+        streams = noise if noise is not None else _NoiseStreams(config, len(t_s))
+        accel, gyro, quat, gravity = streams.apply(accel, gyro, quat, gravity)
     linear = accel - gravity
     if config.noise:
         linear = _quantize(linear, ACCEL_LSB_M_S2)
-    calibration = np.broadcast_to(np.asarray(config.calibration, dtype=np.uint8), (len(t_s), 2, 4)).copy()
+    m = len(t_s)
+    calibration = np.broadcast_to(np.asarray(config.calibration, dtype=np.uint8), (m, 2, 4)).copy()
+    stamp = log = received = None
+    if any(imperfect.clock_offset_s) or imperfect.any_timing or imperfect.latency_s > 0:
+        stamp = t_s[:, None] + np.asarray(imperfect.clock_offset_s)[None, :]
+        log = sample_t.copy()
+        if imperfect.latency_s > 0:  # the recorder takes each node's packets in order
+            log += np.random.default_rng([config.seed, 2]).exponential(imperfect.latency_s, (m, 2))
+            log = np.maximum.accumulate(log, axis=0)
+    if imperfect.packet_loss > 0:
+        rng = np.random.default_rng([config.seed, 1])
+        received = np.stack(
+            [imp.gilbert_loss(rng, m, imperfect.packet_loss, imperfect.loss_burst_samples) for _ in range(2)], axis=1
+        )
     return ImuSamples(
         t_s=t_s,
-        fused_t_s=fused_t,
+        fused_t_s=value_t[:, 0],
         gyro_rad_s=gyro,
         accel_m_s2=accel,
         linear_accel_m_s2=linear,
@@ -328,6 +574,10 @@ def _measure_readings(
         quat_wxyz=quat,
         calibration=calibration,
         config=config,
+        value_t_s=value_t,
+        stamp_s=stamp,
+        log_t_s=log,
+        received=received,
     )
 
 
@@ -352,27 +602,61 @@ def _white_sigma(sigma: np.ndarray, lsb: float) -> np.ndarray:
     return np.sqrt(np.maximum(np.square(sigma) - lsb * lsb / 12.0, 0.0))
 
 
-def _measure(accel, gyro, quat, gravity, config: Bno055, t_s: np.ndarray):
-    rng = np.random.default_rng(config.seed)
-    n = config.noise_model
-    m = len(t_s)
-    dt = 1.0 / config.sample_rate_hz
-    accel_sigma = _white_sigma(np.asarray(n.accel_sigma_m_s2), ACCEL_LSB_M_S2)
-    gyro_sigma = _white_sigma(np.asarray(n.gyro_sigma_rad_s), GYRO_LSB_RAD_S)
-    accel = accel + rng.standard_normal((m, 2, 3)) * accel_sigma + np.asarray(n.accel_bias_m_s2)
-    gyro = gyro + rng.standard_normal((m, 2, 3)) * gyro_sigma + np.asarray(n.gyro_bias_rad_s)
-    for values, walk in ((accel, n.accel_bias_walk_m_s2_per_sqrt_s), (gyro, n.gyro_bias_walk_rad_s_per_sqrt_s)):
-        if any(walk):
-            steps = rng.standard_normal((m, 2, 3)) * (np.asarray(walk) * math.sqrt(dt))
-            steps[0] = 0.0
-            values += np.cumsum(steps, axis=0)
-    for values, b in ((accel, n.accel_bias_instability_m_s2), (gyro, n.gyro_bias_instability_rad_s)):
-        if any(b):
-            values += flicker_noise(rng, (m, 2, 3), config.sample_rate_hz, np.asarray(b))
-    accel = np.clip(accel, -config.accel_range_m_s2, config.accel_range_m_s2)
-    return (
-        _quantize(accel, ACCEL_LSB_M_S2),
-        _quantize(gyro, GYRO_LSB_RAD_S),
-        _quantize(quat, QUAT_LSB),
-        _quantize(gravity, ACCEL_LSB_M_S2),
-    )
+class _NoiseStreams:
+    """The noise of a whole run, drawn sample after sample in any block sizes.
+
+    Each component has its own generator spawned from the seed (white accel, white gyro, accel
+    walk, gyro walk, flicker), so a block's draws do not depend on how the run is cut. Walks
+    carry their running sum; flicker noise is synthesised for all ``total`` samples at once."""
+
+    def __init__(self, config: Bno055, total: int) -> None:
+        self.config = config
+        streams = np.random.SeedSequence(config.seed).spawn(5)
+        self.accel_rng, self.gyro_rng, self.accel_walk_rng, self.gyro_walk_rng, flicker_rng = (
+            np.random.default_rng(s) for s in streams
+        )
+        n = config.noise_model
+        self.walk_sum = {"accel": np.zeros((2, 3)), "gyro": np.zeros((2, 3))}
+        self.position = 0
+        rng = np.random.default_rng(flicker_rng.bit_generator)
+        self.flicker = {
+            name: flicker_noise(rng, (total, 2, 3), config.sample_rate_hz, np.asarray(b)) if any(b) else None
+            for name, b in (("accel", n.accel_bias_instability_m_s2), ("gyro", n.gyro_bias_instability_rad_s))
+        }
+
+    def apply(self, accel, gyro, quat, gravity):
+        config = self.config
+        n = config.noise_model
+        m = len(accel)
+        dt = 1.0 / config.sample_rate_hz
+        accel_sigma = _white_sigma(np.asarray(n.accel_sigma_m_s2), ACCEL_LSB_M_S2)
+        gyro_sigma = _white_sigma(np.asarray(n.gyro_sigma_rad_s), GYRO_LSB_RAD_S)
+        accel = accel + self.accel_rng.standard_normal((m, 2, 3)) * accel_sigma + np.asarray(n.accel_bias_m_s2)
+        gyro = gyro + self.gyro_rng.standard_normal((m, 2, 3)) * gyro_sigma + np.asarray(n.gyro_bias_rad_s)
+        walks = (
+            ("accel", accel, n.accel_bias_walk_m_s2_per_sqrt_s, self.accel_walk_rng),
+            ("gyro", gyro, n.gyro_bias_walk_rad_s_per_sqrt_s, self.gyro_walk_rng),
+        )
+        for name, values, walk, rng in walks:
+            if any(walk):
+                steps = rng.standard_normal((m, 2, 3)) * (np.asarray(walk) * math.sqrt(dt))
+                if self.position == 0 and m:
+                    steps[0] = 0.0
+                # Sequential sums from the carried total: the same additions in the same order
+                # whatever the block sizes.
+                path = np.cumsum(np.concatenate([self.walk_sum[name][None], steps]), axis=0)[1:]
+                values += path
+                if m:
+                    self.walk_sum[name] = path[-1].copy()
+        for name, values in (("accel", accel), ("gyro", gyro)):
+            flicker = self.flicker[name]
+            if flicker is not None:
+                values += flicker[self.position : self.position + m]
+        self.position += m
+        accel = np.clip(accel, -config.accel_range_m_s2, config.accel_range_m_s2)
+        return (
+            _quantize(accel, ACCEL_LSB_M_S2),
+            _quantize(gyro, GYRO_LSB_RAD_S),
+            _quantize(quat, QUAT_LSB),
+            _quantize(gravity, ACCEL_LSB_M_S2),
+        )

@@ -9,14 +9,23 @@ from __future__ import annotations
 
 import math
 import os
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 
 import mujoco
 import numpy as np
 from mujoco import rollout
+from numpy.typing import ArrayLike
 
-from pendsim_mj import rotations
-from pendsim_mj.checks import broadcast_params, check_energy_bounded, check_initial, check_params, check_step
+from pendsim_mj import mujoco_warnings, rotations
+from pendsim_mj.checks import (
+    broadcast_params,
+    check_drives,
+    check_energy_bounded,
+    check_initial,
+    check_params,
+    check_step,
+)
+from pendsim_mj.drives import Drive, Target, inputs_at_samples, stack_inputs, support_initial_velocity
 from pendsim_mj.errors import ParameterError, SimulationDiverged
 from pendsim_mj.model import (
     BODIES,
@@ -25,7 +34,9 @@ from pendsim_mj.model import (
     IMU_SITES,
     PLANAR,
     SPRING_ENDS,
+    SPRING_POINT_OWNER,
     SPRINGS,
+    SUPPORT_JOINTS,
     TILTS,
     Clamp,
     Variant,
@@ -35,8 +46,6 @@ from pendsim_mj.params import DEFAULT_PARAMS, RigParams
 from pendsim_mj.trajectory import Trajectory
 
 _STATE = mujoco.mjtState.mjSTATE_FULLPHYSICS
-# Which pendulum carries each spring anchor point (None: the frame).
-_POINT_OWNER = {"point_1": 1, "point_5": 1, "point_2": 0, "point_3": 0, "point_6": None, "point_7": None}
 # MuJoCo resets a simulation whose state exceeds this (mjMAXVAL); we call that divergence.
 _BAD_STATE_WARNINGS = (
     mujoco.mjtWarning.mjWARN_BADQACC,
@@ -55,6 +64,7 @@ def simulate(
     clamp: Clamp = Clamp.NONE,
     variant: Variant = PLANAR,
     tilt0_rad: Sequence[float] = (0.0, 0.0),
+    drive: Drive | None = None,
 ) -> Trajectory:
     """Simulate the rig with MuJoCo (RK4, fixed step) from one initial condition.
 
@@ -67,6 +77,7 @@ def simulate(
       clamp: hold M1 or M2 at rest (its initial angle and velocity must then be 0).
       variant: PLANAR (default) or SPATIAL (tilt freedoms; see model.Variant).
       tilt0_rad: (2,) initial tilts of the spatial variant, rad.
+      drive: torques and support motion (``pendsim_mj.drives``); None drives nothing.
 
     Returns:
       A Trajectory with arrays of shape (n, ...).
@@ -76,21 +87,31 @@ def simulate(
       SimulationDiverged: the run reached non-finite or runaway values.
     """
     return simulate_batch(
-        params, phi0_rad, omega0_rad_s, duration_s, dt_s, nthread=1, clamp=clamp, variant=variant, tilt0_rad=tilt0_rad
+        params,
+        phi0_rad,
+        omega0_rad_s,
+        duration_s,
+        dt_s,
+        nthread=1,
+        clamp=clamp,
+        variant=variant,
+        tilt0_rad=tilt0_rad,
+        drive=drive,
     ).member(0)
 
 
 def simulate_batch(
     params: RigParams | Sequence[RigParams] = DEFAULT_PARAMS,
-    phi0_rad: object = (math.pi / 6, 0.0),
-    omega0_rad_s: object = (0.0, 0.0),
+    phi0_rad: ArrayLike = (math.pi / 6, 0.0),
+    omega0_rad_s: ArrayLike = (0.0, 0.0),
     duration_s: float = 120.0,
     dt_s: float = 0.01,
     *,
     nthread: int | None = None,
     clamp: Clamp = Clamp.NONE,
     variant: Variant = PLANAR,
-    tilt0_rad: object = (0.0, 0.0),
+    tilt0_rad: ArrayLike = (0.0, 0.0),
+    drive: Drive | Sequence[Drive | None] | None = None,
 ) -> Trajectory:
     """Simulate many runs at once on a thread pool (``mujoco.rollout``).
 
@@ -104,6 +125,10 @@ def simulate_batch(
       clamp: hold M1 or M2 at rest in every run.
       variant: PLANAR or SPATIAL.
       tilt0_rad: (2,) or (nbatch, 2) initial tilts (spatial variant).
+      drive: one Drive for all runs, or nbatch of them driving the same targets (``drives``):
+        motors at the hinges and the support on slides, each input held over a step at its
+        value at the step's midpoint. The support starts at 0 with the velocity that gives its
+        motion no drift (``drives.support_initial_velocity``).
 
     Returns:
       A batch Trajectory: arrays of shape (nbatch, n, ...); ``.member(i)`` gives one run.
@@ -118,11 +143,17 @@ def simulate_batch(
         if np.any(phi0[:, k] != 0) or np.any(omega0[:, k] != 0):
             raise ParameterError(f"clamped pendulum {clamp.value} must start at phi = omega = 0")
 
+    drives, targets = check_drives(drive, nbatch)
+    if clamp is not Clamp.NONE and any(t.value == f"torque_{clamp.value}" for t in targets):
+        raise ParameterError(f"pendulum {clamp.value} is clamped: it cannot carry a torque drive")
+    held = stack_inputs(drives, nstep, dt_s)  # (nbatch, nstep, 4)
+    inputs = inputs_at_samples(held)  # (nbatch, nstep + 1, 4): the extra step repeats the last input
+
     # One compiled model per distinct parameter set.
     unique: dict[RigParams, mujoco.MjModel] = {}
     for p in param_list:
         if p not in unique:
-            unique[p] = build_model(p, timestep_s=dt_s, clamp=clamp, variant=variant)
+            unique[p] = build_model(p, timestep_s=dt_s, clamp=clamp, variant=variant, drive_targets=targets)
     models = [unique[p] for p in param_list]
     model = models[0]
 
@@ -132,22 +163,100 @@ def simulate_batch(
     if np.any(tilt0 != 0) and not variant.tilt:
         raise ParameterError("tilt0_rad needs the spatial variant (tilt freedoms)")
     initial = _initial_states(model, phi0, omega0, tilt0)
+    support = [t for t in targets if t.is_support]
+    if support:
+        v0 = support_initial_velocity(held[..., [t.index for t in support]], dt_s)
+        _, qvel_at = _state_offsets(model)
+        for k, t in enumerate(support):
+            initial[:, qvel_at + model.jnt_dofadr[model.joint(SUPPORT_JOINTS[t][0]).id]] = v0[:, k]
+    # ctrl: the driven channels, in Target order (the model's actuator order).
+    control = inputs[..., [t.index for t in targets]] if targets else None
     # nstep + 1 steps: sensors of row k belong to the state before step k, i.e. at t_k.
-    states, sensordata = rollout.rollout(
-        models if len(unique) > 1 else model, datas, initial, nstep=nstep + 1, persistent_pool=False
+    with mujoco_warnings.captured() as warnings:
+        states, sensordata = rollout.rollout(
+            models if len(unique) > 1 else model, datas, initial, control, nstep=nstep + 1, persistent_pool=False
+        )
+    _check_warnings(datas, dt_s, warnings)
+    states = _pair(initial, states, sensordata, dt_s)
+    return _trajectory(
+        models, unique, param_list, states, sensordata, dt_s, nstep, clamp, inputs, drives if targets else None
     )
+
+
+def _check_warnings(datas: list[mujoco.MjData], dt_s: float, warnings: mujoco_warnings.Captured) -> None:
     for d in datas:
         bad = [mujoco.mjtWarning(w).name for w in _BAD_STATE_WARNINGS if d.warning[w].number > 0]
         if bad:
+            said = f" (MuJoCo: {warnings.summary()})" if warnings.messages else ""
             raise SimulationDiverged(
                 f"simulation diverged (MuJoCo {', '.join(bad)}): the state left the finite range; "
-                f"reduce dt_s (now {dt_s} s) or the stiffness"
+                f"reduce dt_s (now {dt_s} s) or the stiffness{said}"
             )
-    # States at t_0..t_n: the initial one, then the post-step states of steps 0..n-1.
+
+
+def _pair(initial: np.ndarray, states: np.ndarray, sensordata: np.ndarray, dt_s: float) -> np.ndarray:
+    """States at t_0..t_n (the initial one, then the post-step states of steps 0..n-1), paired
+    with rollout's sensor rows (which describe the state before each step)."""
     states = np.concatenate([initial[:, None, :], states[:, :-1, :]], axis=1)
     if not (np.all(np.isfinite(states)) and np.all(np.isfinite(sensordata))):
         raise SimulationDiverged(f"simulation produced non-finite values; reduce dt_s (now {dt_s} s)")
-    return _trajectory(models, unique, param_list, states, sensordata, dt_s, nstep, clamp)
+    return states
+
+
+def simulate_blocks(
+    params: RigParams = DEFAULT_PARAMS,
+    phi0_rad: ArrayLike = (math.pi / 6, 0.0),
+    omega0_rad_s: ArrayLike = (0.0, 0.0),
+    duration_s: float = 120.0,
+    dt_s: float = 0.01,
+    *,
+    block_steps: int = 3000,
+    variant: Variant = PLANAR,
+    drive: Drive | None = None,
+) -> Iterator[tuple[int, Trajectory]]:
+    """``simulate`` in blocks of ``block_steps`` steps, each continued from the previous
+    block's full physics state: memory independent of the duration, rows identical to one run.
+
+    Yields:
+      (first_row, block): rows first_row .. first_row + block_steps of the run (the last block
+      ends at the run's last row); consecutive blocks share their boundary row. t_s and
+      dissipated_j are the run's own (dissipated carried over from the earlier blocks). A
+      drive's held inputs are computed for the whole run at once (32 bytes per step).
+    """
+    nstep = check_step(duration_s, dt_s)
+    if block_steps < 1:
+        raise ParameterError(f"block_steps must be >= 1, got {block_steps}")
+    (p,) = check_params(params)
+    phi0, omega0 = check_initial(phi0_rad, omega0_rad_s)
+    drives, targets = check_drives(drive, 1)
+    # A drive's inputs for the whole run (32 bytes per step); none without a drive.
+    held = stack_inputs(drives, nstep, dt_s) if targets else None  # (1, nstep, 4)
+    inputs = inputs_at_samples(held) if held is not None else None  # (1, nstep + 1, 4)
+    model = build_model(p, timestep_s=dt_s, variant=variant, drive_targets=targets)
+    datas = [mujoco.MjData(model)]
+    state = _initial_states(model, phi0, omega0, np.zeros((1, 2)))
+    support = [t for t in targets if t.is_support]
+    if support and held is not None:
+        v0 = support_initial_velocity(held[..., [t.index for t in support]], dt_s)
+        _, qvel_at = _state_offsets(model)
+        for k, t in enumerate(support):
+            state[:, qvel_at + model.jnt_dofadr[model.joint(SUPPORT_JOINTS[t][0]).id]] = v0[:, k]
+    dissipated0 = 0.0
+    for first in range(0, nstep, block_steps):
+        steps = min(block_steps, nstep - first)
+        block_inputs = inputs[:, first : first + steps + 1] if inputs is not None else np.zeros((1, steps + 1, 4))
+        control = block_inputs[..., [t.index for t in targets]] if targets else None
+        with mujoco_warnings.captured() as warnings:
+            raw, sensordata = rollout.rollout(model, datas, state, control, nstep=steps + 1, persistent_pool=False)
+        _check_warnings(datas, dt_s, warnings)
+        states = _pair(state, raw, sensordata, dt_s)
+        block = _trajectory(
+            [model], {p: model}, [p], states, sensordata, dt_s, steps, Clamp.NONE, block_inputs,
+            drives if targets else None, first_row=first, dissipated0_j=dissipated0,
+        )  # fmt: skip
+        state = states[:, -1, :].copy()
+        dissipated0 = float(block.dissipated_j[0, -1])
+        yield first, block.member(0)
 
 
 def evaluate_states(params: RigParams, phi_rad: np.ndarray, omega_rad_s: np.ndarray) -> dict[str, np.ndarray]:
@@ -210,16 +319,63 @@ def _sensor(model: mujoco.MjModel, sensordata: np.ndarray, name: str) -> np.ndar
     return sensordata[..., s.adr[0] : s.adr[0] + s.dim[0]]
 
 
+def variant_has_tilt(model: mujoco.MjModel) -> bool:
+    """Whether the model has the spatial variant's tilt joints."""
+    return mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, TILTS[0]) >= 0
+
+
 def _rest_potential_j(model: mujoco.MjModel) -> float:
     data = mujoco.MjData(model)
     mujoco.mj_forward(model, data)
     return float(data.energy[0])
 
 
-def _trajectory(models, unique, param_list, states, sensordata, dt_s, nstep, clamp) -> Trajectory:
+def _support_state(model: mujoco.MjModel, states: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """World position and velocity (..., n, 3) of the support (zero where it does not move)."""
+    qpos_at, qvel_at = _state_offsets(model)
+    pos = np.zeros((*states.shape[:-1], 3))
+    vel = np.zeros((*states.shape[:-1], 3))
+    for target, (name, _) in SUPPORT_JOINTS.items():
+        jid = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, name)
+        if jid >= 0:
+            axis = 0 if target is Target.SUPPORT_X else 2
+            pos[..., axis] = states[..., qpos_at + model.jnt_qposadr[jid]]
+            vel[..., axis] = states[..., qvel_at + model.jnt_dofadr[jid]]
+    return pos, vel
+
+
+def _weight_on_support_n(model: mujoco.MjModel) -> float:
+    """d(potential energy)/d(support height), N: the weight that rises with the support."""
+    jid = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, SUPPORT_JOINTS[Target.PIVOT_Z][0])
+    if jid < 0:
+        return 0.0
+    data = mujoco.MjData(model)
+    mujoco.mj_forward(model, data)
+    e0 = float(data.energy[0])
+    data.qpos[model.jnt_qposadr[jid]] = 1.0
+    mujoco.mj_forward(model, data)
+    return float(data.energy[0]) - e0
+
+
+def _trajectory(
+    models,
+    unique,
+    param_list,
+    states,
+    sensordata,
+    dt_s,
+    nstep,
+    clamp,
+    inputs,
+    drives,
+    *,
+    first_row: int = 0,
+    dissipated0_j: float = 0.0,
+) -> Trajectory:
     model = models[0]
     nbatch, n = states.shape[:2]
     qpos_at, qvel_at = _state_offsets(model)
+    support_pos, support_vel = _support_state(model, states)  # (nbatch, n, 3) world
     phi = np.zeros((nbatch, n, 2))
     omega = np.zeros((nbatch, n, 2))
     tilt = np.zeros((nbatch, n, 2))
@@ -261,21 +417,26 @@ def _trajectory(models, unique, param_list, states, sensordata, dt_s, nstep, cla
         pa, pb = sens(f"{a}_pos"), sens(f"{b}_pos")
         f_on_a = stiffness[:, None, i, None] * (pb - pa)  # zero free length: c * (p_b - p_a)
         for point, p_point, f in ((a, pa, f_on_a), (b, pb, -f_on_a)):
-            owner = _POINT_OWNER[point]
-            if owner is not None:
-                moment[..., owner] += np.cross(p_point, f) @ HINGE_AXIS_WORLD
+            owner = SPRING_POINT_OWNER.get(point)
+            if owner is not None:  # about the pivot O, which moves with the support
+                moment[..., owner] += np.cross(p_point - support_pos, f) @ HINGE_AXIS_WORLD
 
     # Kinetic energy sum 1/2 m v_com^2 + 1/2 w^T I w from per-body sensors at the same instant
     # (not MuJoCo's e_kinetic sensor, which it reads before mj_energyVel: one evaluation stale).
+    # Energies are those relative to the support (its velocity subtracted, its height removed
+    # from the potential): the same in a driven and an undriven run, and the reference's.
     kinetic = np.zeros((nbatch, n))
     for b in BODIES:
         bid = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, b)
         mass = np.array([m.body_mass[bid] for m in models])[:, None]
         inertia = np.array([m.body_inertia[bid] for m in models])[:, None, :]  # principal, body axes
-        v = sens(f"{b}_com_linvel")
+        v = sens(f"{b}_com_linvel") - support_vel
         w_body = rotations.rotate_into_frame(sens(f"{b}_quat"), sens(f"{b}_angvel"))
         kinetic += 0.5 * mass * np.sum(v * v, axis=-1) + 0.5 * np.sum(inertia * w_body * w_body, axis=-1)
     potential = sens("energy_potential")[..., 0] - rest[:, None]
+    if np.any(support_pos[..., 2]):
+        weight = np.array([_weight_on_support_n(m) for m in models])[:, None]
+        potential = potential - weight * support_pos[..., 2]
     # Dissipated energy: integral of the damping power P = sum b omega^2 by the corrected
     # trapezoid rule h/2 (P_k + P_k+1) + h^2/12 (P'_k - P'_k+1), P' = sum 2 b omega alpha
     # (MuJoCo's own alpha at the same instants): fourth order, like the RK4 step.
@@ -286,12 +447,13 @@ def _trajectory(models, unique, param_list, states, sensordata, dt_s, nstep, cla
         tilt_b = np.array([p.tilt_damping_n_m_s_rad for p in param_list])[:, None, None]
         tilt_power = np.sum(tilt_b * tilt_rate**2, axis=-1)
         interval = interval + 0.5 * dt_s * (tilt_power[:, :-1] + tilt_power[:, 1:])
-    dissipated = np.concatenate([np.zeros((nbatch, 1)), np.cumsum(interval, axis=1)], axis=1)
+    dissipated = dissipated0_j + np.concatenate([np.zeros((nbatch, 1)), np.cumsum(interval, axis=1)], axis=1)
 
     scale = np.array([p.m1_kg * p.g_m_s2 * p.oc1_m for p in param_list])
-    check_energy_bounded(kinetic + potential, scale, dt_s)
+    if drives is None:  # a driven rig may gain energy from its input
+        check_energy_bounded(kinetic + potential, scale, dt_s)
     return Trajectory(
-        t_s=np.arange(n) * dt_s,
+        t_s=np.arange(first_row, first_row + n) * dt_s,
         phi_rad=phi,
         omega_rad_s=omega,
         alpha_rad_s2=alpha,
@@ -309,4 +471,8 @@ def _trajectory(models, unique, param_list, states, sensordata, dt_s, nstep, cla
         engine="mujoco",
         dt_s=dt_s,
         params=tuple(param_list),
+        tilt_rate_rad_s=tilt_rate if variant_has_tilt(model) else None,
+        drive_input=inputs,
+        support_m=support_pos[..., [0, 2]],
+        drive=tuple(drives) if drives is not None else None,
     )

@@ -18,6 +18,9 @@ from pathlib import Path
 
 import numpy as np
 
+from pendsim_mj import rotations
+from pendsim_mj.drives import CHANNEL_LABELS, Drive
+from pendsim_mj.outputs import atomic_output
 from pendsim_mj.params import RigParams
 
 SPRING_LABELS = ("1-2", "1-3", "5-6", "5-7")
@@ -47,9 +50,20 @@ class Trajectory:
       kinetic_j: (..., n) kinetic energy, J.
       potential_j: (..., n) gravity + spring potential energy above the rest pose, J.
       dissipated_j: (..., n) energy dissipated by the hinge damping since t = 0, J.
-      engine: "mujoco" or "reference".
+      engine: "mujoco", "reference" or "fast" (the compiled planar kernel, ``fast_planar``).
       dt_s: integration step, s.
       params: the RigParams used (a tuple of them for a batch).
+      tilt_rate_rad_s: (..., n, 2) tilt rates of the spatial variant, rad/s (None where the
+        engine has no tilt freedoms).
+      drive_input: (..., n, 4) the input held over the step that starts at each sample (the last
+        sample repeats the last step's): torque_m1, torque_m2 (N m), support_x, pivot_z (m/s^2),
+        see ``pendsim_mj.drives``; zeros without a drive.
+      support_m: (..., n, 2) displacement of the support (the frame and pivot axis) from its
+        start, horizontal (world x, paper +y) and vertical (world z, up), m; zeros unless driven.
+      drive: the Drive of the run (a tuple of them for a batch), or None.
+
+    Energies are relative to the support: kinetic energy in the support's frame, potential energy
+    with heights measured from the pivot (the same as in the reference, driven or not).
     """
 
     t_s: np.ndarray
@@ -70,6 +84,17 @@ class Trajectory:
     engine: str
     dt_s: float
     params: RigParams | tuple[RigParams, ...]
+    tilt_rate_rad_s: np.ndarray | None = None
+    drive_input: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(0))
+    support_m: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(0))
+    drive: Drive | tuple[Drive | None, ...] | None = None
+
+    def __post_init__(self) -> None:
+        shape = self.phi_rad.shape[:-1]
+        if self.drive_input.size == 0:  # not given: no drive
+            object.__setattr__(self, "drive_input", np.zeros((*shape, len(CHANNEL_LABELS))))
+        if self.support_m.size == 0:
+            object.__setattr__(self, "support_m", np.zeros((*shape, 2)))
 
     ARRAY_FIELDS = (
         "phi_rad",
@@ -86,6 +111,8 @@ class Trajectory:
         "kinetic_j",
         "potential_j",
         "dissipated_j",
+        "drive_input",
+        "support_m",
     )
 
     @property
@@ -96,11 +123,12 @@ class Trajectory:
     def body_quat_wxyz(self) -> np.ndarray:
         """(..., n, 2, 4) orientation of each pendulum body in the world: its tilt about world x
         (spatial variant), then its swing by phi about the rocked -y axis."""
-        half_t, half_p = self.tilt_rad / 2, self.phi_rad / 2
-        zero = np.zeros_like(half_p)
-        c_t, s_t, c_p, s_p = np.cos(half_t), np.sin(half_t), np.cos(half_p), np.sin(half_p)
-        # (c_t, s_t, 0, 0) * (c_p, 0, -s_p, 0)
-        return np.stack([c_t * c_p, s_t * c_p, -c_t * s_p, -s_t * s_p + zero], axis=-1)
+        return rotations.pendulum_quat_wxyz(self.phi_rad, self.tilt_rad)
+
+    @property
+    def single_params(self) -> RigParams:
+        """The parameters of a single run (the first member's for a batch)."""
+        return self.params[0] if isinstance(self.params, tuple) else self.params
 
     @property
     def is_batch(self) -> bool:
@@ -116,12 +144,15 @@ class Trajectory:
             raise IndexError("not a batch trajectory")
         fields = {name: getattr(self, name)[index] for name in self.ARRAY_FIELDS}
         params = self.params[index] if isinstance(self.params, tuple) else self.params
-        return dataclasses.replace(self, **fields, params=params)
+        drive = self.drive[index] if isinstance(self.drive, tuple) else self.drive
+        tilt_rate = None if self.tilt_rate_rad_s is None else self.tilt_rate_rad_s[index]
+        return dataclasses.replace(self, **fields, params=params, drive=drive, tilt_rate_rad_s=tilt_rate)
 
-    def save(self, path: str | Path) -> Path:
+    def save(self, path: str | Path, *, replace: bool = False) -> Path:
         """Write a single run to ``.npz`` (all arrays) or ``.csv`` (scalar columns), atomically.
 
-        The file appears only when complete: it is written beside its target and renamed.
+        The file appears only when complete (``pendsim_mj.outputs.atomic_output``); an existing
+        file is an OutputError unless ``replace``.
         """
         if self.is_batch:
             raise ValueError("save one member at a time: trajectory.member(i).save(path)")
@@ -129,17 +160,13 @@ class Trajectory:
         suffix = path.suffix.lower()
         if suffix not in (".npz", ".csv"):
             raise ValueError(f"output must end in .npz or .csv, got {path.name!r}")
-        tmp = path.with_name(f".{path.name}.partial")
-        try:
+        with atomic_output(path, replace=replace) as tmp:
             if suffix == ".npz":
                 with open(tmp, "wb") as f:
                     np.savez(f, t_s=self.t_s, **{n: getattr(self, n) for n in self.ARRAY_FIELDS}, dt_s=self.dt_s)
             else:
                 header, columns = self.table()
                 np.savetxt(tmp, np.column_stack(columns), delimiter=",", header=",".join(header), comments="")
-            tmp.replace(path)
-        finally:
-            tmp.unlink(missing_ok=True)
         return path
 
     def table(self) -> tuple[list[str], list[np.ndarray]]:
@@ -167,4 +194,51 @@ class Trajectory:
             cols.append(self.spring_moment_n_m[:, n - 1])
         names += ["kinetic_j", "potential_j", "dissipated_j"]
         cols += [self.kinetic_j, self.potential_j, self.dissipated_j]
+        if self.drive is not None:  # driven runs: the held inputs and the support's displacement
+            names += [*CHANNEL_LABELS, "support_x_m", "support_z_m"]
+            cols += [self.drive_input[:, i] for i in range(len(CHANNEL_LABELS))]
+            cols += [self.support_m[:, 0], self.support_m[:, 1]]
         return names, cols
+
+
+def planar_imu_readings(
+    phi_rad: np.ndarray,
+    omega_rad_s: np.ndarray,
+    alpha_rad_s2: np.ndarray,
+    radius_m: np.ndarray,
+    g_m_s2: np.ndarray,
+    *,
+    support_h_m_s2: np.ndarray | None = None,
+    support_v_m_s2: np.ndarray | None = None,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Ideal IMU readings of the planar model (spec RIG.md section 6), in the sensor axes above.
+
+    Args:
+      phi_rad, omega_rad_s, alpha_rad_s2: (..., 2) angle, rate and angular acceleration of M1, M2.
+      radius_m: (..., 2) mount radius of each IMU (OM1, OM2), broadcastable against phi_rad.
+      g_m_s2: gravity, broadcastable against phi_rad.
+      support_h_m_s2, support_v_m_s2: the support's horizontal (paper +y) and upward acceleration
+        (``pendsim_mj.drives``), broadcastable against phi_rad, or None for a fixed support.
+
+    Returns:
+      accel (..., 2, 3): specific force (r alpha + g sin phi, r omega^2 + g cos phi, 0), m/s^2; with
+      a moving support (r alpha + (g + a_v) sin phi + a_h cos phi, r omega^2 + (g + a_v) cos phi
+      - a_h sin phi, 0); gyro (..., 2, 3): (0, 0, omega), rad/s; quat (..., 2, 4): the sensor frame
+      in the MuJoCo world (rotation by phi about world -y applied to the mount: sensor x = world x,
+      y = world z, z = world -y at rest); angacc (..., 2, 3): (0, 0, alpha), rad/s^2.
+    """
+    zero = np.zeros_like(phi_rad)
+    if support_h_m_s2 is None and support_v_m_s2 is None:
+        tangential = radius_m * alpha_rad_s2 + g_m_s2 * np.sin(phi_rad)
+        normal = radius_m * omega_rad_s**2 + g_m_s2 * np.cos(phi_rad)
+    else:  # the support's acceleration is part of the specific force
+        a_h = 0.0 if support_h_m_s2 is None else support_h_m_s2
+        g_v = g_m_s2 + (0.0 if support_v_m_s2 is None else support_v_m_s2)
+        s, c = np.sin(phi_rad), np.cos(phi_rad)
+        tangential = radius_m * alpha_rad_s2 + g_v * s + a_h * c
+        normal = radius_m * omega_rad_s**2 + g_v * c - a_h * s
+    accel = np.stack([tangential, normal, zero], axis=-1)
+    gyro = np.stack([zero, zero, omega_rad_s], axis=-1)
+    angacc = np.stack([zero, zero, alpha_rad_s2], axis=-1)
+    quat = rotations.multiply(rotations.pendulum_quat_wxyz(phi_rad), rotations.IMU_SITE_QUAT_WXYZ)
+    return accel, gyro, quat, angacc

@@ -4,6 +4,13 @@ Delta(t) = f_N(t) - f_M(t) (N: numerical/computed, M: measured); IAE = int |Delt
 ISE = int Delta^2 dt by Simpson's rule at the samples' fixed step (and as cumulative curves);
 RMS and max |Delta|; the natural frequency of each series by interpolated zero crossings and by
 the interpolated spectral peak, with the relative error delta = |f_C - f_M| / f_M.
+
+Real recordings lose samples: the instants may be irregular and have gaps. Everything is then
+computed on the *covered segments* only (runs of samples whose spacing never exceeds
+``max_gap_s``; ``pendsim_mj.timing.segments``): Simpson's rule on each segment's own instants,
+the cumulative curves flat across gaps, zero crossings and their periods inside segments, and
+the spectrum of a uniform grid with the gaps left empty (zero after the mean is removed),
+interpolated only inside segments. With uniform gap-free samples this is the plain computation.
 """
 
 from __future__ import annotations
@@ -14,8 +21,9 @@ import numpy as np
 from scipy.integrate import cumulative_simpson, simpson
 from scipy.interpolate import CubicSpline
 
-from pendsim_mj.analysis import noise_level, spectral_peak_hz, zero_crossing_hz
+from pendsim_mj.analysis import noise_level, spectral_peak_hz, upward_crossings
 from pendsim_mj.errors import ParameterError
+from pendsim_mj.timing import DEFAULT_MAX_GAP_S, segments
 
 
 @dataclasses.dataclass(frozen=True)
@@ -23,7 +31,7 @@ class Comparison:
     """One quantity, computed against measured, over one window.
 
     Attributes:
-      t_s: (n,) common instants (uniform step), s.
+      t_s: (n,) common instants (increasing; gaps allowed), s.
       measured, computed, delta: (n,) the series and Delta = computed - measured.
       iae, ise: integral of |Delta| and Delta^2 over the window (Simpson).
       iae_curve, ise_curve: (n,) the same integrals from the window's start to each instant.
@@ -31,6 +39,7 @@ class Comparison:
       f_measured_hz, f_computed_hz, delta_f: by interpolated zero crossings (the paper's "natural
         frequency"), with a hysteresis band of 4 noise sigmas of the measured series.
       f_measured_fft_hz, f_computed_fft_hz, delta_f_fft: by the interpolated spectral peak.
+      covered_s: time inside covered segments, s (the whole window without gaps).
     """
 
     t_s: np.ndarray
@@ -49,6 +58,7 @@ class Comparison:
     f_measured_fft_hz: float
     f_computed_fft_hz: float
     delta_f_fft: float
+    covered_s: float = float("nan")
 
     def summary(self) -> dict[str, float]:
         """The scalar metrics, for tables and JSON."""
@@ -63,6 +73,7 @@ class Comparison:
             "rms": self.rms,
             "iae": self.iae,
             "ise": self.ise,
+            "covered_s": self.covered_s,
         }
 
 
@@ -78,9 +89,9 @@ def resample(t_source_s: np.ndarray, values: np.ndarray, t_target_s: np.ndarray)
     return CubicSpline(t_source_s, values, axis=0)(t_target_s)
 
 
-def _frequency(fn, t: np.ndarray, x: np.ndarray) -> float:
+def _frequency(fn, *args) -> float:
     try:
-        return fn(t, x)
+        return fn(*args)
     except ParameterError:
         return float("nan")
 
@@ -96,8 +107,77 @@ def _detrend(x: np.ndarray, window: int) -> np.ndarray:
     return x - mean
 
 
-def compare(t_s: np.ndarray, measured: np.ndarray, computed: np.ndarray) -> Comparison:
-    """All metrics of computed against measured at the same uniformly spaced instants."""
+def _detrend_in_time(t: np.ndarray, x: np.ndarray, window_s: float) -> np.ndarray:
+    """x minus its centred running mean over ``window_s`` seconds, for irregular instants t (the
+    time-weighted mean by the trapezoidal rule; edges: the nearest full window)."""
+    if window_s <= 0 or t[-1] - t[0] <= window_s:
+        return x
+    area = np.concatenate([[0.0], np.cumsum(0.5 * (x[1:] + x[:-1]) * np.diff(t))])
+    centre = np.clip(t, t[0] + window_s / 2, t[-1] - window_s / 2)
+    upper = np.interp(centre + window_s / 2, t, area)
+    lower = np.interp(centre - window_s / 2, t, area)
+    return x - (upper - lower) / window_s
+
+
+def _covered_zero_crossing_hz(
+    t: np.ndarray, x: np.ndarray, band: float, segs, window: int, dx: float, uniform: bool
+) -> float:
+    """Mean frequency from upward zero crossings of x about its running mean, counting only the
+    periods between crossings in the same covered segment (the paper's "natural frequency")."""
+    periods, total = 0, 0.0
+    for lo, hi in segs:
+        if hi - lo < 3:
+            continue
+        y = _detrend(x[lo:hi], window) if uniform else _detrend_in_time(t[lo:hi], x[lo:hi], window * dx)
+        crossings = upward_crossings(t[lo:hi], y, band)
+        if len(crossings) >= 2:
+            periods += len(crossings) - 1
+            total += float(crossings[-1] - crossings[0])
+    if periods == 0:
+        raise ParameterError("fewer than two upward zero crossings in one covered segment: no frequency")
+    return periods / total
+
+
+def _uniform_grid(t: np.ndarray, x: np.ndarray, segs, dx: float) -> tuple[np.ndarray, np.ndarray]:
+    """x on a uniform grid of step dx: interpolated inside covered segments, its mean in gaps
+    (so that the spectrum sees nothing there)."""
+    if len(segs) == 1 and np.allclose(np.diff(t), dx, rtol=1e-6, atol=1e-12):
+        return t, x
+    grid = t[0] + dx * np.arange(int(np.floor((t[-1] - t[0]) / dx + 1e-9)) + 1)
+    values = np.full(len(grid), float(x.mean()))
+    for lo, hi in segs:
+        inside = (grid >= t[lo]) & (grid <= t[hi - 1])
+        values[inside] = np.interp(grid[inside], t[lo:hi], x[lo:hi])
+    return grid, values
+
+
+def _integrals(t: np.ndarray, y: np.ndarray, segs) -> tuple[float, np.ndarray]:
+    """Simpson's integral of y over the covered segments, and its cumulative curve (flat over
+    gaps)."""
+    curve = np.zeros(len(t))
+    total = 0.0
+    for lo, hi in segs:
+        if hi - lo >= 2:
+            part = cumulative_simpson(y[lo:hi], x=t[lo:hi], initial=0.0)
+            part[-1] = simpson(y[lo:hi], x=t[lo:hi])  # the same integral, as the total uses it
+            curve[lo:hi] = total + part
+            total += float(part[-1])
+        else:
+            curve[lo:hi] = total
+    return total, curve
+
+
+def compare(
+    t_s: np.ndarray, measured: np.ndarray, computed: np.ndarray, *, max_gap_s: float = DEFAULT_MAX_GAP_S
+) -> Comparison:
+    """All metrics of computed against measured at the same instants (increasing; irregular
+    spacing and gaps allowed: see the module docstring).
+
+    Args:
+      t_s: (n,) instants, s.
+      measured, computed: (n,) the two series there.
+      max_gap_s: spacing above which the samples are not integrated or interpolated across, s.
+    """
     t = np.asarray(t_s, dtype=float)
     m = np.asarray(measured, dtype=float)
     c = np.asarray(computed, dtype=float)
@@ -106,30 +186,43 @@ def compare(t_s: np.ndarray, measured: np.ndarray, computed: np.ndarray) -> Comp
     if len(t) < 8:
         raise ParameterError(f"need at least 8 common samples, got {len(t)}")
     step = np.diff(t)
-    dx = float(step.mean())
-    if np.max(np.abs(step - dx)) > 1e-6 * max(dx, 1e-12) + 1e-12:
-        raise ParameterError("the instants must be uniformly spaced (resample first)")
+    if np.any(step <= 0):
+        raise ParameterError("the instants must increase")
+    segs = segments(t, max_gap_s)
+    dx = float(np.median(step))
+    uniform = len(segs) == 1 and np.max(np.abs(step - step.mean())) <= 1e-6 * step.mean() + 1e-12
+    if uniform:
+        dx = float(step.mean())
     delta = c - m
     abs_delta = np.abs(delta)
     squared = delta * delta
+    if uniform:
+        iae, ise = float(simpson(abs_delta, dx=dx)), float(simpson(squared, dx=dx))
+        iae_curve = cumulative_simpson(abs_delta, dx=dx, initial=0.0)
+        ise_curve = cumulative_simpson(squared, dx=dx, initial=0.0)
+    else:
+        iae, iae_curve = _integrals(t, abs_delta, segs)
+        ise, ise_curve = _integrals(t, squared, segs)
+    covered = float(step[step <= max_gap_s].sum())
     # zero crossings with hysteresis at 4 noise sigmas of the measured series (noise near zero
     # would add crossings and raise the measured frequency)
     band = 4.0 * noise_level(m)
-    g_m, g_c = spectral_peak_hz(t, m), spectral_peak_hz(t, c)
+    g_m = spectral_peak_hz(*_uniform_grid(t, m, segs, dx))
+    g_c = spectral_peak_hz(*_uniform_grid(t, c, segs, dx))
     # Crossings of the oscillation about its running mean over one period: a decaying swing moves
     # the mean of quantities like r omega^2 + g cos phi, so the global mean would miss crossings.
     period = round(1.0 / (g_m * dx)) if g_m > 0 else 0
-    f_m = _frequency(lambda tt, xx: zero_crossing_hz(tt, _detrend(xx, period), band), t, m)
-    f_c = _frequency(lambda tt, xx: zero_crossing_hz(tt, _detrend(xx, period), band), t, c)
+    f_m = _frequency(_covered_zero_crossing_hz, t, m, band, segs, period, dx, uniform)
+    f_c = _frequency(_covered_zero_crossing_hz, t, c, band, segs, period, dx, uniform)
     return Comparison(
         t_s=t,
         measured=m,
         computed=c,
         delta=delta,
-        iae=float(simpson(abs_delta, dx=dx)),
-        ise=float(simpson(squared, dx=dx)),
-        iae_curve=cumulative_simpson(abs_delta, dx=dx, initial=0.0),
-        ise_curve=cumulative_simpson(squared, dx=dx, initial=0.0),
+        iae=iae,
+        ise=ise,
+        iae_curve=iae_curve,
+        ise_curve=ise_curve,
         rms=float(np.sqrt(np.mean(squared))),
         max_abs=float(abs_delta.max()),
         f_measured_hz=f_m,
@@ -138,4 +231,5 @@ def compare(t_s: np.ndarray, measured: np.ndarray, computed: np.ndarray) -> Comp
         f_measured_fft_hz=g_m,
         f_computed_fft_hz=g_c,
         delta_f_fft=abs(g_c - g_m) / g_m if g_m else float("nan"),
+        covered_s=covered,
     )

@@ -9,8 +9,8 @@ import allantools
 import numpy as np
 import pytest
 
-from bridge.cli import main
-from bridge.recording import RunInfo, read_recording, write_recording
+from pendsim_bridge.cli import main
+from pendsim_bridge.recording import RunInfo, read_recording, write_recording
 from pendsim_mj.allan import (
     allan_curves,
     check_sampling,

@@ -8,7 +8,7 @@ import sys
 import numpy as np
 import pytest
 
-from bridge.cli import main
+from pendsim_bridge.cli import main
 from pendsim_mj.params import RigParams
 from pendsim_mj.reference import solve
 
@@ -62,14 +62,15 @@ def test_info_lists_every_parameter_with_unit_and_source(capsys):
         (["--set", "m2_kg=-0.1"], "m2_kg must be > 0 kg, got -0.1"),
         (["--set", "spring=1"], "unknown parameter(s) spring; allowed:"),
         (["--set", "c1_n_m"], "expected NAME=VALUE"),
-        (["--b1", "-0.001"], "b1_n_m_s must be >= 0 N m s/rad, got -0.001"),
+        (["--b1", "-0.001"], "b1_n_m_s must be a finite number >= 0 N m s/rad, got -0.001"),
         (["--duration-s", "0"], "duration_s must be a finite number > 0 s, got 0.0"),
         (["--dt-s", "-0.01"], "dt_s must be a finite number > 0 s, got -0.01"),
-        (["--engine", "simulink"], "unknown engine 'simulink'; allowed: mujoco, reference"),
+        (["--engine", "simulink"], "unknown engine 'simulink'; allowed: mujoco, reference, fast"),
         (["-o", "/nonexistent-dir/run.npz"], "output directory '/nonexistent-dir' does not exist"),
         (["-o", "run.txt"], "output 'run.txt' must end in .npz or .csv"),
-        (["--set", "c1_n_m=1e7"], "simulation diverged"),
-        (["--set", "c1_n_m=1e7", "--engine", "reference"], "simulation diverged"),
+        (["--set", "c1_n_m=1e7"], "c1_n_m must be 0 or between 1e-09 and 1e+06 N/m, got 1e+07"),
+        (["--set", "c1_n_m=1e6"], "simulation diverged"),
+        (["--set", "c1_n_m=1e6", "--engine", "reference"], "simulation diverged"),
         (["--bogus"], "unrecognized arguments: --bogus"),
     ],
 )
@@ -101,7 +102,7 @@ def test_a_diverging_run_leaves_an_existing_output_file_untouched(tmp_path):
     out = tmp_path / "keep.npz"
     assert main(["simulate", "--duration-s", "1", "-o", str(out)]) == 0
     before = out.read_bytes()
-    assert main(["simulate", "--duration-s", "10", "--set", "c1_n_m=1e7", "-o", str(out)]) == 2
+    assert main(["simulate", "--duration-s", "10", "--set", "c1_n_m=1e6", "-o", str(out)]) == 2
     assert out.read_bytes() == before
 
 

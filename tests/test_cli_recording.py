@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 
-from bridge.cli import main
-from bridge.recording import read_recording
+from pendsim_bridge.cli import main
+from pendsim_bridge.recording import read_recording
 
 
 def _one_error_line(capsys) -> str:
@@ -66,8 +66,8 @@ def test_record_refuses_to_overwrite_an_existing_file_unless_forced(tmp_path, ca
     [
         (["--compression", "bzip2"], "unknown compression 'bzip2'; allowed: zstd, lz4, none"),
         (["--duration-s", "-5"], "duration_s must be a finite number > 0 s"),
-        (["--set", "c1_n_m=1e7"], "simulation diverged"),
-        (["--seed", "x"], "argument --seed: invalid int value: 'x'"),
+        (["--set", "c1_n_m=1e6"], "simulation diverged"),
+        (["--seed", "x"], "argument --seed: must be an integer in [0, 9223372036854775807], got 'x'"),
     ],
 )
 def test_record_bad_input_is_one_line_exit_2_and_leaves_no_file(tmp_path, capsys, args, message):
@@ -102,8 +102,8 @@ def test_inspect_and_recover_handle_a_truncated_recording(tmp_path, capsys):
     assert rec.complete and 0 < n < len(full.imu["m1"].t_ns)
     np.testing.assert_array_equal(rec.imu["m1"].accel_m_s2, full.imu["m1"].accel_m_s2[:n])
     assert rec.mjcf_xml == full.mjcf_xml and rec.params() == full.params()
-    assert main(["recover", str(cut), str(fixed)]) == 2  # never overwrites
-    assert "recover never overwrites" in _one_error_line(capsys)
+    assert main(["recover", str(cut), str(fixed)]) == 2  # never overwrites without --force
+    assert "exists; choose another name or pass --force" in _one_error_line(capsys)
 
 
 @pytest.mark.parametrize("content", [b"", b"garbage" * 100])
@@ -113,4 +113,4 @@ def test_inspect_of_garbage_is_one_line_exit_2(tmp_path, capsys, content):
     assert main(["inspect", str(path)]) == 2
     assert "junk.mcap: not an MCAP file" in _one_error_line(capsys)
     assert main(["inspect", str(tmp_path / "absent.mcap")]) == 2
-    assert "absent.mcap: cannot open" in _one_error_line(capsys)
+    assert "absent.mcap: no such file" in _one_error_line(capsys)

@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 import rerun as rr
 
-from bridge.cli import main
-from bridge.recording import read_recording
+from pendsim_bridge.cli import main
+from pendsim_bridge.recording import read_recording
 from pendsim_mj.comparison import beat, compare_planar_spatial
 from pendsim_mj.params import DEFAULT_PARAMS
 

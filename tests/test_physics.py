@@ -6,7 +6,7 @@ import math
 import numpy as np
 import pytest
 
-from pendsim_mj import reference
+from pendsim_mj import fast_planar, reference
 from pendsim_mj.analysis import log_decrement_damping, zero_crossing_hz
 from pendsim_mj.model import Clamp
 from pendsim_mj.params import DEFAULT_PARAMS
@@ -63,9 +63,9 @@ def test_energy_is_conserved_without_damping_and_the_drift_is_fifth_order_in_dt(
     assert np.all((fine * 28 < coarse) & (coarse < fine * 36)), coarse / fine
 
 
-@pytest.mark.parametrize("engine", ["mujoco", "reference"])
+@pytest.mark.parametrize("engine", ["mujoco", "reference", "fast"])
 def test_dissipated_energy_accounts_for_the_energy_lost(engine):
-    run = simulate_batch if engine == "mujoco" else reference.solve_batch
+    run = {"mujoco": simulate_batch, "reference": reference.solve_batch, "fast": fast_planar.solve_batch}[engine]
     phi0 = np.array([(30, 0), (80, 0), (-45, 20)], dtype=float) * DEG
     tr = run(DEFAULT_PARAMS, phi0, (0.0, 0.0), 120.0)
     lost = tr.total_energy_j[:, :1] - tr.total_energy_j

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 from mcap_ros2._dynamic import generate_dynamic, serialize_dynamic
 
-from bridge import ros2
+from pendsim_bridge import ros2
 
 RNG = np.random.default_rng(0)
 

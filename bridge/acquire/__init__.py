@@ -1,0 +1,12 @@
+"""Live acquisition from the rig's two sensor nodes over UDP (``pendsim acquire``).
+
+- ``packets``: the three packet formats (pendsim-v1 binary, CSV line, JSON object), each with an
+  encoder (the emulator's) and a decoder that turns anything malformed into a ``PacketError``.
+- ``clock``: the online fit that maps a node's device time to host time under network jitter.
+- ``accounting``: per node sequence tracking, the reorder window and the counters.
+- ``sink``: the one adapter between acquisition and the MCAP writer.
+- ``receiver``: the sockets, the loop, signals, the status line and the summary.
+- ``live``: the Rerun live view, in batches.
+
+Docs: docs/acquisition.md (with the pendsim-v1 byte table).
+"""

@@ -1,0 +1,611 @@
+"""``pendsim acquire``: receive both nodes' UDP packets and write them as a pendsim recording.
+
+One socket per node (bound to 127.0.0.1 unless told otherwise), one loop:
+
+1. every datagram is stamped with the host's monotonic clock as it is read, decoded by the node's
+   codec (``packets``), and accounted (``accounting.NodeStream``); an accepted packet's (device
+   time, arrival time) feeds the node's clock fit (``clock.ClockFit``);
+2. every 50 ms, each node's samples whose turn has come (in sequence order, within the reorder
+   window) get their log time, the device time mapped to host time by the current fit, on one
+   UTC base for both nodes, and go to the file (``sink``) and the live view;
+3. every second: a ``/diagnostics`` message and the status line; at least every half second the
+   samples every node has passed are written and handed to the OS.
+
+The first samples of a node wait until its clock fit spans ``WARMUP_S``. Stops after
+``duration_s``, on SIGINT or SIGTERM: everything still waiting is written, then the summary. The
+file is written under a temporary name beside the output and published when closed; if writing
+fails (full disk, ...) or the process is killed, that temporary file stays for ``pendsim recover``.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import dataclasses
+import datetime
+import errno
+import ipaddress
+import json
+import math
+import selectors
+import shutil
+import signal
+import socket
+import struct
+import sys
+import threading
+import time
+from collections.abc import Callable, Iterator
+from pathlib import Path
+from typing import Protocol
+
+import numpy as np
+from numpy.typing import NDArray
+
+from pendsim_bridge import ros2
+from pendsim_bridge.acquire.accounting import NodeCounters, NodeStream
+from pendsim_bridge.acquire.clock import ClockFit, ClockRelation, jitter_summary_ms, residuals_s
+from pendsim_bridge.acquire.packets import PacketError, StreamFormat
+from pendsim_bridge.acquire.ports import BNO055_NDOF, DEFAULT_NODES, NodeSpec, check_nodes
+from pendsim_bridge.acquire.sink import RecordingSink
+from pendsim_mj import __version__
+from pendsim_mj.errors import OutputError, ParameterError
+from pendsim_mj.outputs import describe_os_error, publish, temporary_sibling
+from pendsim_mj.params import DEFAULT_PARAMS, RigParams
+
+TICK_S = 0.05  # release and live-view cadence
+FLUSH_S = 0.5  # write to the file at least this often
+DIAGNOSTICS_S = 1.0  # /diagnostics and the status line
+WARMUP_S = 0.5  # device time a node's clock fit spans before its first samples are released
+STALE_S = 2.0  # a node silent this long no longer holds back the writing of the others
+RECEIVE_BUFFER_BYTES = 8 << 20
+MAX_DATAGRAM = 65535
+DRAIN_LIMIT = 4096  # datagrams read from one socket before the loop looks at the others
+# Linux: the kernel stamps each datagram as it arrives (SO_TIMESTAMPNS, CLOCK_REALTIME), so a loop
+# that falls behind does not shift arrival times; SO_RXQ_OVFL reports datagrams the socket dropped.
+SO_TIMESTAMPNS, SO_RXQ_OVFL = 35, 40
+ANCILLARY_BYTES = socket.CMSG_SPACE(16) + socket.CMSG_SPACE(4)
+TIMESPEC = struct.Struct("@qq")
+
+
+@dataclasses.dataclass(frozen=True)
+class AcquireSpec:
+    """What to acquire and how.
+
+    Attributes:
+      nodes: the nodes and their ports.
+      bind: the address the sockets listen on (127.0.0.1: this machine only).
+      stream: the packet format.
+      rate_hz: the nodes' nominal sample rate (numbers the samples of formats without sequence
+        numbers; recorded in the metadata).
+      duration_s: stop after this long (None: on Ctrl-C or SIGTERM).
+      reorder_window_s: how long a sample waits for missing earlier ones, s.
+      params: the rig (metadata, the mounts; the MJCF if ``mjcf_xml`` is None).
+      mjcf_xml: the MJCF to attach (None: the model built from ``params``).
+      mjcf_source: where ``mjcf_xml`` came from, for the metadata.
+      compression: chunk compression.
+    """
+
+    nodes: tuple[NodeSpec, ...] = DEFAULT_NODES
+    bind: str = "127.0.0.1"
+    stream: StreamFormat = dataclasses.field(default_factory=StreamFormat)
+    rate_hz: float = 80.0
+    duration_s: float | None = None
+    reorder_window_s: float = 0.2
+    params: RigParams = DEFAULT_PARAMS
+    mjcf_xml: str | None = None
+    mjcf_source: str = "built by pendsim from the rig parameters"
+    compression: str = "zstd"
+
+    def __post_init__(self) -> None:
+        check_nodes(self.nodes)
+        if not (math.isfinite(self.rate_hz) and 0 < self.rate_hz <= 100_000):
+            raise ParameterError(f"rate_hz must be in (0, 100000] Hz, got {self.rate_hz!r}")
+        if self.duration_s is not None and not (math.isfinite(self.duration_s) and self.duration_s > 0):
+            raise ParameterError(f"duration_s must be a finite number > 0 s, got {self.duration_s!r}")
+        if not (math.isfinite(self.reorder_window_s) and 0 <= self.reorder_window_s <= 10):
+            raise ParameterError(f"reorder window must be in [0, 10] s, got {self.reorder_window_s!r}")
+
+
+@dataclasses.dataclass(frozen=True)
+class NodeResult:
+    """What one node delivered: counters, its clock against the host's, the residual jitter."""
+
+    name: str
+    port: int
+    counters: NodeCounters
+    drift_ppm: float  # the node clock's rate error against the host's (+: fast); NaN if unknown
+    jitter_p50_ms: float  # residual delay beyond the fitted minimum: median
+    jitter_p99_ms: float  # and 99th percentile
+    host_dropped: int = 0  # datagrams this host's socket buffer dropped (counted in lost as well)
+
+
+@dataclasses.dataclass(frozen=True)
+class AcquireResult:
+    """A finished acquisition."""
+
+    path: Path
+    duration_s: float
+    stop_reason: str  # "duration", "interrupted" (SIGINT) or "terminated" (SIGTERM)
+    nodes: tuple[NodeResult, ...]
+    messages: int
+    size_bytes: int
+    live_batches: int
+
+
+class LiveSink(Protocol):
+    """The live view's side of the loop (``live.LiveView``)."""
+
+    batches: int
+
+    def add(self, node: str, t_ns: NDArray[np.int64], rows: NDArray[np.float64]) -> None: ...
+
+    def send(self) -> None: ...
+
+    def close(self) -> None: ...
+
+
+class _Node:
+    """The state of one node in the loop."""
+
+    def __init__(self, spec: NodeSpec, stream: StreamFormat, rate_hz: float, window_ns: int) -> None:
+        self.spec = spec
+        self.codec = stream.codec(spec.name, spec.node_id)
+        self.stream = NodeStream(window_ns=window_ns, seq_modulus=self.codec.seq_modulus, rate_hz=rate_hz)
+        self.clock = ClockFit()
+        self.device_s: list[float] = []  # accepted packets: device time and arrival (s since start)
+        self.arrival_s: list[float] = []
+        self.last_read_ns = 0  # when the loop last read one (a loop behind its sockets reads old datagrams)
+        self.last_log_ns = -1  # latest log time released
+        self.sock: socket.socket | None = None
+        self.previous = NodeCounters()
+        self.host_dropped = 0  # datagrams this host's socket dropped (its buffer was full)
+
+    def receive(self, data: bytes, arrival_ns: int, start_ns: int) -> None:
+        try:
+            packet = self.codec.decode(data)
+        except PacketError as exc:
+            self.stream.count_malformed(exc.reason)
+            return
+        if self.stream.offer(packet, arrival_ns) == "accepted":
+            device_s, arrival_s = packet.device_time_us * 1e-6, (arrival_ns - start_ns) * 1e-9
+            self.clock.add(device_s, arrival_s)
+            self.device_s.append(device_s)
+            self.arrival_s.append(arrival_s)
+
+    def line(self) -> ClockRelation | None:
+        return self.clock.relation() if self.clock.count else None
+
+    def jitter_ms(self, since: int = 0) -> tuple[float, float]:
+        line = self.line()
+        if line is None:
+            return math.nan, math.nan
+        return jitter_summary_ms(
+            residuals_s(line, np.asarray(self.device_s[since:]), np.asarray(self.arrival_s[since:]))
+        )
+
+
+def _bind(spec: NodeSpec, address: str) -> socket.socket:
+    family = socket.AF_INET6 if ":" in address else socket.AF_INET
+    sock = socket.socket(family, socket.SOCK_DGRAM)
+    try:
+        with contextlib.suppress(OSError):
+            sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, RECEIVE_BUFFER_BYTES)
+        if sys.platform.startswith("linux"):
+            with contextlib.suppress(OSError):
+                sock.setsockopt(socket.SOL_SOCKET, SO_TIMESTAMPNS, 1)
+                sock.setsockopt(socket.SOL_SOCKET, SO_RXQ_OVFL, 1)
+        sock.bind((address, spec.port))
+        sock.setblocking(False)
+    except OSError as exc:
+        sock.close()
+        cause = (
+            "address already in use (another program listens there); choose another port with --node"
+            if exc.errno == errno.EADDRINUSE
+            else describe_os_error(exc)
+        )
+        raise ParameterError(f"cannot listen on {address}:{spec.port} for node {spec.name}: {cause}") from None
+    return sock
+
+
+def _is_loopback(address: str) -> bool:
+    try:
+        return ipaddress.ip_address(address).is_loopback
+    except ValueError:
+        return False
+
+
+@contextlib.contextmanager
+def _stop_signals() -> Iterator[list[str]]:
+    """SIGINT and SIGTERM set a flag (the loop ends cleanly) instead of raising; restored after."""
+    reason: list[str] = []
+    if threading.current_thread() is not threading.main_thread():
+        yield reason
+        return
+    names = {signal.SIGINT: "interrupted", signal.SIGTERM: "terminated"}
+
+    def handler(signum: int, frame: object) -> None:
+        reason.append(names[signal.Signals(signum)])
+
+    previous = {s: signal.signal(s, handler) for s in names}
+    try:
+        yield reason
+    finally:
+        for s, h in previous.items():
+            signal.signal(s, h)
+
+
+def _utc_iso(t_ns: int) -> str:
+    return datetime.datetime.fromtimestamp(t_ns / 1e9, tz=datetime.UTC).isoformat(timespec="microseconds")
+
+
+def acquisition_metadata(spec: AcquireSpec, start_utc_ns: int) -> dict[str, dict[str, str]]:
+    """The metadata records saying how the data were acquired."""
+    nodes = {n.name: {"port": n.port, "node_id": n.node_id} for n in spec.nodes}
+    return {
+        "pendsim/acquisition": {
+            "source": "udp",
+            "nodes": json.dumps(nodes),
+            "bind": spec.bind,
+            **spec.stream.describe(),
+            "rate_hz": repr(spec.rate_hz),
+            "reorder_window_s": repr(spec.reorder_window_s),
+            "start_utc": _utc_iso(start_utc_ns),
+            "start_time_ns": str(start_utc_ns),
+            "host": socket.gethostname(),
+            "pendsim_version": __version__,
+            "mjcf": spec.mjcf_source,
+            "time_base": "log time = device time mapped to host UTC by a lower-envelope fit (docs/acquisition.md)",
+        },
+        # Read by validate and allan: the nominal rate, and the rig's nodes are BNO055s in NDOF mode,
+        # fused at 100 Hz (validate finds where each chip's fusion ticks fall from the data).
+        "pendsim/imu": {"sample_rate_hz": json.dumps(spec.rate_hz), **BNO055_NDOF},
+    }
+
+
+def _stderr(line: str) -> None:
+    print(line, file=sys.stderr, flush=True)
+
+
+class _StatusLine:
+    """The live status line on stderr: rewritten in place on a terminal, every 10 s otherwise."""
+
+    def __init__(self, write: Callable[[str], None] | None) -> None:
+        self.tty = write is None and sys.stderr.isatty()
+        self.write = write or _stderr
+        self.last_plain = 0.0
+        self.shown = False
+
+    def show(self, text: str, elapsed_s: float) -> None:
+        if self.tty:  # one line in place: cut to the terminal's width
+            width = shutil.get_terminal_size((120, 24)).columns - 1
+            sys.stderr.write("\r\x1b[2K" + text[:width])
+            sys.stderr.flush()
+            self.shown = True
+        elif elapsed_s - self.last_plain >= 10.0:
+            self.last_plain = elapsed_s
+            self.write(text)
+
+    def end(self) -> None:
+        """End the line in place (idempotent)."""
+        if self.tty and self.shown:
+            self.shown = False
+            sys.stderr.write("\n")
+            sys.stderr.flush()
+
+
+def acquire(
+    spec: AcquireSpec,
+    output: str | Path,
+    *,
+    replace: bool = False,
+    live: LiveSink | None = None,
+    say: Callable[[str], None] = _stderr,
+    status: Callable[[str], None] | None = None,
+) -> AcquireResult:
+    """Receive the nodes' packets and write the recording to ``output``.
+
+    Args:
+      spec: nodes, format, duration, rig.
+      output: the .mcap file (published when complete; until then a temporary file beside it).
+      replace: replace an existing output.
+      live: a live view fed in batches.
+      say: where the startup lines go (stderr).
+      status: where the status line goes (default: stderr, in place on a terminal).
+
+    Raises:
+      ParameterError: a port cannot be bound (nothing is written).
+      OutputError: the output exists, or writing failed; in the latter case the message names
+        the temporary file that holds what was written (``pendsim recover`` reads it).
+    """
+    output = Path(output)
+    if not replace and (output.exists() or output.is_symlink()):
+        raise OutputError(f"output {str(output)!r} exists; choose another name or pass --force to replace it")
+    window_ns = round(spec.reorder_window_s * 1e9)
+    nodes = [_Node(n, spec.stream, spec.rate_hz, window_ns) for n in spec.nodes]
+    selector = selectors.DefaultSelector()
+    try:
+        for node in nodes:
+            node.sock = _bind(node.spec, spec.bind)
+            selector.register(node.sock, selectors.EVENT_READ, node)
+        try:
+            partial = temporary_sibling(output)
+        except OSError as exc:
+            raise OutputError(f"cannot write {str(output)!r}: {describe_os_error(exc)}") from None
+        return _run(spec, output, partial, nodes, selector, replace=replace, live=live, say=say, status=status)
+    finally:
+        for node in nodes:
+            if node.sock is not None:
+                node.sock.close()
+        selector.close()
+
+
+def _run(
+    spec: AcquireSpec,
+    output: Path,
+    partial: Path,
+    nodes: list[_Node],
+    selector: selectors.BaseSelector,
+    *,
+    replace: bool,
+    live: LiveSink | None,
+    say: Callable[[str], None],
+    status: Callable[[str], None] | None,
+) -> AcquireResult:
+    from pendsim_mj.model import exact_mjcf
+
+    start_ns = time.monotonic_ns()
+    utc_ns = time.time_ns() - start_ns  # host monotonic -> UTC, fixed for the run
+    start_utc_ns = start_ns + utc_ns
+    mjcf = spec.mjcf_xml if spec.mjcf_xml is not None else exact_mjcf(spec.params)
+    try:
+        sink = RecordingSink(
+            partial,
+            nodes=tuple(n.spec.name for n in nodes),
+            groups=spec.stream.groups(),
+            params=spec.params,
+            mjcf_xml=mjcf,
+            metadata=acquisition_metadata(spec, start_utc_ns),
+            start_time_ns=start_utc_ns,
+            diagnostics=True,
+            compression=spec.compression,
+        )
+    except OutputError:
+        partial.unlink(missing_ok=True)
+        raise
+    listening = ", ".join(f"{n.spec.name} on {spec.bind}:{n.spec.port}" for n in nodes)
+    say(f"listening: {listening} ({spec.stream.format}); writing {partial} until done, then {output}")
+    if not _is_loopback(spec.bind):
+        say(f"note: bound to {spec.bind}: these ports are reachable from the network")
+    status_line = _StatusLine(status)
+    deadline = start_ns + round(spec.duration_s * 1e9) if spec.duration_s is not None else None
+    next_tick = start_ns
+    next_flush = start_ns + round(FLUSH_S * 1e9)
+    next_diag = start_ns + round(DIAGNOSTICS_S * 1e9)
+    diag_marks = [0] * len(nodes)
+    stop_reason = "duration"
+    try:
+        with _stop_signals() as stop:
+            while True:
+                now = time.monotonic_ns()
+                if stop:
+                    stop_reason = stop[0]
+                    break
+                if deadline is not None and now >= deadline:
+                    break
+                wake = min(next_tick, deadline) if deadline is not None else next_tick
+                for key, _ in selector.select(max(0.0, (wake - now) * 1e-9)):
+                    _drain(key.data, start_ns)
+                now = time.monotonic_ns()
+                if now >= next_tick:
+                    next_tick = now + round(TICK_S * 1e9)
+                    _release(nodes, now, sink, live, utc_ns, start_ns, final=False)
+                    if live is not None:
+                        live.send()
+                if now >= next_diag:
+                    next_diag += round(DIAGNOSTICS_S * 1e9)
+                    statuses = _diagnostics(nodes, diag_marks, now)
+                    sink.add_diagnostics(now + utc_ns, statuses)
+                    status_line.show(_status_text(nodes, (now - start_ns) * 1e-9), (now - start_ns) * 1e-9)
+                if now >= next_flush:
+                    next_flush = now + round(FLUSH_S * 1e9)
+                    sink.flush(_settled_ns(nodes, now))
+            now = time.monotonic_ns()
+            _release(nodes, now, sink, live, utc_ns, start_ns, final=True)
+            status_line.end()
+            sink.add_diagnostics(now + utc_ns, _diagnostics(nodes, diag_marks, now))
+            results = tuple(_node_result(n) for n in nodes)
+            sink.add_metadata(
+                "pendsim/acquisition_result", _result_metadata(results, (now - start_ns) * 1e-9, stop_reason)
+            )
+            sink.close()
+            if live is not None:
+                live.send()
+            publish(partial, output, replace=replace)
+    except OutputError as exc:
+        status_line.end()
+        raise OutputError(f"{exc}; what was written is in {str(partial)!r} (pendsim recover reads it)") from None
+    except OSError as exc:  # publishing
+        raise OutputError(
+            f"cannot publish {str(output)!r}: {describe_os_error(exc)}; the recording is in {str(partial)!r}"
+        ) from None
+    return AcquireResult(
+        path=output,
+        duration_s=(now - start_ns) * 1e-9,
+        stop_reason=stop_reason,
+        nodes=results,
+        messages=sink.messages,
+        size_bytes=output.stat().st_size,
+        live_batches=live.batches if live is not None else 0,
+    )
+
+
+def _drain(node: _Node, start_ns: int) -> None:
+    """Read what waits on a node's socket, each datagram with its arrival time (host monotonic ns:
+    the kernel's stamp where there is one)."""
+    sock = node.sock
+    assert sock is not None
+    realtime_to_monotonic = time.monotonic_ns() - time.time_ns()
+    for _ in range(DRAIN_LIMIT):
+        try:
+            data, ancillary, _, _ = sock.recvmsg(MAX_DATAGRAM, ANCILLARY_BYTES)
+        except (BlockingIOError, InterruptedError):
+            return
+        except OSError:  # e.g. ICMP errors reported on the socket: nothing to read
+            return
+        arrival_ns = 0
+        for level, kind, value in ancillary:
+            if level == socket.SOL_SOCKET and kind == SO_TIMESTAMPNS and len(value) >= 16:
+                sec, nsec = TIMESPEC.unpack_from(value)
+                arrival_ns = sec * 1_000_000_000 + nsec + realtime_to_monotonic
+            elif level == socket.SOL_SOCKET and kind == SO_RXQ_OVFL and len(value) >= 4:
+                node.host_dropped = int.from_bytes(value[:4], sys.byteorder)
+        node.receive(data, arrival_ns or time.monotonic_ns(), start_ns)
+        node.last_read_ns = time.monotonic_ns()
+
+
+def _release(
+    nodes: list[_Node],
+    now_ns: int,
+    sink: RecordingSink,
+    live: LiveSink | None,
+    utc_ns: int,
+    start_ns: int,
+    *,
+    final: bool,
+) -> None:
+    """Hand each node's released samples, with their log times, to the file and the view."""
+    for node in nodes:
+        if not final and node.clock.span_s < WARMUP_S:
+            continue
+        released = node.stream.release(now_ns, final=final)
+        if not released:
+            continue
+        line = node.line()
+        assert line is not None
+        device_s = np.array([a.packet.device_time_us for a in released], dtype=np.float64) * 1e-6
+        host_s = np.asarray(line.to_recorder(device_s))
+        t_ns = start_ns + utc_ns + np.rint(host_s * 1e9).astype(np.int64)
+        # One time base, monotonic per node: the fit moves a little as it learns.
+        # t'_i = max(t_i, t'_(i-1) + 1): strictly increasing, with t'_(-1) the last one released.
+        steps = np.arange(len(t_ns), dtype=np.int64)
+        t_ns = np.maximum.accumulate(np.maximum(t_ns - steps, node.last_log_ns + 1)) + steps
+        node.last_log_ns = int(t_ns[-1])
+        rows = np.array([a.packet.row for a in released], dtype=np.float64)
+        behind = t_ns <= sink.written_upto_ns  # a node back from a long silence with old samples
+        if np.any(behind):
+            node.stream.count_written_late(int(np.count_nonzero(behind)))
+            t_ns, rows = t_ns[~behind], rows[~behind]
+        sink.add_samples(node.spec.name, t_ns, rows)
+        if live is not None:
+            live.add(node.spec.name, t_ns, rows)
+
+
+def _settled_ns(nodes: list[_Node], now_ns: int) -> int | None:
+    """The log time up to which every node has released its samples, so that what is written is
+    in log-time order across nodes: None (everything) when no node is sending; a node silent for
+    STALE_S holds nothing back; one still warming up holds everything back (-1)."""
+    settled = None
+    for node in nodes:
+        if not node.last_read_ns or now_ns - node.last_read_ns > STALE_S * 1e9:
+            continue
+        if node.last_log_ns < 0:
+            return -1
+        settled = node.last_log_ns if settled is None else min(settled, node.last_log_ns)
+    return settled
+
+
+def _diagnostics(nodes: list[_Node], marks: list[int], now_ns: int) -> list[ros2.DiagnosticStatus]:
+    """One DiagnosticStatus per node: the counters, rates of the last second, clock and jitter."""
+    statuses = []
+    for i, node in enumerate(nodes):
+        counters = node.stream.counters()
+        new = {k: v - getattr(node.previous, k) for k, v in counters.as_dict().items() if hasattr(node.previous, k)}
+        node.previous = counters
+        jitter = node.jitter_ms(marks[i])
+        marks[i] = len(node.device_s)
+        line = node.line()
+        silent_s = (now_ns - node.last_read_ns) * 1e-9 if node.last_read_ns else math.inf
+        if silent_s > DIAGNOSTICS_S:
+            level, message = 3, "no packets" if not counters.received else f"silent for {silent_s:.1f} s"
+        elif new["lost"] or new["late"] or new["malformed"] or new["duplicated"]:
+            level, message = 1, f"{new['received']} packets/s, {new['lost']} lost, {new['malformed']} malformed"
+        else:
+            level, message = 0, f"{new['received']} packets/s"
+        values = [(k, str(v)) for k, v in counters.as_dict().items()]
+        values += [
+            ("rate_hz", str(new["received"])),
+            ("drift_ppm", f"{line.drift_ppm:.3f}" if line is not None else "nan"),
+            ("jitter_p50_ms", f"{jitter[0]:.3f}"),
+            ("jitter_p99_ms", f"{jitter[1]:.3f}"),
+            ("pending", str(node.stream.pending)),
+            ("host_dropped", str(node.host_dropped)),
+        ]
+        statuses.append(
+            ros2.DiagnosticStatus(
+                level, f"pendsim acquire: {node.spec.name}", message, f"{node.spec.name}@udp:{node.spec.port}",
+                tuple(values),
+            )
+        )  # fmt: skip
+    return statuses
+
+
+def _status_text(nodes: list[_Node], elapsed_s: float) -> str:
+    parts = [f"{elapsed_s:6.1f} s"]
+    for node in nodes:
+        c = node.stream.counters()
+        line = node.line()
+        drift = f"{line.drift_ppm:+.1f} ppm" if line is not None and node.clock.span_s >= WARMUP_S else "- ppm"
+        parts.append(
+            f"{node.spec.name}: {c.written} ok {c.lost} lost {c.duplicated} dup {c.reordered} reord "
+            f"{c.late} late {c.malformed} bad {drift}"
+        )
+    return " | ".join(parts)
+
+
+def _node_result(node: _Node) -> NodeResult:
+    line = node.line()
+    p50, p99 = node.jitter_ms()
+    drift = line.drift_ppm if line is not None and node.clock.span_s > 0 else math.nan
+    return NodeResult(node.spec.name, node.spec.port, node.stream.counters(), drift, p50, p99, node.host_dropped)
+
+
+def _result_metadata(results: tuple[NodeResult, ...], duration_s: float, stop_reason: str) -> dict[str, str]:
+    out = {"duration_s": f"{duration_s:.3f}", "stop_reason": stop_reason}
+    for r in results:
+        for k, v in r.counters.as_dict().items():
+            out[f"{r.name}.{k}"] = str(v)
+        out[f"{r.name}.drift_ppm"] = f"{r.drift_ppm:.3f}"
+        out[f"{r.name}.jitter_p50_ms"] = f"{r.jitter_p50_ms:.3f}"
+        out[f"{r.name}.jitter_p99_ms"] = f"{r.jitter_p99_ms:.3f}"
+        out[f"{r.name}.host_dropped"] = str(r.host_dropped)
+    return out
+
+
+def summary(result: AcquireResult) -> str:
+    """The lines printed at the end."""
+    lines = [
+        f"wrote {result.path}: {result.duration_s:.1f} s, {result.messages} IMU samples, "
+        f"{result.size_bytes / 1e6:.2f} MB (stopped: {result.stop_reason})"
+    ]
+    head = f"  {'node':4} {'port':>5} {'received':>9} {'written':>8} {'lost':>6} {'dup':>5} {'reord':>6}"
+    lines.append(f"{head} {'late':>5} {'bad':>5} {'drift ppm':>10} {'jitter p50/p99 ms':>18}")
+    for r in result.nodes:
+        c = r.counters
+        lines.append(
+            f"  {r.name:4} {r.port:5d} {c.received:9d} {c.written:8d} {c.lost:6d} {c.duplicated:5d} "
+            f"{c.reordered:6d} {c.late:5d} {c.malformed:5d} {r.drift_ppm:10.2f} "
+            f"{r.jitter_p50_ms:8.3f} / {r.jitter_p99_ms:7.3f}"
+        )
+        if c.malformed_reasons:
+            lines.append("       malformed: " + ", ".join(f"{k} {v}" for k, v in c.malformed_reasons))
+        if r.host_dropped:
+            lines.append(f"       {r.host_dropped} of the lost were dropped by this host (acquire read too slowly)")
+    for r in result.nodes:
+        if not r.counters.received:
+            lines.append(
+                f"  {r.name}: no packets arrived on port {r.port} (is the node sending to this host and port?)"
+            )
+    return "\n".join(lines)
+
+
+__all__ = ["AcquireResult", "AcquireSpec", "NodeResult", "acquire", "summary"]

@@ -1,0 +1,28 @@
+"""One module per ``pendsim`` command: ``register(subparsers)`` adds its parser (with
+``handler=run``), ``run(args)`` parses nothing more, calls one library function and prints."""
+
+from pendsim_bridge.commands import (
+    acquire,
+    allan,
+    analyze,
+    compare,
+    demo,
+    identify,
+    import_,
+    info,
+    inspect,
+    nodes,
+    record,
+    recover,
+    replay,
+    simulate,
+    sweep,
+    validate,
+    view,
+)
+
+COMMANDS = (
+    demo, simulate, record, acquire, nodes, import_, inspect, validate, identify, view, replay, compare, analyze,
+    sweep, allan, recover, info,
+)  # fmt: skip
+"""In the order ``pendsim --help`` lists them."""

@@ -1,0 +1,26 @@
+"""pendsim inspect: what an MCAP file holds."""
+
+from __future__ import annotations
+
+import argparse
+
+from pendsim_bridge import options
+
+
+def register(sub: argparse._SubParsersAction[options.Parser]) -> None:
+    p = sub.add_parser(
+        "inspect",
+        help="print the topics, message counts, rates, duration and metadata of an MCAP file",
+        description="Print what an MCAP file holds. A truncated or damaged file is an error (exit 2) that says "
+        "how much is readable; 'pendsim recover' rewrites that part.",
+    )
+    p.add_argument("path", type=options.input_file, help="the .mcap file")
+    p.set_defaults(handler=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    from pendsim_bridge.mcap_reader import read_mcap
+    from pendsim_bridge.tables import contents_table
+
+    print(contents_table(read_mcap(args.path, strict=True, payloads=False)))
+    return 0

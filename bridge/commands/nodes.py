@@ -1,0 +1,136 @@
+"""pendsim nodes: emulate the rig's two sensor nodes, sending the simulated rig over UDP."""
+
+from __future__ import annotations
+
+import argparse
+import math
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+from pendsim_bridge import options
+from pendsim_bridge.commands.acquire import add_stream_options, argument, nodes_from, stream_from
+from pendsim_bridge.commands.record import add_imperfection_options, imperfections_from
+from pendsim_mj.errors import ParameterError
+
+if TYPE_CHECKING:
+    from pendsim_bridge.nodes import EmulatorSpec
+
+
+def per_node(text: str) -> tuple[str | None, float]:
+    """``m1=20`` (one node) or ``20`` (every node) to (name or None, value)."""
+    name, sep, value = text.rpartition("=")
+    number = options.finite_float(value)
+    if sep and name.strip() not in ("m1", "m2"):
+        raise ParameterError(f"unknown node {name.strip()!r}; allowed: m1, m2")
+    return (name.strip() if sep else None), number
+
+
+def register(sub: argparse._SubParsersAction[options.Parser]) -> None:
+    p = sub.add_parser(
+        "nodes",
+        help="emulate the rig's two sensor nodes: send the simulated rig over UDP in real time",
+        description="Simulate a release (the options of 'pendsim record'), sample both BNO055 nodes and send their "
+        "packets in real time to the given ports, as the rig's ESP32 nodes do, each on its own clock; with seeded "
+        "packet loss, duplicates, reordering, jitter, clock drift and malformed packets; --log writes exactly what "
+        "was sent. For 'pendsim acquire'.",
+    )
+    add_stream_options(p, what="sends to")
+    p.add_argument("--host", default="127.0.0.1", help="where to send (default 127.0.0.1)")
+    options.add_run_options(p)
+    duration = p._option_string_actions["--duration-s"]  # the nodes stream for this long, the hold included
+    duration.help = "how long the nodes send, s: the hold, then the release (default 30)"
+    duration.default = 30.0
+    p.add_argument(
+        "--hold-s",
+        type=options.float_in(0.0, 3600.0, "s"),
+        default=2.0,
+        help="send this long with the pendulums held still before the release, s (default 2)",
+    )
+    p.add_argument("--no-noise", action="store_true", help="ideal BNO055 signals: no noise, clipping or quantisation")
+    p.add_argument("--seed", type=options.int_in(0, 2**63 - 1), default=0, help="seed of noise, faults and clocks")
+    rate = options.float_in(0.0, 1.0)
+    p.add_argument("--loss", type=rate, default=0.0, help="share of packets lost, 0-1 (default 0)")
+    p.add_argument("--duplicate", type=rate, default=0.0, help="share of packets sent twice, 0-1 (default 0)")
+    p.add_argument("--reorder", type=rate, default=0.0, help="share of packets held back, 0-1 (default 0)")
+    p.add_argument(
+        "--reorder-depth",
+        type=options.int_in(1, 1000),
+        default=2,
+        help="a held-back packet is sent after this many later ones (default 2)",
+    )
+    p.add_argument(
+        "--jitter-ms",
+        type=options.float_in(0.0, 10_000.0, "ms"),
+        default=0.0,
+        help="mean extra network delay per packet, exponential, first in first out, ms (default 0)",
+    )
+    p.add_argument("--malformed", type=rate, default=0.0, help="rate of extra malformed datagrams, 0-1 (default 0)")
+    p.add_argument(
+        "--clock-drift-ppm",
+        type=argument(per_node, "[NAME=]PPM"),
+        action="append",
+        default=[],
+        metavar="[NAME=]PPM",
+        help="a node's clock rate error, ppm, + runs fast (m1=20, or 20 for every node; repeatable; default 0)",
+    )
+    p.add_argument(
+        "--clock-offset-s",
+        type=argument(per_node, "[NAME=]S"),
+        action="append",
+        default=[],
+        metavar="[NAME=]S",
+        help="a node's clock reading at the start, s (default: drawn from --seed, 10-600 s)",
+    )
+    add_imperfection_options(p, transport=False)  # loss, drift and latency are this command's own
+    p.add_argument("--log", type=Path, metavar="FILE", help="write what was sent to FILE (.jsonl or .csv)")
+    p.add_argument("--force", action="store_true", help="replace the log file if it exists")
+    p.set_defaults(handler=run)
+
+
+def spec_from(args: argparse.Namespace) -> EmulatorSpec:
+    """The emulator spec the options describe."""
+    from pendsim_bridge.nodes import EmulatorSpec, Faults, NodeClock
+    from pendsim_bridge.record import RecordSpec
+    from pendsim_mj.sensors import Bno055
+
+    phi0, omega0 = options.initial_state_from(args)
+    imperfect, mounts = imperfections_from(args)
+    imu = Bno055(noise=not args.no_noise, seed=args.seed, mount_quat_wxyz=mounts, imperfections=imperfect)
+    after_release_s = args.duration_s - args.hold_s
+    if after_release_s <= 0:
+        raise options.UsageError(f"--duration-s {args.duration_s:g} must be longer than --hold-s {args.hold_s:g}")
+    run = RecordSpec(
+        options.params_from(args), phi0, omega0, after_release_s, args.dt_s, args.engine, "planar", args.hold_s, imu
+    )
+    nodes = nodes_from(args)
+    names = [n.name for n in nodes]
+    drift: dict[str, float] = {}
+    offset: dict[str, float] = {}
+    for store, given, what in (
+        (drift, args.clock_drift_ppm, "--clock-drift-ppm"),
+        (offset, args.clock_offset_s, "--clock-offset-s"),
+    ):
+        for name, value in given:
+            for target in [name] if name is not None else names:
+                if target not in names:
+                    raise options.UsageError(f"{what} {name}=...: node {name} is not sent to (--node)")
+                store[target] = value
+    clocks = tuple(
+        (n, NodeClock(drift.get(n, 0.0), offset.get(n))) for n in names if n in drift or n in offset
+    )  # fmt: skip
+    faults = Faults(args.loss, args.duplicate, args.reorder, args.reorder_depth, args.jitter_ms, args.malformed)
+    return EmulatorSpec(run, nodes, args.host, stream_from(args), args.rate_hz, faults, clocks, args.seed)
+
+
+def run(args: argparse.Namespace) -> int:
+    from pendsim_bridge.nodes import LOG_SUFFIXES, plan, summary
+    from pendsim_bridge.nodes import run as send
+
+    if args.log is not None:
+        options.check_output(args.log, LOG_SUFFIXES, force=args.force)
+    spec = spec_from(args)
+    if not math.isfinite(spec.total_s):
+        raise options.UsageError("the run must have a finite duration")
+    result = send(spec, log=args.log, replace_log=args.force, prepared=plan(spec))
+    print(summary(result))
+    return 0

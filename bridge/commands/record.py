@@ -1,0 +1,248 @@
+"""pendsim record: simulate the rig and record both IMUs, joint states and poses to MCAP."""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from pendsim_bridge import options
+from pendsim_bridge.mcap_writer import COMPRESSIONS
+from pendsim_bridge.record import MODELS, Model, RecordInterrupted, RecordSpec, record
+from pendsim_mj.errors import ParameterError
+from pendsim_mj.imperfections import Imperfections, axis_remap_matrix, random_mount
+from pendsim_mj.sensors import Bno055, ImuNoise
+
+RELEASED_MODELS = tuple(m for m in MODELS if m != "static")
+
+
+def register(sub: argparse._SubParsersAction[options.Parser]) -> None:
+    p = sub.add_parser(
+        "record",
+        help="simulate the rig and record both IMUs, joint states and poses to an MCAP file",
+        description="Simulate a run and write one MCAP file (ROS 2 messages: /imu/m1, /imu/m2, /joint_states, "
+        "/tf, ...; metadata and the exact MJCF attached). Defaults: 30 deg release, 120 s, BNO055 noise on, seed 0.",
+    )
+    p.add_argument("-o", "--output", type=Path, required=True, help="the .mcap file to write")
+    options.add_force_option(p, "the output files (-o, --rerun)")
+    options.add_run_options(p)
+    options.add_drive_options(p, what="the recorded run (recorded as the /drive topic)")
+    p.add_argument("--no-noise", action="store_true", help="ideal IMU signals: no noise, clipping or quantisation")
+    p.add_argument(
+        "--hold-s",
+        type=options.float_in(0.0, 3600.0, "s"),
+        default=0.0,
+        help="start recording this long before the release, the pendulums held still (as real recordings do)",
+    )
+    p.add_argument("--seed", type=options.int_in(0, 2**63 - 1), default=0, help="seed of the noise generator")
+    p.add_argument(
+        "--ideal-timing",
+        action="store_true",
+        help="sample at exactly k/80 s instead of reading the latest 100 Hz fused value (the real node's timing)",
+    )
+    p.add_argument(
+        "--compression",
+        type=options.choice(COMPRESSIONS, "unknown compression {value!r}; allowed: {allowed}"),
+        choices=COMPRESSIONS,
+        default="zstd",
+        help="chunk compression (default zstd)",
+    )
+    options.add_rerun_option(p, "recording.rrd", "also log the simulated run to Rerun, as simulate --rerun does")
+    p.add_argument(
+        "--model",
+        type=options.choice(RELEASED_MODELS, "unknown model {value!r}; allowed: {allowed}"),
+        choices=RELEASED_MODELS,
+        default="planar",
+        help="planar (default) or spatial: the pendulums' planes --offset-m apart, with tilt freedoms",
+    )
+    p.add_argument(
+        "--offset-m",
+        type=options.float_in(0.0, 0.5, "m"),
+        default=0.050,
+        help="with --model spatial: distance between the planes, m (paper: 0.050 or 0.023)",
+    )
+    p.add_argument(
+        "--static",
+        action="store_true",
+        help="a static noise test: both nodes at rest, IMU topics only (e.g. --duration-s 21600 for 6 h)",
+    )
+    add_imperfection_options(p)
+    noise_size = options.float_in(0.0, 10.0)
+    for sensor, unit, what in (("accel", "m-s2", "m/s^2"), ("gyro", "rad-s", "rad/s")):
+        p.add_argument(
+            f"--{sensor}-bias-instability-{unit}",
+            type=noise_size,
+            default=0.0,
+            metavar="B",
+            help=f"{sensor} bias instability B, {what}, every axis (flicker noise; Allan floor 0.664 B); default 0",
+        )
+        p.add_argument(
+            f"--{sensor}-random-walk-{unit}-sqrt-s",
+            type=noise_size,
+            default=0.0,
+            metavar="K",
+            help=f"{sensor} bias random walk K, {what}/sqrt(s), every axis (Allan K sqrt(tau/3)); default 0",
+        )
+    p.set_defaults(handler=run)
+
+
+def axis_remap(text: str) -> tuple[int, int]:
+    """CONFIG,SIGN: the BNO055's AXIS_MAP_CONFIG and AXIS_MAP_SIGN registers (hex 0x.. or decimal)."""
+    try:
+        config, sign = (int(v, 0) for v in text.split(","))
+        axis_remap_matrix(config, sign)
+    except ValueError as exc:
+        detail = str(exc) if isinstance(exc, ParameterError) else "expected CONFIG,SIGN such as 0x21,0x04"
+        raise argparse.ArgumentTypeError(f"--axis-remap {text!r}: {detail}") from None
+    return config, sign
+
+
+def add_imperfection_options(p: argparse.ArgumentParser, *, transport: bool = True) -> None:
+    """What real nodes add (pendsim_mj.imperfections); all off by default. Without ``transport``,
+    only what changes the values (heading, mount, axis remap, fusion error, hold wobble): loss,
+    clock drift and latency are then the caller's (``pendsim nodes`` sends real packets)."""
+    g = p.add_argument_group("imperfections of real nodes (all off by default; the paper is silent on them)")
+    g.add_argument(
+        "--heading-deg",
+        type=options.float_in(-360.0, 360.0, "deg"),
+        default=0.0,
+        help="NDOF heading: the orientation's world frame turned by this angle about the vertical (magnetic north)",
+    )
+    g.add_argument(
+        "--mount-misalignment-deg",
+        type=options.float_in(0.0, 45.0, "deg"),
+        default=0.0,
+        metavar="A",
+        help="each node glued on turned by A deg about a random axis (drawn from --seed)",
+    )
+    g.add_argument(
+        "--axis-remap",
+        type=axis_remap,
+        default=(0x24, 0x00),
+        metavar="CONFIG,SIGN",
+        help="both nodes' AXIS_MAP_CONFIG,AXIS_MAP_SIGN registers, e.g. 0x21,0x04 (default 0x24,0x00: none)",
+    )
+    g.add_argument(
+        "--fusion-error-deg",
+        type=options.float_in(0.0, 10.0, "deg"),
+        default=0.0,
+        metavar="E",
+        help="rms per axis of a slowly varying error of the fused orientation (periods around 30 s), deg",
+    )
+    if transport:
+        g.add_argument(
+            "--packet-loss",
+            type=options.float_in(0.0, 0.9),
+            default=0.0,
+            metavar="P",
+            help="share of each node's samples lost in transport, in bursts (e.g. 0.05)",
+        )
+        g.add_argument(
+            "--loss-burst-samples",
+            type=options.float_in(1.0, 1000.0),
+            default=3.0,
+            metavar="L",
+            help="mean length of a burst of lost samples (default 3; 1: independent losses)",
+        )
+        g.add_argument(
+            "--clock-drift-ppm",
+            type=options.float_in(-1000.0, 1000.0, "ppm"),
+            default=0.0,
+            metavar="PPM",
+            help="M2's node clock runs this much faster than M1's (its stamps are on its own clock)",
+        )
+        g.add_argument(
+            "--latency-s",
+            type=options.float_in(0.0, 1.0, "s"),
+            default=0.0,
+            help="mean transport latency (exponential) between sampling and logging, s",
+        )
+    g.add_argument(
+        "--hold-wobble-deg",
+        type=options.float_in(0.0, 5.0, "deg"),
+        default=0.0,
+        help="with --hold-s: rms hand tremor of the held pendulums, deg (fades out before the release)",
+    )
+
+
+def imperfections_from(args: argparse.Namespace) -> tuple[Imperfections, tuple[tuple[float, float, float, float], ...]]:
+    """The Imperfections and the two mount rotations the options describe."""
+    config, sign = args.axis_remap
+    imperfect = Imperfections(
+        heading_rad=math.radians(args.heading_deg),
+        axis_map_config=(config, config),
+        axis_map_sign=(sign, sign),
+        fusion_error_rad=math.radians(args.fusion_error_deg),
+        packet_loss=getattr(args, "packet_loss", 0.0),
+        loss_burst_samples=args.loss_burst_samples if getattr(args, "packet_loss", 0.0) > 0 else 1.0,
+        clock_drift_ppm=(0.0, args.clock_drift_ppm) if hasattr(args, "latency_s") else (0.0, 0.0),
+        latency_s=getattr(args, "latency_s", 0.0),
+        hold_wobble_rad=math.radians(args.hold_wobble_deg),
+    )
+    rng = np.random.default_rng([args.seed, 5])
+    angle = math.radians(args.mount_misalignment_deg)
+    mounts = tuple(random_mount(angle, rng) if angle else (1.0, 0.0, 0.0, 0.0) for _ in range(2))
+    return imperfect, mounts
+
+
+def spec_from(args: argparse.Namespace) -> RecordSpec:
+    """The RecordSpec the options describe."""
+    if args.model == "spatial" and (args.static or args.engine != "mujoco"):
+        raise options.UsageError("--model spatial needs the mujoco engine and a released run (not --static)")
+    noise = ImuNoise(
+        accel_bias_instability_m_s2=(args.accel_bias_instability_m_s2,) * 3,
+        gyro_bias_instability_rad_s=(args.gyro_bias_instability_rad_s,) * 3,
+        accel_bias_walk_m_s2_per_sqrt_s=(args.accel_random_walk_m_s2_sqrt_s,) * 3,
+        gyro_bias_walk_rad_s_per_sqrt_s=(args.gyro_random_walk_rad_s_sqrt_s,) * 3,
+    )
+    imperfect, mounts = imperfections_from(args)
+    imu = Bno055(
+        noise=not args.no_noise,
+        seed=args.seed,
+        fusion_timing=not args.ideal_timing,
+        noise_model=noise,
+        mount_quat_wxyz=mounts,
+        imperfections=imperfect,
+    )
+    params = options.params_from(args)
+    if args.model == "spatial":
+        params = params.with_overrides(plane_offset_m=args.offset_m)
+    phi0, omega0 = options.initial_state_from(args)
+    model: Model = "static" if args.static else args.model
+    return RecordSpec(
+        params, phi0, omega0, args.duration_s, args.dt_s, args.engine, model, args.hold_s, imu, args.compression,
+        drive=options.drive_from(args),
+    )  # fmt: skip
+
+
+def run(args: argparse.Namespace) -> int:
+    from tqdm import tqdm
+
+    options.check_output(args.output, (".mcap",), force=args.force)
+    options.check_output(args.rerun, (".rrd",), force=args.force)
+    spec = spec_from(args)
+    try:
+        with tqdm(total=spec.duration_s + spec.hold_s, unit="s", desc="recording", disable=None, leave=False) as bar:
+            result = record(spec, args.output, replace=args.force, progress=bar.update)
+    except RecordInterrupted as interrupted:
+        print(f"pendsim: {interrupted}", file=sys.stderr)
+        return EXIT_INTERRUPTED
+    if args.rerun is not None and spec.model != "static":
+        from pendsim_bridge.record import simulate_for
+        from pendsim_bridge.rerun_view import view_trajectory
+        from pendsim_mj.model import build_model
+
+        targets = spec.drive.targets if spec.drive else ()
+        view_trajectory(
+            simulate_for(spec), build_model(spec.params, drive_targets=targets), args.rerun, replace=args.force
+        )
+        print(f"wrote {args.rerun}")
+    size_mb = result.size_bytes / 1e6
+    print(f"wrote {args.output}: {args.duration_s:g} s, {result.samples} IMU samples per node, {size_mb:.2f} MB")
+    return 0
+
+
+EXIT_INTERRUPTED = 130

@@ -1,0 +1,182 @@
+"""pendsim sweep: many runs over parameters and release states, to Parquet, maps and rankings."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from pendsim_bridge import options
+from pendsim_mj.errors import ParameterError
+from pendsim_mj.sweep_features import FEATURE_GROUPS
+from pendsim_mj.sweep_plan import ENGINES, SweepPlan, axis_mapping, parse_vary
+
+# Options that define the sweep (not allowed together with a definition file).
+PLAN_OPTIONS = (
+    "vary",
+    "overrides",
+    "random",
+    "lhs",
+    "cases",
+    "sensitivity",
+    "relative_step",
+    "parameters",
+    "engine",
+    "duration_s",
+    "dt_s",
+    "save_every",
+    "features",
+    "seed",
+    "trajectories",
+)
+
+
+def register(sub: argparse._SubParsersAction[options.Parser]) -> None:
+    p = sub.add_parser(
+        "sweep",
+        help="run many cases (grid, random, Latin hypercube, CSV, sensitivity) to Parquet and maps",
+        description="Run the rig over many parameter sets and release states and write one Parquet row per case "
+        "(inputs and features), maps per feature and, for --sensitivity, a ranking of every parameter. "
+        "Define the sweep in a TOML/JSON file or with options; run it again into the same folder to resume. "
+        "Defaults: fast planar engine, 30 s at 10 ms, features frequency, amplitude, energy.",
+    )
+    p.add_argument("definition", nargs="?", type=options.input_file, help="sweep definition (.toml or .json)")
+    p.add_argument(
+        "-o", "--output", type=Path, default=Path("sweep-results"), help="results folder (default sweep-results)"
+    )
+    p.add_argument(
+        "--vary",
+        action="append",
+        default=[],
+        metavar="NAME=SPEC",
+        help="vary an input: NAME=FROM:TO:NUM (grid), NAME=V1,V2,... (grid) or NAME=FROM:TO (--random, --lhs); "
+        "append :log for geometric spacing; repeatable",
+    )
+    p.add_argument(
+        "--set",
+        dest="overrides",
+        type=options.assignment,
+        action="append",
+        default=[],
+        metavar="NAME=VALUE",
+        help="a fixed input of every case, e.g. --set phi1_deg=45 or --set c2_n_m=6; repeatable",
+    )
+    how = p.add_mutually_exclusive_group()
+    how.add_argument(
+        "--random", type=options.int_in(1, 10**8), metavar="N", help="N cases drawn uniformly in the ranges"
+    )
+    how.add_argument(
+        "--lhs", type=options.int_in(1, 10**8), metavar="N", help="N cases of a Latin hypercube over the ranges"
+    )
+    how.add_argument(
+        "--cases", type=options.input_file, metavar="FILE.csv", help="one case per row; the header names the inputs"
+    )
+    how.add_argument(
+        "--sensitivity",
+        action="store_true",
+        help="every rig parameter alone at (1 -/+ step) x its value, and a ranked bar chart per feature",
+    )
+    p.add_argument(
+        "--relative-step",
+        type=options.float_in(0.0, 0.5, low_open=True),
+        metavar="STEP",
+        help="sensitivity step (default 0.01)",
+    )
+    p.add_argument(
+        "--parameters", metavar="NAMES", help="sensitivity: comma-separated parameters (default: every RigParams field)"
+    )
+    p.add_argument(
+        "--engine",
+        type=options.choice(ENGINES, "unknown engine {value!r}; allowed: {allowed}"),
+        choices=ENGINES,
+        help="fast (compiled planar, default), mujoco (planar) or spatial (MuJoCo)",
+    )
+    p.add_argument(
+        "--duration-s",
+        metavar="S",
+        type=options.float_in(0.0, 86400.0, "s", low_open=True, name="duration_s"),
+        help="simulated time per case, s (default 30)",
+    )
+    p.add_argument(
+        "--dt-s",
+        type=options.float_in(0.0, 0.1, "s", low_open=True, name="dt_s"),
+        metavar="S",
+        help="step, s (default 0.01)",
+    )
+    p.add_argument(
+        "--save-every",
+        type=options.int_in(1, 10**6),
+        metavar="K",
+        help="keep every k-th step for the features and trajectories (default 1)",
+    )
+    p.add_argument(
+        "--features",
+        help=f"comma-separated feature groups: {', '.join(FEATURE_GROUPS)} (default frequency,amplitude,energy)",
+    )
+    p.add_argument("--seed", type=options.int_in(0, 2**32 - 1), help="seed of --random and --lhs (default 0)")
+    p.add_argument(
+        "--trajectories", action="store_true", help="also store every case's phi and omega in trajectories.zarr"
+    )
+    where = p.add_mutually_exclusive_group()
+    where.add_argument(
+        "--workers",
+        type=options.int_in(1, 1024),
+        metavar="N",
+        help="run on a local Dask cluster of N worker processes (loopback only)",
+    )
+    where.add_argument("--scheduler", metavar="tcp://HOST:PORT", help="run on the Dask scheduler at this address")
+    p.add_argument(
+        "--cases-per-task", type=options.int_in(1, 10**8), metavar="N", help="cases per task (default: automatic)"
+    )
+    p.add_argument("--no-plots", action="store_true", help="write no maps")
+    p.set_defaults(handler=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    from pendsim_bridge.sweep import describe, run_sweep
+
+    plan = _plan(args)
+    if args.output.exists() and not args.output.is_dir():
+        raise options.UsageError(f"output {str(args.output)!r} is a file; give a folder for the sweep's results")
+    summary = run_sweep(
+        plan,
+        args.output,
+        workers=args.workers,
+        scheduler=args.scheduler,
+        cases_per_task=args.cases_per_task,
+        plots=not args.no_plots,
+    )
+    print(describe(summary, plan))
+    return 0
+
+
+def _plan(args: argparse.Namespace) -> SweepPlan:
+    """The sweep from the definition file, or from the options (never both)."""
+    given = [name for name in PLAN_OPTIONS if getattr(args, name) not in (None, False, [])]
+    if args.definition is not None:
+        if given:
+            flags = ", ".join("--" + n.replace("_", "-").replace("overrides", "set") for n in given)
+            raise options.UsageError(f"give the sweep in {args.definition} or by options, not both (found {flags})")
+        return SweepPlan.load(args.definition)
+    if not (args.vary or args.random or args.lhs or args.cases or args.sensitivity):
+        raise options.UsageError(
+            "nothing to sweep: give a definition file, --vary NAME=SPEC, --cases FILE.csv or --sensitivity"
+        )
+    data: dict[str, object] = {"base": dict(args.overrides)}
+    try:
+        data["vary"] = {a.name: axis_mapping(a) for a in (parse_vary(v) for v in args.vary)}
+    except ParameterError as exc:
+        raise options.UsageError(f"argument --vary: {exc}") from None
+    method = "random" if args.random else "lhs" if args.lhs else "csv" if args.cases else None
+    method = "sensitivity" if args.sensitivity else method
+    if method:
+        data["method"] = method
+    if args.random or args.lhs:
+        data["samples"] = args.random or args.lhs
+    if args.cases:
+        data["cases"] = str(args.cases)
+    for name in ("relative_step", "parameters", "engine", "duration_s", "dt_s", "save_every", "features", "seed"):
+        if getattr(args, name) is not None:
+            data[name] = getattr(args, name)
+    if args.trajectories:
+        data["trajectories"] = True
+    return SweepPlan.from_mapping(data)

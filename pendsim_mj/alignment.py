@@ -1,0 +1,499 @@
+"""Turn two IMU nodes' raw samples into the measured run a model is compared with.
+
+Works on arrays (time stamps, quaternions, gyro and accelerometer per node), from any recorder:
+
+1. **Clocks**: each node's stamps are mapped to the recorder's clock by the lower envelope of
+   (stamp, log time) (``timing.fit_clock``): drifting node clocks line up, latency drops out.
+2. **Start**: the motion is found from the gyro magnitudes (no axis assumed). If the pendulums
+   rest (hand wobble allowed) for at least 0.1 s before it, the run starts at a *release* from
+   rest; otherwise it starts *in motion* at its first samples (a recording started at the
+   release, a replay cut, a start mid-swing). ``release_s`` gives the start instead.
+3. **Swing frames** (``swing_frame``): each node's hinge axis, mounting and angle from its own
+   data, whatever the heading, mount and axis remap. Signs: M1's first large excursion counts as
+   positive (the paper releases M1 to +34 deg; the rig is mirror symmetric, so this convention
+   cannot change a comparison); M2 follows M1 through the coupling springs, which pull M2 toward
+   M1 (d alpha2 / d phi1 > 0, about 5 s^-2 on the paper's rig).
+4. **Start state**: least squares of the model's first ``start_fit_s`` seconds against both
+   nodes' angles and rates: the release instant and angles (from rest) for a release, else the
+   full state (angles and rates) at the first samples.
+5. **Fusion timing**: a BNO055 sample carries the latest 100 Hz fused value, so it is 0-10 ms
+   old in a pattern set by where the chip's fusion ticks fall; that phase is found per node by
+   the best fit of the model.
+6. **Gaps**: nothing is filled in; each node keeps its own instants, and its coverage (share of
+   the run inside segments whose spacing stays below ``max_gap_s``) is reported.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import math
+from collections.abc import Sequence
+from typing import Literal
+
+import numpy as np
+from numpy.typing import NDArray
+
+from pendsim_mj import engines
+from pendsim_mj.errors import ParameterError, RecordingError
+from pendsim_mj.params import RigParams
+from pendsim_mj.quantities import BY_NAME, Quantity
+from pendsim_mj.sensors import ImuNoise
+from pendsim_mj.swing_frame import SwingFrame, fit_swing_frame
+from pendsim_mj.timing import (
+    DEFAULT_MAX_GAP_S,
+    ClockRelation,
+    Coverage,
+    check_max_gap,
+    coverage,
+    fit_clock,
+    fused_value_instants,
+    fusion_phase,
+    nominal_rate_hz,
+)
+
+Floats = NDArray[np.float64]
+StartKind = Literal["release", "in motion", "given"]
+
+MIN_MOTION_RAD_S = 0.05  # a node whose gyro magnitude never (99th percentile) exceeds this does not swing
+MIN_REST_S = 0.1  # rest this long before the motion makes it a release
+ANGLE_SIGMA_RAD = 0.002  # weight of the fused angle in the start fit (the gyro's own sigma weights rates)
+PHASE_STEP_S = 0.00025  # grid of the fusion-phase search
+FIRST_SWING_S = 1.5  # M1's sign: its largest excursion this long after the start is positive
+
+
+@dataclasses.dataclass(frozen=True)
+class NodeSamples:
+    """One node's samples as recorded: n of them, any spacing, gaps allowed.
+
+    Attributes:
+      log_t_s: (n,) when the recorder logged each sample, s on its clock.
+      quat_wxyz: (n, 4) fused orientation.
+      gyro_rad_s: (n, 3) angular velocity, sensor axes.
+      accel_m_s2: (n, 3) acceleration with gravity (specific force), sensor axes.
+      stamp_s: (n,) the node's own time stamps, s (None: use log_t_s).
+      gyro_covariance: (3, 3) of the gyro noise, (rad/s)^2 (None or zeros: the BNO055's).
+    """
+
+    log_t_s: Floats
+    quat_wxyz: Floats
+    gyro_rad_s: Floats
+    accel_m_s2: Floats
+    stamp_s: Floats | None = None
+    gyro_covariance: Floats | None = None
+
+
+@dataclasses.dataclass(frozen=True)
+class NodeRun:
+    """One node's measured series from the start on (m samples, the node's own instants).
+
+    Attributes:
+      t_s: (m,) sample instants since the start, s (the recorder's clock).
+      value_t_s: (m,) instants the values belong to (fused values are older than their
+        samples), s since the start: where the model is evaluated.
+      phi_rad, omega_rad_s: (m,) the pendulum's angle and rate in its swing frame.
+      tangential_m_s2, normal_m_s2: (m,) accelerometer along the swing frame's tangential and
+        toward-pivot directions (gravity included).
+      frame: the node's swing frame (hinge axis, mounting).
+      clock: its stamps' relation to the recorder's clock (None: its stamps were unusable and
+        log times were used).
+      fusion_phase_s: where its chip's fusion ticks fall on its clock (mod one fusion period), s;
+        None without fusion timing.
+      coverage: how much of the run its samples cover.
+      gyro_sigma_rad_s: noise sigma of its rate, rad/s.
+    """
+
+    t_s: Floats
+    value_t_s: Floats
+    phi_rad: Floats
+    omega_rad_s: Floats
+    tangential_m_s2: Floats
+    normal_m_s2: Floats
+    frame: SwingFrame
+    clock: ClockRelation | None
+    fusion_phase_s: float | None
+    coverage: Coverage
+    gyro_sigma_rad_s: float
+
+
+@dataclasses.dataclass(frozen=True)
+class StartState:
+    """Where the run starts and the model with it.
+
+    Attributes:
+      kind: "release" (from rest, found in the data), "in motion" (the recording starts
+        moving; the state at its first samples) or "given" (the caller's start instant).
+      time_s: the start on the recorder's clock, s.
+      phi_rad, omega_rad_s: (phi1, phi2) and (omega1, omega2) there (rates 0 for a release).
+      fit_rms: rms of the start fit's residuals in units of their sigmas.
+    """
+
+    kind: StartKind
+    time_s: float
+    phi_rad: tuple[float, float]
+    omega_rad_s: tuple[float, float]
+    fit_rms: float
+
+
+@dataclasses.dataclass(frozen=True)
+class MeasuredRun:
+    """Both nodes' measured series from the start (t = 0) on, and how they were aligned."""
+
+    nodes: tuple[NodeRun, NodeRun]
+    start: StartState
+    fusion_rate_hz: float | None
+    max_gap_s: float
+
+    def series(self, quantity: Quantity | str) -> tuple[Floats, Floats, Floats]:
+        """(t_s, values, value_t_s) of a quantity (see ``pendsim_mj.quantities``), each (m,)."""
+        q = BY_NAME[quantity] if isinstance(quantity, str) else quantity
+        node = self.nodes[q.node]
+        return node.t_s, getattr(node, q.attribute), node.value_t_s
+
+    @property
+    def duration_s(self) -> float:
+        """From the start to the later node's last sample, s."""
+        return max(float(n.t_s[-1]) for n in self.nodes)
+
+    @property
+    def release_time_s(self) -> float:
+        return self.start.time_s
+
+    @property
+    def release_angle_rad(self) -> tuple[float, float]:
+        return self.start.phi_rad
+
+    @property
+    def gyro_sigma_rad_s(self) -> tuple[float, float]:
+        return (self.nodes[0].gyro_sigma_rad_s, self.nodes[1].gyro_sigma_rad_s)
+
+
+@dataclasses.dataclass(frozen=True)
+class _Node:
+    """A node's samples sorted, on the recorder's clock, with its swing-frame series."""
+
+    t: Floats  # recorder clock
+    stamp: Floats  # node clock (= t when the stamps are unusable)
+    clock: ClockRelation | None
+    quat: Floats
+    gyro: Floats
+    accel: Floats
+    sigma: float
+    rate_hz: float
+    frame: SwingFrame | None = None
+
+    def with_frame(self, frame: SwingFrame) -> _Node:
+        return dataclasses.replace(self, frame=frame)
+
+    @functools.cached_property
+    def phi(self) -> Floats:
+        assert self.frame is not None
+        return self.frame.angle(self.quat)
+
+    @functools.cached_property
+    def omega(self) -> Floats:
+        assert self.frame is not None
+        return self.frame.rate(self.gyro)
+
+    def value_instants(self, fusion_rate_hz: float | None, phase_s: float | None) -> Floats:
+        """Recorder-clock instants of the values (fused, with the given phase on the node clock)."""
+        if not fusion_rate_hz or phase_s is None:
+            return self.t
+        fused = fused_value_instants(self.stamp, fusion_rate_hz, phase_s)
+        return self.clock.to_recorder(fused) if self.clock is not None else fused
+
+
+def _prepare(samples: NodeSamples, index: int) -> _Node:
+    log = np.asarray(samples.log_t_s, dtype=float)
+    n = len(log)
+    shapes = {"quat_wxyz": (n, 4), "gyro_rad_s": (n, 3), "accel_m_s2": (n, 3)}
+    for name, shape in shapes.items():
+        if np.shape(getattr(samples, name)) != shape:
+            got = np.shape(getattr(samples, name))
+            raise ParameterError(f"node M{index + 1}: {name} must have shape {shape}, got {got}")
+    if n < 100:
+        raise RecordingError(f"node M{index + 1} has {n} samples; too few to align")
+    stamp = log if samples.stamp_s is None else np.asarray(samples.stamp_s, dtype=float)
+    order = np.argsort(stamp, kind="stable")
+    keep = np.ones(n, dtype=bool)
+    keep[1:] = np.diff(stamp[order]) > 0  # duplicates: the first copy
+    order = order[keep]
+    stamp, log = stamp[order], log[order]
+    clock = fit_clock(stamp, log) if samples.stamp_s is not None else None
+    t = clock.to_recorder(stamp) if clock is not None else log
+    if clock is None:
+        stamp = log
+    cov = samples.gyro_covariance
+    sigma = float(ImuNoise().gyro_sigma_rad_s[2])
+    node = _Node(
+        t=t,
+        stamp=stamp,
+        clock=clock,
+        quat=np.asarray(samples.quat_wxyz, dtype=float)[order],
+        gyro=np.asarray(samples.gyro_rad_s, dtype=float)[order],
+        accel=np.asarray(samples.accel_m_s2, dtype=float)[order],
+        sigma=sigma,
+        rate_hz=nominal_rate_hz(t),
+    )
+    if cov is not None and np.any(cov):
+        return dataclasses.replace(node, sigma=-1.0)  # from the covariance once the hinge axis is known
+    return node
+
+
+def _gyro_sigma(node: _Node, cov: Floats | None) -> float:
+    if node.sigma > 0 or cov is None or node.frame is None:
+        return node.sigma
+    a = node.frame.hinge_axis
+    return float(math.sqrt(max(float(a @ np.asarray(cov) @ a), 1e-12)))
+
+
+def _detect_start(nodes: Sequence[_Node]) -> tuple[StartKind, float]:
+    """('release', coarse release instant) or ('in motion', first common instant)."""
+    speeds = [np.linalg.norm(n.gyro, axis=1) for n in nodes]
+    top = [float(np.quantile(s, 0.99)) for s in speeds]
+    if max(top) < MIN_MOTION_RAD_S:
+        raise RecordingError(
+            f"no motion found: both gyros stay below {MIN_MOTION_RAD_S} rad/s (99th percentile "
+            f"{max(top):.3g} rad/s); a static recording has no swing to validate"
+        )
+    # The pendulum that swings most was let go: its motion marks the start (a held one's wobble
+    # could otherwise be taken for it).
+    k = int(np.argmax(top))
+    node, s, peak = nodes[k], speeds[k], top[k]
+    i_big = int(np.argmax(s > 0.3 * peak))
+    pre = s[node.t <= node.t[i_big] - 0.2]
+    level = max(1.5 * float(np.quantile(pre, 0.95)), 0.03) if len(pre) >= 8 else 0.03
+    i = i_big
+    while i > 0 and s[i - 1] > level:
+        i -= 1
+    rested = node.t[i] - node.t[0] >= MIN_REST_S
+    if rested:
+        before = s[(node.t >= node.t[i] - 0.5) & (node.t < node.t[i])]
+        rested = len(before) >= 8 and float(np.mean(before <= level)) >= 0.9
+    t_onset = float(node.t[i])
+    if rested:
+        return "release", t_onset - 0.5 / node.rate_hz
+    return "in motion", max(float(n.t[0]) for n in nodes)
+
+
+def _orient(nodes: list[_Node], t0: float) -> list[_Node]:
+    """Signs: M1's largest excursion over the first swing positive; M2 coupled to M1 as the
+    springs couple them (alpha2 rises with phi1)."""
+    m1, m2 = nodes
+    assert m1.frame is not None and m2.frame is not None
+    phi1 = m1.phi
+    first = (m1.t >= t0) & (m1.t <= t0 + FIRST_SWING_S)
+    if first.any() and phi1[first][np.argmax(np.abs(phi1[first]))] < 0:
+        m1 = m1.with_frame(m1.frame.flipped())
+        phi1 = -phi1
+    t2, phi2, omega2 = m2.t, m2.phi, m2.omega
+    span = t2[2:] - t2[:-2]
+    ok = (span > 0) & (span < 3.0 / m2.rate_hz) & (t2[1:-1] >= t0)
+    alpha2 = (omega2[2:] - omega2[:-2]) / np.where(span > 0, span, 1.0)
+    phi1_at = np.interp(t2[1:-1], m1.t, phi1)
+    design = np.stack([phi2[1:-1], phi1_at, omega2[1:-1], np.ones(len(span))], axis=1)[ok]
+    if len(design) > 10:
+        coef, *_ = np.linalg.lstsq(design, alpha2[ok], rcond=None)
+        if coef[1] < 0:
+            m2 = m2.with_frame(m2.frame.flipped())
+    return [m1, m2]
+
+
+@dataclasses.dataclass(frozen=True)
+class _StartModel:
+    """The model of the run's first seconds, parametrised for the start fit."""
+
+    kind: StartKind
+    t0: float  # the fixed start (in motion, given) or the first guess of the release
+    params: RigParams
+    engine: str
+    horizon_s: float
+
+    def states(self, x: Floats) -> tuple[Floats, Floats, float]:
+        """(phi0 (2,), omega0 (2,), start instant) of a parameter vector."""
+        if self.kind == "release":
+            return x[1:3], np.zeros(2), float(x[0])
+        return x[0:2], x[2:4], self.t0
+
+    def rollouts(self, xs: Sequence[Floats]):
+        phi0 = np.array([self.states(x)[0] for x in xs])
+        omega0 = np.array([self.states(x)[1] for x in xs])
+        return engines.run_batch(self.engine, self.params, phi0, omega0, engines.whole_steps_s(self.horizon_s))
+
+
+def _predict(traj_t: Floats, phi: Floats, omega: Floats, at: Floats, rest_phi: float | None) -> tuple[Floats, Floats]:
+    """A member's phi, omega (n,) at instants ``at`` since its start (at rest before it): cubic
+    Hermite interpolation through phi and its derivative omega (and omega through its own
+    derivative, by central differences), fourth order in the step."""
+    h = float(traj_t[1] - traj_t[0])
+    inside = np.clip(at, 0.0, traj_t[-1])
+    i = np.clip((inside / h).astype(int), 0, len(traj_t) - 2)
+    s = inside / h - i
+    alpha = np.gradient(omega, h)
+    h00, h10, h01, h11 = 2 * s**3 - 3 * s**2 + 1, s**3 - 2 * s**2 + s, -2 * s**3 + 3 * s**2, s**3 - s**2
+    p = h00 * phi[i] + h10 * h * omega[i] + h01 * phi[i + 1] + h11 * h * omega[i + 1]
+    w = h00 * omega[i] + h10 * h * alpha[i] + h01 * omega[i + 1] + h11 * h * alpha[i + 1]
+    if rest_phi is not None:
+        p = np.where(at < 0, rest_phi, p)
+        w = np.where(at < 0, 0.0, w)
+    return p, w
+
+
+def _residuals(model: _StartModel, traj, member: int, x: Floats, data) -> Floats:
+    phi0, _, start = model.states(x)
+    out = []
+    for k, (at, phi, omega, sigma) in enumerate(data):
+        rest = float(phi0[k]) if model.kind == "release" else None
+        p, w = _predict(traj.t_s, traj.phi_rad[member, :, k], traj.omega_rad_s[member, :, k], at - start, rest)
+        out += [(p - phi) / ANGLE_SIGMA_RAD, (w - omega) / sigma]
+    return np.concatenate(out)
+
+
+def _fit_start(model: _StartModel, x0: Floats, data, *, iterations: int = 8) -> tuple[Floats, float]:
+    """Gauss-Newton on the start parameters; the Jacobian by finite differences, one batch of
+    rollouts per iteration (a shift of the release instant needs no rollout)."""
+    x = np.asarray(x0, dtype=float)
+    steps = np.full(len(x), 1e-5)
+    rolled = list(range(len(x)))
+    if model.kind == "release":
+        steps[0] = 1e-4
+        rolled = rolled[1:]
+    cost = math.inf
+    previous = x
+    for _ in range(iterations):
+        xs = [x] + [x + steps[j] * np.eye(len(x))[j] for j in rolled]
+        batch = model.rollouts(xs)
+        r0 = _residuals(model, batch, 0, x, data)
+        columns = []
+        for j in range(len(x)):
+            if j in rolled:
+                rj = _residuals(model, batch, 1 + rolled.index(j), xs[1 + rolled.index(j)], data)
+            else:
+                rj = _residuals(model, batch, 0, x + steps[j] * np.eye(len(x))[j], data)
+            columns.append((rj - r0) / steps[j])
+        jac = np.stack(columns, axis=1)
+        new_cost = float(r0 @ r0)
+        if new_cost > cost * (1 + 1e-9):  # the last step overshot: go half way back
+            x = 0.5 * (x + previous)
+            continue
+        cost, previous = new_cost, x
+        delta, *_ = np.linalg.lstsq(jac, -r0, rcond=None)
+        x = x + delta
+        if np.all(np.abs(delta) < 1e-6):  # 1 us, 1 urad, 1 urad/s
+            break
+    batch = model.rollouts([x])
+    r = _residuals(model, batch, 0, x, data)
+    return x, float(np.sqrt(np.mean(r * r)))
+
+
+def _fit_data(nodes: Sequence[_Node], instants: Sequence[Floats], lo: float, hi: float):
+    """Per node (value instants, phi, omega, sigma) of the samples whose values lie in [lo, hi]."""
+    out = []
+    for node, at in zip(nodes, instants, strict=True):
+        inside = (at >= lo) & (at <= hi)
+        out.append((at[inside], node.phi[inside], node.omega[inside], node.sigma))
+    return out
+
+
+def align(
+    nodes: Sequence[NodeSamples],
+    params: RigParams,
+    *,
+    fusion_rate_hz: float | None = 100.0,
+    release_s: float | None = None,
+    max_gap_s: float = DEFAULT_MAX_GAP_S,
+    start_fit_s: float = 1.0,
+    engine: str = "mujoco",
+) -> MeasuredRun:
+    """The measured run of two nodes (M1's, M2's) against which ``params`` will be compared.
+
+    Args:
+      nodes: the two nodes' samples.
+      params: the rig (its model fits the start state).
+      fusion_rate_hz: the chips' fusion rate (each sample carries the latest fused value), or
+        None for values taken at their sample instants.
+      release_s: the start on the recorder's clock, s, instead of detecting it.
+      max_gap_s: spacing above which samples are not interpolated across, s.
+      start_fit_s: length of the start fit, s.
+      engine: the model that fits the start ("mujoco" or "reference").
+
+    Raises:
+      RecordingError: too few samples, no motion, no swing to find a frame in.
+      ParameterError: bad options (release_s outside the samples, shapes).
+    """
+    if len(nodes) != 2:
+        raise ParameterError(f"align needs the two nodes (M1, M2), got {len(nodes)}")
+    check_max_gap(max_gap_s)
+    prepared = [_prepare(n, k) for k, n in enumerate(nodes)]
+    phases: list[float | None] = [None, None]
+    if fusion_rate_hz:  # where each chip's fusion ticks fall: the phase that makes its gyro smoothest
+        phases = [fusion_phase(n.stamp, n.gyro, fusion_rate_hz) for n in prepared]
+    instants = [n.value_instants(fusion_rate_hz, p) for n, p in zip(prepared, phases, strict=True)]
+    first = max(float(n.t[0]) for n in prepared)
+    last = min(float(n.t[-1]) for n in prepared)
+    kind: StartKind
+    if release_s is not None:
+        if not (math.isfinite(release_s) and first <= release_s <= last - 1.0):
+            raise ParameterError(
+                f"release_s = {release_s!r} s is outside the samples of both nodes "
+                f"({first:.3f} to {last - 1.0:.3f} s on the recording's clock, leaving 1 s to compare)"
+            )
+        kind, t0 = "given", float(release_s)
+    else:
+        kind, t0 = _detect_start(prepared)
+    frames = []
+    for k, node in enumerate(prepared):
+        try:
+            frame = fit_swing_frame(
+                instants[k], node.quat, node.gyro, node.accel, g_m_s2=params.g_m_s2, max_step_s=2.5 / node.rate_hz
+            )
+        except RecordingError as exc:
+            raise RecordingError(f"node M{k + 1}: {exc}") from None
+        frames.append(node.with_frame(frame))
+    prepared = _orient(frames, t0)
+    prepared = [dataclasses.replace(n, sigma=_gyro_sigma(n, nodes[k].gyro_covariance)) for k, n in enumerate(prepared)]
+
+    # Start state: least squares of the model's first seconds against both nodes.
+    model = _StartModel(kind, t0, params, engine, start_fit_s + 0.6)
+    lo = t0 - 0.3 if kind == "release" else t0
+    hi = t0 + start_fit_s
+    phi_now = [float(np.interp(t0, at, n.phi)) for n, at in zip(prepared, instants, strict=True)]
+    omega_now = [float(np.interp(t0, at, n.omega)) for n, at in zip(prepared, instants, strict=True)]
+    if kind == "release":
+        held = [n.phi[(at >= t0 - 0.3) & (at <= t0)] for n, at in zip(prepared, instants, strict=True)]
+        x = np.array([t0] + [float(np.mean(h)) if len(h) else p for h, p in zip(held, phi_now, strict=True)])
+    else:
+        x = np.array(phi_now + omega_now)
+    x, rms = _fit_start(model, x, _fit_data(prepared, instants, lo, hi))
+    phi0, omega0, start_time = model.states(x)
+    start = StartState(
+        kind=kind,
+        time_s=start_time,
+        phi_rad=(float(phi0[0]), float(phi0[1])),
+        omega_rad_s=(float(omega0[0]), float(omega0[1])),
+        fit_rms=rms,
+    )
+
+    runs = []
+    for node, at, phase in zip(prepared, instants, phases, strict=True):
+        # from the release on (values just before it are the model's rest); from the first values
+        # after a start in motion
+        keep = node.t >= start_time - 1e-9 if kind == "release" else at >= start_time - 1e-9
+        assert node.frame is not None
+        t = node.t[keep] - start_time
+        runs.append(
+            NodeRun(
+                t_s=t,
+                value_t_s=at[keep] - start_time,
+                phi_rad=node.phi[keep],
+                omega_rad_s=node.omega[keep],
+                tangential_m_s2=node.frame.tangential_of(node.accel[keep]),
+                normal_m_s2=node.frame.normal_of(node.accel[keep]),
+                frame=node.frame,
+                clock=node.clock,
+                fusion_phase_s=phase,
+                coverage=coverage(t, max_gap_s, node.rate_hz),
+                gyro_sigma_rad_s=node.sigma,
+            )
+        )
+    return MeasuredRun(nodes=(runs[0], runs[1]), start=start, fusion_rate_hz=fusion_rate_hz, max_gap_s=max_gap_s)

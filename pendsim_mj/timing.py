@@ -1,0 +1,278 @@
+"""Time on real recordings: each node's clock against the recorder's, where the fused values
+belong in time, and which parts of a run the samples cover.
+
+- A node stamps its samples with its own clock; the recorder logs each message when it arrives,
+  a variable transport latency later. ``fit_clock`` finds recorder time = offset + rate x stamp
+  under the points (stamp, log time): the latency jitter lies above it.
+- Gaps: samples are lost (often in bursts). A *covered segment* is a run of samples whose
+  spacing never exceeds ``max_gap_s``; nothing is ever interpolated across a longer gap.
+"""
+
+from __future__ import annotations
+
+import bisect
+import dataclasses
+import itertools
+import math
+
+import numpy as np
+from numpy.typing import NDArray
+
+from pendsim_mj.errors import RecordingError
+
+Floats = NDArray[np.float64]
+
+DEFAULT_MAX_GAP_S = 0.1
+
+
+@dataclasses.dataclass(frozen=True)
+class ClockRelation:
+    """Recorder time (s) = offset_s + rate x (node stamp - stamp0_s) (s)."""
+
+    offset_s: float
+    rate: float
+    stamp0_s: float = 0.0
+
+    @property
+    def drift_ppm(self) -> float:
+        """How fast the node's clock runs against the recorder's, ppm (+: the node's runs fast)."""
+        return (1.0 / self.rate - 1.0) * 1e6
+
+    def to_recorder(self, stamp_s: float | Floats) -> Floats:
+        return self.offset_s + self.rate * (np.asarray(stamp_s, dtype=float) - self.stamp0_s)
+
+
+MAX_DRIFT_PPM = 1000.0
+
+
+class ClockFit:
+    """The lower-envelope clock fit, online: ``add(stamp_s, arrival_s)`` for every message as it
+    arrives, ``relation()`` for the current map.
+
+    A message stamped x (node clock) arrives at y = a + b x + delay, the delay never negative and
+    near its minimum for some messages. So the true line lies on or under every point, touching
+    the lowest: of those lines, the one closest to all points (maximise a + b mean(x) subject to
+    a + b x_i <= y_i; the linear-programming estimate of Moon, Skelly and Towsley, 1999) is the
+    edge of the points' lower convex hull that spans their mean stamp. Least squares would follow
+    the mean delay instead, and every burst of delay would move it. The hull is kept incrementally
+    (O(1) amortised per point; few vertices). Points not after the last one (reordered or
+    duplicated messages, which arrived late anyway) are skipped. The rate is held within
+    ``max_drift_ppm`` of 1 (early in a run, with a short span, an edge's slope is noise).
+    """
+
+    def __init__(self, *, max_drift_ppm: float = MAX_DRIFT_PPM) -> None:
+        self.max_drift_ppm = max_drift_ppm
+        self._x0: float | None = None
+        self._hx: list[float] = []  # lower hull vertices, stamp relative to x0
+        self._hy: list[float] = []
+        self._n = 0
+        self._sum_x = 0.0
+        self._relation: ClockRelation | None = None
+
+    @property
+    def count(self) -> int:
+        """Points used so far."""
+        return self._n
+
+    @property
+    def span_s(self) -> float:
+        """Node time covered by the points, s."""
+        return self._hx[-1] - self._hx[0] if self._hx else 0.0
+
+    def add(self, stamp_s: float, arrival_s: float) -> None:
+        if self._x0 is None:
+            self._x0 = stamp_s
+        x = stamp_s - self._x0
+        if self._hx and x <= self._hx[-1]:
+            return
+        hx, hy = self._hx, self._hy
+        # Keep the chain convex from below: drop the last vertex while it lies on or above the
+        # segment from the one before it to the new point.
+        while len(hx) >= 2 and (hx[-1] - hx[-2]) * (arrival_s - hy[-2]) - (hy[-1] - hy[-2]) * (x - hx[-2]) <= 0:
+            hx.pop()
+            hy.pop()
+        hx.append(x)
+        hy.append(arrival_s)
+        self._n += 1
+        self._sum_x += x
+        self._relation = None
+
+    def relation(self) -> ClockRelation:
+        """The current map (rate 1 through the lowest point until a second point arrives)."""
+        if self._relation is not None:
+            return self._relation
+        if self._x0 is None:
+            raise ValueError("no points yet")
+        hx, hy = self._hx, self._hy
+        bound = self.max_drift_ppm * 1e-6  # recorder per node time: 1 / (1 + drift)
+        lo, hi = 1.0 / (1.0 + bound), 1.0 / (1.0 - bound)
+        if len(hx) == 1:
+            rate = 1.0
+        else:
+            mean_x = self._sum_x / self._n
+            i = min(max(bisect.bisect_right(hx, mean_x) - 1, 0), len(hx) - 2)
+            rate = (hy[i + 1] - hy[i]) / (hx[i + 1] - hx[i])
+        rate = min(max(rate, lo), hi)
+        # The highest line of that rate under every vertex (the optimum for a clamped rate).
+        offset = min(y - rate * x for x, y in zip(hx, hy, strict=True))
+        self._relation = ClockRelation(offset, rate, self._x0)
+        return self._relation
+
+
+def fit_clock(stamp_s: Floats, log_s: Floats) -> ClockRelation | None:
+    """The relation of a node's stamps to the recorder's log times (``ClockFit`` over all of
+    them), or None when the stamps do not behave as a clock (not increasing, or a rate off by more
+    than 1 %)."""
+    x = np.asarray(stamp_s, dtype=float)
+    y = np.asarray(log_s, dtype=float)
+    if len(x) < 2 or not np.all(np.diff(x) > 0):
+        return None
+    fit = ClockFit(max_drift_ppm=1e5)  # clamped at 10 %: a rate off by over 1 % is refused below
+    for xi, yi in zip(x.tolist(), y.tolist(), strict=True):
+        fit.add(xi, yi)
+    relation = fit.relation()
+    return relation if 0.99 < relation.rate < 1.01 else None
+
+
+def fused_value_instants(stamp_s: Floats, fusion_rate_hz: float | None, phase_s: float = 0.0) -> Floats:
+    """The instant (node clock, s) of the value a sample stamped ``stamp_s`` carries: the latest
+    fusion tick (ticks at phase_s + k / fusion_rate_hz) at or before it; the stamp itself for a
+    node without fusion timing (None)."""
+    t = np.asarray(stamp_s, dtype=float)
+    if not fusion_rate_hz:
+        return t
+    return phase_s + np.floor((t - phase_s) * fusion_rate_hz + 1e-9) / fusion_rate_hz
+
+
+def segments(t_s: Floats, max_gap_s: float) -> list[tuple[int, int]]:
+    """Covered segments of sample instants t_s (n,), increasing: (start, stop) index ranges whose
+    consecutive spacing is at most ``max_gap_s``."""
+    t = np.asarray(t_s, dtype=float)
+    if len(t) == 0:
+        return []
+    cuts = np.flatnonzero(np.diff(t) > max_gap_s) + 1
+    bounds = np.concatenate([[0], cuts, [len(t)]])
+    return [(int(a), int(b)) for a, b in itertools.pairwise(bounds)]
+
+
+@dataclasses.dataclass(frozen=True)
+class Coverage:
+    """How much of a span one node's samples cover.
+
+    Attributes:
+      span_s: from the first to the last sample, s.
+      samples: samples received.
+      expected_samples: samples a node at the nominal rate would have sent over the span.
+      covered_s: time inside covered segments (spacing <= max_gap_s), s.
+      gaps: gaps longer than max_gap_s (never interpolated across).
+      longest_gap_s: the longest spacing between samples, s.
+      max_gap_s: the limit used, s.
+    """
+
+    span_s: float
+    samples: int
+    expected_samples: int
+    covered_s: float
+    gaps: int
+    longest_gap_s: float
+    max_gap_s: float
+
+    @property
+    def covered_fraction(self) -> float:
+        return self.covered_s / self.span_s if self.span_s > 0 else 0.0
+
+    @property
+    def lost_fraction(self) -> float:
+        """Share of the expected samples that did not arrive."""
+        return max(0.0, 1.0 - self.samples / self.expected_samples) if self.expected_samples else 0.0
+
+    def summary(self) -> dict[str, float | int]:
+        return {
+            "span_s": self.span_s,
+            "samples": self.samples,
+            "expected_samples": self.expected_samples,
+            "lost_fraction": self.lost_fraction,
+            "covered_s": self.covered_s,
+            "covered_fraction": self.covered_fraction,
+            "gaps_over_limit": self.gaps,
+            "longest_gap_s": self.longest_gap_s,
+            "max_gap_s": self.max_gap_s,
+        }
+
+
+def coverage(t_s: Floats, max_gap_s: float, nominal_rate_hz: float) -> Coverage:
+    """The coverage of sample instants t_s (n,), increasing, by a node sending at
+    ``nominal_rate_hz``."""
+    t = np.asarray(t_s, dtype=float)
+    if len(t) < 2:
+        raise RecordingError(f"{len(t)} samples: too few to cover any time")
+    step = np.diff(t)
+    span = float(t[-1] - t[0])
+    return Coverage(
+        span_s=span,
+        samples=len(t),
+        expected_samples=round(span * nominal_rate_hz) + 1,
+        covered_s=float(step[step <= max_gap_s].sum()),
+        gaps=int(np.count_nonzero(step > max_gap_s)),
+        longest_gap_s=float(step.max()),
+        max_gap_s=max_gap_s,
+    )
+
+
+def nominal_rate_hz(t_s: Floats) -> float:
+    """The sending rate of a node that may lose samples: one over the median spacing, Hz."""
+    step = np.diff(np.asarray(t_s, dtype=float))
+    step = step[step > 0]
+    if not len(step):
+        raise RecordingError("no two samples at different instants: no sampling rate")
+    return 1.0 / float(np.median(step))
+
+
+def check_max_gap(max_gap_s: float) -> None:
+    if not (math.isfinite(max_gap_s) and 0 < max_gap_s <= 10):
+        from pendsim_mj.errors import ParameterError
+
+        raise ParameterError(f"max_gap_s must be a finite number in (0, 10] s, got {max_gap_s!r}")
+
+
+def roughness(t_s: Floats, values: Floats, max_step_s: float) -> float:
+    """Mean square of the second divided differences of values (n, ...) over instants t_s (n,),
+    over triples whose spacing stays within ``max_step_s``: small when the instants are where the
+    values belong, large when they are jittered against them."""
+    t = np.asarray(t_s, dtype=float)
+    v = np.asarray(values, dtype=float).reshape(len(t), -1)
+    h1, h2 = np.diff(t)[:-1], np.diff(t)[1:]
+    ok = (h1 > 0) & (h2 > 0) & (h1 <= max_step_s) & (h2 <= max_step_s)
+    if not ok.any():
+        return 0.0
+    h1, h2 = h1[ok, None], h2[ok, None]
+    d1 = (v[1:-1][ok] - v[:-2][ok]) / h1
+    d2 = (v[2:][ok] - v[1:-1][ok]) / h2
+    second = 2.0 * (d2 - d1) / (h1 + h2)
+    return float(np.mean(second * second))
+
+
+def fusion_phase(stamp_s: Floats, values: Floats, fusion_rate_hz: float, *, step_s: float = 0.00025) -> float:
+    """Where a chip's fusion ticks fall on its node's clock (s in [0, 1 / fusion_rate_hz)), found
+    from the data alone: the phase whose value instants (``fused_value_instants``) make the
+    values (n, ...) (e.g. the gyro) smoothest in time."""
+    period = 1.0 / fusion_rate_hz
+    stamp = np.asarray(stamp_s, dtype=float)
+    max_step = 2.5 * float(np.median(np.diff(stamp)))
+    phases = np.arange(0.0, period, step_s)
+    costs = np.array(
+        [roughness(fused_value_instants(stamp, fusion_rate_hz, float(p)), values, max_step) for p in phases]
+    )
+    # Within the stretch between two sample phases every value instant moves alike, so the
+    # roughness is flat there: only the stretch is found, and its middle is taken (within
+    # +-1/8 period of the truth at 80 Hz sampling of 100 Hz fusion; a common shift is absorbed by
+    # the start fit).
+    best = int(np.argmin(costs))
+    flat = costs <= costs[best] * (1 + 1e-6) + 1e-300
+    lo = hi = best
+    n = len(phases)
+    while flat[(lo - 1) % n] and best - lo < n - 1:
+        lo -= 1
+    while flat[(hi + 1) % n] and hi - lo < n - 1:
+        hi += 1
+    return float((0.5 * (lo + hi) * step_s) % period)

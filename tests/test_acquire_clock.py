@@ -1,0 +1,74 @@
+"""The clock fit: device time to host time under network delays that only ever add time.
+
+The synthetic truth: host = a + x / (1 + drift) for a node whose clock gains ``drift``; each
+arrival adds a minimum delay and a random one (exponential, plus bursts of 100 ms on some packets).
+"""
+
+import numpy as np
+import pytest
+
+from pendsim_bridge.acquire.clock import MAX_DRIFT_PPM, ClockFit, residuals_s
+
+
+def _arrivals(seed: int, drift_ppm: float, *, duration_s=60.0, rate_hz=80.0, jitter_s=5e-3, bursts=0.1):
+    rng = np.random.default_rng(seed)
+    n = int(duration_s * rate_hz)
+    device = 412.345 + np.arange(n) / rate_hz  # the node's clock, s
+    true_host = 3.0 + (device - device[0]) / (1 + drift_ppm * 1e-6)
+    delay = 3e-4 + rng.exponential(jitter_s, n) + np.where(rng.random(n) < bursts, 0.1, 0.0)
+    return device, true_host, true_host + delay
+
+
+def _fit(device, arrival):
+    fit = ClockFit()
+    for x, y in zip(device, arrival, strict=True):
+        fit.add(float(x), float(y))
+    return fit.relation()
+
+
+@pytest.mark.parametrize("seed", range(10))
+@pytest.mark.parametrize("drift_ppm", [-80.0, 0.0, 45.0])
+def test_fit_recovers_drift_and_time_under_jitter_and_bursts(seed, drift_ppm):
+    device, true_host, arrival = _arrivals(seed, drift_ppm)
+    line = _fit(device, arrival)
+    assert line.drift_ppm == pytest.approx(drift_ppm, abs=0.5)
+    # Mapped times sit on the true send times plus the minimum delay (0.3 ms), to tens of us.
+    error = np.asarray(line.to_recorder(device)) - (true_host + 3e-4)
+    assert np.max(np.abs(error)) < 60e-6
+
+
+def test_jitter_does_not_move_the_fit_while_least_squares_follows_it():
+    device, true_host, arrival = _arrivals(11, 20.0, jitter_s=20e-3, bursts=0.3)
+    quiet = _fit(device, true_host + 3e-4)  # every packet at the minimum delay
+    noisy = _fit(device, arrival)
+    moved = np.max(np.abs(np.asarray(noisy.to_recorder(device)) - np.asarray(quiet.to_recorder(device))))
+    assert moved < 100e-6
+    slope, offset = np.polyfit(device, arrival, 1)  # what a least-squares fit of arrivals would say
+    least_squares_error = np.mean(slope * device + offset - true_host)
+    assert least_squares_error > 0.04  # it follows the mean delay (20 ms + 30 % of 100 ms)
+
+
+def test_residuals_are_the_delays_beyond_the_minimum():
+    device, _, arrival = _arrivals(12, -30.0, jitter_s=2e-3, bursts=0.0)
+    line = _fit(device, arrival)
+    residual = residuals_s(line, device, arrival)
+    assert residual.min() > -20e-6
+    assert np.median(residual) == pytest.approx(2e-3 * np.log(2), rel=0.1)  # median of the exponential
+
+
+def test_reordered_and_duplicated_points_are_skipped():
+    fit = ClockFit()
+    for x, y in [(0.0, 1.0), (1.0, 2.0), (0.5, 1.0), (1.0, 1.5), (2.0, 3.0)]:
+        fit.add(x, y)
+    assert fit.count == 3  # (0.5, 1.0) came after 1.0; (1.0, 1.5) repeats a device time
+    assert fit.relation().to_recorder(2.0) == pytest.approx(3.0)
+
+
+def test_slope_stays_within_the_drift_bound_early_in_a_run():
+    fit = ClockFit()
+    fit.add(0.0, 0.050)  # a delayed first packet
+    fit.add(0.0125, 0.0126)  # then one on time: the edge's slope is far from 1
+    assert abs(fit.relation().drift_ppm) <= MAX_DRIFT_PPM + 1e-6
+    single = ClockFit()
+    single.add(5.0, 7.0)
+    assert single.relation().rate == 1.0 and single.relation().to_recorder(6.0) == pytest.approx(8.0)

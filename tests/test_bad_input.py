@@ -1,0 +1,260 @@
+"""Bad command lines, probed by the hundred: every one is exit 2 with exactly one stderr line
+``pendsim: error: ...``, no traceback, nothing written, existing files untouched.
+
+The numeric probes are generated from the parser itself: every option whose type has a checked
+range (``float_in``, ``int_in``, ``--speed``) gets values below and above its range, non-finite and
+non-numeric ones. Hand-written probes cover JSON parameter files, special files (FIFOs, devices,
+/proc), folders as outputs, names with newlines, existing outputs without --force. A few run the
+installed console script: a closed pipe, a diverging MuJoCo run, an unreadable name.
+"""
+
+import os
+import shlex
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from pendsim_bridge.cli import build_parser, main
+
+EXE = str(Path(sys.executable).with_name("pendsim"))
+POSITIONAL = {  # a file for the commands that need one: the option fails before it is read
+    "validate": ["rec.mcap"], "identify": ["rec.mcap"], "view": ["rec.mcap"], "replay": ["rec.mcap"],
+    "allan": ["rec.mcap"], "inspect": ["rec.mcap"], "recover": ["rec.mcap", "out.mcap"],
+    "record": ["-o", "out.mcap"],
+}  # fmt: skip
+KEPT = {"keep.npz": b"old npz", "keep.mcap": b"old mcap", "keep.rrd": b"old rrd", "keep.json": b"{}"}
+
+
+def _bad_values(low: float, high: float, low_open: bool, integer: bool) -> list[str]:
+    below = low if low_open else (low - 1 if integer else low - max(1e-3, abs(low) * 0.5))
+    above = high + 1 if integer else high * 10 + 1
+    values = [repr(below) if not integer else str(int(below)), repr(above) if not integer else str(int(above))]
+    values += ["nan", "abc"]
+    if integer:
+        values += ["1.5"]
+    return values
+
+
+def _commands(parser, prefix: tuple[str, ...] = ()):
+    """(words, parser) of every command and sub-command (``analyze backbone``, ...)."""
+    for action in parser._actions:
+        if action.__class__.__name__ == "_SubParsersAction":
+            for name, subparser in action.choices.items():
+                yield (*prefix, name), subparser
+                yield from _commands(subparser, (*prefix, name))
+
+
+def _generated() -> list[tuple[str, list[str]]]:
+    probes = []
+    for words, subparser in _commands(build_parser()):
+        for action in subparser._actions:
+            kind = action.type
+            if not action.option_strings or not hasattr(kind, "low"):
+                continue
+            integer = isinstance(kind.low, int) and isinstance(kind.high, int)
+            for value in _bad_values(kind.low, kind.high, kind.low_open, integer):
+                where = POSITIONAL.get(words[0], [])
+                probes.append((words[0], [*words[1:], *where, f"{action.option_strings[-1]}={value}"]))
+    return probes
+
+
+HANDWRITTEN = [
+    # parameters via --set and JSON files
+    ("simulate", "--set c1_n_m=1e300"), ("simulate", "--set l01_m=1e300"), ("simulate", "--set g_m_s2=1e300"),
+    ("simulate", "--set m1_kg=1e-300"), ("simulate", "--set j1_kg_m2=1e-300"), ("simulate", "--set c1_n_m=nan"),
+    ("simulate", "--set c1_n_m=-inf"), ("simulate", "--duration-s 1e309"), ("simulate", "--phi1-deg -inf"),
+    ("record -o out.mcap", "--seed 99999999999999999999999999999999999999"), ("simulate", "--set =1"),
+    ("simulate", "--set nothing"),
+    ("simulate", "--set b1_n_m_s=true"), ("record -o out.mcap", "--set plane_offset_m=1e9"),
+    ("simulate", "--params-file bool.json"), ("simulate", "--params-file string.json"),
+    ("simulate", "--params-file null.json"), ("simulate", "--params-file nested.json"),
+    ("simulate", "--params-file deep.json"), ("simulate", "--params-file list.json"),
+    ("simulate", "--params-file bigint.json"), ("simulate", "--params-file inf.json"),
+    ("simulate", "--params-file nan.json"), ("simulate", "--params-file latin1.json"),
+    ("simulate", "--params-file huge.json"), ("simulate", "--params-file duplicate.json"),
+    ("simulate", "--params-file unknown.json"), ("simulate", "--params-file empty.json"),
+    ("simulate", "--params-file out_of_range.json"), ("validate rec.mcap", "--params-file bool.json"),
+    # special files as inputs
+    ("simulate", "--params-file fifo"), ("simulate", "--params-file /dev/zero"),
+    ("simulate", "--params-file /proc/self/environ"), ("simulate", "--params-file ."),
+    ("simulate", "--params-file missing.json"), ("inspect", "fifo"), ("inspect", "/dev/zero"),
+    ("inspect", "."), ("inspect", "/proc/self/status"), ("view", "fifo"), ("replay", "/dev/null"),
+    ("validate", "fifo"), ("identify", "/dev/zero"), ("allan", "fifo"), ("recover", "fifo out.mcap"),
+    ("inspect", "'new\nline.mcap'"), ("view", "'new\nline.mcap'"),
+    # outputs: folders, FIFOs, devices, /proc, missing folders, existing files, wrong suffixes
+    ("simulate --duration-s 1", "-o /proc/self/x.npz"), ("simulate --duration-s 1", "-o adir.npz"),
+    ("simulate --duration-s 1", "-o fifo.npz"), ("simulate --duration-s 1", "-o /dev/null.npz"),
+    ("simulate --duration-s 1", "-o /dev/null"), ("simulate --duration-s 1", "-o missing/x.npz"),
+    ("simulate --duration-s 1", "-o keep.json/x.npz"), ("simulate --duration-s 1", "-o keep.npz"),
+    ("simulate --duration-s 1", "--rerun keep.rrd"), ("simulate --duration-s 1", "--rerun /proc/x.rrd"),
+    ("simulate --duration-s 1", "--rerun adir.rrd"), ("simulate --duration-s 1", "-o 'new\nline/x.npz'"),
+    ("simulate --duration-s 1", "--force -o fifo.npz"), ("simulate --duration-s 1", "--force -o adir.npz"),
+    ("record --duration-s 1", "-o keep.mcap"), ("record --duration-s 1", "-o /proc/self/r.mcap"),
+    ("record --duration-s 1", "-o adir.mcap"), ("record --duration-s 1", "-o out.txt"),
+    ("view rec.mcap", "--save keep.rrd"), ("view rec.mcap", "--save /proc/x.rrd"),
+    ("view rec.mcap", "--save adir.rrd"), ("view rec.mcap", "--save x.mcap"),
+    ("replay rec.mcap", "-o keep.mcap"), ("replay rec.mcap", "-o /proc/self/x.mcap"),
+    ("replay rec.mcap", "--rerun keep.rrd"), ("replay rec.mcap", "-o rec.mcap --force"),
+    ("recover rec.mcap", "keep.mcap"), ("recover rec.mcap", "/proc/self/x.mcap"), ("recover rec.mcap", "adir.mcap"),
+    ("recover rec.mcap", "rec.mcap --force"), ("identify rec.mcap", "--write keep.json"),
+    ("identify rec.mcap", "--write /proc/self/x.json"), ("validate rec.mcap", "-o keep.json"),
+    ("validate rec.mcap", "-o /proc/self/v"), ("validate rec.mcap", "-o fifo"), ("validate rec.mcap", "-o keepdir"),
+    ("allan rec.mcap", "--plot-dir keep.json"), ("allan rec.mcap", "--plot-dir /proc/self/a"),
+    ("allan rec.mcap", "--plot-dir /dev/null"), ("compare --duration-s 1", "-o keep.json"),
+    ("compare --duration-s 1", "-o /proc/self/c"), ("compare --duration-s 1", "-o keepdir"),
+    ("compare --duration-s 1", "--rerun keep.rrd"), ("demo", "-o keep.json"), ("demo", "-o /proc/self/d"),
+    ("demo", "-o keepdir"), ("demo", "-o /dev/null"),
+    # options
+    ("validate rec.mcap", "--damping 1e300,1e300"), ("validate rec.mcap", "--damping 1,2,3"),
+    ("validate rec.mcap", "--damping nan,1"), ("validate rec.mcap", "--max-delta -1"),
+    ("validate rec.mcap", "--max-iae nan"), ("replay rec.mcap", "--speed 0"), ("replay rec.mcap", "--speed -1"),
+    ("replay rec.mcap", "--loop -o x.mcap"), ("view rec.mcap", "--bind nonsense"), ("view rec.mcap", "--bind ''"),
+    ("view rec.mcap", "--bind 999.1.1.1"), ("simulate", "--engine simulink"), ("record -o o.mcap", "--model static"),
+    ("record -o o.mcap", "--compression bzip2"), ("compare", "--fixed-points-plane m3"), ("simulate", "--bogus"),
+    ("bogus", ""), ("simulate", "--duration-s 1.005"), ("simulate", "--duration-s 0.001 --dt-s 0.01"),
+    ("simulate", "--duration-s 86400 --dt-s 0.0001"), ("compare", "--engine reference --duration-s 1"),
+    # drives and alignment
+    ("simulate", "--torque1-n-m sine:1e300,1"), ("simulate", "--torque1-n-m sine:1,-1"),
+    ("simulate", "--torque1-n-m sine:nan,1"), ("simulate", "--torque1-n-m bogus:1"),
+    ("simulate", "--torque1-n-m csv:fifo"), ("simulate", "--torque1-n-m csv:/dev/zero"),
+    ("simulate", "--torque1-n-m csv:missing.csv"), ("simulate", "--torque1-n-m csv:bool.json"),
+    ("simulate", "--support-x-m-s2 stepped:1,1,2,0.5,3"), ("view rec.mcap", "--release-s -1"),
+    ("validate rec.mcap", "--release-s nan"), ("identify rec.mcap", "--release-s 1e300"),
+    ("analyze", ""), ("analyze backbone", "-o keep.json"), ("analyze tongues", "-o /proc/self/t"),
+    ("analyze lyapunov", "-o fifo"),
+]  # fmt: skip
+
+
+def _cases() -> list[tuple[str, list[str]]]:
+    cases = _generated()
+    for head, tail in HANDWRITTEN:
+        words = shlex.split(f"{head} {tail}")
+        cases.append((words[0], words[1:]))
+    return cases
+
+
+CASES = _cases()
+
+
+def test_the_probe_list_covers_every_ranged_option_of_every_command():
+    commands = {command for command, _ in CASES}
+    assert len(CASES) >= 300
+    assert {"simulate", "record", "validate", "identify", "view", "replay", "compare", "demo", "analyze"} <= commands
+
+
+@pytest.fixture(scope="module")
+def probe_dir(tmp_path_factory):
+    """The files the probes name: a junk recording, JSON files, FIFOs, folders, and existing
+    outputs that must stay untouched."""
+    tmp_path = tmp_path_factory.mktemp("probes")
+    (tmp_path / "rec.mcap").write_bytes(b"\x89MCAP0\r\n" + b"\0" * 64)
+    for name, content in KEPT.items():
+        (tmp_path / name).write_bytes(content)
+    (tmp_path / "adir.npz").mkdir()
+    (tmp_path / "adir.mcap").mkdir()
+    (tmp_path / "adir.rrd").mkdir()
+    (tmp_path / "keepdir").mkdir()
+    (tmp_path / "keepdir" / "report.json").write_text("{}")
+    (tmp_path / "keepdir" / "summary.json").write_text("{}")
+    (tmp_path / "keepdir" / "run.mcap").write_text("x")
+    os.mkfifo(tmp_path / "fifo")
+    os.mkfifo(tmp_path / "fifo.npz")
+    files = {
+        "bool.json": '{"b1_n_m_s": true}',
+        "string.json": '{"b1_n_m_s": "0.001"}',
+        "null.json": '{"b1_n_m_s": null}',
+        "nested.json": '{"b1_n_m_s": {"value": 0.001}}',
+        "deep.json": "[" * 100000 + "]" * 100000,
+        "list.json": "[0.001, 0.002]",
+        "bigint.json": '{"b1_n_m_s": 1' + "0" * 5000 + "}",
+        "inf.json": '{"b1_n_m_s": 1e400}',
+        "nan.json": '{"b1_n_m_s": NaN}',
+        "huge.json": '{"b1_n_m_s": 0.001, "pad": "' + "x" * 1_100_000 + '"}',
+        "duplicate.json": '{"b1_n_m_s": 0.001, "b1_n_m_s": 0.002}',
+        "unknown.json": '{"spring": 1.0}',
+        "empty.json": "",
+        "out_of_range.json": '{"c1_n_m": 1e300}',
+    }
+    for name, text in files.items():
+        (tmp_path / name).write_text(text)
+    (tmp_path / "latin1.json").write_bytes('{"b1_n_m_s": 0.001, "note": "café"}'.encode("latin-1"))
+    return tmp_path
+
+
+@pytest.fixture
+def workspace(probe_dir, monkeypatch):
+    monkeypatch.chdir(probe_dir)
+    return probe_dir
+
+
+def _snapshot(folder: Path) -> dict[str, tuple[int, int, int, int]]:
+    """Every entry (hidden temporary files included): mode, inode, size, modification time."""
+    found = {}
+    for path in sorted(folder.rglob("*")):
+        st = path.lstat()
+        found[str(path.relative_to(folder))] = (st.st_mode, st.st_ino, st.st_size, st.st_mtime_ns)
+    return found
+
+
+@pytest.mark.parametrize(("command", "args"), CASES, ids=[shlex.join([c, *a])[:90] for c, a in CASES])
+def test_bad_command_line_is_one_error_line_exit_2_and_touches_nothing(workspace, capsys, command, args):
+    before = _snapshot(workspace)
+    assert all((workspace / name).read_bytes() == content for name, content in KEPT.items())
+    assert main([command, *args]) == 2
+    captured = capsys.readouterr()
+    lines = captured.err.splitlines()
+    assert len(lines) == 1 and lines[0].startswith("pendsim: error: "), captured.err
+    assert "Traceback" not in captured.err and "Traceback" not in captured.out
+    assert _snapshot(workspace) == before  # nothing new, nothing changed, no temporary file left
+
+
+def test_parameter_files_name_what_is_wrong(workspace, capsys):
+    expected = {
+        "bool.json": "'b1_n_m_s' must be a finite number, got true",
+        "nested.json": "is nested; a parameter file is one JSON object of numbers",
+        "deep.json": "is nested",
+        "bigint.json": "is not a parameter file: Exceeds the limit (4300 digits)",
+        "latin1.json": "is not UTF-8 text",
+        "huge.json": "is over 1000000 bytes",
+        "duplicate.json": "names 'b1_n_m_s' twice",
+        "nan.json": "'b1_n_m_s' must be a finite number, got \"NaN\"",
+        "out_of_range.json": "c1_n_m must be 0 or between 1e-09 and 1e+06 N/m, got 1e+300",
+    }
+    for name, message in expected.items():
+        assert main(["simulate", "--params-file", name]) == 2
+        assert message in capsys.readouterr().err, name
+
+
+def test_a_file_name_with_a_newline_keeps_the_error_on_one_line(workspace, capsys):
+    assert main(["inspect", "two\nlines.mcap"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "two lines.mcap" in err
+
+
+def test_a_closed_pipe_ends_quietly():
+    out = subprocess.run(f"{shlex.quote(EXE)} info | head -1", shell=True, capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0 and out.stdout.startswith("Rig parameters") and out.stderr == ""
+
+
+def test_a_diverging_mujoco_run_is_one_line_with_mujocos_warning_and_no_log_file(tmp_path):
+    # the spatial model with a very stiff bearing: MuJoCo itself flags the state as unstable
+    args = ["compare", "--duration-s", "2", "--set", "tilt_stiffness_n_m_rad=1e6", "-o", "c"]
+    out = subprocess.run([EXE, *args], cwd=tmp_path, capture_output=True, text=True, timeout=120)
+    lines = out.stderr.splitlines()
+    assert out.returncode == 2 and len(lines) == 1, out.stderr
+    assert lines[0].startswith("pendsim: error: simulation diverged") and "MuJoCo: Nan, Inf or huge value" in lines[0]
+    assert "WARNING" not in out.stdout + out.stderr
+    assert list(tmp_path.iterdir()) == []  # no MUJOCO_LOG.TXT, no output folder
+
+
+def test_names_that_are_not_utf8_print_escaped_not_as_a_traceback(tmp_path):
+    name = os.fsdecode(b"run-\xff.npz")
+    env = {**os.environ, "LC_ALL": "C.UTF-8", "PYTHONIOENCODING": "utf-8"}
+    out = subprocess.run(
+        [EXE, "simulate", "--duration-s", "1", "-o", name], cwd=tmp_path, capture_output=True, env=env, timeout=120
+    )
+    assert out.returncode == 0 and b"Traceback" not in out.stderr, out.stderr
+    assert b"wrote run-\\udcff.npz" in out.stdout  # escaped on the terminal
+    assert os.path.exists(os.path.join(os.fsencode(tmp_path), b"run-\xff.npz"))  # the name as given

@@ -1,0 +1,192 @@
+"""pendsim import: a recorded run written to CSV, LabVIEW .lvm and TDMS files (by code here, in each
+format's own conventions), imported back: values equal within the format's precision, and the
+imported recording validates like the original."""
+
+import math
+
+import numpy as np
+import pytest
+
+from pendsim_bridge.cli import main
+from pendsim_bridge.recording import read_recording
+from pendsim_bridge.validate import validate
+
+QUANTITIES = {  # name -> (recording field, component)
+    **{f"q{a}": ("quat_wxyz", i) for i, a in enumerate("wxyz")},
+    **{f"g{a}": ("gyro_rad_s", i) for i, a in enumerate("xyz")},
+    **{f"a{a}": ("accel_m_s2", i) for i, a in enumerate("xyz")},
+}
+
+
+@pytest.fixture(scope="module")
+def recorded(tmp_path_factory):
+    path = tmp_path_factory.mktemp("recorded") / "run.mcap"
+    assert main(["record", "-o", str(path), "--duration-s", "6", "--hold-s", "2", "--seed", "4"]) == 0
+    return path, read_recording(path)
+
+
+def _columns(rec, *, gyro_scale=1.0):
+    """The pendsim names and the (n, k) values of both nodes, time first."""
+    names, values = ["t_s"], [rec.imu["m1"].t_ns * 1e-9]
+    for node in ("m1", "m2"):
+        imu = rec.imu[node]
+        for name, (field, i) in QUANTITIES.items():
+            names.append(f"{node}.{name}")
+            values.append(getattr(imu, field)[:, i] * (gyro_scale if field == "gyro_rad_s" else 1.0))
+        for name, store in (("la", rec.linear_accel_m_s2), ("gv", rec.gravity_m_s2)):
+            for i, a in enumerate("xyz"):
+                names.append(f"{node}.{name}{a}")
+                values.append(store[node][1][:, i])
+    return names, np.stack(values, axis=1)
+
+
+def write_lvm(path, names, values, *, delta_x=None):
+    """A LabVIEW measurement file (Writer_Version 2, tab separated, one X column), 6 decimals, the
+    way LabVIEW's 'Write To Measurement File' writes it."""
+    n, k = values.shape[0], len(names)
+    tabs = lambda items: "\t".join(str(x) for x in items)  # noqa: E731
+    head = [
+        "LabVIEW Measurement\t", "Writer_Version\t2", "Reader_Version\t2", "Separator\tTab", "Decimal_Separator\t.",
+        "Multi_Headings\tNo", "X_Columns\t" + ("No" if delta_x else "One"), "Time_Pref\tRelative",
+        "Operator\tlab", "Date\t2025/03/14", "Time\t10:21:07.5", "***End_of_Header***\t", "\t",
+        "Channels\t" + str(k) + "\t", "Samples\t" + tabs([n] * k), "Date\t" + tabs(["2025/03/14"] * k),
+        "Time\t" + tabs(["10:21:07.5"] * k), "X_Dimension\t" + tabs(["Time"] * k),
+        "X0\t" + tabs(["0.0000000000000000E+0"] * k), "Delta_X\t" + tabs([delta_x or 1.0] * k),
+        "***End_of_Header***\t",
+        ("" if delta_x else "X_Value\t") + tabs(names) + "\tComment",
+    ]  # fmt: skip
+    rows = ["\t".join(f"{v:.6f}" for v in row) for row in values]
+    path.write_text("\r\n".join(head + rows) + "\r\n")
+
+
+def test_csv_with_pendsim_names_round_trips_exactly_and_validates_like_the_original(recorded, tmp_path, capsys):
+    original, rec = recorded
+    names, values = _columns(rec)
+    lines = [",".join(names)] + [",".join(repr(float(v)) for v in row) for row in values]
+    (tmp_path / "lab.csv").write_text("# exported from the lab\n" + "\n".join(lines) + "\n")
+    out = tmp_path / "imported.mcap"
+    assert main(["import", str(tmp_path / "lab.csv"), "-o", str(out), "--units", "gyro=rad/s"]) == 0
+    assert "wrote" in capsys.readouterr().out
+    imported = read_recording(out)
+    for node in ("m1", "m2"):
+        np.testing.assert_array_equal(imported.imu[node].t_ns, rec.imu[node].t_ns)
+        for field in ("quat_wxyz", "gyro_rad_s", "accel_m_s2"):
+            np.testing.assert_array_equal(getattr(imported.imu[node], field), getattr(rec.imu[node], field))
+        np.testing.assert_array_equal(imported.gravity_m_s2[node][1], rec.gravity_m_s2[node][1])
+    meta = imported.metadata["pendsim/import"]
+    assert meta["source_name"] == "lab.csv" and meta["format"] == "csv" and len(meta["source_sha256"]) == 64
+    assert meta["source_file"] == str((tmp_path / "lab.csv").resolve())
+    a = validate(original, damping="recorded").case("mujoco", "estimated", "whole").comparisons["phi1"]
+    b = validate(out, damping="recorded").case("mujoco", "estimated", "whole").comparisons["phi1"]
+    assert b.f_measured_hz == pytest.approx(a.f_measured_hz, rel=1e-4)  # release found a few ms apart: see docs
+    assert a.delta_f < 0.005 and b.delta_f < 0.005
+    assert b.max_abs < 0.02
+
+
+def test_labview_lvm_file_round_trips_to_its_six_decimals(recorded, tmp_path):
+    original, rec = recorded
+    names, values = _columns(rec, gyro_scale=180 / math.pi)  # the lab logged the gyro in deg/s
+    lab_names = [f"Ch{i}" for i in range(len(names) - 1)]
+    write_lvm(tmp_path / "run.lvm", lab_names, values)
+    columns = ",".join(names[:1] + names[1:])  # the X column is the time: t_s
+    out = tmp_path / "imported.mcap"
+    assert main(["import", str(tmp_path / "run.lvm"), "-o", str(out), "--columns", columns]) == 0
+    assert not list(tmp_path.glob("*.pkl"))  # lvm-read's pickle cache is never written beside the file
+    imported = read_recording(out)
+    for node in ("m1", "m2"):
+        np.testing.assert_allclose(imported.imu[node].t_ns, rec.imu[node].t_ns, atol=1000)  # 1 us
+        np.testing.assert_allclose(imported.imu[node].accel_m_s2, rec.imu[node].accel_m_s2, atol=5e-7)
+        np.testing.assert_allclose(imported.imu[node].gyro_rad_s, rec.imu[node].gyro_rad_s, atol=5e-7 * math.pi / 180)
+    meta = imported.metadata["pendsim/import"]
+    assert meta["format"] == "lvm" and meta["lvm_date"] == "2025/03/14"
+    a = validate(original, damping="recorded").case("mujoco", "estimated", "whole").comparisons["phi1"]
+    b = validate(out, damping="recorded").case("mujoco", "estimated", "whole").comparisons["phi1"]
+    assert b.f_measured_hz == pytest.approx(a.f_measured_hz, rel=1e-5) and b.delta_f < 0.005
+
+
+def test_tdms_file_with_waveform_timing_round_trips_exactly(recorded, tmp_path):
+    from nptdms import ChannelObject, GroupObject, RootObject, TdmsWriter
+
+    _, rec = recorded
+    names, values = _columns(rec)
+    objects = [RootObject(properties={"name": "pendulum run", "operator": "lab"})]
+    columns = []
+    for node, group in (("m1", "Front IMU"), ("m2", "Rear IMU")):
+        objects.append(GroupObject(group))
+        for j, name in enumerate(names):
+            if name.startswith(node + "."):
+                props = {"wf_increment": 1 / 80, "wf_start_offset": 0.0, "unit_string": "SI"}
+                objects.append(ChannelObject(group, name.split(".")[1].upper(), values[:, j], properties=props))
+                columns.append(name)
+    with TdmsWriter(str(tmp_path / "run.tdms")) as writer:
+        writer.write_segment(objects)
+    out = tmp_path / "imported.mcap"
+    args = ["import", str(tmp_path / "run.tdms"), "-o", str(out), "--columns", ",".join(columns)]
+    args += ["--units", "gyro=rad/s"]
+    assert main(args) == 0
+    imported = read_recording(out)
+    for node in ("m1", "m2"):
+        np.testing.assert_allclose(imported.imu[node].t_ns, rec.imu[node].t_ns, atol=1)
+        np.testing.assert_array_equal(imported.imu[node].gyro_rad_s, rec.imu[node].gyro_rad_s)
+        np.testing.assert_array_equal(imported.linear_accel_m_s2[node][1], rec.linear_accel_m_s2[node][1])
+    assert "file's timing" in imported.metadata["pendsim/import"]["time"]
+    assert imported.metadata["pendsim/import"]["tdms_name"] == "pendulum run"
+
+
+def test_a_one_node_csv_without_header_imports_with_a_column_map(tmp_path):
+    rows = [f"{k * 12.5},{0.01 * k},0,0,1,0,0,0" for k in range(200)]
+    (tmp_path / "m2.csv").write_text("\n".join(rows) + "\n")
+    out = tmp_path / "m2.mcap"
+    columns = "t_ms,gz,gx,gy,qw,qx,qy,qz"
+    args = ["import", str(tmp_path / "m2.csv"), "-o", str(out), "--node", "m2", "--columns", columns]
+    assert main(args) == 0
+    rec = read_recording(out)
+    assert list(rec.imu) == ["m2"] and len(rec.imu["m2"].t_ns) == 200
+    assert rec.imu["m2"].gyro_rad_s[10, 2] == pytest.approx(math.radians(0.1))  # default gyro unit: dps
+    assert rec.imu["m2"].t_ns[1] == 12_500_000 and rec.imu["m2"].accel_covariance[0, 0, 0] == -1  # not provided
+
+
+def _error(capsys) -> str:
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1, err
+    assert err[0].startswith("pendsim: error: ")
+    return err[0]
+
+
+@pytest.mark.parametrize(
+    ("content", "args", "message"),
+    [
+        ("t_s,m1.gx,m1.gy\n0,1,2\n", [], "the map has gx, gy but not gz"),
+        ("t_s,AccX\n0,1\n", [], "column 2 'AccX' is not a pendsim name (t_s, m1.gx, ...); give --columns"),
+        ("t_s,gx,gy,gz\n0,1,2,3\n", [], "say which node (m1.gx or m2.gx), or give --node"),
+        ("a,b,c,d\n0,1,2,3\n", ["--columns", "t_s,m1.gx,m1.gy"], "the column map has 3 entries, the file 4 columns"),
+        ("t_s,m1.gx,m1.gy,m1.gz\n0,1,2,3\n1,x,2,3\n", [], "line 3: 'x' is not a number"),
+        ("t_s,m1.gx,m1.gy,m1.gz\n0,1,2,3\n1,1,2\n", [], "line 3 has 3 fields, the header 4"),
+        ("t_s,m1.gx,m1.gy,m1.gz\n1,1,2,3\n0,1,2,3\n", [], "time does not increase at row 2"),
+        ("t_s,m1.gx,m1.gy,m1.gz\n0,nan,2,3\n1,1,2,3\n", [], "row 1, column 'm1.gx': not a finite number"),
+        ("m1.gx,m1.gy,m1.gz\n0,1,2\n", [], "no time column"),
+        ("t_s,m1.gx,m1.gy,m1.gz\n0,1,2,3\n", ["--units", "gyro=rpm"], "unknown gyro unit 'rpm'"),
+        ("t_s,m1.qw,m1.qx,m1.qy,m1.qz\n0,0,0,0,0\n", [], "the quaternion has norm 0, not 1"),
+    ],
+)
+def test_bad_lab_files_are_one_line_exit_2_and_write_nothing(tmp_path, capsys, content, args, message):
+    (tmp_path / "lab.csv").write_text(content)
+    assert main(["import", str(tmp_path / "lab.csv"), "-o", str(tmp_path / "out.mcap"), *args]) == 2
+    assert message in _error(capsys)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["lab.csv"]
+
+
+@pytest.mark.parametrize(
+    ("name", "content", "message"),
+    [
+        ("junk.lvm", "not a labview file\n", "not a LabVIEW measurement file"),
+        ("junk.tdms", "TDSm garbage" * 10, "not a TDMS file"),
+        ("junk.dat", "1,2,3\n", "cannot tell the format from the extension '.dat'"),
+        ("empty.csv", "", "no data lines"),
+    ],
+)
+def test_files_that_are_not_what_they_claim_are_refused(tmp_path, capsys, name, content, message):
+    (tmp_path / name).write_text(content)
+    assert main(["import", str(tmp_path / name), "-o", str(tmp_path / "out.mcap")]) == 2
+    assert message in _error(capsys)
+    assert not (tmp_path / "out.mcap").exists()
