@@ -202,12 +202,11 @@ def as_json(report: AllanReport) -> dict:
     }
 
 
-def plots(report: AllanReport, directory: str | Path, *, processes: int = 2, replace: bool = False) -> list[Path]:
-    """One log-log plot per node and sensor (x, y, z together), rendered on ``processes``
-    forked workers and published together into ``directory`` (``atomic_directory``: never over
+def plots(report: AllanReport, directory: str | Path, *, replace: bool = False) -> list[Path]:
+    """One log-log plot per node and sensor (x, y, z together), rendered in this process (no
+    forked workers: a fork of a process with threads can deadlock) and published together into
+    ``directory`` (``atomic_directory``: never over
     plots of the same names unless ``replace``); returns the PNG paths."""
-    import multiprocessing
-
     from pendsim_mj.outputs import atomic_directory
 
     directory = Path(directory)
@@ -229,12 +228,8 @@ def plots(report: AllanReport, directory: str | Path, *, processes: int = 2, rep
                         tmp / names[-1],
                     )
                 )
-        if processes > 1 and len(jobs) > 1 and "fork" in multiprocessing.get_all_start_methods():
-            with multiprocessing.get_context("fork").Pool(min(processes, len(jobs))) as pool:
-                pool.map(_render, jobs)
-        else:
-            for job in jobs:
-                _render(job)
+        for job in jobs:
+            _render(job)
     return [directory / name for name in names]
 
 

@@ -26,12 +26,12 @@ from pendsim_mj.sensors import Bno055, ImuNoise, flicker_noise, static_imu
 FS = 80.0
 
 
-def test_kernel_equals_allantools_oadev_in_one_and_two_processes():
+def test_kernel_equals_allantools_oadev_on_one_and_two_threads():
     rng = np.random.default_rng(0)
     y = rng.normal(size=(800_000, 3)) + np.cumsum(rng.normal(size=(800_000, 3)) * 1e-3, axis=0)
     m = tau_grid(len(y))
-    parallel = overlapping_adev(y, m, processes=2)  # 2.4 M values: forks two workers
-    serial = overlapping_adev(y, m, processes=1)
+    parallel = overlapping_adev(y, m, threads=2)  # 2.4 M values: two threads
+    serial = overlapping_adev(y, m, threads=1)
     np.testing.assert_allclose(parallel, serial, rtol=1e-14)  # summation order differs per column set
     for j in range(3):
         _, reference, _, _ = allantools.oadev(y[:, j], rate=FS, data_type="freq", taus=m / FS)

@@ -87,7 +87,11 @@ def full_disk(tmp_path_factory, inputs):
     )
     results = [json.loads(line) for line in out.stdout.splitlines()]
     assert len(results) == len(COMMANDS), out.stderr
-    yield folder, "file too large", dict(zip(COMMANDS, results, strict=True))
+    yield (
+        folder,
+        "file too large (the file size limit of this process or file system)",
+        dict(zip(COMMANDS, results, strict=True)),
+    )
 
 
 @pytest.mark.parametrize("name", list(COMMANDS))
