@@ -243,7 +243,10 @@ def test_no_replace_publication_is_one_atomic_rename_where_the_kernel_offers_it(
 
 
 def test_permission_denied_is_one_error_line_for_an_unprivileged_user(tmp_path):
-    """EACCES: root ignores permissions, so as root the command runs as user nobody (setpriv)."""
+    """EACCES: root ignores permissions, so as root the command runs without the capabilities that
+    override them (setpriv drops CAP_DAC_OVERRIDE, CAP_DAC_READ_SEARCH and CAP_FOWNER from the
+    bounding set): still root, so it can read the checkout wherever it lies, but bound by the
+    mode bits like any user."""
     base = Path(tempfile.mkdtemp(prefix="pendsim-eacces-"))  # tmp_path's parents are private to root
     try:
         base.chmod(0o755)
@@ -256,10 +259,11 @@ def test_permission_denied_is_one_error_line_for_an_unprivileged_user(tmp_path):
             "simulate", "--duration-s", "1", "-o", str(locked / "x.npz"),
         ]  # fmt: skip
         if os.geteuid() == 0:
-            if shutil.which("setpriv") is None:
-                pytest.skip("running as root without setpriv(1): permissions cannot be tested")
-            command = ["setpriv", "--reuid=65534", "--regid=65534", "--clear-groups", *command]
-        env = {**os.environ, "MUJOCO_GL": "disable"}  # (mujoco's GLFW probe re-executes Python: not as nobody)
+            drop = ["setpriv", "--bounding-set=-dac_override,-dac_read_search,-fowner", "--"]
+            if shutil.which("setpriv") is None or subprocess.run([*drop, "true"], capture_output=True).returncode:
+                pytest.skip("running as root and unable to drop CAP_DAC_OVERRIDE: permissions cannot be tested")
+            command = [*drop, *command]
+        env = {**os.environ, "MUJOCO_GL": "disable"}  # (no GLFW probe: it re-executes Python)
         out = subprocess.run(command, cwd=base, env=env, capture_output=True, text=True, timeout=120)
         lines = out.stderr.splitlines()
         assert out.returncode == 2 and len(lines) == 1, out.stderr

@@ -126,7 +126,7 @@ def test_serving_is_announced_once_both_ports_listen_on_loopback_and_the_url_ope
         assert any("--serve-web" in c for c in children.values())
     finally:
         proc.send_signal(signal.SIGINT)
-        out, err = proc.communicate(timeout=20)
+        out, err = proc.communicate(timeout=60)
     assert proc.returncode == 0 and "stopped by SIGINT" in out, err
     assert _wait_gone(children) == []
     assert listening_addresses(port) == [] and listening_addresses(port + 1) == []
@@ -144,7 +144,7 @@ def test_every_exit_path_ends_the_whole_server_group(rrd, how):
         proc.stdin.flush()
     else:
         proc.send_signal(getattr(signal, how))
-    proc.communicate(timeout=20)
+    proc.communicate(timeout=60)
     if how in ("SIGTERM", "SIGHUP"):
         assert proc.returncode == 0  # a served viewer's normal end
     # SIGKILL: pendsim could not clean up; the kernel's parent-death signal ends the server
@@ -172,7 +172,7 @@ def test_view_serve_with_an_output_named_like_an_option_serves_it_and_stops_on_s
         assert any(c.endswith(str(tmp_path / "-x.rrd")) for c in children.values())  # by its absolute path
     finally:
         proc.terminate()
-        _, err = proc.communicate(timeout=20)
+        _, err = proc.communicate(timeout=60)
     assert proc.returncode == 0 and err == ""
     assert _wait_gone(children) == []
 
@@ -223,11 +223,16 @@ def test_serving_beyond_loopback_warns(rrd):
 def test_the_desktop_viewer_listens_on_loopback_only_by_its_own_report(rrd):
     port = free_port_pair()
     env = {k: v for k, v in os.environ.items() if k not in ("DISPLAY", "WAYLAND_DISPLAY", "WAYLAND_SOCKET")}
-    # no display here: the viewer reports where it listens, then stops
-    out = subprocess.run(viewer_command(rrd, port=port), env=env, capture_output=True, text=True, timeout=60)
-    log = out.stdout + out.stderr
-    assert f"Listening for gRPC connections on 127.0.0.1:{port}" in log, log[-2000:]
-    assert "0.0.0.0" not in log
+    # no display here: the viewer reports where it listens, then stops. Its window error races
+    # with that report (seen: 2 runs in 6 stop before it), so up to 8 tries for one report.
+    logs = []
+    for _ in range(8):
+        out = subprocess.run(viewer_command(rrd, port=port), env=env, capture_output=True, text=True, timeout=60)
+        logs.append(out.stdout + out.stderr)
+        if "Listening for gRPC connections on" in logs[-1]:
+            break
+    assert f"Listening for gRPC connections on 127.0.0.1:{port}" in logs[-1], logs[-1][-2000:]
+    assert not any("0.0.0.0" in log for log in logs)
 
 
 def test_a_desktop_viewer_that_cannot_start_is_one_error_line(rrd, monkeypatch, capsys):
