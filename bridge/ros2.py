@@ -284,33 +284,52 @@ class DiagnosticStatus:
     values: tuple[tuple[str, str], ...]
 
 
-@functools.cache
-def _diagnostic_encoder() -> Callable[[Any], bytes]:
-    from mcap_ros2._dynamic import serialize_dynamic
+class _CdrText:
+    """A little-endian CDR (XCDR1) body built field by field, aligned from the body's start (after
+    the 4-byte encapsulation header): what messages with strings and sequences need."""
 
-    name = "diagnostic_msgs/msg/DiagnosticArray"
-    return serialize_dynamic(name, SCHEMAS[name].decode())[name]
+    def __init__(self) -> None:
+        self.body = bytearray()
+
+    def _align(self, n: int) -> None:
+        self.body += bytes(-len(self.body) % n)
+
+    def u32(self, value: int) -> None:
+        self._align(4)
+        self.body += int(value).to_bytes(4, "little")
+
+    def i32(self, value: int) -> None:
+        self._align(4)
+        self.body += int(value).to_bytes(4, "little", signed=True)
+
+    def u8(self, value: int) -> None:
+        self.body.append(int(value) & 0xFF)
+
+    def string(self, text: str) -> None:
+        raw = text.encode("utf-8") + b"\0"
+        self.u32(len(raw))
+        self.body += raw
+
+    def message(self) -> bytes:
+        return b"\x00\x01\x00\x00" + bytes(self.body)
 
 
 def encode_diagnostic_array(t_ns: int, statuses: list[DiagnosticStatus]) -> bytes:
-    """A diagnostic_msgs/msg/DiagnosticArray (strings of any length: encoded per message by
-    mcap_ros2; at 1 Hz that costs nothing)."""
-    encoder = _diagnostic_encoder()
+    """A diagnostic_msgs/msg/DiagnosticArray, CDR-encoded here (strings of any length; decoded in
+    the tests by mcap_ros2's DecoderFactory and by rosbags)."""
     sec, nanosec = divmod(int(t_ns), 1_000_000_000)
-    return bytes(
-        encoder(
-            {
-                "header": {"stamp": {"sec": sec, "nanosec": nanosec}, "frame_id": ""},
-                "status": [
-                    {
-                        "level": s.level,
-                        "name": s.name,
-                        "message": s.message,
-                        "hardware_id": s.hardware_id,
-                        "values": [{"key": k, "value": v} for k, v in s.values],
-                    }
-                    for s in statuses
-                ],
-            }
-        )
-    )
+    cdr = _CdrText()
+    cdr.i32(sec)
+    cdr.u32(nanosec)
+    cdr.string("")  # header.frame_id
+    cdr.u32(len(statuses))
+    for status in statuses:
+        cdr.u8(status.level)
+        cdr.string(status.name)
+        cdr.string(status.message)
+        cdr.string(status.hardware_id)
+        cdr.u32(len(status.values))
+        for key, value in status.values:
+            cdr.string(key)
+            cdr.string(value)
+    return cdr.message()

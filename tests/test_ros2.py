@@ -98,3 +98,39 @@ def test_decode_refuses_a_payload_with_another_frame_id():
     zeros = {name: 0 for name in layout.dtype.names}
     with pytest.raises(ValueError, match="does not match the fixed layout"):
         layout.decode(other.encode(1, **zeros))
+
+
+@pytest.mark.parametrize(
+    "statuses",
+    [
+        [],
+        [ros2.DiagnosticStatus(0, "", "", "", ())],
+        [
+            ros2.DiagnosticStatus(
+                1, "node m1: acquisition", "5 lost", "m1@5601", (("received", "1000"), ("lost", "5"))
+            ),
+            ros2.DiagnosticStatus(2, "n\u00f6de \u2202", "x" * 1001, "m2", (("k" * 3, ""),)),
+        ],
+    ],
+)
+def test_diagnostic_arrays_equal_mcap_ros2_encoding_and_decode_in_rosbags(statuses):
+    from rosbags.typesys import Stores, get_typestore
+
+    name = "diagnostic_msgs/msg/DiagnosticArray"
+    encode, decode = _codec(name)
+    t_ns = 1_700_000_000_123_456_789
+    raw = ros2.encode_diagnostic_array(t_ns, statuses)
+    as_dicts = [
+        {"level": s.level, "name": s.name, "message": s.message, "hardware_id": s.hardware_id,
+         "values": [{"key": k, "value": v} for k, v in s.values]}
+        for s in statuses
+    ]  # fmt: skip
+    header = {"stamp": {"sec": t_ns // 10**9, "nanosec": t_ns % 10**9}, "frame_id": ""}
+    assert raw == bytes(encode({"header": header, "status": as_dicts}))
+    msg = get_typestore(Stores.ROS2_HUMBLE).deserialize_cdr(raw, name)
+    assert (msg.header.stamp.sec, msg.header.stamp.nanosec) == (t_ns // 10**9, t_ns % 10**9)
+    got = [
+        (s.level, s.name, s.message, s.hardware_id, tuple((kv.key, kv.value) for kv in s.values)) for s in msg.status
+    ]
+    assert got == [(s.level, s.name, s.message, s.hardware_id, s.values) for s in statuses]
+    assert decode(raw).status[-1].name == statuses[-1].name if statuses else decode(raw).status == []
