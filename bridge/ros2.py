@@ -11,7 +11,6 @@ bytes against ``mcap_ros2``'s own encoder and decoder.
 from __future__ import annotations
 
 import dataclasses
-import functools
 from collections.abc import Callable
 from typing import Any
 

@@ -44,6 +44,21 @@ def spectral_peak_hz(t_s: np.ndarray, x: np.ndarray, max_hz: float = np.inf) -> 
     return float(spectral_peak_hz_batch(t, y[None, :], max_hz)[0])
 
 
+def padded_length(n: int) -> int:
+    """FFT length for n samples: the power of two at or above 8 n (zero-padded 8x: a fine
+    frequency grid to interpolate peaks on)."""
+    return 1 << (8 * n - 1).bit_length()
+
+
+def hann_magnitude(x: np.ndarray, nfft: int) -> np.ndarray:
+    """|rfft| of each row of x (m, n) or of x (n,), mean removed and Hann-windowed, zero-padded
+    to ``nfft``: (m, nfft // 2 + 1) or (nfft // 2 + 1,), units of x. The one windowed spectrum
+    of this project (bin k is at k / (nfft dt) Hz)."""
+    y = np.asarray(x, dtype=float)
+    y = y - y.mean(axis=-1, keepdims=True)
+    return np.abs(np.fft.rfft(y * np.hanning(y.shape[-1]), n=nfft, axis=-1))
+
+
 # Rows transformed at once by spectral_peak_hz_batch: bounds its memory (rows x nfft/2 complex).
 _SPECTRUM_BYTES = 64 * 2**20
 
@@ -58,18 +73,16 @@ def spectral_peak_hz_batch(t_s: np.ndarray, x: np.ndarray, max_hz: float = np.in
     _check_series(t, rows[0] if len(rows) else t)
     n = len(t)
     dt = (t[-1] - t[0]) / (n - 1)
-    nfft = 1 << (8 * n - 1).bit_length()  # zero-pad 8x: finer grid for the parabola
+    nfft = padded_length(n)
     nbins = nfft // 2 + 1
     top = min(nbins, int(np.ceil(max_hz * nfft * dt))) if np.isfinite(max_hz) else nbins
     out = np.zeros(len(rows))
     if top < 2:
         return out
-    window = np.hanning(n)
     block = max(1, _SPECTRUM_BYTES // (16 * nbins))
     for lo in range(0, len(rows), block):
         y = rows[lo : lo + block]
-        y = y - y.mean(axis=1, keepdims=True)
-        spectrum = np.abs(np.fft.rfft(y * window, n=nfft, axis=1))
+        spectrum = hann_magnitude(y, nfft)
         k = np.argmax(spectrum[:, 1:top], axis=1) + 1
         inside = k < nbins - 1
         kk = np.where(inside, k, 1)

@@ -17,7 +17,7 @@ import math
 import numpy as np
 from scipy.signal import find_peaks, hilbert
 
-from pendsim_mj.analysis import spectral_peak_hz
+from pendsim_mj.analysis import hann_magnitude, padded_length, spectral_peak_hz
 from pendsim_mj.drives import Drive
 from pendsim_mj.model import PLANAR, SPATIAL, Variant
 from pendsim_mj.params import RigParams
@@ -77,8 +77,8 @@ def spectrum_near(t_s: np.ndarray, x: np.ndarray, centre_hz: float, half_width_h
     """Frequencies (Hz) and Hann-windowed magnitudes of x within centre +- half width, and the
     peaks there (frequency, relative height), highest first."""
     dt = (t_s[-1] - t_s[0]) / (len(t_s) - 1)
-    nfft = 1 << (8 * len(x) - 1).bit_length()
-    mag = np.abs(np.fft.rfft((x - x.mean()) * np.hanning(len(x)), n=nfft))
+    nfft = padded_length(len(x))
+    mag = hann_magnitude(x, nfft)
     f = np.fft.rfftfreq(nfft, dt)
     band = (f >= centre_hz - half_width_hz) & (f <= centre_hz + half_width_hz)
     fb, mb = f[band], mag[band] / mag[band].max()
