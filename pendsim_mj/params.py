@@ -232,7 +232,8 @@ class RigParams:
 
 _MAY_BE_ZERO = frozenset(
     {
-        "b1_n_m_s", "b2_n_m_s", "friction1_n_m", "friction2_n_m", "c1_n_m", "c2_n_m", "g_m_s2", "l24_m", "l34_m", "l68_m", "l78_m",
+        "b1_n_m_s", "b2_n_m_s", "friction1_n_m", "friction2_n_m", "c1_n_m", "c2_n_m", "g_m_s2", "l24_m", "l34_m",
+        "l68_m", "l78_m",
         "plane_offset_m", "tilt_stiffness_n_m_rad", "tilt_damping_n_m_s_rad",
     }
 )  # fmt: skip

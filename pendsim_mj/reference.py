@@ -17,8 +17,8 @@ s(w) = w / sqrt(w^2 + w_s^2) the sign smoothed below w_s = ``params.FRICTION_SMO
 (MuJoCo's joint frictionloss, which this checks, is a soft constraint too).
 
 The state integrated is (phi1, phi2, omega1, omega2, D) with D' = (b1 omega1 + F1 s(omega1)) omega1
-+ (b2 omega2 + F2 s(omega2)) omega2, the energy dissipated so far, integrated by the same RK4 step. Everything is vectorised over a
-leading batch axis.
++ (b2 omega2 + F2 s(omega2)) omega2, the energy dissipated so far, integrated by the same RK4
+step. Everything is vectorised over a leading batch axis.
 
 Drives (``pendsim_mj.drives``), held constant over each step exactly as MuJoCo holds ``ctrl``:
 
