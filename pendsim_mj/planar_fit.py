@@ -133,8 +133,8 @@ class _Model:
         self.nstep = math.ceil(end / FIT_DT_S) + 1
 
     def rates(self, xs: Floats) -> tuple[Floats, Floats]:
-        """Model rates (nb, m_k) of each node at its instants, and d rate/d tau (nb, m_k) summed
-        into one tuple per node: ((rate0, rate1), (dtau0, dtau1))."""
+        """Model rates (nb, m_k) of each node at its instants, and the last member's d rate/d tau
+        (m_k,): ((rate0, rate1), (dtau0, dtau1))."""
         nb = len(xs)
         p = len(self.damping)
         coef = np.repeat(self.coef, nb, axis=1)
@@ -145,30 +145,33 @@ class _Model:
         omega0 = np.ascontiguousarray(xs[:, p + 2 : p + 4]) if self.moving else np.zeros((nb, 2))
         tau = np.zeros(nb) if self.moving else xs[:, -1]
         h = FIT_DT_S
-        s = [[a - tau[i] for i in range(nb)] for a in self.data.at]  # model time per node, member
-        rate = [np.zeros((nb, len(a))) for a in self.data.at]
-        slope = [np.zeros((nb, len(a))) for a in self.data.at]
-        lo_idx = [[int(np.searchsorted(s[k][i], 0.0)) for i in range(nb)] for k in range(2)]
+        at = self.data.at
+        rate = [np.zeros((nb, len(a))) for a in at]
+        slope = [np.zeros(len(a)) for a in at]  # d rate / d tau of the last member only
+        lo_idx = [[int(np.searchsorted(a, tau[i])) for i in range(nb)] for a in at]
         first = 0
         while first < self.nstep:
             steps = min(BLOCK_STEPS, self.nstep - first)
             y = fast_planar.integrate(coef, phi0, omega0, steps, h, nthread=1)  # (steps+1, 5, nb)
             alpha = fast_planar.accelerations(y[:, 0], y[:, 1], y[:, 2], y[:, 3], coef)
             t_end = (first + steps) * h
+            last = first + steps >= self.nstep
             for k in range(2):
                 w, a = y[:, 2 + k], alpha[k]
                 for i in range(nb):
                     lo = lo_idx[k][i]
-                    hi = int(np.searchsorted(s[k][i], t_end)) if first + steps < self.nstep else len(s[k][i])
+                    hi = len(at[k]) if last else int(np.searchsorted(at[k], t_end + tau[i]))
                     if hi <= lo:
                         continue
-                    u = np.minimum(s[k][i][lo:hi] / h - first, steps - 1e-9)
+                    u = np.minimum((at[k][lo:hi] - tau[i]) / h - first, steps - 1e-9)
                     j = np.minimum(u.astype(np.int64), steps - 1)
                     f = u - j
-                    f2, f3 = f * f, f * f * f
+                    f2 = f * f
+                    f3 = f2 * f
                     h00, h10, h01, h11 = 2 * f3 - 3 * f2 + 1, f3 - 2 * f2 + f, -2 * f3 + 3 * f2, f3 - f2
                     rate[k][i, lo:hi] = h00 * w[j, i] + h10 * h * a[j, i] + h01 * w[j + 1, i] + h11 * h * a[j + 1, i]
-                    slope[k][i, lo:hi] = -((1 - f) * a[j, i] + f * a[j + 1, i])  # d rate / d tau
+                    if i == nb - 1:
+                        slope[k][lo:hi] = -((1 - f) * a[j, i] + f * a[j + 1, i])
                     lo_idx[k][i] = hi
             phi0 = np.ascontiguousarray(y[-1, 0:2].T)
             omega0 = np.ascontiguousarray(y[-1, 2:4].T)
@@ -195,7 +198,7 @@ class _Model:
                 [(r0[2 * n] - r0[2 * n + 1]) / d.sigma[0], (r1[2 * n] - r1[2 * n + 1]) / d.sigma[1]]
             ) / (2 * steps[n])
         if not self.moving:  # the unperturbed member is last
-            jac[:, -1] = np.concatenate([s0[-1] / d.sigma[0], s1[-1] / d.sigma[1]])
+            jac[:, -1] = np.concatenate([s0 / d.sigma[0], s1 / d.sigma[1]])
         return jac
 
 
@@ -219,12 +222,14 @@ def fit_law(
     phi0_rad: Sequence[float],
     omega0_rad_s: Sequence[float],
     moving: bool,
+    guess: dict[str, float] | None = None,
 ) -> LawFit:
-    """One law's fit from the alignment's start state (see the module docstring)."""
+    """One law's fit from the alignment's start state (see the module docstring); ``guess``:
+    first values of damping terms by name (default: the rig's b, friction 2e-4 N m)."""
     start = time.perf_counter()
     model = _Model(params, law, moving, data)
-    guess = {"b1_n_m_s": params.b1_n_m_s, "b2_n_m_s": params.b2_n_m_s}
-    x0 = [max(guess.get(name, 0.0), 2e-4) for name in model.damping] + list(phi0_rad)
+    guess = guess or {"b1_n_m_s": params.b1_n_m_s, "b2_n_m_s": params.b2_n_m_s}
+    x0 = [max(guess.get(name, 2e-4), 1e-6) for name in model.damping] + list(phi0_rad)
     x0 += list(omega0_rad_s) if moving else [0.0]
     low = [0.0] * len(model.damping) + [-math.inf] * 2 + ([-math.inf] * 2 if moving else [-MAX_RELEASE_OFFSET_S])
     high = [math.inf] * (len(x0) - (0 if moving else 1)) + ([] if moving else [MAX_RELEASE_OFFSET_S])
@@ -309,6 +314,20 @@ def fit_planar(
     data = _Data((at[0], at[1]), (gyro[0], gyro[1]), np.asarray(gyro_sigma_rad_s, dtype=float))
     if moving is None:
         moving = bool(np.any(np.abs(np.asarray(omega0_rad_s, dtype=float)) > 0))
-    laws = LAWS if law == "auto" else (law,)
-    fits = [fit_law(params, name, data, phi0_rad, omega0_rad_s, moving) for name in laws]
-    return sorted(fits, key=lambda f: f.bic)
+    if law != "auto":
+        return [fit_law(params, law, data, phi0_rad, omega0_rad_s, moving)]
+    # viscous first; the others start from it: the same start state, and the dry friction that
+    # dissipates the same mean power, F_n = b_n <omega_n^2> / <|omega_n|> (fewer iterations)
+    viscous = fit_law(params, "viscous", data, phi0_rad, omega0_rad_s, moving)
+    b = [viscous.value("b1_n_m_s"), viscous.value("b2_n_m_s")]
+    n_start = len(_DAMPING["viscous"])
+    phi_v = viscous.values[n_start : n_start + 2]
+    omega_v = viscous.values[n_start + 2 : n_start + 4] if moving else omega0_rad_s
+    equivalent = {
+        f"friction{k + 1}_n_m": b[k] * float(np.mean(gyro[k] ** 2)) / max(float(np.mean(np.abs(gyro[k]))), 1e-12)
+        for k in range(2)
+    }
+    dry = fit_law(params, "coulomb", data, phi_v, omega_v, moving, guess=equivalent)
+    small = {f"friction{k + 1}_n_m": 0.05 * equivalent[f"friction{k + 1}_n_m"] for k in range(2)}
+    both = fit_law(params, "both", data, phi_v, omega_v, moving, guess={"b1_n_m_s": b[0], "b2_n_m_s": b[1], **small})
+    return sorted([viscous, dry, both], key=lambda f: f.bic)
