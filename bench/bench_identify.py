@@ -66,7 +66,8 @@ def main() -> None:
                 b = ", ".join(f"{v:.5g} +- {c:.2g}" for v, c in zip(r["b"], r["ci"], strict=True))
                 target = "  (target <= 15 s, 500 MB)" if which == "new" and duration == 3600 else ""
                 print(
-                    f"{duration:5d} s  {label:13} CPU {r['cpu_s']:6.2f} s  peak RSS {r['peak_mb']:6.0f} MB  b = {b}{target}"
+                    f"{duration:5d} s  {label:13} CPU {r['cpu_s']:6.2f} s  peak RSS {r['peak_mb']:6.0f} MB"
+                    f"  b = {b}{target}"
                 )
 
 

@@ -77,7 +77,7 @@ def test_damping_is_within_2_percent_with_the_nodes_imperfections(imperfect_fit)
 def test_a_record_with_dry_friction_is_identified_as_coulomb_and_a_viscous_one_as_viscous(imperfect_fit):
     dry = DEFAULT_PARAMS.with_overrides(b1_n_m_s=0.0, b2_n_m_s=0.0, friction1_n_m=1e-3, friction2_n_m=4e-4)
     fits = _fit(simulate(dry, (math.radians(34), 0.0), (0.0, 0.0), 20.0), Bno055(seed=8), law="auto")
-    assert [f.law for f in fits][0] == "coulomb"
+    assert fits[0].law == "coulomb"
     best = fits[0]
     # MuJoCo's soft frictionloss against the planar law: a few per cent (docs/identification.md)
     np.testing.assert_allclose([best.value("friction1_n_m"), best.value("friction2_n_m")], [1e-3, 4e-4], rtol=0.05)
