@@ -132,7 +132,7 @@ class _Model:
         end = max(float(a[-1]) for a in data.at) + MAX_RELEASE_OFFSET_S + FIT_DT_S
         self.nstep = math.ceil(end / FIT_DT_S) + 1
 
-    def rates(self, xs: Floats) -> tuple[Floats, Floats]:
+    def rates(self, xs: Floats) -> tuple[tuple[Floats, Floats], tuple[Floats, Floats]]:
         """Model rates (nb, m_k) of each node at its instants, and the last member's d rate/d tau
         (m_k,): ((rate0, rate1), (dtau0, dtau1))."""
         nb = len(xs)
@@ -219,8 +219,8 @@ def fit_law(
     params: RigParams,
     law: str,
     data: _Data,
-    phi0_rad: Sequence[float],
-    omega0_rad_s: Sequence[float],
+    phi0_rad: Sequence[float] | Floats,
+    omega0_rad_s: Sequence[float] | Floats,
     moving: bool,
     guess: dict[str, float] | None = None,
 ) -> LawFit:
