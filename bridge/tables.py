@@ -72,10 +72,27 @@ def identification_table(path: str | Path, result: Identification) -> str:
             f"AT {math.degrees(d.at_rad):.3f} deg, t1 {d.window_s:.2f} s)"
         )
     fit = result.fit
-    lines.append(f"least squares on both gyros (mujoco.sysid, {fit.iterations} iterations, {fit.seconds:.1f} s):")
-    for n in range(2):
-        lines.append(f"  b{n + 1} = {fit.b_n_m_s[n]:.5g} +- {fit.ci95_n_m_s[n]:.2g} N m s/rad (95 %)")
+    lines.append(
+        f"least squares on both gyros ({fit.method}, start state fitted too; {fit.iterations} iterations, "
+        f"{fit.seconds:.1f} s), {fit.law} law:"
+    )
+    if fit.law != "coulomb":
+        for n in range(2):
+            lines.append(f"  b{n + 1} = {fit.b_n_m_s[n]:.5g} +- {fit.ci95_n_m_s[n]:.2g} N m s/rad (95 %)")
+    if fit.law != "viscous":
+        for n in range(2):
+            lines.append(
+                f"  F{n + 1} = {fit.friction_n_m[n]:.5g} +- {fit.friction_ci95_n_m[n]:.2g} N m (95 %, dry friction)"
+            )
     lines.append(f"  residual rms {fit.residual_rms_sigma:.3f} gyro noise sigmas (1 = explained to the noise level)")
+    if fit.laws:
+        lines.append("damping law by BIC (smallest wins), residual whiteness by Ljung-Box (p > 0.05: white):")
+        for f in fit.laws:
+            mark = "  <- chosen" if f.law == fit.law else ""
+            lines.append(
+                f"  {f.law:8} BIC {f.bic:12.1f}  rms {f.residual_rms_sigma:.3f} sigma  "
+                f"Ljung-Box p {f.ljung_box_p[0]:.2g} (m1), {f.ljung_box_p[1]:.2g} (m2){mark}"
+            )
     return "\n".join(lines)
 
 

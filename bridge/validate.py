@@ -31,7 +31,7 @@ from pendsim_mj import engines
 from pendsim_mj.alignment import MeasuredRun, NodeSamples, align
 from pendsim_mj.engines import whole_steps_s
 from pendsim_mj.errors import ParameterError, RecordingError
-from pendsim_mj.identification import DampingFit, LogDecrement, fit_damping, log_decrement
+from pendsim_mj.identification import DampingFit, LogDecrement, log_decrement, planar_damping
 from pendsim_mj.outputs import atomic_directory
 from pendsim_mj.params import DEFAULT_PARAMS, RigParams
 from pendsim_mj.quantities import VALIDATED, Quantity
@@ -127,11 +127,13 @@ def identify(
     params: RigParams | None = None,
     release_s: float | None = None,
     max_gap_s: float = DEFAULT_MAX_GAP_S,
+    law: str = "auto",
 ) -> Identification:
-    """Both damping estimates from a recording's free decay."""
+    """Both damping estimates from a recording's free decay (``law``: the planar fit's damping
+    law, "auto" chooses by BIC)."""
     rec = read_recording(path)
     params = params or recorded_params(rec)
-    return _identify(align_recording(rec, params, release_s=release_s, max_gap_s=max_gap_s), params, window_s)
+    return _identify(align_recording(rec, params, release_s=release_s, max_gap_s=max_gap_s), params, window_s, law)
 
 
 def _per_node(run: MeasuredRun, names: tuple[str, str]) -> tuple[np.ndarray, np.ndarray]:
@@ -146,26 +148,26 @@ def _per_node(run: MeasuredRun, names: tuple[str, str]) -> tuple[np.ndarray, np.
     return t, values
 
 
-def _identify(run: MeasuredRun, params: RigParams, window_s: float) -> Identification:
-    """Log decrement of the measured angles and the least-squares fit of the gyros (the one call
-    into ``pendsim_mj.identification``)."""
+def _identify(run: MeasuredRun, params: RigParams, window_s: float, law: str = "auto") -> Identification:
+    """Log decrement of the measured angles and the planar least-squares fit of the gyros (hinge
+    losses and start state together; the one call into ``pendsim_mj.identification``)."""
     t_phi, phi = _per_node(run, ("phi1", "phi2"))
     decrement = log_decrement(t_phi, phi, params, min(window_s, run.duration_s))
     t_omega, omega = _per_node(run, ("omega1", "omega2"))
-    # the fit evaluates the model at the fused instants itself: give it the sample instants
-    # moved by each node's fusion age (value instants) and no fusion rate
+    # the model is evaluated where each value belongs (the sample instants moved by the fusion age)
     values_t = np.full_like(t_omega, np.nan)
     for k, node in enumerate(run.nodes):
         values_t[: len(node.value_t_s), k] = node.value_t_s
     start = run.start
-    fit = fit_damping(
+    fit = planar_damping(
         params,
-        start.phi_rad,
-        np.clip(values_t, 0.0, None),
+        values_t,
         omega,
         gyro_sigma_rad_s=run.gyro_sigma_rad_s,
-        fusion_rate_hz=None,
+        phi0_rad=start.phi_rad,
         omega0_rad_s=start.omega_rad_s,
+        moving=start.kind != "release",
+        law=law,
     )
     return Identification(decrement, fit, start.phi_rad, start.time_s, start.omega_rad_s, start.kind)
 
@@ -237,8 +239,8 @@ def validate(
     if damping == "identified":
         identification = _identify(run, base, 120.0)
         fit = identification.fit
-        model_params = base.with_overrides(b1_n_m_s=float(fit.b_n_m_s[0]), b2_n_m_s=float(fit.b_n_m_s[1]))
-        source = "identified (least squares)"
+        model_params = base.with_mapping(fit.overrides())
+        source = f"identified (least squares, {fit.law} law)"
     elif damping == "recorded":
         model_params, source = base, "recorded"
     elif isinstance(damping, tuple) and len(damping) == 2:
@@ -339,6 +341,18 @@ def report_json(report: ValidationReport) -> dict[str, Any]:
                 "residual_rms_sigma": i.fit.residual_rms_sigma,
                 "iterations": i.fit.iterations,
                 "seconds": i.fit.seconds,
+                "law": i.fit.law,
+                "friction_n_m": i.fit.friction_n_m.tolist(),
+                "friction_ci95_n_m": i.fit.friction_ci95_n_m.tolist(),
+                "laws": [
+                    {
+                        "law": f.law,
+                        "bic": f.bic,
+                        "ljung_box_p": list(f.ljung_box_p),
+                        "residual_rms_sigma": f.residual_rms_sigma,
+                    }
+                    for f in i.fit.laws
+                ],
             },
         }
     run = report.run

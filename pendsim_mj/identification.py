@@ -1,9 +1,14 @@
-"""Damping identification from a free decay: the paper's log decrement, and a least-squares fit
-of the whole measured time series built on MuJoCo's system-identification toolbox.
+"""Damping identification from a free decay: the paper's log decrement, the planar least-squares
+fit (the default: ``pendsim_mj.planar_fit``, hinge losses and start state together, damping law
+chosen by BIC), and a least-squares fit built on MuJoCo's system-identification toolbox (kept for
+the spatial model: ``fit_damping``).
 
 (a) ``log_decrement``: b_n = 2 J_n ln(A0_n / AT_n) / t1 per pendulum, amplitudes over a window
     (default the paper's 120 s).
-(b) ``fit_damping``: b1, b2 minimising the gyro residuals of both nodes over the whole record,
+(b) ``planar_damping``: ``planar_fit.fit_planar`` over the laws asked for, as a DampingFit (the
+    fused instants and the lost samples handled as below; the start state fitted too, so the
+    intervals are honest: 94-95 % coverage measured over 200 seeded 20 s records).
+(c) ``fit_damping``: b1, b2 minimising the gyro residuals of both nodes over the whole record,
     normalised by the noise sigmas, with ``mujoco.sysid`` (Gauss-Newton over rollouts of the MJCF
     model, confidence intervals from the Jacobian at the optimum). Two corrections, both found by
     measurement and supplied through its ``modify_residual`` hook:
@@ -32,6 +37,7 @@ from pendsim_mj.analysis import log_decrement_damping
 from pendsim_mj.errors import ParameterError
 from pendsim_mj.model import HINGES, build_spec
 from pendsim_mj.params import RigParams
+from pendsim_mj.planar_fit import LawFit, fit_planar
 from pendsim_mj.sensors import fused_instants
 
 
@@ -78,6 +84,10 @@ class DampingFit:
       residual_rms_sigma: rms of the residuals in units of the gyro noise sigma (about 1 for a
         model that explains the data to the noise level).
       iterations: Gauss-Newton iterations; seconds: wall time.
+      method: "planar" (``planar_fit``) or "mujoco.sysid".
+      law: the damping law of the estimates ("viscous", "coulomb", "both").
+      friction_n_m, friction_ci95_n_m: (2,) dry friction F1, F2 and half-widths (0 without it).
+      laws: every law's fit (planar), the chosen one first.
     """
 
     b_n_m_s: np.ndarray
@@ -86,6 +96,60 @@ class DampingFit:
     residual_rms_sigma: float
     iterations: int
     seconds: float
+    method: str = "mujoco.sysid"
+    law: str = "viscous"
+    friction_n_m: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(2))
+    friction_ci95_n_m: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(2))
+    laws: tuple[LawFit, ...] = ()
+
+    def overrides(self) -> dict[str, float]:
+        """The fitted hinge losses as RigParams fields (b and friction of both hinges)."""
+        b, f = self.b_n_m_s, self.friction_n_m
+        return {
+            "b1_n_m_s": float(b[0]),
+            "b2_n_m_s": float(b[1]),
+            "friction1_n_m": float(f[0]),
+            "friction2_n_m": float(f[1]),
+        }
+
+
+def planar_damping(
+    params: RigParams,
+    value_t_s: np.ndarray,
+    gyro_z_rad_s: np.ndarray,
+    *,
+    gyro_sigma_rad_s: tuple[float, float],
+    phi0_rad: tuple[float, float],
+    omega0_rad_s: tuple[float, float] = (0.0, 0.0),
+    moving: bool | None = None,
+    law: str = "auto",
+) -> DampingFit:
+    """The planar fit (``planar_fit.fit_planar``, same arguments) as a DampingFit: the law with
+    the smallest BIC (or the one asked for), every law tried in ``laws``."""
+    start = time.perf_counter()
+    fits = fit_planar(
+        params, value_t_s, gyro_z_rad_s, gyro_sigma_rad_s=gyro_sigma_rad_s, phi0_rad=phi0_rad,
+        omega0_rad_s=omega0_rad_s, moving=moving, law=law,
+    )  # fmt: skip
+    best = fits[0]
+    names = ("b1_n_m_s", "b2_n_m_s")
+    rows = [best.names.index(n) for n in names if n in best.names]
+    covariance = np.zeros((2, 2))
+    if len(rows) == 2:
+        covariance = best.covariance[np.ix_(rows, rows)]
+    return DampingFit(
+        b_n_m_s=np.array([best.value(n) for n in names]),
+        ci95_n_m_s=np.array([best.half_width(n) for n in names]),
+        covariance=covariance,
+        residual_rms_sigma=best.residual_rms_sigma,
+        iterations=sum(f.iterations for f in fits),
+        seconds=time.perf_counter() - start,
+        method="planar",
+        law=best.law,
+        friction_n_m=np.array([best.value(f"friction{n}_n_m") for n in (1, 2)]),
+        friction_ci95_n_m=np.array([best.half_width(f"friction{n}_n_m") for n in (1, 2)]),
+        laws=tuple(fits),
+    )
 
 
 def _sysid():

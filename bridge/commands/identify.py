@@ -8,14 +8,18 @@ from pathlib import Path
 
 from pendsim_bridge import options
 
+LAW_CHOICES = ("auto", "viscous", "coulomb", "both")  # pendsim_mj.planar_fit.LAW_CHOICES (not imported: fast start)
+
 
 def register(sub: argparse._SubParsersAction[options.Parser]) -> None:
     p = sub.add_parser(
         "identify",
-        help="identify the hinge damping b1, b2 from a recorded free decay (log decrement and least squares)",
+        help="identify the hinge damping (viscous b1, b2 and/or dry friction) from a recorded free decay",
         description="Print b1, b2 by the paper's logarithmic decrement (per pendulum, amplitudes over --window-s) "
-        "and by a least-squares fit of the whole measured gyro record (mujoco.sysid), with 95 %% confidence "
-        "intervals. --write saves the fitted values for 'simulate --params-file' and 'record --params-file'.",
+        "and by a least-squares fit of the whole measured gyro record on the planar model, the start state "
+        "fitted too, with 95 %% confidence intervals; the damping law (viscous, Coulomb or both) chosen by BIC, "
+        "with the residuals' whiteness. --write saves the fitted values for 'simulate --params-file' and "
+        "'record --params-file'.",
     )
     p.add_argument("path", type=options.input_file, help="the .mcap recording")
     options.add_alignment_options(p)
@@ -25,7 +29,16 @@ def register(sub: argparse._SubParsersAction[options.Parser]) -> None:
         default=120.0,
         help="log-decrement window, s (default 120)",
     )
-    p.add_argument("--write", type=Path, metavar="FILE.json", help="write the fitted b1_n_m_s, b2_n_m_s as JSON")
+    p.add_argument(
+        "--law",
+        type=options.choice(LAW_CHOICES, "unknown law {value!r}; allowed: {allowed}"),
+        choices=LAW_CHOICES,
+        default="auto",
+        help="damping law of the fit: auto (the smallest BIC of the three; default), viscous, coulomb or both",
+    )
+    p.add_argument(
+        "--write", type=Path, metavar="FILE.json", help="write the fitted b1_n_m_s, b2_n_m_s, friction1/2_n_m as JSON"
+    )
     options.add_force_option(p, "the --write file")
     p.set_defaults(handler=run)
 
@@ -36,10 +49,12 @@ def run(args: argparse.Namespace) -> int:
     from pendsim_mj.outputs import atomic_output
 
     options.check_output(args.write, (".json",), force=args.force)
-    result = identify(args.path, window_s=args.window_s, release_s=args.release_s, max_gap_s=args.max_gap_s)
+    result = identify(
+        args.path, window_s=args.window_s, release_s=args.release_s, max_gap_s=args.max_gap_s, law=args.law
+    )
     print(identification_table(args.path, result))
     if args.write is not None:
-        values = {"b1_n_m_s": float(result.fit.b_n_m_s[0]), "b2_n_m_s": float(result.fit.b_n_m_s[1])}
+        values = result.fit.overrides()
         with atomic_output(args.write, replace=args.force) as tmp:
             tmp.write_text(json.dumps(values, indent=1) + "\n")
         print(f"wrote {args.write} (use: pendsim simulate --params-file {args.write})")
