@@ -18,7 +18,7 @@ from pendsim_bridge.recording import read_recording
 from pendsim_mj.alignment import MeasuredRun
 from pendsim_mj.errors import ParameterError
 from pendsim_mj.model import SPATIAL
-from pendsim_mj.params import PLANE_OFFSET_PRESETS_M, RigParams
+from pendsim_mj.params import DEFAULT_PARAMS, PLANE_OFFSET_PRESETS_M, RigParams
 from pendsim_mj.quantities import VALIDATED
 from pendsim_mj.sensors import ImuNoise
 from pendsim_mj.simulation import simulate
@@ -174,7 +174,9 @@ def identify_spatial(
     from pendsim_bridge.validate import align_recording, node_samples, recorded_params
 
     rec = read_recording(path)
-    base = spatial_params(params or recorded_params(rec))
+    # the geometry is the recording's; the fitted values start from the assumed defaults
+    start_values = {n: getattr(DEFAULT_PARAMS, n) for n in NAMES}
+    base = spatial_params(params or recorded_params(rec)).with_mapping(start_values)
     run = align_recording(rec, base, release_s=release_s, max_gap_s=max_gap_s)
     if run.start.kind == "in motion" and max(abs(w) for w in run.start.omega_rad_s) > 0.5:
         raise ParameterError(
@@ -210,7 +212,8 @@ def identify_and_write(
     replace: bool = False,
 ) -> str:
     """``identify --model spatial``: the fit's printed lines; with ``write``, the four values as
-    JSON (parameter names, for ``--params-file`` of simulate and record) written atomically."""
+    JSON (parameter names, for ``--params-file`` of simulate and record; the plane offset is
+    record's --offset-m) written atomically."""
     import json
 
     from pendsim_mj.outputs import atomic_output
@@ -219,7 +222,6 @@ def identify_and_write(
     lines = identification_lines(path, result)
     if write is not None:
         values = result.fit.as_mapping()
-        values["plane_offset_m"] = result.params.plane_offset_m
         with atomic_output(write, replace=replace) as tmp:
             tmp.write_text(json.dumps(values, indent=1) + "\n")
         lines.append(f"wrote {write} (use: pendsim record --model spatial --params-file {write})")
