@@ -81,7 +81,7 @@ def model_choice(planar: CaseResult, spatial: CaseResult) -> dict[str, Any]:
     over the quantities of rms / rms of the measured signal about its mean (so that angles,
     rates and accelerations weigh alike); the smaller wins.
     """
-    quantities = {}
+    quantities: dict[str, dict[str, Any]] = {}
     scores: dict[str, list[float]] = {m: [] for m in MODELS}
     for q in VALIDATED:
         pair = {"planar": planar.comparisons[q.name], "spatial": spatial.comparisons[q.name]}
@@ -92,7 +92,7 @@ def model_choice(planar: CaseResult, spatial: CaseResult) -> dict[str, Any]:
             "unit": q.unit,
             "rms": {m: pair[m].rms for m in MODELS},
             "delta_f": {m: _finite(pair[m].delta_f) for m in MODELS},
-            "better": min(MODELS, key=lambda m: pair[m].rms),
+            "better": min(MODELS, key=lambda m: float(pair[m].rms)),
         }
     overall = {m: float(np.mean(scores[m])) for m in MODELS}
     return {
