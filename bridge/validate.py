@@ -197,6 +197,7 @@ class ValidationReport:
     cases: list[CaseResult]
     model_run: Trajectory  # MuJoCo from the estimated start, with the validated parameters
     mjcf_xml: str | None  # the recording's MJCF attachment, if any
+    model_choice: dict[str, Any] | None = None  # --model spatial: planar vs spatial (spatial_validate)
 
     def case(self, engine: str = "mujoco", release: str = "estimated", window: str = "whole") -> CaseResult:
         for c in self.cases:
@@ -219,6 +220,7 @@ def validate(
     short_window_s: float = 5.0,
     release_s: float | None = None,
     max_gap_s: float = DEFAULT_MAX_GAP_S,
+    model: str = "planar",
 ) -> ValidationReport:
     """Compare a recording with the MuJoCo model and the planar reference.
 
@@ -231,7 +233,11 @@ def validate(
       short_window_s: the paper's short window (5 s).
       release_s: the start (release) on the recording's clock, s, instead of detecting it.
       max_gap_s: spacing of samples above which nothing is interpolated or integrated, s.
+      model: "planar" (default), or "spatial": also the spatial MuJoCo model (case engine
+        "mujoco-spatial") and which of the two fits better (``spatial_validate.model_choice``).
     """
+    if model not in ("planar", "spatial"):
+        raise ParameterError(f"model must be 'planar' or 'spatial', got {model!r}")
     rec = read_recording(path)
     base = (params or recorded_params(rec)).with_mapping(overrides or {})
     run = align_recording(rec, base, release_s=release_s, max_gap_s=max_gap_s)
@@ -268,7 +274,22 @@ def validate(
                     comparisons[q.name] = compare(t[inside], measured[inside], computed[inside], max_gap_s=max_gap_s)
                 cases.append(CaseResult(engine, release_name, window_name, comparisons))
     assert model_run is not None
-    return ValidationReport(Path(path), model_params, source, identification, run, cases, model_run, rec.mjcf_xml)
+    choice = None
+    if model == "spatial":
+        from pendsim_bridge import spatial_validate
+
+        covariance = [n.gyro_covariance for n in node_samples(rec)]
+        case, spatial = spatial_validate.spatial_case(
+            run, model_params, max_gap_s, damping_fit=damping == "identified", covariance=covariance
+        )
+        cases.append(case)
+        planar = next(c for c in cases if (c.engine, c.release, c.window) == ("mujoco", "estimated", "whole"))
+        choice = spatial_validate.model_choice(planar, case)
+        choice["plane_offset_m"] = spatial.plane_offset_m
+        choice["spatial_params"] = {n: getattr(spatial, n) for n in spatial_validate.NAMES}
+    return ValidationReport(
+        Path(path), model_params, source, identification, run, cases, model_run, rec.mjcf_xml, choice
+    )
 
 
 @dataclasses.dataclass(frozen=True)
@@ -388,6 +409,7 @@ def report_json(report: ValidationReport) -> dict[str, Any]:
             "b2_n_m_s": report.params.b2_n_m_s,
         },
         "identification": ident,
+        **({"model_choice": report.model_choice} if report.model_choice is not None else {}),
         "cases": [
             {
                 "engine": c.engine,
@@ -451,6 +473,10 @@ def table(report: ValidationReport) -> str:
                 f"  {q.label:14} {cmp.f_measured_hz:11.5f} {cmp.f_computed_hz:11.5f} {cmp.delta_f:9.2e} "
                 f"{cmp.max_abs:11.4g} {cmp.iae:10.4g} {cmp.ise:10.4g}  {q.unit}"
             )
+    if report.model_choice is not None:
+        from pendsim_bridge.spatial_validate import choice_lines
+
+        lines += choice_lines(report.model_choice, report.model_choice["plane_offset_m"])
     if report.has_nominal:
         nominal = report.case("mujoco", "nominal", "whole").comparisons["phi1"]
         lines.append("")

@@ -37,7 +37,15 @@ def register(sub: argparse._SubParsersAction[options.Parser]) -> None:
         help="damping law of the fit: auto (the smallest BIC of the three; default), viscous, coulomb or both",
     )
     p.add_argument(
-        "--write", type=Path, metavar="FILE.json", help="write the fitted b1_n_m_s, b2_n_m_s, friction1/2_n_m as JSON"
+        "--model",
+        type=options.choice(("planar", "spatial"), "unknown --model {value!r}; allowed: {allowed}"),
+        choices=("planar", "spatial"),
+        default="planar",
+        help="planar (default) or spatial: also the support's tilt stiffness and damping, fitted with "
+        "the spatial model to all three gyro axes of both nodes (viscous hinge damping)",
+    )
+    p.add_argument(
+        "--write", type=Path, metavar="FILE.json", help="write the fitted values (b1_n_m_s, b2_n_m_s, ...) as JSON"
     )
     options.add_force_option(p, "the --write file")
     p.set_defaults(handler=run)
@@ -49,6 +57,12 @@ def run(args: argparse.Namespace) -> int:
     from pendsim_mj.outputs import atomic_output
 
     options.check_output(args.write, (".json",), force=args.force)
+    if args.model == "spatial":
+        from pendsim_bridge.spatial_validate import identify_and_write
+
+        print(identify_and_write(args.path, release_s=args.release_s, max_gap_s=args.max_gap_s, write=args.write,
+                                 replace=args.force))  # fmt: skip
+        return 0
     result = identify(
         args.path, window_s=args.window_s, release_s=args.release_s, max_gap_s=args.max_gap_s, law=args.law
     )
