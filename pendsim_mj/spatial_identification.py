@@ -22,10 +22,7 @@ the tilt oscillation is a fast (1.7-2.1 Hz) line, the fit is continued over grow
 
 from __future__ import annotations
 
-import contextlib
 import dataclasses
-import io
-import logging
 import math
 import time
 
@@ -33,6 +30,7 @@ import mujoco
 import numpy as np
 
 from pendsim_mj.errors import ParameterError
+from pendsim_mj.identification import sensors_only, sysid_least_squares
 from pendsim_mj.model import HINGES, SPATIAL, TILTS, build_spec
 from pendsim_mj.params import PARAMETER_LIMITS, RigParams
 
@@ -56,7 +54,7 @@ class TiltFit:
         model explains the data to the noise level).
       channel_rms_sigma: (2, 3) the same per node and gyro component (tangential, toward pivot,
         hinge).
-      iterations: Gauss-Newton iterations over all windows; seconds: wall time.
+      iterations: optimiser iterations over all windows; seconds: wall time.
     """
 
     values: np.ndarray
@@ -120,24 +118,18 @@ def fit_tilt(
         columns.append((times[ok, k], gyro[ok, k]))
     if min(len(c[0]) for c in columns) < 50:
         raise ParameterError("the tilt fit needs at least 50 samples of each node after the start")
-    absl = logging.getLogger("absl")
-    level = absl.level
-    absl.setLevel(logging.ERROR)  # sysid warns that only the gyros are measured: intended
     start = time.perf_counter()
     values = np.array([getattr(params, n) for n in names], dtype=float)
     iterations = 0
-    try:
-        end_s = max(float(c[0][-1]) for c in columns)
-        for window in WINDOWS_S:
-            inside = [(t[t <= window], g[t <= window]) for t, g in columns]
-            values, covariance, residuals, its = _fit_window(
-                sysid, params, phi0_rad, omega0_rad_s, inside, sigma, values, names
-            )
-            iterations += its
-            if window >= end_s:
-                break
-    finally:
-        absl.setLevel(level)
+    end_s = max(float(c[0][-1]) for c in columns)
+    for window in WINDOWS_S:
+        inside = [(t[t <= window], g[t <= window]) for t, g in columns]
+        values, covariance, residuals, its = _fit_window(
+            sysid, params, phi0_rad, omega0_rad_s, inside, sigma, values, names
+        )
+        iterations += its
+        if window >= end_s:
+            break
     channel = np.array([[math.sqrt(np.mean(r * r)) for r in node] for node in residuals])
     every = np.concatenate([r for node in residuals for r in node])
     rms = float(math.sqrt(np.mean(every * every)))
@@ -158,7 +150,7 @@ def fit_tilt(
 def _fit_window(sysid, params, phi0_rad, omega0_rad_s, columns, sigma, start_values, names):
     """One sysid fit over the samples given; returns (values, covariance, residuals per node and
     component, iterations)."""
-    spec = build_spec(params, variant=SPATIAL)
+    spec = sensors_only(build_spec(params, variant=SPATIAL), GYROS)
     model = spec.compile()
     dt = model.opt.timestep
     t = dt * np.arange(math.ceil(max(float(c[0][-1]) for c in columns) / dt) + 2)
@@ -197,21 +189,10 @@ def _fit_window(sysid, params, phi0_rad, omega0_rad_s, columns, sigma, start_val
                 modifier=_modifier(name),
             )
         )
-    sequences = sysid.ModelSequences("rig", spec, "decay", initial, control_ts, sensor_ts, allow_missing_sensors=True)
+    sequences = sysid.ModelSequences("rig", spec, "decay", initial, control_ts, sensor_ts)
     residual_fn = sysid.build_residual_fn(models_sequences=[sequences], modify_residual=residual)
-    log = io.StringIO()
-    with contextlib.redirect_stdout(log):  # the optimizer prints every iteration
-        fitted, result = sysid.optimize(
-            initial_params=parameters,
-            residual_fn=residual_fn,
-            optimizer="mujoco",
-            verbose=False,
-            xtol=1e-5,
-            mu_factor=10.0,
-        )
-        final = np.concatenate(residual_fn(result.x, fitted)[0])
-        covariance, _ = sysid.calculate_intervals([final], result.jac, alpha=0.05)
-    return np.asarray(result.x, dtype=float), np.asarray(covariance), last[0], log.getvalue().count("iter:")
+    x, _, covariance, iterations = sysid_least_squares(sysid, parameters, residual_fn)
+    return x, covariance, last[0], iterations
 
 
 def best_rotation(predicted: np.ndarray, measured: np.ndarray) -> np.ndarray:

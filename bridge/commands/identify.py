@@ -54,12 +54,15 @@ def register(sub: argparse._SubParsersAction[options.Parser]) -> None:
 def run(args: argparse.Namespace) -> int:
     from pendsim_bridge.tables import identification_table
     from pendsim_bridge.validate import identify
+    from pendsim_mj.errors import ParameterError
     from pendsim_mj.outputs import atomic_output
 
     options.check_output(args.write, (".json",), force=args.force)
     if args.model == "spatial":
         from pendsim_bridge.spatial_validate import identify_and_write
 
+        if args.law not in ("auto", "viscous"):
+            raise ParameterError(f"--law {args.law} applies to the planar fit; --model spatial fits viscous damping")
         print(identify_and_write(args.path, release_s=args.release_s, max_gap_s=args.max_gap_s, write=args.write,
                                  replace=args.force))  # fmt: skip
         return 0
