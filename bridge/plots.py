@@ -169,8 +169,8 @@ def comparison_figures(comparison, directory: str | Path) -> list[Path]:
     directory.mkdir(parents=True, exist_ok=True)
     planar, spatial = comparison.planar, comparison.spatial
     t = planar.t_s
-    f0 = comparison.summary["main_frequency_hz"]
-    offset_mm = 1000 * comparison.summary["plane_offset_m"]
+    f0 = comparison.main_frequency_hz
+    offset_mm = 1000 * comparison.plane_offset_m
     out = []
 
     def save(fig, name):
@@ -235,6 +235,6 @@ def write_comparison(comparison, out_dir: str | Path, *, replace: bool = False) 
 
     out = Path(out_dir)
     with atomic_directory(out, replace=replace) as tmp:
-        (tmp / "summary.json").write_text(json.dumps(comparison.summary, indent=1))
+        (tmp / "summary.json").write_text(json.dumps(comparison.to_json(), indent=1))
         names = ["summary.json"] + [p.name for p in comparison_figures(comparison, tmp)]
     return [out / name for name in names]

@@ -98,22 +98,22 @@ def identification_table(path: str | Path, result: Identification) -> str:
 
 def comparison_table(result: Comparison3D) -> str:
     """``pendsim compare``: per pendulum the in-plane difference, tilt and beats."""
-    s = result.summary
-    phi1, phi2 = (math.degrees(a) for a in s["release_rad"])
+    s = result
+    phi1, phi2 = (math.degrees(a) for a in s.release_rad)
     lines = [
-        f"planar vs spatial ({1000 * s['plane_offset_m']:g} mm between the planes, tilt freedoms), "
-        f"{s['duration_s']:g} s from {phi1:g} deg, {phi2:g} deg; main frequency {s['main_frequency_hz']:.4f} Hz",
+        f"planar vs spatial ({1000 * s.plane_offset_m:g} mm between the planes, tilt freedoms), "
+        f"{s.duration_s:g} s from {phi1:g} deg, {phi2:g} deg; main frequency {s.main_frequency_hz:.4f} Hz",
         f"{'':4} {'max|dphi| (deg)':>16} {'>1 deg after (s)':>17} {'tilt amp (deg)':>15} "
         f"{'beat planar':>12} {'beat spatial':>13}",
     ]
-    for name, p in s["pendulums"].items():
-        first = p["first_time_difference_exceeds_1_deg_s"]
+    for name, p in s.pendulums.items():
+        first = p.first_time_difference_exceeds_1_deg_s
         beats = []
         for variant in ("planar", "spatial"):
-            period = p["beat_period_s"][variant]
-            beats.append(f"{period:.1f} s/{100 * p['beat_depth'][variant]:.0f}%" if period else "none")
+            b = p.beats[variant]
+            beats.append(f"{b.period_s:.1f} s/{100 * b.depth:.0f}%" if math.isfinite(b.period_s) else "none")
         first_text = f"{first:.2f}" if first is not None else "-"
-        row = f"{name:4} {math.degrees(p['in_plane_difference_max_rad']):16.2f} {first_text:>17}"
-        tilt = math.degrees(p["out_of_plane_amplitude_rad"])
+        row = f"{name:4} {math.degrees(p.in_plane_difference_max_rad):16.2f} {first_text:>17}"
+        tilt = math.degrees(p.out_of_plane_amplitude_rad)
         lines.append(f"{row} {tilt:15.2f} {beats[0]:>12} {beats[1]:>13}")
     return "\n".join(lines)

@@ -22,7 +22,15 @@ from pendsim_mj.params import RigParams
 from pendsim_mj.simulation import simulate
 from pendsim_mj.trajectory import Trajectory
 
-__all__ = ["Beat", "Comparison3D", "beat", "carrier_envelope", "compare_planar_spatial", "spectrum_near"]
+__all__ = [
+    "Beat",
+    "Comparison3D",
+    "PendulumDifference",
+    "beat",
+    "carrier_envelope",
+    "compare_planar_spatial",
+    "spectrum_near",
+]
 
 
 def spectrum_near(t_s: np.ndarray, x: np.ndarray, centre_hz: float, half_width_hz: float = 0.3):
@@ -40,10 +48,80 @@ def spectrum_near(t_s: np.ndarray, x: np.ndarray, centre_hz: float, half_width_h
 
 
 @dataclasses.dataclass(frozen=True)
+class PendulumDifference:
+    """How one pendulum's swing differs between the planar and the spatial model.
+
+    Attributes:
+      in_plane_difference_max_rad, in_plane_difference_rms_rad: of phi_spatial - phi_planar.
+      first_time_difference_exceeds_1_deg_s: when |difference| first exceeds 1 deg (None: never).
+      out_of_plane_mean_rad, out_of_plane_amplitude_rad: the tilt's mean and largest excursion
+        about it.
+      beats: per model ("planar", "spatial") the beat on the carrier band.
+      spectrum_peaks_hz: per model the peaks of phi near the main frequency, (Hz, relative height),
+        highest first.
+    """
+
+    in_plane_difference_max_rad: float
+    in_plane_difference_rms_rad: float
+    first_time_difference_exceeds_1_deg_s: float | None
+    out_of_plane_mean_rad: float
+    out_of_plane_amplitude_rad: float
+    beats: dict[str, Beat]
+    spectrum_peaks_hz: dict[str, list[tuple[float, float]]]
+
+    def to_json(self) -> dict[str, object]:
+        """The JSON form written to summary.json (beats as period, depth and carrier per model)."""
+        return {
+            "in_plane_difference_max_rad": self.in_plane_difference_max_rad,
+            "in_plane_difference_rms_rad": self.in_plane_difference_rms_rad,
+            "first_time_difference_exceeds_1_deg_s": self.first_time_difference_exceeds_1_deg_s,
+            "out_of_plane_mean_rad": self.out_of_plane_mean_rad,
+            "out_of_plane_amplitude_rad": self.out_of_plane_amplitude_rad,
+            "beat_period_s": {v: _finite(b.period_s) for v, b in self.beats.items()},
+            "beat_depth": {v: b.depth for v, b in self.beats.items()},
+            "beat_carrier_hz": {v: b.carrier_hz for v, b in self.beats.items()},
+            "spectrum_peaks_hz": dict(self.spectrum_peaks_hz),
+        }
+
+
+@dataclasses.dataclass(frozen=True)
 class Comparison3D:
+    """Planar against spatial from one release.
+
+    Attributes:
+      planar, spatial: the two runs.
+      release_rad: (phi1, phi2) at the release; duration_s, dt_s: the runs' span and step.
+      plane_offset_m, tilt_stiffness_n_m_rad, tilt_damping_n_m_s_rad: the spatial rig's.
+      fixed_points_plane: the plane of the frame's spring points ("m1" or "m2").
+      main_frequency_hz: the planar phi1's dominant frequency.
+      pendulums: per pendulum ("m1", "m2") its differences.
+    """
+
     planar: Trajectory
     spatial: Trajectory
-    summary: dict
+    release_rad: tuple[float, float]
+    duration_s: float
+    dt_s: float
+    plane_offset_m: float
+    tilt_stiffness_n_m_rad: float
+    tilt_damping_n_m_s_rad: float
+    fixed_points_plane: str
+    main_frequency_hz: float
+    pendulums: dict[str, PendulumDifference]
+
+    def to_json(self) -> dict[str, object]:
+        """summary.json: every field but the two runs."""
+        return {
+            "release_rad": list(self.release_rad),
+            "duration_s": self.duration_s,
+            "dt_s": self.dt_s,
+            "plane_offset_m": self.plane_offset_m,
+            "tilt_stiffness_n_m_rad": self.tilt_stiffness_n_m_rad,
+            "tilt_damping_n_m_s_rad": self.tilt_damping_n_m_s_rad,
+            "fixed_points_plane": self.fixed_points_plane,
+            "main_frequency_hz": self.main_frequency_hz,
+            "pendulums": {name: p.to_json() for name, p in self.pendulums.items()},
+        }
 
 
 def compare_planar_spatial(
@@ -71,29 +149,28 @@ def compare_planar_spatial(
         peaks = {
             v: spectrum_near(t, tr.phi_rad[:, k], main_hz)[2] for v, tr in (("planar", planar), ("spatial", spatial))
         }
-        pendulums[name] = {
-            "in_plane_difference_max_rad": float(np.max(np.abs(diff))),
-            "in_plane_difference_rms_rad": float(np.sqrt(np.mean(diff * diff))),
-            "first_time_difference_exceeds_1_deg_s": _first_time(t, np.abs(diff) > math.radians(1)),
-            "out_of_plane_mean_rad": float(tilt.mean()),
-            "out_of_plane_amplitude_rad": float(np.max(np.abs(tilt - tilt.mean()))),
-            "beat_period_s": {v: _finite(b.period_s) for v, b in beats.items()},
-            "beat_depth": {v: b.depth for v, b in beats.items()},
-            "beat_carrier_hz": {v: b.carrier_hz for v, b in beats.items()},
-            "spectrum_peaks_hz": {v: p for v, p in peaks.items()},
-        }
-    summary = {
-        "release_rad": list(phi0_rad),
-        "duration_s": duration_s,
-        "dt_s": dt_s,
-        "plane_offset_m": params.plane_offset_m,
-        "tilt_stiffness_n_m_rad": params.tilt_stiffness_n_m_rad,
-        "tilt_damping_n_m_s_rad": params.tilt_damping_n_m_s_rad,
-        "fixed_points_plane": variant.fixed_points_plane,
-        "main_frequency_hz": main_hz,
-        "pendulums": pendulums,
-    }
-    return Comparison3D(planar, spatial, summary)
+        pendulums[name] = PendulumDifference(
+            in_plane_difference_max_rad=float(np.max(np.abs(diff))),
+            in_plane_difference_rms_rad=float(np.sqrt(np.mean(diff * diff))),
+            first_time_difference_exceeds_1_deg_s=_first_time(t, np.abs(diff) > math.radians(1)),
+            out_of_plane_mean_rad=float(tilt.mean()),
+            out_of_plane_amplitude_rad=float(np.max(np.abs(tilt - tilt.mean()))),
+            beats=beats,
+            spectrum_peaks_hz=peaks,
+        )
+    return Comparison3D(
+        planar=planar,
+        spatial=spatial,
+        release_rad=(float(phi0_rad[0]), float(phi0_rad[1])),
+        duration_s=duration_s,
+        dt_s=dt_s,
+        plane_offset_m=params.plane_offset_m,
+        tilt_stiffness_n_m_rad=params.tilt_stiffness_n_m_rad,
+        tilt_damping_n_m_s_rad=params.tilt_damping_n_m_s_rad,
+        fixed_points_plane=variant.fixed_points_plane,
+        main_frequency_hz=main_hz,
+        pendulums=pendulums,
+    )
 
 
 def _first_time(t: np.ndarray, mask: np.ndarray) -> float | None:

@@ -59,10 +59,10 @@ def test_a_distant_mode_mixing_in_is_a_ripple_not_a_beat():
 
 def test_with_zero_offset_the_spatial_variant_shows_no_difference():
     result = compare_planar_spatial(DEFAULT_PARAMS, (math.radians(30), 0.0), 60.0)
-    for p in result.summary["pendulums"].values():
-        assert p["in_plane_difference_max_rad"] < 1e-9
-        assert p["out_of_plane_amplitude_rad"] < 1e-12
-        assert p["beat_depth"]["planar"] == pytest.approx(p["beat_depth"]["spatial"], abs=1e-9)
+    for p in result.pendulums.values():
+        assert p.in_plane_difference_max_rad < 1e-9
+        assert p.out_of_plane_amplitude_rad < 1e-12
+        assert p.beats["planar"].depth == pytest.approx(p.beats["spatial"].depth, abs=1e-9)
 
 
 def test_compare_reports_the_out_of_plane_motion_and_the_beat_and_draws_both_rigs(tmp_path, capsys):

@@ -117,9 +117,9 @@ def _emit(message: ReplayMessage, args: argparse.Namespace) -> None:
 
 def _summary_line(stats: ReplayStats, speed: float) -> str:
     summary = stats.summary()
-    line = f"replayed {summary['messages']} messages"
+    line = f"replayed {summary.messages} messages"
     if math.isfinite(speed):
-        late = f"p50 {summary['p50_ms']:.2f} ms, p99 {summary['p99_ms']:.2f} ms, max {summary['max_ms']:.2f} ms"
+        late = f"p50 {summary.p50_ms:.2f} ms, p99 {summary.p99_ms:.2f} ms, max {summary.max_ms:.2f} ms"
         line += f" at {speed:g}x; lateness {late}"
     return line
 
