@@ -21,7 +21,7 @@ def register(sub: argparse._SubParsersAction[options.Parser]) -> None:
         "with the residuals' whiteness. --write saves the fitted values for 'simulate --params-file' and "
         "'record --params-file'.",
     )
-    p.add_argument("path", type=options.input_file, help="the .mcap recording")
+    p.add_argument("path", type=options.mcap_file, help="the .mcap recording")
     options.add_alignment_options(p)
     p.add_argument(
         "--window-s",

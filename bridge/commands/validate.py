@@ -38,7 +38,7 @@ def register(sub: argparse._SubParsersAction[options.Parser]) -> None:
         "frequency (zero crossings and spectral peak) and its relative error delta, max |Delta|, IAE, ISE. "
         "Writes report.json and the paper's Figures 9-15. Exit 1 when a --max-* gate is exceeded.",
     )
-    p.add_argument("path", type=options.input_file, help="the .mcap recording")
+    p.add_argument("path", type=options.mcap_file, help="the .mcap recording")
     options.add_alignment_options(p)
     p.add_argument("-o", "--out-dir", type=Path, help="where report.json and the figures go (default NAME_validation/)")
     p.add_argument(
