@@ -16,14 +16,17 @@ def run_summary(summary: RunSummary, engine: str) -> str:
     s = summary
     lines = [
         f"engine {engine}, {s.duration_s:g} s at dt = {s.dt_s:g} s ({s.samples} samples)",
-        f"{'':6} {'dominant f (Hz)':>16} {'start amp (deg)':>16} {'end amp (deg)':>14}",
+        f"{'':6} {'dominant f (Hz)':>16} {'first peak (deg)':>17} {'last peak (deg)':>16}   (peaks of |phi|)",
     ]
     for k, name in enumerate(("phi1", "phi2")):
         start, end = math.degrees(s.start_amplitude_rad[k]), math.degrees(s.end_amplitude_rad[k])
-        lines.append(f"{name:6} {s.dominant_hz[k]:16.4f} {start:16.3f} {end:14.3f}")
+        lines.append(f"{name:6} {s.dominant_hz[k]:16.4f} {start:17.3f} {end:16.3f}")
     e0 = s.energy_start_j
-    share = f" ({100 * s.energy_lost_j / e0:.1f} % of the initial {e0:.4g} J)" if e0 > 0 else ""
-    lines.append(f"energy lost {s.energy_lost_j:.6g} J{share}; dissipated by hinge damping {s.dissipated_j:.6g} J")
+    share = f" ({100 * abs(s.energy_lost_j) / e0:.1f} % of the initial {e0:.4g} J)" if e0 > 0 else ""
+    change = "lost" if s.energy_lost_j >= 0 else "gained"
+    lines.append(
+        f"energy {change} {abs(s.energy_lost_j):.6g} J{share}; dissipated by hinge damping {s.dissipated_j:.6g} J"
+    )
     if s.input_work_j:
         lines.append(f"work done by the drive {s.input_work_j:.6g} J")
     lines.append(f"energy balance residual {s.balance_residual_j:.3g} J (integration error; large means reduce --dt-s)")
