@@ -196,7 +196,7 @@ def test_bad_serve_options_are_one_line_before_any_work(tmp_path, capsys, option
         values = {"busy": port, "busy_minus_1": port - 1}
         options = [o.format(**values) for o in options]
         recording = tmp_path / "no-work-needed.mcap"
-        recording.write_bytes(b"not read: the options fail first")
+        recording.write_bytes(b"\x89MCAP0\r\nnot read: the options fail first")
         start = time.perf_counter()
         assert main(["view", str(recording), "--serve", *options]) == 2
         assert time.perf_counter() - start < 5
