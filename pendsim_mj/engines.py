@@ -97,7 +97,7 @@ def run_blocks(
     the duration; the rows equal those of ``run``). Yields (first row, block); consecutive
     blocks share their boundary row (``simulation.simulate_blocks``). A driven run on the
     reference engine is solved whole and then cut (its support motion is integrated from the
-    start), so its memory grows with the duration."""
+    start), so its memory grows with the duration; so does a driven run on the fast engine."""
     if engine == "mujoco":
         from pendsim_mj.model import PLANAR, SPATIAL
         from pendsim_mj.simulation import simulate_blocks
@@ -115,6 +115,14 @@ def run_blocks(
         from pendsim_mj.reference import solve_blocks
 
         return solve_blocks(params, phi0_rad, omega0_rad_s, duration_s, dt_s, block_steps=block_steps)
+    if engine == "fast":
+        if spatial:
+            raise ParameterError("the spatial model runs in MuJoCo only; the fast engine is planar")
+        if drive is not None:
+            return _cut(run(engine, params, phi0_rad, omega0_rad_s, duration_s, dt_s, drive=drive), block_steps)
+        from pendsim_mj import fast_planar
+
+        return fast_planar.solve_blocks(params, phi0_rad, omega0_rad_s, duration_s, dt_s, block_steps=block_steps)
     raise ParameterError(f"unknown engine {engine!r}; allowed: {', '.join(ENGINES)}")
 
 

@@ -16,6 +16,7 @@ interpolated only inside segments. With uniform gap-free samples this is the pla
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Collection
 
 import numpy as np
 from scipy.integrate import cumulative_simpson, simpson
@@ -60,6 +61,12 @@ class Comparison:
     delta_f_fft: float
     covered_s: float = float("nan")
 
+    def without_series(self, keep: Collection[str] = ()) -> Comparison:
+        """This comparison with its (n,) series emptied but those named in ``keep`` (of
+        ``SERIES``): the metrics of a long window without holding its arrays."""
+        empty = np.empty(0)
+        return dataclasses.replace(self, **{name: empty for name in SERIES if name not in keep})
+
     def summary(self) -> dict[str, float]:
         """The scalar metrics, for tables and JSON."""
         return {
@@ -75,6 +82,10 @@ class Comparison:
             "ise": self.ise,
             "covered_s": self.covered_s,
         }
+
+
+SERIES = ("t_s", "measured", "computed", "delta", "iae_curve", "ise_curve")
+"""The (n,) series of a Comparison (the rest are its scalar metrics)."""
 
 
 def resample(t_source_s: np.ndarray, values: np.ndarray, t_target_s: np.ndarray) -> np.ndarray:
