@@ -11,6 +11,7 @@ drawn from the compiled MjModel; the four springs are line strips whose colour r
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import math
 import sys
 from collections.abc import Callable, Iterator
@@ -216,9 +217,12 @@ def log_trajectory(
     root: str = "/rig",
     x_offset_m: float = 0.0,
     series: str = "model",
+    force_range_n: tuple[float, float] | None = None,
 ) -> None:
     """The computed run: body poses, springs coloured by tension, and every plotted quantity
-    (under /plots/<quantity>/<series>)."""
+    (under /plots/<quantity>/<series>). A long run can be logged block by block (consecutive
+    calls append to the same entities), with ``force_range_n`` the (lowest, highest) spring
+    tension of the whole run, N, that the colours span (default: this trajectory's own)."""
     times = rr.TimeColumn(TIMELINE, duration=traj.t_s + time_offset_s)
     n = len(traj.t_s)
     # the support's displacement (a driven run; zero otherwise) moves the frame and both pendulums
@@ -250,7 +254,7 @@ def log_trajectory(
 
     ends = np.stack([np.stack([world(a), world(b)], axis=1) for a, b in SPRING_ENDS], axis=1)  # (n, 4, 2, 3)
     force = traj.spring_force_n
-    low, high = float(force.min()), float(force.max())
+    low, high = force_range_n if force_range_n is not None else (float(force.min()), float(force.max()))
     share = (force - low) / (high - low) if high > low else np.zeros_like(force)
     colours = np.stack([255 * share, 60 + 0 * share, 255 * (1 - share)], axis=-1).astype(np.uint8)
     rr.send_columns(
@@ -382,13 +386,14 @@ def view_recording(
       replace: replace an existing .rrd file (``--force``).
       warn: receives a warning line (an MJCF attachment ignored).
     """
-    from pendsim_bridge.recording import read_recording
+    from pendsim_bridge.recording import DRIVE_TOPIC, NODES, imu_topic, read_recording
     from pendsim_bridge.validate import align_recording, recorded_params
     from pendsim_mj.engines import whole_steps_s
-    from pendsim_mj.simulation import simulate
+    from pendsim_mj.simulation import simulate_blocks
     from pendsim_mj.timing import DEFAULT_MAX_GAP_S
 
-    rec = read_recording(path)  # a truncated or damaged file fails here, before Rerun sees it
+    # a truncated or damaged file fails here, before Rerun sees it (only the topics shown are decoded)
+    rec = read_recording(path, topics=[*(imu_topic(n) for n in NODES), DRIVE_TOPIC])
     params = recorded_params(rec)
     gap = DEFAULT_MAX_GAP_S if max_gap_s is None else max_gap_s
     run = align_recording(rec, params, release_s=release_s, max_gap_s=gap)
@@ -401,15 +406,20 @@ def view_recording(
         if np.count_nonzero(after) >= 2:
             drive = drive_from_held_inputs(t[after], held[after])
             duration = min(duration, whole_steps_s(float(t[after][-1] - t[after][0])))
-    traj = simulate(params, run.start.phi_rad, run.start.omega_rad_s, duration, drive=drive)
-    return view_aligned(run, traj, rec.mjcf_xml, rrd_path, replace=replace, warn=warn)
+    start = (params, run.start.phi_rad, run.start.omega_rad_s, duration)
+
+    def blocks() -> Iterator[tuple[int, Trajectory]]:
+        return simulate_blocks(*start, block_steps=VIEW_BLOCK_STEPS, drive=drive)
+
+    return view_aligned(run, blocks, rec.mjcf_xml, rrd_path, replace=replace, warn=warn)
 
 
 def view_report(
     report: ValidationReport, rrd_path: str | Path, *, replace: bool = False, warn: Callable[[str], None] = _warn_stderr
 ) -> Path:
     """A validation's measured run and its MuJoCo run (no second read, alignment or simulation)."""
-    return view_aligned(report.run, report.model_run, report.mjcf_xml, rrd_path, replace=replace, warn=warn)
+    traj = report.model_run
+    return view_aligned(report.run, lambda: iter([(0, traj)]), report.mjcf_xml, rrd_path, replace=replace, warn=warn)
 
 
 def rig_model(mjcf_xml: str | None, traj: Trajectory, *, warn: Callable[[str], None] = _warn_stderr) -> mujoco.MjModel:
@@ -427,9 +437,42 @@ def rig_model(mjcf_xml: str | None, traj: Trajectory, *, warn: Callable[[str], N
     return build_model(traj.single_params, drive_targets=targets)
 
 
+VIEW_BLOCK_STEPS = 6000  # model steps simulated and logged at once (60 s at 0.01 s)
+
+
+@dataclasses.dataclass
+class _RunSummary:
+    """What the view needs of a whole model run, gathered block by block (a few numbers per
+    step): instants, angles and rates (phase portraits, the phi1 error), the tension range, and
+    the first block (the rig model, whether the frame moves)."""
+
+    t_s: np.ndarray
+    phi_rad: np.ndarray  # (n, 2)
+    omega_rad_s: np.ndarray  # (n, 2)
+    force_range_n: tuple[float, float]
+    moving_frame: bool
+    first: Trajectory
+
+
+def _summary(blocks: Iterator[tuple[int, Trajectory]]) -> _RunSummary:
+    t, phi, omega = [], [], []
+    low, high, moving = math.inf, -math.inf, False
+    first: Trajectory | None = None
+    for start, block in blocks:
+        first = first or block
+        rows = slice(0 if start == 0 else 1, None)  # consecutive blocks share their boundary row
+        t.append(block.t_s[rows])
+        phi.append(block.phi_rad[rows])
+        omega.append(block.omega_rad_s[rows])
+        low, high = min(low, float(block.spring_force_n.min())), max(high, float(block.spring_force_n.max()))
+        moving = moving or bool(np.any(block.support_m))
+    assert first is not None
+    return _RunSummary(np.concatenate(t), np.concatenate(phi), np.concatenate(omega), (low, high), moving, first)
+
+
 def view_aligned(
     run: MeasuredRun,
-    traj: Trajectory,
+    blocks: Callable[[], Iterator[tuple[int, Trajectory]]],
     mjcf_xml: str | None,
     rrd_path: str | Path,
     *,
@@ -437,23 +480,32 @@ def view_aligned(
     warn: Callable[[str], None] = _warn_stderr,
 ) -> Path:
     """Measured series (t = 0 at the start) beside a model run, the rig drawn by ``rig_model``,
-    published as the .rrd file ``rrd_path`` (``rrd_output``)."""
+    published as the .rrd file ``rrd_path`` (``rrd_output``).
+
+    ``blocks()`` yields the model run as (first row, block) pairs sharing their boundary rows
+    (``simulation.simulate_blocks``; a whole trajectory is one block); it is called twice (the
+    springs' colours span the whole run's tensions), so the run is never held whole."""
     from pendsim_mj.quantities import BY_NAME
     from pendsim_mj.validation import compare, resample
 
-    model = rig_model(mjcf_xml, traj, warn=warn)
+    whole = _summary(blocks())
+    model = rig_model(mjcf_xml, whole.first, warn=warn)
     with rrd_output(rrd_path, replace=replace, series=("measured", "model")):
         log_series_styles(("measured", "model"))
-        log_rig_geometry(model, moving_frame=bool(np.any(traj.support_m)))
-        log_trajectory(traj, model)
+        log_rig_geometry(model, moving_frame=whole.moving_frame)
+        for start, block in blocks():
+            if start:  # the boundary row was logged with the previous block
+                block = block.rows(slice(1, None))
+            log_trajectory(block, model, force_range_n=whole.force_range_n)
         log_measured(run)
         t, phi1, at = run.series(BY_NAME["phi1"])
-        inside = at <= traj.t_s[-1]
-        computed = resample(traj.t_s, traj.phi_rad[:, 0], np.clip(at[inside], 0.0, None))
+        inside = at <= whole.t_s[-1]
+        computed = resample(whole.t_s, whole.phi_rad[:, 0], np.clip(at[inside], 0.0, None))
         error = compare(t[inside], phi1[inside], computed, max_gap_s=run.max_gap_s)
         log_error(error.t_s, error.delta, error.iae_curve, error.ise_curve)
         measured = [(node.phi_rad, node.omega_rad_s) for node in run.nodes]
-        log_phase_portraits({"measured": measured, "model": _pendulums(traj)})
+        model_curves = [(whole.phi_rad[:, k], whole.omega_rad_s[:, k]) for k in range(2)]
+        log_phase_portraits({"measured": measured, "model": model_curves})
     return Path(rrd_path)
 
 

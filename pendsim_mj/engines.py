@@ -8,7 +8,6 @@ same ``Trajectory``; this module picks one by name, importing MuJoCo only when i
 
 from __future__ import annotations
 
-import dataclasses
 import math
 from collections.abc import Iterator, Sequence
 from typing import Literal
@@ -130,10 +129,7 @@ def _cut(traj: Trajectory, block_steps: int) -> Iterator[tuple[int, Trajectory]]
     """A whole run as blocks sharing their boundary rows (as ``simulate_blocks`` yields them)."""
     n = len(traj.t_s) - 1
     for first in range(0, n, block_steps):
-        rows = slice(first, min(first + block_steps, n) + 1)
-        fields = {name: getattr(traj, name)[rows] for name in Trajectory.ARRAY_FIELDS}
-        tilt_rate = None if traj.tilt_rate_rad_s is None else traj.tilt_rate_rad_s[rows]
-        yield first, dataclasses.replace(traj, t_s=traj.t_s[rows], tilt_rate_rad_s=tilt_rate, **fields)
+        yield first, traj.rows(slice(first, min(first + block_steps, n) + 1))
 
 
 def whole_steps_s(duration_s: float, dt_s: float = 0.01) -> float:
