@@ -113,7 +113,7 @@ def label(duration_s: int) -> str:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--durations", default="120,3600,21600", help="recording durations, s, comma-separated")
-    parser.add_argument("--keep", type=Path, help="folder for the recordings (kept and reused); default a temporary one")
+    parser.add_argument("--keep", type=Path, help="folder for the recordings (kept, reused); default a temporary one")
     parser.add_argument("--skip", default="", help="comma-separated measurements to skip, by name (e.g. 'view --save')")
     parser.add_argument(
         "--fit-6h", action="store_true", help="also run the default validate (with the damping fit) on 6 h (slow)"

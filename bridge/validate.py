@@ -292,6 +292,8 @@ def validate(
     rec = read_recording(path, topics=[imu_topic(n) for n in NODES])
     base = (params or recorded_params(rec)).with_mapping(overrides or {})
     run = align_recording(rec, base, release_s=release_s, max_gap_s=max_gap_s)
+    mjcf_xml = rec.mjcf_xml
+    del rec  # the decoded topics: the aligned run holds what is compared
     identification = None
     if damping == "identified":
         identification = _identify(run, base, 120.0)
@@ -327,7 +329,7 @@ def validate(
                     by_window[window_name][q.name] = cmp
             del t_model, model
             cases += [CaseResult(engine, release_name, name, by_window[name]) for name, _ in windows]
-    return ValidationReport(Path(path), model_params, source, identification, run, cases, rec.mjcf_xml)
+    return ValidationReport(Path(path), model_params, source, identification, run, cases, mjcf_xml)
 
 
 @dataclasses.dataclass(frozen=True)

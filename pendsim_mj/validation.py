@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import dataclasses
 from collections.abc import Collection
+from typing import Any
 
 import numpy as np
 from scipy.integrate import cumulative_simpson, simpson
@@ -64,8 +65,8 @@ class Comparison:
     def without_series(self, keep: Collection[str] = ()) -> Comparison:
         """This comparison with its (n,) series emptied but those named in ``keep`` (of
         ``SERIES``): the metrics of a long window without holding its arrays."""
-        empty = np.empty(0)
-        return dataclasses.replace(self, **{name: empty for name in SERIES if name not in keep})
+        empty: dict[str, Any] = {name: np.empty(0) for name in SERIES if name not in keep}
+        return dataclasses.replace(self, **empty)
 
     def summary(self) -> dict[str, float]:
         """The scalar metrics, for tables and JSON."""
