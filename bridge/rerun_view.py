@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import itertools
 import math
 import sys
 from collections.abc import Callable, Iterator
@@ -217,12 +218,11 @@ def log_trajectory(
     root: str = "/rig",
     x_offset_m: float = 0.0,
     series: str = "model",
-    force_range_n: tuple[float, float] | None = None,
+    springs: bool = True,
 ) -> None:
-    """The computed run: body poses, springs coloured by tension, and every plotted quantity
-    (under /plots/<quantity>/<series>). A long run can be logged block by block (consecutive
-    calls append to the same entities), with ``force_range_n`` the (lowest, highest) spring
-    tension of the whole run, N, that the colours span (default: this trajectory's own)."""
+    """The computed run: body poses, springs coloured by tension (``log_springs``; not with
+    ``springs=False``), and every plotted quantity (under /plots/<quantity>/<series>). A long run
+    can be logged block by block: consecutive calls append to the same entities."""
     times = rr.TimeColumn(TIMELINE, duration=traj.t_s + time_offset_s)
     n = len(traj.t_s)
     # the support's displacement (a driven run; zero otherwise) moves the frame and both pendulums
@@ -231,16 +231,47 @@ def log_trajectory(
     frame = support + np.array([x_offset_m, 0.0, 0.0])
     if np.any(support):
         rr.send_columns(f"{root}/frame", indexes=[times], columns=rr.Transform3D.columns(translation=frame))
-    poses = {}
     for k, body in enumerate(BODIES):
         quat = traj.body_quat_wxyz()[:, k]
         position = model.body(body).pos + frame
-        poses[k] = (rotations.to_matrix(quat), position)
         rr.send_columns(
             f"{root}/{body}",
             indexes=[times],
             columns=rr.Transform3D.columns(quaternion=rotations.wxyz_to_xyzw(quat), translation=position),
         )
+    if springs:
+        force = traj.spring_force_n
+        log_springs(
+            model, traj.t_s + time_offset_s, traj.phi_rad, traj.tilt_rad, traj.support_m, force,
+            (float(force.min()), float(force.max())), root=root, x_offset_m=x_offset_m,
+        )  # fmt: skip
+    for q in QUANTITIES:
+        values = rr.Scalars.columns(scalars=q.computed(traj))
+        rr.send_columns(f"/plots/{q.name}/{series}", indexes=[times], columns=values)
+
+
+def log_springs(
+    model: mujoco.MjModel,
+    t_s: np.ndarray,
+    phi_rad: np.ndarray,
+    tilt_rad: np.ndarray,
+    support_m: np.ndarray,
+    force_n: np.ndarray,
+    force_range_n: tuple[float, float],
+    *,
+    root: str = "/rig",
+    x_offset_m: float = 0.0,
+) -> None:
+    """The four springs as line strips between their anchor points, coloured from blue (the
+    lowest tension of ``force_range_n``, N) to red (the highest), at n instants t_s (s) of a run
+    given by its angles phi_rad and tilt_rad (n, 2), its support displacement support_m (n, 2)
+    and spring tensions force_n (n, 4). Consecutive calls append (a long run in windows)."""
+    times = rr.TimeColumn(TIMELINE, duration=t_s)
+    n = len(t_s)
+    frame = np.zeros((n, 3))
+    frame[:, 0], frame[:, 2] = support_m[:, 0] + x_offset_m, support_m[:, 1]
+    quat = rotations.pendulum_quat_wxyz(phi_rad, tilt_rad)  # (n, 2, 4)
+    poses = {k: (rotations.to_matrix(quat[:, k]), model.body(body).pos + frame) for k, body in enumerate(BODIES)}
     # Spring end points in the world: each body's pose applied to the model's site positions.
     site = {name: model.site(name).pos.copy() for pair in SPRING_ENDS for name in pair}
     owner = SPRING_POINT_OWNER
@@ -253,9 +284,8 @@ def log_trajectory(
         return position + matrix @ p
 
     ends = np.stack([np.stack([world(a), world(b)], axis=1) for a, b in SPRING_ENDS], axis=1)  # (n, 4, 2, 3)
-    force = traj.spring_force_n
-    low, high = force_range_n if force_range_n is not None else (float(force.min()), float(force.max()))
-    share = (force - low) / (high - low) if high > low else np.zeros_like(force)
+    low, high = force_range_n
+    share = (force_n - low) / (high - low) if high > low else np.zeros_like(force_n)
     colours = np.stack([255 * share, 60 + 0 * share, 255 * (1 - share)], axis=-1).astype(np.uint8)
     rr.send_columns(
         f"{root}/springs",
@@ -265,9 +295,6 @@ def log_trajectory(
         ),
     )
     rr.log(f"{root}/springs", rr.LineStrips3D.from_fields(labels=list(SPRINGS), radii=0.002), static=True)
-    for q in QUANTITIES:
-        values = rr.Scalars.columns(scalars=q.computed(traj))
-        rr.send_columns(f"/plots/{q.name}/{series}", indexes=[times], columns=values)
 
 
 def log_measured(run: MeasuredRun) -> None:
@@ -411,7 +438,9 @@ def view_recording(
     def blocks() -> Iterator[tuple[int, Trajectory]]:
         return simulate_blocks(*start, block_steps=VIEW_BLOCK_STEPS, drive=drive)
 
-    return view_aligned(run, blocks, rec.mjcf_xml, rrd_path, replace=replace, warn=warn)
+    mjcf_xml = rec.mjcf_xml
+    del rec  # the decoded topics: the aligned run holds what is shown
+    return view_aligned(run, blocks, mjcf_xml, rrd_path, replace=replace, warn=warn)
 
 
 def view_report(
@@ -442,32 +471,34 @@ VIEW_BLOCK_STEPS = 6000  # model steps simulated and logged at once (60 s at 0.0
 
 @dataclasses.dataclass
 class _RunSummary:
-    """What the view needs of a whole model run, gathered block by block (a few numbers per
-    step): instants, angles and rates (phase portraits, the phi1 error), the tension range, and
-    the first block (the rig model, whether the frame moves)."""
+    """What the view needs of a whole model run beyond each block, gathered block by block (13
+    numbers per step): instants, angles and rates (the phase portraits, the phi1 error), and
+    tilts, support displacement and spring tensions (the springs, coloured over the whole run's
+    tension range, logged once it is known)."""
 
     t_s: np.ndarray
     phi_rad: np.ndarray  # (n, 2)
     omega_rad_s: np.ndarray  # (n, 2)
-    force_range_n: tuple[float, float]
-    moving_frame: bool
-    first: Trajectory
+    tilt_rad: np.ndarray  # (n, 2)
+    support_m: np.ndarray  # (n, 2)
+    force_n: np.ndarray  # (n, 4)
+
+    @property
+    def force_range_n(self) -> tuple[float, float]:
+        return float(self.force_n.min()), float(self.force_n.max())
 
 
-def _summary(blocks: Iterator[tuple[int, Trajectory]]) -> _RunSummary:
-    t, phi, omega = [], [], []
-    low, high, moving = math.inf, -math.inf, False
-    first: Trajectory | None = None
+def _log_blocks(blocks: Iterator[tuple[int, Trajectory]], model: mujoco.MjModel) -> _RunSummary:
+    """Log each block's poses and series (not its springs) and gather the run's summary."""
+    names = ("t_s", "phi_rad", "omega_rad_s", "tilt_rad", "support_m", "spring_force_n")
+    parts: dict[str, list[np.ndarray]] = {name: [] for name in names}
     for start, block in blocks:
-        first = first or block
-        rows = slice(0 if start == 0 else 1, None)  # consecutive blocks share their boundary row
-        t.append(block.t_s[rows])
-        phi.append(block.phi_rad[rows])
-        omega.append(block.omega_rad_s[rows])
-        low, high = min(low, float(block.spring_force_n.min())), max(high, float(block.spring_force_n.max()))
-        moving = moving or bool(np.any(block.support_m))
-    assert first is not None
-    return _RunSummary(np.concatenate(t), np.concatenate(phi), np.concatenate(omega), (low, high), moving, first)
+        if start:  # consecutive blocks share their boundary row: logged with the previous one
+            block = block.rows(slice(1, None))
+        log_trajectory(block, model, springs=False)
+        for name in names:
+            parts[name].append(getattr(block, name))
+    return _RunSummary(*(np.concatenate(parts[name]) for name in names))
 
 
 def view_aligned(
@@ -483,20 +514,26 @@ def view_aligned(
     published as the .rrd file ``rrd_path`` (``rrd_output``).
 
     ``blocks()`` yields the model run as (first row, block) pairs sharing their boundary rows
-    (``simulation.simulate_blocks``; a whole trajectory is one block); it is called twice (the
-    springs' colours span the whole run's tensions), so the run is never held whole."""
+    (``simulation.simulate_blocks``; a whole trajectory is one block): the run is logged block by
+    block and never held whole; its springs follow in windows of ``VIEW_BLOCK_STEPS`` once the
+    whole run's tension range is known."""
     from pendsim_mj.quantities import BY_NAME
     from pendsim_mj.validation import compare, resample
 
-    whole = _summary(blocks())
-    model = rig_model(mjcf_xml, whole.first, warn=warn)
+    it = blocks()
+    first = next(it)
+    model = rig_model(mjcf_xml, first[1], warn=warn)
     with rrd_output(rrd_path, replace=replace, series=("measured", "model")):
         log_series_styles(("measured", "model"))
-        log_rig_geometry(model, moving_frame=whole.moving_frame)
-        for start, block in blocks():
-            if start:  # the boundary row was logged with the previous block
-                block = block.rows(slice(1, None))
-            log_trajectory(block, model, force_range_n=whole.force_range_n)
+        whole = _log_blocks(itertools.chain([first], it), model)
+        del first
+        log_rig_geometry(model, moving_frame=bool(np.any(whole.support_m)))
+        for lo in range(0, len(whole.t_s), VIEW_BLOCK_STEPS):
+            rows = slice(lo, lo + VIEW_BLOCK_STEPS)
+            log_springs(
+                model, whole.t_s[rows], whole.phi_rad[rows], whole.tilt_rad[rows], whole.support_m[rows],
+                whole.force_n[rows], whole.force_range_n,
+            )  # fmt: skip
         log_measured(run)
         t, phi1, at = run.series(BY_NAME["phi1"])
         inside = at <= whole.t_s[-1]
