@@ -87,14 +87,19 @@ def analyse(
         views[node] = (topic.accel_m_s2[part], topic.gyro_rad_s[part])
         rate = node_rate
     # Both nodes in one call when their records are equally long (one pool for 12 axes): one
-    # (n, 12) copy of the axes, the decoded topics dropped before the deviations.
+    # (n, 12) copy of the axes; the rest of the decoded topics (quaternions, stamps) is dropped
+    # before it is made, each node's axes once copied.
+    names = list(views)
     lengths = {len(v[0]) for v in views.values()}
     y = np.empty((lengths.pop() if len(lengths) == 1 else 0, 6 * len(views)))
-    for i, (accel, gyro) in enumerate(views.values() if len(y) else ()):
-        y[:, 6 * i : 6 * i + 3], y[:, 6 * i + 3 : 6 * i + 6] = accel, gyro
     if len(y):
-        columns = {node: y[:, 6 * i : 6 * i + 6] for i, node in enumerate(views)}  # (n, 6) views
-        del rec, topic, views
+        rec.imu.clear()
+        del rec, topic
+        for i, node in enumerate(names):
+            accel, gyro = views.pop(node)
+            y[:, 6 * i : 6 * i + 3], y[:, 6 * i + 3 : 6 * i + 6] = accel, gyro
+            del accel, gyro
+        columns = {node: y[:, 6 * i : 6 * i + 6] for i, node in enumerate(names)}  # (n, 6) views
         curves = allan_curves(y, rate)
     else:
         columns = {node: np.concatenate(v, axis=1) for node, v in views.items()}  # (n, 6)
