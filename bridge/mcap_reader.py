@@ -208,13 +208,16 @@ class McapFile:
             progress(sum(r.length for r in self.chunk_refs) - sum(r.length for r in refs))
         for ref in refs:
             raw = _inflate(self._buf, ref)
-            _release(self._buf, ref.offset, ref.offset + ref.length)
             if progress is not None:
                 progress(ref.length)
             if isinstance(raw, Exception):
+                _release(self._buf, ref.offset, ref.offset + ref.length)
                 self.problems.append(f"chunk at byte {ref.offset}: {raw}")
                 continue
             parsed = self._parse_chunk(ref, raw)
+            # the chunk and its message index records (as large as the chunk's messages' data for
+            # small messages) leave resident memory once parsed
+            _release(self._buf, ref.offset, max([ref.offset + ref.length, *(o + n for o, n in ref.index.values())]))
             if parsed is not None:
                 self.chunks_read += 1
                 yield parsed
