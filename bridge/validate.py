@@ -43,10 +43,6 @@ from pendsim_mj.validation import Comparison, compare, resample
 
 NOMINAL_RELEASE_RAD = (math.pi / 6, 0.0)  # paper: the simulation releases M1 from 30 deg
 AT_REST_RAD_S = 0.1
-PLANAR_KERNEL = {"reference": "fast"}
-"""The engine that computes a case: the planar reference's on its compiled kernel
-(``pendsim_mj.fast_planar``, the reference's equations, tested equal to it to 1e-12 rad), where
-numpy's per-step overhead at one or two members would dominate."""
 MODEL_BLOCK_STEPS = 6000  # model steps simulated at once (60 s at 0.01 s)
 FIGURES = (
     ("fig09_tangential_acceleration_m1", "tangential_m1", "short"),
@@ -117,8 +113,8 @@ def _runs(
     dt_s: float = 0.01,
 ) -> list[Trajectory]:
     """One trajectory per start state (angles, rates), computed as one batch (the planar
-    reference on its compiled kernel, ``PLANAR_KERNEL``)."""
-    engine = PLANAR_KERNEL.get(engine, engine)
+    reference on its compiled kernel, ``engines.FAST_PATH``)."""
+    engine = engines.FAST_PATH.get(engine, engine)
     phi0 = np.array([s[0] for s in starts], dtype=float)
     omega0 = np.array([s[1] for s in starts], dtype=float)
     batch = engines.run_batch(engine, params, phi0, omega0, whole_steps_s(duration_s, dt_s), dt_s)
@@ -137,8 +133,8 @@ def model_series(
     """One model run from a start state (angles, rates), simulated block by block and reduced to
     what is compared: its instants (n,) s and each ``VALIDATED`` quantity there (n,). Memory is
     these arrays and one block, never the whole run's Trajectory; the rows equal one run's. The
-    planar reference runs on its compiled kernel (``PLANAR_KERNEL``)."""
-    engine = PLANAR_KERNEL.get(engine, engine)
+    planar reference runs on its compiled kernel (``engines.FAST_PATH``)."""
+    engine = engines.FAST_PATH.get(engine, engine)
     total_s = whole_steps_s(duration_s, dt_s)
     n = check_step(total_s, dt_s) + 1
     t = np.empty(n)
