@@ -101,10 +101,9 @@ def _tune_malloc() -> None:
     back as fresh pages (measured: reading a 6 h recording, 0.9 million page faults and 1.5 s of
     system time, against 17 thousand and 0.5 s). Elsewhere (or if the call fails): nothing."""
     import ctypes
-    import ctypes.util
 
     with contextlib.suppress(OSError, AttributeError, TypeError):
-        libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6")
+        libc = ctypes.CDLL(None)  # the process's own symbols: glibc's mallopt where it is glibc
         m_trim_threshold, m_mmap_threshold = -1, -3  # malloc.h
         libc.mallopt(m_mmap_threshold, MALLOC_KEEP_BYTES)
         libc.mallopt(m_trim_threshold, 2 * MALLOC_KEEP_BYTES)
