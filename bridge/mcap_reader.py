@@ -265,6 +265,8 @@ class McapFile:
     def error_text(self, readable: str | None = None) -> str:
         """One line naming the first problem and how much is readable."""
         more = f" (and {len(self.problems) - 1} more problems)" if len(self.problems) > 1 else ""
+        if not self.chunk_refs:  # not one complete chunk: nothing a rewrite could keep
+            return f"{self.path}: {self.problems[0]}{more}; no complete chunk of messages, nothing to recover"
         return (
             f"{self.path}: {self.problems[0]}{more}; {readable or self.readable_line()}. "
             f"'pendsim recover {self.path} FIXED.mcap' rewrites the readable part"

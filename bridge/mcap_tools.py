@@ -17,6 +17,7 @@ import numpy as np
 
 from pendsim_bridge.mcap_reader import ChannelData, McapContents, read_mcap
 from pendsim_bridge.mcap_writer import BulkMcapWriter
+from pendsim_mj.errors import RecordingError
 from pendsim_mj.outputs import atomic_output
 
 UNVERIFIED_METADATA = "pendsim/unverified"
@@ -98,6 +99,9 @@ def recover(
     complete and indexed MCAP file ``fixed``. Content no CRC covers is left out unless
     ``keep_unverified`` (then listed in ``pendsim/unverified``). Returns what was read."""
     contents = read_mcap(broken, strict=False, verified_only=not keep_unverified)
+    if contents.message_count == 0:
+        problem = f": {contents.problems[0]}" if contents.problems else ""
+        raise RecordingError(f"{broken}: no message to recover{problem} (nothing written)")
     rewrite(contents, fixed, library="pendsim recover", compression=compression, keep_unverified=keep_unverified)
     return contents
 

@@ -176,6 +176,22 @@ def input_file(text: str) -> Path:
     return path
 
 
+def mcap_file(text: str) -> Path:
+    """An existing regular file (``input_file``) that starts with the MCAP magic: checked while
+    parsing, so that a wrong input is named before anything else (e.g. an output that exists)."""
+    from pendsim_bridge.mcap_records import MCAP_MAGIC
+
+    path = input_file(text)
+    try:
+        with open(path, "rb") as f:
+            head = f.read(len(MCAP_MAGIC))
+    except OSError as exc:
+        raise argparse.ArgumentTypeError(f"{text}: cannot read: {exc.strerror}") from None
+    if head != MCAP_MAGIC:
+        raise argparse.ArgumentTypeError(f"{text}: not an MCAP file (no MCAP magic at the start)")
+    return path
+
+
 # -- options of a simulated run --------------------------------------------------------------
 
 

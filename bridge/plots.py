@@ -156,14 +156,15 @@ def validation_figures(report, directory: str | Path) -> list[Path]:
 
 def comparison_figures(comparison, directory: str | Path) -> list[Path]:
     """Planar against spatial: angles, in-plane difference, tilt, envelopes, spectra near f0."""
-    from pendsim_mj.comparison import envelope, spectrum_near
+    from pendsim_mj.analysis import carrier_envelope
+    from pendsim_mj.comparison import spectrum_near
 
     directory = Path(directory)
     directory.mkdir(parents=True, exist_ok=True)
     planar, spatial = comparison.planar, comparison.spatial
     t = planar.t_s
-    f0 = comparison.summary["main_frequency_hz"]
-    offset_mm = 1000 * comparison.summary["plane_offset_m"]
+    f0 = comparison.main_frequency_hz
+    offset_mm = 1000 * comparison.plane_offset_m
     out = []
 
     def save(fig, name):
@@ -198,10 +199,10 @@ def comparison_figures(comparison, directory: str | Path) -> list[Path]:
     fig, axes = plt.subplots(2, 2, figsize=(11, 6), dpi=100)
     for k in range(2):
         for name, tr, colour in (("planar", planar, "tab:blue"), ("spatial", spatial, "tab:orange")):
-            axes[k, 0].plot(t, envelope(t, tr.phi_rad[:, k]), color=colour, linewidth=0.9, label=name)
+            axes[k, 0].plot(t, carrier_envelope(t, tr.phi_rad[:, k]), color=colour, linewidth=0.9, label=name)
             f, m, _ = spectrum_near(t, tr.phi_rad[:, k], f0)
             axes[k, 1].plot(f, m, color=colour, linewidth=0.9, label=name)
-        axes[k, 0].set_ylabel(f"envelope of phi{k + 1} (rad)")
+        axes[k, 0].set_ylabel(f"carrier-band envelope of phi{k + 1} (rad)")
         axes[k, 1].set_ylabel(f"|spectrum| of phi{k + 1} (rel.)")
         for ax in axes[k]:
             ax.grid(True, alpha=0.3)
@@ -228,6 +229,6 @@ def write_comparison(comparison, out_dir: str | Path, *, replace: bool = False) 
 
     out = Path(out_dir)
     with atomic_directory(out, replace=replace) as tmp:
-        (tmp / "summary.json").write_text(json.dumps(comparison.summary, indent=1))
+        (tmp / "summary.json").write_text(json.dumps(comparison.to_json(), indent=1))
         names = ["summary.json"] + [p.name for p in comparison_figures(comparison, tmp)]
     return [out / name for name in names]

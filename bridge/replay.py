@@ -60,6 +60,16 @@ class ReplayMessage:
             ) from None
 
 
+@dataclasses.dataclass(frozen=True)
+class Lateness:
+    """Percentiles of a paced replay's lateness, ms, over ``messages`` messages."""
+
+    messages: int
+    p50_ms: float
+    p99_ms: float
+    max_ms: float
+
+
 @dataclasses.dataclass
 class ReplayStats:
     """What a paced replay did: lateness (s) of each message against its schedule."""
@@ -67,14 +77,14 @@ class ReplayStats:
     lateness_s: list[float] = dataclasses.field(default_factory=list)
     messages: int = 0
 
-    def summary(self) -> dict[str, float]:
+    def summary(self) -> Lateness:
         late = np.asarray(self.lateness_s) if self.lateness_s else np.zeros(1)
-        return {
-            "messages": self.messages,
-            "p50_ms": float(np.percentile(late, 50) * 1e3),
-            "p99_ms": float(np.percentile(late, 99) * 1e3),
-            "max_ms": float(late.max() * 1e3),
-        }
+        return Lateness(
+            messages=self.messages,
+            p50_ms=float(np.percentile(late, 50) * 1e3),
+            p99_ms=float(np.percentile(late, 99) * 1e3),
+            max_ms=float(late.max() * 1e3),
+        )
 
 
 def _select(

@@ -16,14 +16,17 @@ def run_summary(summary: RunSummary, engine: str) -> str:
     s = summary
     lines = [
         f"engine {engine}, {s.duration_s:g} s at dt = {s.dt_s:g} s ({s.samples} samples)",
-        f"{'':6} {'dominant f (Hz)':>16} {'start amp (deg)':>16} {'end amp (deg)':>14}",
+        f"{'':6} {'dominant f (Hz)':>16} {'first peak (deg)':>17} {'last peak (deg)':>16}   (peaks of |phi|)",
     ]
     for k, name in enumerate(("phi1", "phi2")):
         start, end = math.degrees(s.start_amplitude_rad[k]), math.degrees(s.end_amplitude_rad[k])
-        lines.append(f"{name:6} {s.dominant_hz[k]:16.4f} {start:16.3f} {end:14.3f}")
+        lines.append(f"{name:6} {s.dominant_hz[k]:16.4f} {start:17.3f} {end:16.3f}")
     e0 = s.energy_start_j
-    share = f" ({100 * s.energy_lost_j / e0:.1f} % of the initial {e0:.4g} J)" if e0 > 0 else ""
-    lines.append(f"energy lost {s.energy_lost_j:.6g} J{share}; dissipated by hinge damping {s.dissipated_j:.6g} J")
+    share = f" ({100 * abs(s.energy_lost_j) / e0:.1f} % of the initial {e0:.4g} J)" if e0 > 0 else ""
+    change = "lost" if s.energy_lost_j >= 0 else "gained"
+    lines.append(
+        f"energy {change} {abs(s.energy_lost_j):.6g} J{share}; dissipated by hinge damping {s.dissipated_j:.6g} J"
+    )
     if s.input_work_j:
         lines.append(f"work done by the drive {s.input_work_j:.6g} J")
     lines.append(f"energy balance residual {s.balance_residual_j:.3g} J (integration error; large means reduce --dt-s)")
@@ -72,31 +75,48 @@ def identification_table(path: str | Path, result: Identification) -> str:
             f"AT {math.degrees(d.at_rad):.3f} deg, t1 {d.window_s:.2f} s)"
         )
     fit = result.fit
-    lines.append(f"least squares on both gyros (mujoco.sysid, {fit.iterations} iterations, {fit.seconds:.1f} s):")
-    for n in range(2):
-        lines.append(f"  b{n + 1} = {fit.b_n_m_s[n]:.5g} +- {fit.ci95_n_m_s[n]:.2g} N m s/rad (95 %)")
+    lines.append(
+        f"least squares on both gyros ({fit.method}, start state fitted too; {fit.iterations} iterations, "
+        f"{fit.seconds:.1f} s), {fit.law} law:"
+    )
+    if fit.law != "coulomb":
+        for n in range(2):
+            lines.append(f"  b{n + 1} = {fit.b_n_m_s[n]:.5g} +- {fit.ci95_n_m_s[n]:.2g} N m s/rad (95 %)")
+    if fit.law != "viscous":
+        for n in range(2):
+            lines.append(
+                f"  F{n + 1} = {fit.friction_n_m[n]:.5g} +- {fit.friction_ci95_n_m[n]:.2g} N m (95 %, dry friction)"
+            )
     lines.append(f"  residual rms {fit.residual_rms_sigma:.3f} gyro noise sigmas (1 = explained to the noise level)")
+    if fit.laws:
+        lines.append("damping law by BIC (smallest wins), residual whiteness by Ljung-Box (p > 0.05: white):")
+        for f in fit.laws:
+            mark = "  <- chosen" if f.law == fit.law else ""
+            lines.append(
+                f"  {f.law:8} BIC {f.bic:12.1f}  rms {f.residual_rms_sigma:.3f} sigma  "
+                f"Ljung-Box p {f.ljung_box_p[0]:.2g} (m1), {f.ljung_box_p[1]:.2g} (m2){mark}"
+            )
     return "\n".join(lines)
 
 
 def comparison_table(result: Comparison3D) -> str:
     """``pendsim compare``: per pendulum the in-plane difference, tilt and beats."""
-    s = result.summary
-    phi1, phi2 = (math.degrees(a) for a in s["release_rad"])
+    s = result
+    phi1, phi2 = (math.degrees(a) for a in s.release_rad)
     lines = [
-        f"planar vs spatial ({1000 * s['plane_offset_m']:g} mm between the planes, tilt freedoms), "
-        f"{s['duration_s']:g} s from {phi1:g} deg, {phi2:g} deg; main frequency {s['main_frequency_hz']:.4f} Hz",
+        f"planar vs spatial ({1000 * s.plane_offset_m:g} mm between the planes, tilt freedoms), "
+        f"{s.duration_s:g} s from {phi1:g} deg, {phi2:g} deg; main frequency {s.main_frequency_hz:.4f} Hz",
         f"{'':4} {'max|dphi| (deg)':>16} {'>1 deg after (s)':>17} {'tilt amp (deg)':>15} "
         f"{'beat planar':>12} {'beat spatial':>13}",
     ]
-    for name, p in s["pendulums"].items():
-        first = p["first_time_difference_exceeds_1_deg_s"]
+    for name, p in s.pendulums.items():
+        first = p.first_time_difference_exceeds_1_deg_s
         beats = []
         for variant in ("planar", "spatial"):
-            period = p["beat_period_s"][variant]
-            beats.append(f"{period:.1f} s/{100 * p['beat_depth'][variant]:.0f}%" if period else "none")
+            b = p.beats[variant]
+            beats.append(f"{b.period_s:.1f} s/{100 * b.depth:.0f}%" if math.isfinite(b.period_s) else "none")
         first_text = f"{first:.2f}" if first is not None else "-"
-        row = f"{name:4} {math.degrees(p['in_plane_difference_max_rad']):16.2f} {first_text:>17}"
-        tilt = math.degrees(p["out_of_plane_amplitude_rad"])
+        row = f"{name:4} {math.degrees(p.in_plane_difference_max_rad):16.2f} {first_text:>17}"
+        tilt = math.degrees(p.out_of_plane_amplitude_rad)
         lines.append(f"{row} {tilt:15.2f} {beats[0]:>12} {beats[1]:>13}")
     return "\n".join(lines)

@@ -33,7 +33,7 @@ from pendsim_mj.alignment import MeasuredRun, NodeSamples, align
 from pendsim_mj.checks import check_step
 from pendsim_mj.engines import whole_steps_s
 from pendsim_mj.errors import ParameterError, RecordingError
-from pendsim_mj.identification import DampingFit, LogDecrement, fit_damping, log_decrement
+from pendsim_mj.identification import DampingFit, LogDecrement, log_decrement, planar_damping
 from pendsim_mj.outputs import atomic_directory
 from pendsim_mj.params import DEFAULT_PARAMS, RigParams
 from pendsim_mj.quantities import VALIDATED, Quantity
@@ -176,11 +176,13 @@ def identify(
     params: RigParams | None = None,
     release_s: float | None = None,
     max_gap_s: float = DEFAULT_MAX_GAP_S,
+    law: str = "auto",
 ) -> Identification:
-    """Both damping estimates from a recording's free decay."""
+    """Both damping estimates from a recording's free decay (``law``: the planar fit's damping
+    law, "auto" chooses by BIC)."""
     rec = read_recording(path)
     params = params or recorded_params(rec)
-    return _identify(align_recording(rec, params, release_s=release_s, max_gap_s=max_gap_s), params, window_s)
+    return _identify(align_recording(rec, params, release_s=release_s, max_gap_s=max_gap_s), params, window_s, law)
 
 
 def _per_node(run: MeasuredRun, names: tuple[str, str]) -> tuple[np.ndarray, np.ndarray]:
@@ -195,26 +197,26 @@ def _per_node(run: MeasuredRun, names: tuple[str, str]) -> tuple[np.ndarray, np.
     return t, values
 
 
-def _identify(run: MeasuredRun, params: RigParams, window_s: float) -> Identification:
-    """Log decrement of the measured angles and the least-squares fit of the gyros (the one call
-    into ``pendsim_mj.identification``)."""
+def _identify(run: MeasuredRun, params: RigParams, window_s: float, law: str = "auto") -> Identification:
+    """Log decrement of the measured angles and the planar least-squares fit of the gyros (hinge
+    losses and start state together; the one call into ``pendsim_mj.identification``)."""
     t_phi, phi = _per_node(run, ("phi1", "phi2"))
     decrement = log_decrement(t_phi, phi, params, min(window_s, run.duration_s))
     t_omega, omega = _per_node(run, ("omega1", "omega2"))
-    # the fit evaluates the model at the fused instants itself: give it the sample instants
-    # moved by each node's fusion age (value instants) and no fusion rate
+    # the model is evaluated where each value belongs (the sample instants moved by the fusion age)
     values_t = np.full_like(t_omega, np.nan)
     for k, node in enumerate(run.nodes):
         values_t[: len(node.value_t_s), k] = node.value_t_s
     start = run.start
-    fit = fit_damping(
+    fit = planar_damping(
         params,
-        start.phi_rad,
-        np.clip(values_t, 0.0, None),
+        values_t,
         omega,
         gyro_sigma_rad_s=run.gyro_sigma_rad_s,
-        fusion_rate_hz=None,
+        phi0_rad=start.phi_rad,
         omega0_rad_s=start.omega_rad_s,
+        moving=start.kind != "release",
+        law=law,
     )
     return Identification(decrement, fit, start.phi_rad, start.time_s, start.omega_rad_s, start.kind)
 
@@ -243,6 +245,7 @@ class ValidationReport:
     run: MeasuredRun
     cases: list[CaseResult]
     mjcf_xml: str | None  # the recording's MJCF attachment, if any
+    model_choice: dict[str, Any] | None = None  # --model spatial: planar vs spatial (spatial_validate)
 
     @functools.cached_property
     def model_run(self) -> Trajectory:
@@ -272,6 +275,7 @@ def validate(
     short_window_s: float = 5.0,
     release_s: float | None = None,
     max_gap_s: float = DEFAULT_MAX_GAP_S,
+    model: str = "planar",
 ) -> ValidationReport:
     """Compare a recording with the MuJoCo model and the planar reference.
 
@@ -284,18 +288,23 @@ def validate(
       short_window_s: the paper's short window (5 s).
       release_s: the start (release) on the recording's clock, s, instead of detecting it.
       max_gap_s: spacing of samples above which nothing is interpolated or integrated, s.
+      model: "planar" (default), or "spatial": also the spatial MuJoCo model (case engine
+        "mujoco-spatial") and which of the two fits better (``spatial_validate.model_choice``).
     """
+    if model not in ("planar", "spatial"):
+        raise ParameterError(f"model must be 'planar' or 'spatial', got {model!r}")
     rec = read_recording(path, topics=[imu_topic(n) for n in NODES])
     base = (params or recorded_params(rec)).with_mapping(overrides or {})
     run = align_recording(rec, base, release_s=release_s, max_gap_s=max_gap_s)
     mjcf_xml = rec.mjcf_xml
+    covariance = [n.gyro_covariance for n in node_samples(rec)] if model == "spatial" else None
     del rec  # the decoded topics: the aligned run holds what is compared
     identification = None
     if damping == "identified":
         identification = _identify(run, base, 120.0)
         fit = identification.fit
-        model_params = base.with_overrides(b1_n_m_s=float(fit.b_n_m_s[0]), b2_n_m_s=float(fit.b_n_m_s[1]))
-        source = "identified (least squares)"
+        model_params = base.with_mapping(fit.overrides())
+        source = f"identified (least squares, {fit.law} law)"
     elif damping == "recorded":
         model_params, source = base, "recorded"
     elif isinstance(damping, tuple) and len(damping) == 2:
@@ -313,19 +322,31 @@ def validate(
     windows = ((f"{short_window_s:g} s", short_window_s), ("whole", math.inf))
     for engine in ("mujoco", "reference"):
         for release_name, state in starts.items():
-            t_model, model = model_series(engine, model_params, state, duration + 0.02)
+            t_model, values = model_series(engine, model_params, state, duration + 0.02)
             by_window: dict[str, dict[str, Comparison]] = {name: {} for name, _ in windows}
             for q in VALIDATED:
                 t, measured, at = run.series(q)
-                computed = resample(t_model, model[q.name], np.clip(at, 0.0, t_model[-1]))
+                computed = resample(t_model, values[q.name], np.clip(at, 0.0, t_model[-1]))
                 for window_name, limit in windows:
                     cmp = compare(*_window(t <= limit + 1e-9, t, measured, computed), max_gap_s=max_gap_s)
                     if window_name == "whole":  # a long run's series: only those plotted stay
                         cmp = cmp.without_series(FIGURE_SERIES if q.name in plotted else ())
                     by_window[window_name][q.name] = cmp
-            del t_model, model
+            del t_model, values
             cases += [CaseResult(engine, release_name, name, by_window[name]) for name, _ in windows]
-    return ValidationReport(Path(path), model_params, source, identification, run, cases, mjcf_xml)
+    choice = None
+    if model == "spatial":
+        from pendsim_bridge import spatial_validate
+
+        case, spatial = spatial_validate.spatial_case(
+            run, model_params, max_gap_s, damping_fit=damping == "identified", covariance=covariance
+        )
+        cases.append(case)
+        planar = next(c for c in cases if (c.engine, c.release, c.window) == ("mujoco", "estimated", "whole"))
+        choice = spatial_validate.model_choice(planar, case)
+        choice["plane_offset_m"] = spatial.plane_offset_m
+        choice["spatial_params"] = {n: getattr(spatial, n) for n in spatial_validate.NAMES}
+    return ValidationReport(Path(path), model_params, source, identification, run, cases, mjcf_xml, choice)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -398,6 +419,18 @@ def report_json(report: ValidationReport) -> dict[str, Any]:
                 "residual_rms_sigma": i.fit.residual_rms_sigma,
                 "iterations": i.fit.iterations,
                 "seconds": i.fit.seconds,
+                "law": i.fit.law,
+                "friction_n_m": i.fit.friction_n_m.tolist(),
+                "friction_ci95_n_m": i.fit.friction_ci95_n_m.tolist(),
+                "laws": [
+                    {
+                        "law": f.law,
+                        "bic": f.bic,
+                        "ljung_box_p": list(f.ljung_box_p),
+                        "residual_rms_sigma": f.residual_rms_sigma,
+                    }
+                    for f in i.fit.laws
+                ],
             },
         }
     run = report.run
@@ -433,6 +466,7 @@ def report_json(report: ValidationReport) -> dict[str, Any]:
             "b2_n_m_s": report.params.b2_n_m_s,
         },
         "identification": ident,
+        **({"model_choice": report.model_choice} if report.model_choice is not None else {}),
         "cases": [
             {
                 "engine": c.engine,
@@ -496,6 +530,10 @@ def table(report: ValidationReport) -> str:
                 f"  {q.label:14} {cmp.f_measured_hz:11.5f} {cmp.f_computed_hz:11.5f} {cmp.delta_f:9.2e} "
                 f"{cmp.max_abs:11.4g} {cmp.iae:10.4g} {cmp.ise:10.4g}  {q.unit}"
             )
+    if report.model_choice is not None:
+        from pendsim_bridge.spatial_validate import choice_lines
+
+        lines += choice_lines(report.model_choice, report.model_choice["plane_offset_m"])
     if report.has_nominal:
         nominal = report.case("mujoco", "nominal", "whole").comparisons["phi1"]
         lines.append("")

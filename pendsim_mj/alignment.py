@@ -101,6 +101,9 @@ class NodeRun:
         None without fusion timing.
       coverage: how much of the run its samples cover.
       gyro_sigma_rad_s: noise sigma of its rate, rad/s.
+      off_hinge_gyro_rad_s: (m, 2) gyro along the swing frame's tangential and toward-pivot
+        directions, rad/s: zero for a planar swing; the tilt rate of a spatial one (what
+        ``pendsim_mj.spatial_identification`` fits).
     """
 
     t_s: Floats
@@ -114,6 +117,7 @@ class NodeRun:
     fusion_phase_s: float | None
     coverage: Coverage
     gyro_sigma_rad_s: float
+    off_hinge_gyro_rad_s: Floats | None = None
 
 
 @dataclasses.dataclass(frozen=True)
@@ -496,6 +500,8 @@ def align(
                 fusion_phase_s=phase,
                 coverage=coverage(t, max_gap_s, node.rate_hz),
                 gyro_sigma_rad_s=node.sigma,
+                off_hinge_gyro_rad_s=node.gyro[keep]
+                @ np.stack([node.frame.tangential, node.frame.toward_pivot], axis=1),
             )
         )
     return MeasuredRun(nodes=(runs[0], runs[1]), start=start, fusion_rate_hz=fusion_rate_hz, max_gap_s=max_gap_s)

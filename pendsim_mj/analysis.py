@@ -35,13 +35,13 @@ def noise_level(x: np.ndarray) -> float:
     return float(1.4826 * np.median(np.abs(d2 - np.median(d2))) / np.sqrt(6.0))
 
 
-def spectral_peak_hz(t_s: np.ndarray, x: np.ndarray, max_hz: float = np.inf) -> float:
-    """Dominant frequency of x (Hz), below ``max_hz``: the largest peak of its Hann-windowed
-    spectrum, refined by a parabola through the log-magnitudes of the three bins around it
-    (accuracy well below one bin, 1/duration). The mean is removed first; returns 0.0 for a
-    constant signal or when no bin lies below ``max_hz``."""
+def spectral_peak_hz(t_s: np.ndarray, x: np.ndarray, max_hz: float = np.inf, min_hz: float = 0.0) -> float:
+    """Dominant frequency of x (Hz), below ``max_hz`` (and above ``min_hz``): the largest peak of
+    its Hann-windowed spectrum, refined by a parabola through the log-magnitudes of the three bins
+    around it (accuracy well below one bin, 1/duration). The mean is removed first; returns 0.0
+    for a constant signal or when no bin lies between ``min_hz`` and ``max_hz``."""
     t, y = _check_series(t_s, x)
-    return float(spectral_peak_hz_batch(t, y[None, :], max_hz)[0])
+    return float(spectral_peak_hz_batch(t, y[None, :], max_hz, min_hz)[0])
 
 
 def padded_length(n: int) -> int:
@@ -63,7 +63,7 @@ def hann_magnitude(x: np.ndarray, nfft: int) -> np.ndarray:
 _SPECTRUM_BYTES = 64 * 2**20
 
 
-def spectral_peak_hz_batch(t_s: np.ndarray, x: np.ndarray, max_hz: float = np.inf) -> np.ndarray:
+def spectral_peak_hz_batch(t_s: np.ndarray, x: np.ndarray, max_hz: float = np.inf, min_hz: float = 0.0) -> np.ndarray:
     """``spectral_peak_hz`` of each row of x (m, n) sampled at t_s (n,): (m,) Hz, in blocks of rows
     of bounded memory. A row with a non-finite value gives NaN."""
     t = np.asarray(t_s, dtype=float)
@@ -76,14 +76,15 @@ def spectral_peak_hz_batch(t_s: np.ndarray, x: np.ndarray, max_hz: float = np.in
     nfft = padded_length(n)
     nbins = nfft // 2 + 1
     top = min(nbins, int(np.ceil(max_hz * nfft * dt))) if np.isfinite(max_hz) else nbins
+    bottom = max(1, int(np.ceil(min_hz * nfft * dt))) if min_hz > 0 else 1
     out = np.zeros(len(rows))
-    if top < 2:
+    if top < bottom + 1:
         return out
     block = max(1, _SPECTRUM_BYTES // (16 * nbins))
     for lo in range(0, len(rows), block):
         y = rows[lo : lo + block]
         spectrum = hann_magnitude(y, nfft)
-        k = np.argmax(spectrum[:, 1:top], axis=1) + 1
+        k = np.argmax(spectrum[:, bottom:top], axis=1) + bottom
         inside = k < nbins - 1
         kk = np.where(inside, k, 1)
         a, b, c = (np.log(spectrum[np.arange(len(y)), kk + d] + 1e-300) for d in (-1, 0, 1))
@@ -191,6 +192,106 @@ def log_decrement_damping(
     if t1 <= 0 or a_end <= 0:
         raise ParameterError("the window holds a single amplitude peak: cannot measure a decay")
     return 2.0 * inertia_kg_m2 * math.log(a0 / a_end) / t1, float(a0), float(a_end), float(t1)
+
+
+@dataclasses.dataclass(frozen=True)
+class Beat:
+    """The beat of a swing, measured on its carrier band (``beat``).
+
+    Attributes:
+      period_s: period of the envelope's modulation, s (inf when there is no beat: depth under
+        ``MIN_BEAT_DEPTH`` or no modulation slower than the band's half-width).
+      depth: modulation depth (high - low) / (high + low) of the carrier-band envelope, 0-1 (the
+        damping decay divided out). Two sines of amplitudes a, b in the band: min(a, b) / max(a, b);
+        an amplitude modulation (1 + m cos) of one sine: m.
+      carrier_hz: the carrier, Hz (the dominant frequency, ``spectral_peak_hz``).
+      band_hz: (low, high) edges of the carrier band, Hz.
+    """
+
+    period_s: float
+    depth: float
+    carrier_hz: float = 0.0
+    band_hz: tuple[float, float] = (0.0, 0.0)
+
+
+MIN_BEAT_DEPTH = 0.01  # shallower modulation is the ripple of a nonlinear swing, not a beat
+CARRIER_BAND_FRACTION = 0.25  # the carrier band is carrier * (1 +- this), tapered beyond
+CARRIER_TAPER_FRACTION = 0.15  # width of the band's cosine edges, as a fraction of the carrier
+
+
+def carrier_band(carrier_hz: float, dt_s: float) -> tuple[float, float]:
+    """(low, high) Hz of the band kept around a carrier: carrier * (1 -+ CARRIER_BAND_FRACTION),
+    below Nyquist. Lines outside it (the other normal modes) mix with the carrier into a fast
+    ripple of the envelope, which is not a beat."""
+    nyquist = 0.5 / dt_s
+    return carrier_hz * (1 - CARRIER_BAND_FRACTION), min(carrier_hz * (1 + CARRIER_BAND_FRACTION), 0.95 * nyquist)
+
+
+def carrier_envelope(t_s: np.ndarray, x: np.ndarray, carrier_hz: float | None = None) -> np.ndarray:
+    """(n,) envelope of x on its carrier band: the magnitude of the analytic signal of x - mean(x)
+    restricted to that band. One FFT, as the Hilbert transform computes the analytic signal
+    (scipy.signal.hilbert: positive frequencies doubled, the rest zeroed), with its mask narrowed
+    to ``carrier_band`` and cosine-tapered over ``CARRIER_TAPER_FRACTION`` * carrier outside it
+    (a short kernel in time: only the first and last few seconds see the record's ends). Uniform
+    instants t_s (n,); the carrier defaults to the dominant frequency. Zeros when x has no
+    carrier."""
+    t, y = _check_series(t_s, x)
+    dt = (t[-1] - t[0]) / (len(t) - 1)
+    f0 = spectral_peak_hz(t, y) if carrier_hz is None else float(carrier_hz)
+    if not f0 > 0:
+        return np.zeros(len(y))
+    low, high = carrier_band(f0, dt)
+    taper = CARRIER_TAPER_FRACTION * f0
+    n = len(y)
+    nfft = 1 << (2 * n - 1).bit_length()  # zero padding: the record's end does not wrap onto its start
+    freq = np.fft.fftfreq(nfft, dt)
+    outside = np.maximum(low - freq, freq - high) / taper  # <= 0 inside the band, 1 at the taper's end
+    mask = np.where(outside <= 0, 1.0, np.where(outside < 1, 0.5 * (1 + np.cos(np.pi * outside)), 0.0))
+    mask[freq <= 0] = 0.0
+    analytic = np.fft.ifft(np.fft.fft(y - y.mean(), nfft) * (2.0 * mask))[:n]
+    return np.asarray(np.abs(analytic))
+
+
+def beat(t_s: np.ndarray, x: np.ndarray, *, edge_s: float = 5.0, carrier_hz: float | None = None) -> Beat:
+    """Period and depth of the beat of x, measured on its carrier band.
+
+    The envelope is ``carrier_envelope`` (so other modes, outside the band, cannot pass for a
+    beat); ``edge_s`` at both ends is ignored (filter and Hilbert edge effects); the damping decay
+    is divided out (a straight line fitted to log envelope). The period is the spectral peak of
+    that flattened envelope between two periods per ignored-edges span and the band's
+    half-width; the depth is (high - low) / (high + low)
+    of the 1st and 99th percentiles of the envelope about its running geometric mean over one beat
+    period (exact for a periodic modulation of a decaying swing). ``carrier_hz`` chooses another
+    carrier than the dominant frequency (e.g. the other pendulum's).
+    """
+    t_all, y = _check_series(t_s, x)
+    dt = (t_all[-1] - t_all[0]) / (len(t_all) - 1)
+    carrier_hz = spectral_peak_hz(t_all, y) if carrier_hz is None else float(carrier_hz)
+    if not carrier_hz > 0:
+        return Beat(math.inf, 0.0)
+    band = carrier_band(carrier_hz, dt)
+    env = carrier_envelope(t_all, y, carrier_hz)
+    none = Beat(math.inf, 0.0, carrier_hz, band)
+    inner = (t_all >= t_all[0] + edge_s) & (t_all <= t_all[-1] - edge_s)
+    t, e = t_all[inner], env[inner]
+    if len(t) < 16 or np.any(e <= 0):
+        return none
+    flat = e / np.exp(np.polyval(np.polyfit(t, np.log(e), 1), t))  # the damping decay divided out
+    # at least two beat periods inside: slower drift of the envelope is not a beat
+    f = spectral_peak_hz(t, flat, max_hz=carrier_hz * CARRIER_BAND_FRACTION, min_hz=2.0 / (t[-1] - t[0]))
+    if not f > 0:
+        return none
+    window = round(1.0 / (f * dt))
+    if not 2 < window < len(e) // 2:
+        return none
+    log_e = np.log(e)
+    trend = np.convolve(log_e, np.ones(window) / window, mode="valid")
+    ratio = np.exp(log_e[window // 2 : window // 2 + len(trend)] - trend)
+    low, high = np.percentile(ratio, [1, 99])
+    depth = float((high - low) / (high + low))
+    if depth < MIN_BEAT_DEPTH:
+        return Beat(math.inf, depth, carrier_hz, band)
+    return Beat(1.0 / f, depth, carrier_hz, band)
 
 
 @dataclasses.dataclass(frozen=True)

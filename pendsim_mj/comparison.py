@@ -1,12 +1,10 @@
 """Planar against spatial: how much the third dimension matters (issue 7).
 
 Both variants run from the same release. Per pendulum: the in-plane angle difference over time;
-the out-of-plane (tilt) amplitude about its mean; the beat of the swing, read from the envelope of
-phi (magnitude of the analytic signal, scipy.signal.hilbert, averaged over one carrier period)
-with its damping decay divided out: the period is the envelope's spectral peak below a third of
-the carrier frequency (faster "modulation" is several modes mixing, visible in the spectrum), the
-depth is (high - low) / (high + low) of the 2nd and 98th percentiles of the envelope about its
-running geometric mean over one beat period; and the spectrum of phi near the main frequency.
+the out-of-plane (tilt) amplitude about its mean; the beat of the swing, measured on its carrier
+band (``pendsim_mj.analysis.beat``: the envelope of phi band-passed around its dominant
+frequency, so that other normal modes mixing in cannot pass for a beat); and the spectrum of phi
+near the main frequency.
 """
 
 from __future__ import annotations
@@ -15,62 +13,24 @@ import dataclasses
 import math
 
 import numpy as np
-from scipy.signal import find_peaks, hilbert
+from scipy.signal import find_peaks
 
-from pendsim_mj.analysis import hann_magnitude, padded_length, spectral_peak_hz
+from pendsim_mj.analysis import Beat, beat, carrier_envelope, hann_magnitude, padded_length, spectral_peak_hz
 from pendsim_mj.drives import Drive
 from pendsim_mj.model import PLANAR, SPATIAL, Variant
 from pendsim_mj.params import RigParams
 from pendsim_mj.simulation import simulate
 from pendsim_mj.trajectory import Trajectory
 
-
-@dataclasses.dataclass(frozen=True)
-class Beat:
-    """Envelope modulation of one swing: period (s; inf if the depth is under 1 %) and depth (0-1)."""
-
-    period_s: float
-    depth: float
-
-
-def envelope(t_s: np.ndarray, x: np.ndarray) -> np.ndarray:
-    """The swing's amplitude over time: |analytic signal| of x - mean(x)."""
-    return np.abs(hilbert(x - x.mean()))
-
-
-def beat(t_s: np.ndarray, x: np.ndarray, *, edge_s: float = 5.0) -> Beat:
-    """Period and depth of the envelope's modulation, the damping decay divided out (a straight
-    line fitted to log envelope), ignoring ``edge_s`` at both ends (Hilbert edge effects)."""
-    env = envelope(t_s, x)
-    # the Hilbert envelope ripples at the carrier frequency and its double: average over a period
-    dt = (t_s[-1] - t_s[0]) / (len(t_s) - 1)
-    carrier_hz = spectral_peak_hz(t_s, x)
-    window = round(1.0 / (carrier_hz * dt)) if carrier_hz > 0 else 1  # ripple at f and 2 f
-    if 1 < window < len(env) // 4:
-        env = np.convolve(env, np.ones(window) / window, mode="same")
-    inner = (t_s >= t_s[0] + edge_s) & (t_s <= t_s[-1] - edge_s)
-    t, e = t_s[inner], env[inner]
-    if len(t) < 16 or np.any(e <= 0):
-        return Beat(math.inf, 0.0)
-    flat = e / np.exp(np.polyval(np.polyfit(t, np.log(e), 1), t))  # the damping decay divided out
-    # a beat is an envelope modulation slower than a third of the carrier frequency (faster
-    # "modulation" is several modes mixing: see the spectrum)
-    f = spectral_peak_hz(t, flat, max_hz=carrier_hz / 3)
-    if f <= 0:
-        return Beat(math.inf, 0.0)
-    # depth: peak to peak of the envelope about its running geometric mean over one beat period
-    # (exact for a periodic modulation of a decaying swing), 2nd-98th percentiles
-    window = round(1.0 / (f * dt))
-    if not 2 < window < len(e) // 2:
-        return Beat(math.inf, 0.0)
-    log_e = np.log(e)
-    trend = np.convolve(log_e, np.ones(window) / window, mode="valid")
-    ratio = np.exp(log_e[window // 2 : window // 2 + len(trend)] - trend)
-    low, high = np.percentile(ratio, [2, 98])
-    depth = float((high - low) / (high + low))
-    if depth < 0.01:  # under 1 %: ripple of the nonlinear swing, not a beat
-        return Beat(math.inf, depth)
-    return Beat(1.0 / f, depth)
+__all__ = [
+    "Beat",
+    "Comparison3D",
+    "PendulumDifference",
+    "beat",
+    "carrier_envelope",
+    "compare_planar_spatial",
+    "spectrum_near",
+]
 
 
 def spectrum_near(t_s: np.ndarray, x: np.ndarray, centre_hz: float, half_width_hz: float = 0.3):
@@ -88,10 +48,80 @@ def spectrum_near(t_s: np.ndarray, x: np.ndarray, centre_hz: float, half_width_h
 
 
 @dataclasses.dataclass(frozen=True)
+class PendulumDifference:
+    """How one pendulum's swing differs between the planar and the spatial model.
+
+    Attributes:
+      in_plane_difference_max_rad, in_plane_difference_rms_rad: of phi_spatial - phi_planar.
+      first_time_difference_exceeds_1_deg_s: when |difference| first exceeds 1 deg (None: never).
+      out_of_plane_mean_rad, out_of_plane_amplitude_rad: the tilt's mean and largest excursion
+        about it.
+      beats: per model ("planar", "spatial") the beat on the carrier band.
+      spectrum_peaks_hz: per model the peaks of phi near the main frequency, (Hz, relative height),
+        highest first.
+    """
+
+    in_plane_difference_max_rad: float
+    in_plane_difference_rms_rad: float
+    first_time_difference_exceeds_1_deg_s: float | None
+    out_of_plane_mean_rad: float
+    out_of_plane_amplitude_rad: float
+    beats: dict[str, Beat]
+    spectrum_peaks_hz: dict[str, list[tuple[float, float]]]
+
+    def to_json(self) -> dict[str, object]:
+        """The JSON form written to summary.json (beats as period, depth and carrier per model)."""
+        return {
+            "in_plane_difference_max_rad": self.in_plane_difference_max_rad,
+            "in_plane_difference_rms_rad": self.in_plane_difference_rms_rad,
+            "first_time_difference_exceeds_1_deg_s": self.first_time_difference_exceeds_1_deg_s,
+            "out_of_plane_mean_rad": self.out_of_plane_mean_rad,
+            "out_of_plane_amplitude_rad": self.out_of_plane_amplitude_rad,
+            "beat_period_s": {v: _finite(b.period_s) for v, b in self.beats.items()},
+            "beat_depth": {v: b.depth for v, b in self.beats.items()},
+            "beat_carrier_hz": {v: b.carrier_hz for v, b in self.beats.items()},
+            "spectrum_peaks_hz": dict(self.spectrum_peaks_hz),
+        }
+
+
+@dataclasses.dataclass(frozen=True)
 class Comparison3D:
+    """Planar against spatial from one release.
+
+    Attributes:
+      planar, spatial: the two runs.
+      release_rad: (phi1, phi2) at the release; duration_s, dt_s: the runs' span and step.
+      plane_offset_m, tilt_stiffness_n_m_rad, tilt_damping_n_m_s_rad: the spatial rig's.
+      fixed_points_plane: the plane of the frame's spring points ("m1" or "m2").
+      main_frequency_hz: the planar phi1's dominant frequency.
+      pendulums: per pendulum ("m1", "m2") its differences.
+    """
+
     planar: Trajectory
     spatial: Trajectory
-    summary: dict
+    release_rad: tuple[float, float]
+    duration_s: float
+    dt_s: float
+    plane_offset_m: float
+    tilt_stiffness_n_m_rad: float
+    tilt_damping_n_m_s_rad: float
+    fixed_points_plane: str
+    main_frequency_hz: float
+    pendulums: dict[str, PendulumDifference]
+
+    def to_json(self) -> dict[str, object]:
+        """summary.json: every field but the two runs."""
+        return {
+            "release_rad": list(self.release_rad),
+            "duration_s": self.duration_s,
+            "dt_s": self.dt_s,
+            "plane_offset_m": self.plane_offset_m,
+            "tilt_stiffness_n_m_rad": self.tilt_stiffness_n_m_rad,
+            "tilt_damping_n_m_s_rad": self.tilt_damping_n_m_s_rad,
+            "fixed_points_plane": self.fixed_points_plane,
+            "main_frequency_hz": self.main_frequency_hz,
+            "pendulums": {name: p.to_json() for name, p in self.pendulums.items()},
+        }
 
 
 def compare_planar_spatial(
@@ -119,28 +149,28 @@ def compare_planar_spatial(
         peaks = {
             v: spectrum_near(t, tr.phi_rad[:, k], main_hz)[2] for v, tr in (("planar", planar), ("spatial", spatial))
         }
-        pendulums[name] = {
-            "in_plane_difference_max_rad": float(np.max(np.abs(diff))),
-            "in_plane_difference_rms_rad": float(np.sqrt(np.mean(diff * diff))),
-            "first_time_difference_exceeds_1_deg_s": _first_time(t, np.abs(diff) > math.radians(1)),
-            "out_of_plane_mean_rad": float(tilt.mean()),
-            "out_of_plane_amplitude_rad": float(np.max(np.abs(tilt - tilt.mean()))),
-            "beat_period_s": {v: _finite(b.period_s) for v, b in beats.items()},
-            "beat_depth": {v: b.depth for v, b in beats.items()},
-            "spectrum_peaks_hz": {v: p for v, p in peaks.items()},
-        }
-    summary = {
-        "release_rad": list(phi0_rad),
-        "duration_s": duration_s,
-        "dt_s": dt_s,
-        "plane_offset_m": params.plane_offset_m,
-        "tilt_stiffness_n_m_rad": params.tilt_stiffness_n_m_rad,
-        "tilt_damping_n_m_s_rad": params.tilt_damping_n_m_s_rad,
-        "fixed_points_plane": variant.fixed_points_plane,
-        "main_frequency_hz": main_hz,
-        "pendulums": pendulums,
-    }
-    return Comparison3D(planar, spatial, summary)
+        pendulums[name] = PendulumDifference(
+            in_plane_difference_max_rad=float(np.max(np.abs(diff))),
+            in_plane_difference_rms_rad=float(np.sqrt(np.mean(diff * diff))),
+            first_time_difference_exceeds_1_deg_s=_first_time(t, np.abs(diff) > math.radians(1)),
+            out_of_plane_mean_rad=float(tilt.mean()),
+            out_of_plane_amplitude_rad=float(np.max(np.abs(tilt - tilt.mean()))),
+            beats=beats,
+            spectrum_peaks_hz=peaks,
+        )
+    return Comparison3D(
+        planar=planar,
+        spatial=spatial,
+        release_rad=(float(phi0_rad[0]), float(phi0_rad[1])),
+        duration_s=duration_s,
+        dt_s=dt_s,
+        plane_offset_m=params.plane_offset_m,
+        tilt_stiffness_n_m_rad=params.tilt_stiffness_n_m_rad,
+        tilt_damping_n_m_s_rad=params.tilt_damping_n_m_s_rad,
+        fixed_points_plane=variant.fixed_points_plane,
+        main_frequency_hz=main_hz,
+        pendulums=pendulums,
+    )
 
 
 def _first_time(t: np.ndarray, mask: np.ndarray) -> float | None:

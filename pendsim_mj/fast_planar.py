@@ -33,9 +33,12 @@ through their differences (the cosine terms vanish on the paper's rig). With the
 
 the equations of motion (spec section 4) read
 
-    J1 phi1'' = -m1 g OC1 sin phi1 + K_s sin(phi2 - phi1) - K_c cos(phi2 - phi1) - b1 phi1'
+    J1 phi1'' = -m1 g OC1 sin phi1 + K_s sin(phi2 - phi1) - K_c cos(phi2 - phi1) - b1 phi1' - F1 s(phi1')
     J2 phi2'' = -m2 g OC2 sin phi2 - K_s sin(phi2 - phi1) + K_c cos(phi2 - phi1)
-                - F_s sin phi2 + F_c cos phi2 - b2 phi2'
+                - F_s sin phi2 + F_c cos phi2 - b2 phi2' - F2 s(phi2')
+
+with F_n the hinges' dry friction and s(w) = w / sqrt(w^2 + w_s^2) the smoothed sign of the
+reference (``params.friction_direction``).
 
 The spring potential follows from the squared lengths (|P_i - P_j|^2 = |P_i|^2 + |P_j|^2
 - 2 P_i . P_j): above its value at phi1 = phi2 = 0 it is
@@ -43,7 +46,7 @@ The spring potential follows from the squared lengths (|P_i - P_j|^2 = |P_i|^2 +
     V_springs = K_s (1 - cos(phi2 - phi1)) - K_c sin(phi2 - phi1) + F_s (1 - cos phi2) - F_c sin phi2
 
 and -dV/dphi_n gives M1, M2 back. The state integrated is (phi1, phi2, omega1, omega2, D) with
-D' = b1 omega1^2 + b2 omega2^2, exactly as in ``reference``: one RK4 step of this module equals
+D' = the hinges' dissipated power, exactly as in ``reference``: one RK4 step of this module equals
 the reference's to about 1e-16 rad (tests: 1e-12).
 
 Drives (``pendsim_mj.drives``) enter as in ``reference``, held constant over each step (the
@@ -93,7 +96,7 @@ from pendsim_mj.checks import (
 )
 from pendsim_mj.drives import Drive, inputs_at_samples, stack_inputs, support_initial_velocity, support_motion
 from pendsim_mj.errors import ParameterError, SimulationDiverged
-from pendsim_mj.params import DEFAULT_PARAMS, ParamColumns, RigParams
+from pendsim_mj.params import DEFAULT_PARAMS, FRICTION_SMOOTHING_RAD_S, ParamColumns, RigParams, friction_direction
 from pendsim_mj.trajectory import Trajectory, planar_imu_readings
 
 FloatArray = NDArray[np.float64]
@@ -112,9 +115,12 @@ COEFFICIENTS = (
     "frame_cos_n_m",  # F_c = c2 l05 (l68 - l78)
     "moc1_kg_m",  # m1 OC1: the inertial moment of a support acceleration
     "moc2_kg_m",  # m2 OC2
+    "friction1_n_m",  # F1: dry friction at hinge 1
+    "friction2_n_m",  # F2
 )
 NCOEF = len(COEFFICIENTS)
-_J1, _J2, _B1, _B2, _G1, _G2, _KS, _KC, _FS, _FC, _MOC1, _MOC2 = range(NCOEF)
+_J1, _J2, _B1, _B2, _G1, _G2, _KS, _KC, _FS, _FC, _MOC1, _MOC2, _F1, _F2 = range(NCOEF)
+_SMOOTH2 = FRICTION_SMOOTHING_RAD_S * FRICTION_SMOOTHING_RAD_S  # (rad/s)^2 of the dry-friction law
 NINPUT = 4  # held inputs per step: tau1, tau2 (N m), a_h, a_v (m/s^2), the channels of drives.Target
 
 # Members integrated side by side in one chunk (a multiple of the 8-wide AVX-512 vector); chunks
@@ -141,6 +147,8 @@ def coefficients(params: Sequence[RigParams] | ParamColumns) -> FloatArray:
                 c("c2_n_m") * c("l05_m") * (c("l68_m") - c("l78_m")),
                 c("m1_kg") * c("oc1_m"),
                 c("m2_kg") * c("oc2_m"),
+                c("friction1_n_m"),
+                c("friction2_n_m"),
             ]
         )
     )
@@ -173,8 +181,8 @@ def accelerations(
     """Angular accelerations phi1'', phi2'' (rad/s^2) of the equations of motion above, with the
     held inputs (NINPUT, ...) = (tau1, tau2, a_h, a_v) broadcasting against the angles, or none."""
     m1, m2 = spring_moments(phi1, phi2, coef)
-    torque1 = -coef[_G1] * np.sin(phi1) + m1 - coef[_B1] * omega1
-    torque2 = -coef[_G2] * np.sin(phi2) + m2 - coef[_B2] * omega2
+    torque1 = -coef[_G1] * np.sin(phi1) + m1 - (coef[_B1] * omega1 + coef[_F1] * friction_direction(omega1))
+    torque2 = -coef[_G2] * np.sin(phi2) + m2 - (coef[_B2] * omega2 + coef[_F2] * friction_direction(omega2))
     if inputs is not None:
         a_h, a_v = inputs[2], inputs[3]
         torque1 = torque1 - coef[_MOC1] * (a_v * np.sin(phi1) + a_h * np.cos(phi1)) + inputs[0]
@@ -279,6 +287,8 @@ def _chunk_coefficients(k: FloatArray, lo: int, hi: int) -> tuple[FloatArray, ..
         k[9, lo:hi].copy(),
         k[10, lo:hi].copy(),
         k[11, lo:hi].copy(),
+        k[12, lo:hi].copy(),
+        k[13, lo:hi].copy(),
     )
 
 
@@ -287,8 +297,18 @@ def _member(kc: tuple[FloatArray, ...], i: int) -> tuple[float, ...]:
     """Member i's constants from ``_chunk_coefficients``: a tuple of NCOEF floats."""
     return (
         kc[0][i], kc[1][i], kc[2][i], kc[3][i], kc[4][i], kc[5][i], kc[6][i], kc[7][i], kc[8][i], kc[9][i],
-        kc[10][i], kc[11][i],
+        kc[10][i], kc[11][i], kc[12][i], kc[13][i],
     )  # fmt: skip
+
+
+@numba.njit(inline="always", cache=True)
+def _resist(w1: float, w2: float, c: tuple[float, ...]) -> tuple[float, float]:
+    """The hinges' resisting moments b_n w_n + F_n w_n / sqrt(w_n^2 + w_s^2), N m (the reference's
+    ``damping1``, ``damping2``; with F_n = 0 exactly b_n w_n)."""
+    return (
+        c[_B1] * w1 + c[_F1] * (w1 / math.sqrt(w1 * w1 + _SMOOTH2)),
+        c[_B2] * w2 + c[_F2] * (w2 / math.sqrt(w2 * w2 + _SMOOTH2)),
+    )
 
 
 @numba.njit(inline="always", cache=True)
@@ -304,11 +324,19 @@ def _accel(
     cd = c2 * c1 + s2 * s1  # cos(phi2 - phi1)
     m1 = c[_KS] * sd - c[_KC] * cd
     m2 = -m1 - c[_FS] * s2 + c[_FC] * c2
-    t1 = -c[_G1] * s1 + m1 - c[_B1] * w1
-    t2 = -c[_G2] * s2 + m2 - c[_B2] * w2
+    d1, d2 = _resist(w1, w2, c)
+    t1 = -c[_G1] * s1 + m1 - d1
+    t2 = -c[_G2] * s2 + m2 - d2
     t1 = t1 - c[_MOC1] * (u[3] * s1 + u[2] * c1) + u[0]
     t2 = t2 - c[_MOC2] * (u[3] * s2 + u[2] * c2) + u[1]
     return t1 / c[_J1], t2 / c[_J2]
+
+
+@numba.njit(inline="always", cache=True)
+def _power(w1: float, w2: float, c: tuple[float, ...]) -> float:
+    """Power dissipated in the hinges, W: d1 w1 + d2 w2 (``_resist``), the reference's order."""
+    d1, d2 = _resist(w1, w2, c)
+    return d1 * w1 + d2 * w2
 
 
 @numba.njit(inline="always", cache=True)
@@ -325,19 +353,17 @@ def _rk4(
     """One classical RK4 step of (phi1, phi2, omega1, omega2, D) with the inputs u held over it, in
     the reference's order of operations: y + (h/2) k1, ..., y + (h/6)(k1 + 2 k2 + 2 k3 + k4)."""
     hh = 0.5 * h
-    b1 = c[_B1]
-    b2 = c[_B2]
     a1, a2 = _accel(p1, p2, w1, w2, c, u)
-    e1 = b1 * w1 * w1 + b2 * w2 * w2
+    e1 = _power(w1, w2, c)
     q1, q2, v1, v2 = p1 + hh * w1, p2 + hh * w2, w1 + hh * a1, w2 + hh * a2
     f1, f2 = _accel(q1, q2, v1, v2, c, u)
-    e2 = b1 * v1 * v1 + b2 * v2 * v2
+    e2 = _power(v1, v2, c)
     r1, r2, x1, x2 = p1 + hh * v1, p2 + hh * v2, w1 + hh * f1, w2 + hh * f2
     g1, g2 = _accel(r1, r2, x1, x2, c, u)
-    e3 = b1 * x1 * x1 + b2 * x2 * x2
+    e3 = _power(x1, x2, c)
     s1, s2, y1, y2 = p1 + h * x1, p2 + h * x2, w1 + h * g1, w2 + h * g2
     i1, i2 = _accel(s1, s2, y1, y2, c, u)
-    e4 = b1 * y1 * y1 + b2 * y2 * y2
+    e4 = _power(y1, y2, c)
     h6 = h / 6.0
     return (
         p1 + h6 * (((w1 + 2.0 * v1) + 2.0 * x1) + y1),

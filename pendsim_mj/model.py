@@ -187,6 +187,8 @@ def assignments(params: RigParams, timestep_s: float = 0.01, variant: Variant = 
             Assignment("inertial", body, "inertia", "diaginertia", list(p.inertia_about_com_kg_m2(n))),
             # MuJoCo 4: damping is a polynomial [linear, quadratic, cubic]; the paper's is linear.
             Assignment("joint", HINGES[n - 1], "damping", "damping", [getattr(p, f"b{n}_n_m_s"), 0.0, 0.0]),
+            # dry friction: a soft-constraint moment of at most F opposing the swing
+            Assignment("joint", HINGES[n - 1], "frictionloss", "frictionloss", getattr(p, f"friction{n}_n_m")),
             Assignment("site", f"imu_m{n}", "pos", "pos", [0.0, 0.0, -getattr(p, f"om{n}_m")]),
             Assignment("geom", f"m{n}_rod", "fromto", "fromto", [0.0, 0.0, 0.0, 0.0, 0.0, -p.rod_length_m]),
             Assignment("geom", f"m{n}_rod", "size", "size", [rod_radius, 0.0, 0.0], [rod_radius]),
@@ -284,6 +286,7 @@ def _add_tilt(spec: mujoco.MjSpec, p: RigParams) -> None:
         body = spec.body(body_name)
         swing = spec.joint(hinge)
         damping = list(swing.damping)
+        frictionloss = swing.frictionloss
         spec.delete(swing)
         body.add_joint(
             name=tilt,
@@ -294,7 +297,12 @@ def _add_tilt(spec: mujoco.MjSpec, p: RigParams) -> None:
             damping=[p.tilt_damping_n_m_s_rad, 0.0, 0.0],
         )
         body.add_joint(
-            name=hinge, type=mujoco.mjtJoint.mjJNT_HINGE, axis=[0.0, -1.0, 0.0], pos=[0.0, 0.0, 0.0], damping=damping
+            name=hinge,
+            type=mujoco.mjtJoint.mjJNT_HINGE,
+            axis=[0.0, -1.0, 0.0],
+            pos=[0.0, 0.0, 0.0],
+            damping=damping,
+            frictionloss=frictionloss,
         )
     for key in spec.keys:  # after the support's coordinates, if any
         *qpos, a, b = list(key.qpos)

@@ -66,6 +66,19 @@ def log_decrement_b(j_kg_m2: float, decay_ratio: float, window_s: float) -> floa
     return 2.0 * j_kg_m2 * math.log(1.0 / decay_ratio) / window_s
 
 
+# Dry friction in the planar solvers: the moment -F omega / sqrt(omega^2 + w_s^2), an ideal
+# -F sign(omega) smoothed below w_s (a sign law cannot be integrated by a fixed-step RK4, and MuJoCo's
+# frictionloss is itself a soft constraint). Model choice; the measured agreement with MuJoCo is in
+# docs/identification.md. The square root (not tanh) keeps the compiled kernel's SIMD lanes and its
+# scalar remainder bit-identical.
+FRICTION_SMOOTHING_RAD_S = 0.01
+
+
+def friction_direction(omega_rad_s):
+    """omega / sqrt(omega^2 + w_s^2): the smoothed sign(omega) of the dry-friction law (any shape)."""
+    return omega_rad_s / np.sqrt(omega_rad_s * omega_rad_s + FRICTION_SMOOTHING_RAD_S * FRICTION_SMOOTHING_RAD_S)
+
+
 J1_KG_M2 = 0.02592  # paper: J1
 J2_KG_M2 = 0.02188  # paper: J2
 
@@ -123,6 +136,14 @@ class RigParams:
         log_decrement_b(J2_KG_M2, DEFAULT_DECAY_RATIO, DEFAULT_DECAY_WINDOW_S),
         "N m s/rad",
         "assumed: log decrement b = 2 J ln(A0/AT)/t1 with AT/A0 = 0.2 over t1 = 120 s",
+    )
+    # Dry (Coulomb) friction at each hinge: a moment of this size opposing the swing (MuJoCo joint
+    # frictionloss; the planar solvers' smooth law, FRICTION_SMOOTHING_RAD_S).
+    friction1_n_m: float = _field(
+        0.0, "N m", "paper: names dry friction in bearings and joints as a cause of discrepancy, gives no value"
+    )
+    friction2_n_m: float = _field(
+        0.0, "N m", "paper: names dry friction in bearings and joints as a cause of discrepancy, gives no value"
     )
     g_m_s2: float = _field(9.81, "m/s^2", "paper: g")
     # Component geometry: drawn by the visual geoms; sets the inertia about the two axes
@@ -211,7 +232,8 @@ class RigParams:
 
 _MAY_BE_ZERO = frozenset(
     {
-        "b1_n_m_s", "b2_n_m_s", "c1_n_m", "c2_n_m", "g_m_s2", "l24_m", "l34_m", "l68_m", "l78_m",
+        "b1_n_m_s", "b2_n_m_s", "friction1_n_m", "friction2_n_m", "c1_n_m", "c2_n_m", "g_m_s2", "l24_m", "l34_m",
+        "l68_m", "l78_m",
         "plane_offset_m", "tilt_stiffness_n_m_rad", "tilt_damping_n_m_s_rad",
     }
 )  # fmt: skip
@@ -341,6 +363,7 @@ _LIMITS_BY_UNIT = {
     "N m s/rad": (1e-12, 1e3),
     "m/s^2": (1e-3, 100.0),
     "N m/rad": (1e-9, 1e6),
+    "N m": (1e-12, 1e3),
 }
 PARAMETER_LIMITS: dict[str, tuple[float, float]] = {
     f.name: _LIMITS_BY_UNIT[f.metadata["unit"]] for f in dataclasses.fields(RigParams)

@@ -12,9 +12,13 @@ M1 is the moment about O (x Fy - y Fx) of the spring forces on points 2 and 3; M
 forces on point 1 (springs 1-2, 1-3) and point 5 (springs 5-6, 5-7). Springs have zero free
 length, so a spring of length L pulls each end toward the other with c L.
 
-The state integrated is (phi1, phi2, omega1, omega2, D) with D' = b1 omega1^2 + b2 omega2^2, the
-energy dissipated so far, integrated by the same RK4 step. Everything is vectorised over a
-leading batch axis.
+Dry (Coulomb) friction F_n at each hinge adds -F_n s(phi_n') to the right-hand side, with
+s(w) = w / sqrt(w^2 + w_s^2) the sign smoothed below w_s = ``params.FRICTION_SMOOTHING_RAD_S``
+(MuJoCo's joint frictionloss, which this checks, is a soft constraint too).
+
+The state integrated is (phi1, phi2, omega1, omega2, D) with D' = (b1 omega1 + F1 s(omega1)) omega1
++ (b2 omega2 + F2 s(omega2)) omega2, the energy dissipated so far, integrated by the same RK4
+step. Everything is vectorised over a leading batch axis.
 
 Drives (``pendsim_mj.drives``), held constant over each step exactly as MuJoCo holds ``ctrl``:
 
@@ -56,7 +60,7 @@ from pendsim_mj.checks import (
 )
 from pendsim_mj.drives import Drive, inputs_at_samples, stack_inputs, support_initial_velocity, support_motion
 from pendsim_mj.errors import ParameterError, SimulationDiverged
-from pendsim_mj.params import DEFAULT_PARAMS, RigParams
+from pendsim_mj.params import DEFAULT_PARAMS, RigParams, friction_direction
 from pendsim_mj.trajectory import Trajectory, planar_imu_readings
 
 
@@ -74,6 +78,8 @@ class _Coefficients(NamedTuple):
     j2: np.ndarray
     b1: np.ndarray
     b2: np.ndarray
+    f1: np.ndarray  # dry friction F1, N m
+    f2: np.ndarray
     gravity1: np.ndarray  # m1 g OC1, N m
     gravity2: np.ndarray  # m2 g OC2, N m
     moc1: np.ndarray  # m1 OC1, kg m (the inertial moment of a support acceleration)
@@ -100,6 +106,8 @@ def _coefficients(params: Sequence[RigParams]) -> _Coefficients:
         j2=col(lambda p: p.j2_kg_m2),
         b1=col(lambda p: p.b1_n_m_s),
         b2=col(lambda p: p.b2_n_m_s),
+        f1=col(lambda p: p.friction1_n_m),
+        f2=col(lambda p: p.friction2_n_m),
         gravity1=col(lambda p: p.m1_kg * p.g_m_s2 * p.oc1_m),
         gravity2=col(lambda p: p.m2_kg * p.g_m_s2 * p.oc2_m),
         moc1=col(lambda p: p.m1_kg * p.oc1_m),
@@ -160,8 +168,8 @@ def derivative(y: np.ndarray, k: _Coefficients, u: np.ndarray | None = None) -> 
     inputs u (4, ...) = (tau1, tau2 in N m, a_h, a_v in m/s^2; module docstring) or none."""
     phi1, phi2, omega1, omega2 = y[0], y[1], y[2], y[3]
     moment1, moment2, _ = spring_moments(phi1, phi2, k)
-    damping1 = k.b1 * omega1
-    damping2 = k.b2 * omega2
+    damping1 = k.b1 * omega1 + k.f1 * friction_direction(omega1)
+    damping2 = k.b2 * omega2 + k.f2 * friction_direction(omega2)
     s1, s2 = np.sin(phi1), np.sin(phi2)
     torque1 = -k.gravity1 * s1 + moment1 - damping1
     torque2 = -k.gravity2 * s2 + moment2 - damping2

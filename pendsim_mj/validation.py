@@ -42,6 +42,8 @@ class Comparison:
         frequency"), with a hysteresis band of 4 noise sigmas of the measured series.
       f_measured_fft_hz, f_computed_fft_hz, delta_f_fft: by the interpolated spectral peak.
       covered_s: time inside covered segments, s (the whole window without gaps).
+      measured_std: standard deviation of the measured series (a scale for rms; kept when the
+        series are dropped, ``without_series``).
     """
 
     t_s: np.ndarray
@@ -61,6 +63,7 @@ class Comparison:
     f_computed_fft_hz: float
     delta_f_fft: float
     covered_s: float = float("nan")
+    measured_std: float = float("nan")
 
     def without_series(self, keep: Collection[str] = ()) -> Comparison:
         """This comparison with its (n,) series emptied but those named in ``keep`` (of
@@ -244,4 +247,5 @@ def compare(
         f_computed_fft_hz=g_c,
         delta_f_fft=abs(g_c - g_m) / g_m if g_m else float("nan"),
         covered_s=covered,
+        measured_std=float(np.std(m)),
     )

@@ -8,10 +8,12 @@ import math
 import numpy as np
 import pytest
 import rerun as rr
+from scipy.signal import hilbert
 
 from pendsim_bridge.cli import main
 from pendsim_bridge.recording import read_recording
-from pendsim_mj.comparison import beat, compare_planar_spatial
+from pendsim_mj.analysis import beat
+from pendsim_mj.comparison import compare_planar_spatial
 from pendsim_mj.params import DEFAULT_PARAMS
 
 
@@ -25,12 +27,42 @@ def test_beat_period_and_depth_of_an_amplitude_modulated_decay():
     assert math.isinf(beat(t, np.exp(-t / 80) * np.sin(2 * math.pi * 0.87 * t)).period_s)  # no beat
 
 
+@pytest.mark.parametrize(("a", "b"), [(1.0, 0.3), (1.0, 0.03), (0.5, 1.0), (1.0, 0.9)])
+def test_two_close_modes_beat_with_period_one_over_their_difference_and_depth_min_over_max(a, b):
+    # a sin(2 pi f1 t) + b sin(2 pi f2 t): envelope sqrt(a^2 + b^2 + 2 a b cos(2 pi (f2 - f1) t)),
+    # between |a - b| and a + b, so (high - low) / (high + low) = min(a, b) / max(a, b)
+    t = np.arange(0, 120, 0.01)
+    f1, f2 = 0.87, 0.95
+    x = np.exp(-t / 80) * (a * np.sin(2 * math.pi * f1 * t) + b * np.sin(2 * math.pi * f2 * t))
+    result = beat(t, x)
+    assert result.period_s == pytest.approx(1 / (f2 - f1), rel=0.005)
+    assert result.depth == pytest.approx(min(a, b) / max(a, b), rel=0.01)
+    assert result.carrier_hz == pytest.approx(f1 if a > b else f2, abs=0.002)
+
+
+def test_a_distant_mode_mixing_in_is_a_ripple_not_a_beat():
+    # two modes 0.6 Hz apart (M2 of the spatial rig: 0.878 and 1.474 Hz, nearly equal): the whole
+    # signal's envelope swings by 60 %, but the carrier band holds one line: no beat
+    t = np.arange(0, 120, 0.01)
+    decay = np.exp(-t / 80)
+    ripple = decay * (np.sin(2 * math.pi * 0.874 * t) + 0.6 * np.sin(2 * math.pi * 1.47 * t))
+    whole = np.abs(hilbert(ripple))[500:-500] / decay[500:-500]
+    assert (whole.max() - whole.min()) / (whole.max() + whole.min()) > 0.5  # what the ripple looks like
+    result = beat(t, ripple)
+    assert math.isinf(result.period_s) and result.depth < 0.01
+    # a shallow true beat under the same ripple is still found, with its own depth
+    beating = ripple + decay * 0.03 * np.sin(2 * math.pi * (0.874 + 1 / 12.6) * t)
+    result = beat(t, beating)
+    assert result.period_s == pytest.approx(12.6, rel=0.005)
+    assert result.depth == pytest.approx(0.03, rel=0.03)
+
+
 def test_with_zero_offset_the_spatial_variant_shows_no_difference():
     result = compare_planar_spatial(DEFAULT_PARAMS, (math.radians(30), 0.0), 60.0)
-    for p in result.summary["pendulums"].values():
-        assert p["in_plane_difference_max_rad"] < 1e-9
-        assert p["out_of_plane_amplitude_rad"] < 1e-12
-        assert p["beat_depth"]["planar"] == pytest.approx(p["beat_depth"]["spatial"], abs=1e-9)
+    for p in result.pendulums.values():
+        assert p.in_plane_difference_max_rad < 1e-9
+        assert p.out_of_plane_amplitude_rad < 1e-12
+        assert p.beats["planar"].depth == pytest.approx(p.beats["spatial"].depth, abs=1e-9)
 
 
 def test_compare_reports_the_out_of_plane_motion_and_the_beat_and_draws_both_rigs(tmp_path, capsys):

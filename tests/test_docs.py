@@ -47,6 +47,7 @@ def test_the_pages_show_commands():
 def test_documented_command_parses(page, command, monkeypatch):
     # file arguments are not checked for existence here: only the options and their values
     monkeypatch.setattr("pendsim_bridge.options.input_file", lambda text: Path(text))
+    monkeypatch.setattr("pendsim_bridge.options.mcap_file", lambda text: Path(text))
     parser = build_parser()
     words = shlex.split(command)
     if "--help" in words or "--version" in words:

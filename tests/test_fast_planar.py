@@ -16,6 +16,7 @@ UNDAMPED = DEFAULT_PARAMS.with_overrides(b1_n_m_s=0.0, b2_n_m_s=0.0)
 # The general geometry: points 2/3 and 6/7 not symmetric, so the cosine terms of the closed form
 # are not zero (on the paper's rig they are).
 ASYMMETRIC = DEFAULT_PARAMS.with_overrides(l24_m=0.120, l34_m=0.170, l68_m=0.185, l78_m=0.110, c1_n_m=9.0)
+FRICTION = DEFAULT_PARAMS.with_overrides(friction1_n_m=2e-3, friction2_n_m=1e-3)  # dry friction at both hinges
 DEG = math.pi / 180
 
 
@@ -66,7 +67,9 @@ def test_spring_potential_is_half_c_l_squared_and_its_slopes_are_the_moments():
     np.testing.assert_allclose(-dv2, m2 - grav2, atol=1e-8)
 
 
-@pytest.mark.parametrize("params", [DEFAULT_PARAMS, ASYMMETRIC, UNDAMPED], ids=["paper", "asymmetric", "undamped"])
+@pytest.mark.parametrize(
+    "params", [DEFAULT_PARAMS, ASYMMETRIC, UNDAMPED, FRICTION], ids=["paper", "asymmetric", "undamped", "friction"]
+)
 def test_one_rk4_step_equals_the_reference_to_1e_12_rad(params):
     phi0, omega0 = _random_states(1000, 3)
     plist = [params] * len(phi0)
@@ -80,7 +83,7 @@ def test_one_rk4_step_equals_the_reference_to_1e_12_rad(params):
         assert np.max(np.abs(fast[1, 4] - ref[1, 4])) < 1e-14  # J dissipated
 
 
-@pytest.mark.parametrize("params", [DEFAULT_PARAMS, ASYMMETRIC], ids=["paper", "asymmetric"])
+@pytest.mark.parametrize("params", [DEFAULT_PARAMS, ASYMMETRIC, FRICTION], ids=["paper", "asymmetric", "friction"])
 def test_whole_runs_equal_the_reference_trajectory(params):
     # the releases of tests/test_physics.py, 30 s at 10 ms
     phi0 = np.array([(30, 0), (0, 30), (-45, 20), (60, -60), (80, 0), (80, 80), (0, -80)], dtype=float) * DEG
@@ -134,7 +137,7 @@ def test_single_run_is_a_batch_member_with_the_reference_arguments():
 
 def test_energy_balance_closes_without_damping_and_with_it():
     phi0 = np.array([(30, 0), (80, 0), (170, -150)], dtype=float) * DEG
-    for params in (UNDAMPED, DEFAULT_PARAMS):
+    for params in (UNDAMPED, DEFAULT_PARAMS, FRICTION):
         tr = fast_planar.solve_batch(params, phi0, (0.0, 0.0), 60.0)
         e0 = tr.total_energy_j[:, :1]
         residual = np.abs(e0 - tr.total_energy_j - tr.dissipated_j)
@@ -162,7 +165,7 @@ def _sincos_array(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 def test_a_member_gives_the_same_bits_alone_and_anywhere_in_a_batch():
     phi0, omega0 = _random_states(203, 4)  # 203: full SIMD chunks and a scalar remainder
-    k = fast_planar.coefficients([DEFAULT_PARAMS] * len(phi0))
+    k = fast_planar.coefficients([FRICTION] * len(phi0))  # the dry-friction law too
     batch = fast_planar.integrate(k, phi0, omega0, 500, 0.01)
     for i in (0, 7, 64, 130, 202):
         alone = fast_planar.integrate(k[:, i : i + 1], phi0[i : i + 1], omega0[i : i + 1], 500, 0.01)
@@ -180,7 +183,7 @@ def test_saving_every_kth_state_keeps_exactly_those_states():
     np.testing.assert_array_equal(sparse, every[::50])
     with pytest.raises(ParameterError, match="save_every must be a whole number >= 1 that divides nstep = 300"):
         fast_planar.integrate(k, phi0, omega0, 300, 0.01, save_every=7)
-    with pytest.raises(ParameterError, match=r"coef must have shape \(12, 3\)"):
+    with pytest.raises(ParameterError, match=r"coef must have shape \(14, 3\)"):
         fast_planar.integrate(k, phi0[:3], omega0[:3], 300, 0.01)
 
 

@@ -103,7 +103,10 @@ def test_truncation_anywhere_recovers_every_complete_chunk_and_never_crashes(tmp
         expected = 100 * sum(end <= cut for end in chunk_ends)
         assert contents.message_count == expected, cut
         if cut < len(data):
-            with pytest.raises(RecordingError, match=rf"cut.mcap: .*recovered {expected} messages"):
+            said = (
+                rf"recovered {expected} messages" if expected else "no complete chunk of messages, nothing to recover"
+            )
+            with pytest.raises(RecordingError, match=rf"cut.mcap: .*{said}"):
                 read_mcap(cut_path, strict=True)
 
 
@@ -190,3 +193,32 @@ def test_recover_writes_a_complete_file_with_everything_readable(tmp_path):
     assert again.attachments["pendulums.xml"].data == b"<mujoco/>"
     with open(fixed, "rb") as f:
         assert make_reader(f, validate_crcs=True).get_summary().statistics.message_count == broken.message_count
+
+
+def test_a_file_cut_inside_its_first_chunk_has_nothing_to_recover_and_nothing_is_written(tmp_path, capsys):
+    from pendsim_bridge.cli import main
+
+    whole, cut = tmp_path / "whole.mcap", tmp_path / "cut.mcap"
+    assert main(["record", "--duration-s", "20", "-o", str(whole)]) == 0
+    cut.write_bytes(whole.read_bytes()[:20_000])  # header, metadata, then part of the first chunk
+    capsys.readouterr()
+    assert main(["validate", str(cut)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.endswith("no complete chunk of messages, nothing to recover") and "pendsim recover" not in err, err
+    assert main(["recover", str(cut), str(tmp_path / "fixed.mcap")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "no message to recover" in err[0], err
+    assert not (tmp_path / "fixed.mcap").exists()
+
+
+def test_a_file_that_is_not_mcap_is_named_before_an_existing_output(tmp_path, capsys, monkeypatch):
+    from pendsim_bridge.cli import main
+
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "run.rrd").write_bytes(b"RRF2" + b"\0" * 100)
+    (tmp_path / "run_validation").mkdir()
+    (tmp_path / "run_validation" / "report.json").write_text("{}")
+    for argv in (["validate", "run.rrd"], ["identify", "run.rrd"], ["view", "run.rrd"], ["allan", "run.rrd"]):
+        assert main(argv) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and err[0].endswith("run.rrd: not an MCAP file (no MCAP magic at the start)"), err

@@ -84,7 +84,7 @@ def test_replay_at_real_time_holds_the_schedule(recording):
     assert np.all(late[caught_up:] < 1e-9)  # back on schedule: no accumulated drift
     assert fake.now == pytest.approx(t0 + log[-1] - log[0], abs=1e-9)  # the whole replay took the 10 s span
     summary = stats.summary()
-    assert summary["max_ms"] == pytest.approx(1e3 * late.max(), abs=1e-6)
+    assert summary.max_ms == pytest.approx(1e3 * late.max(), abs=1e-6)
 
 
 def test_replay_at_ten_times_speed_takes_a_tenth_of_the_time(recording):

@@ -20,7 +20,7 @@ def register(sub: argparse._SubParsersAction[options.Parser]) -> None:
         "'pendsim record --static'): overlapping Allan deviation with confidence intervals, the paper's table "
         "(sigma at tau = 1/fs, mean, CV), the noise terms N, B, K, and a log-log plot per node and sensor.",
     )
-    p.add_argument("path", type=options.input_file, help="the .mcap recording")
+    p.add_argument("path", type=options.mcap_file, help="the .mcap recording")
     p.add_argument("--json", action="store_true", help="print the full result (curves included) as JSON instead")
     p.add_argument("--plot-dir", type=Path, help="where to write the PNG plots (default: NAME_allan/ beside the file)")
     p.add_argument("--no-plots", action="store_true", help="write no plots")

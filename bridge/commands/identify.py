@@ -8,16 +8,20 @@ from pathlib import Path
 
 from pendsim_bridge import options
 
+LAW_CHOICES = ("auto", "viscous", "coulomb", "both")  # pendsim_mj.planar_fit.LAW_CHOICES (not imported: fast start)
+
 
 def register(sub: argparse._SubParsersAction[options.Parser]) -> None:
     p = sub.add_parser(
         "identify",
-        help="identify the hinge damping b1, b2 from a recorded free decay (log decrement and least squares)",
+        help="identify the hinge damping (viscous b1, b2 and/or dry friction) from a recorded free decay",
         description="Print b1, b2 by the paper's logarithmic decrement (per pendulum, amplitudes over --window-s) "
-        "and by a least-squares fit of the whole measured gyro record (mujoco.sysid), with 95 %% confidence "
-        "intervals. --write saves the fitted values for 'simulate --params-file' and 'record --params-file'.",
+        "and by a least-squares fit of the whole measured gyro record on the planar model, the start state "
+        "fitted too, with 95 %% confidence intervals; the damping law (viscous, Coulomb or both) chosen by BIC, "
+        "with the residuals' whiteness. --write saves the fitted values for 'simulate --params-file' and "
+        "'record --params-file'.",
     )
-    p.add_argument("path", type=options.input_file, help="the .mcap recording")
+    p.add_argument("path", type=options.mcap_file, help="the .mcap recording")
     options.add_alignment_options(p)
     p.add_argument(
         "--window-s",
@@ -25,7 +29,24 @@ def register(sub: argparse._SubParsersAction[options.Parser]) -> None:
         default=120.0,
         help="log-decrement window, s (default 120)",
     )
-    p.add_argument("--write", type=Path, metavar="FILE.json", help="write the fitted b1_n_m_s, b2_n_m_s as JSON")
+    p.add_argument(
+        "--law",
+        type=options.choice(LAW_CHOICES, "unknown law {value!r}; allowed: {allowed}"),
+        choices=LAW_CHOICES,
+        default="auto",
+        help="damping law of the fit: auto (the smallest BIC of the three; default), viscous, coulomb or both",
+    )
+    p.add_argument(
+        "--model",
+        type=options.choice(("planar", "spatial"), "unknown --model {value!r}; allowed: {allowed}"),
+        choices=("planar", "spatial"),
+        default="planar",
+        help="planar (default) or spatial: also the support's tilt stiffness and damping, fitted with "
+        "the spatial model to all three gyro axes of both nodes (viscous hinge damping)",
+    )
+    p.add_argument(
+        "--write", type=Path, metavar="FILE.json", help="write the fitted values (b1_n_m_s, b2_n_m_s, ...) as JSON"
+    )
     options.add_force_option(p, "the --write file")
     p.set_defaults(handler=run)
 
@@ -33,13 +54,24 @@ def register(sub: argparse._SubParsersAction[options.Parser]) -> None:
 def run(args: argparse.Namespace) -> int:
     from pendsim_bridge.tables import identification_table
     from pendsim_bridge.validate import identify
+    from pendsim_mj.errors import ParameterError
     from pendsim_mj.outputs import atomic_output
 
     options.check_output(args.write, (".json",), force=args.force)
-    result = identify(args.path, window_s=args.window_s, release_s=args.release_s, max_gap_s=args.max_gap_s)
+    if args.model == "spatial":
+        from pendsim_bridge.spatial_validate import identify_and_write
+
+        if args.law not in ("auto", "viscous"):
+            raise ParameterError(f"--law {args.law} applies to the planar fit; --model spatial fits viscous damping")
+        print(identify_and_write(args.path, release_s=args.release_s, max_gap_s=args.max_gap_s, write=args.write,
+                                 replace=args.force))  # fmt: skip
+        return 0
+    result = identify(
+        args.path, window_s=args.window_s, release_s=args.release_s, max_gap_s=args.max_gap_s, law=args.law
+    )
     print(identification_table(args.path, result))
     if args.write is not None:
-        values = {"b1_n_m_s": float(result.fit.b_n_m_s[0]), "b2_n_m_s": float(result.fit.b_n_m_s[1])}
+        values = result.fit.overrides()
         with atomic_output(args.write, replace=args.force) as tmp:
             tmp.write_text(json.dumps(values, indent=1) + "\n")
         print(f"wrote {args.write} (use: pendsim simulate --params-file {args.write})")

@@ -14,7 +14,7 @@ def register(sub: argparse._SubParsersAction[options.Parser]) -> None:
         description="Print what an MCAP file holds. A truncated or damaged file is an error (exit 2) that says "
         "how much is readable; 'pendsim recover' rewrites that part.",
     )
-    p.add_argument("path", type=options.input_file, help="the .mcap file")
+    p.add_argument("path", type=options.mcap_file, help="the .mcap file")
     p.set_defaults(handler=run)
 
 

@@ -16,7 +16,7 @@ def register(sub: argparse._SubParsersAction[options.Parser]) -> None:
         "killed; after a damaged record it resynchronises on the next chunk whose CRC checks) and write them to "
         "FIXED as a complete, indexed MCAP file. Content no CRC covers is left out unless --keep-unverified.",
     )
-    p.add_argument("broken", type=options.input_file, help="the damaged .mcap file (read only)")
+    p.add_argument("broken", type=options.mcap_file, help="the damaged .mcap file (read only)")
     p.add_argument("fixed", type=Path, help="the new .mcap file to write")
     options.add_force_option(p, "FIXED (never BROKEN itself)")
     p.add_argument(

@@ -47,7 +47,7 @@ def register(sub: argparse._SubParsersAction[options.Parser]) -> None:
         "writes them to a new MCAP (-o, cut and filtered; --shift moves the window to t = 0) or to Rerun (--rerun). "
         "From Python: pendsim_bridge.replay.replay() yields decoded messages.",
     )
-    p.add_argument("path", type=options.input_file, help="the .mcap recording")
+    p.add_argument("path", type=options.mcap_file, help="the .mcap recording")
     p.add_argument("--speed", type=speed, default=math.inf, help="1 = real time, any factor > 0, or max (default)")
     log_time = options.float_in(0.0, options.MAX_LOG_TIME_S, "s")
     p.add_argument("--start", type=log_time, metavar="S", help="first time to replay, s since the recording's start")
@@ -117,9 +117,9 @@ def _emit(message: ReplayMessage, args: argparse.Namespace) -> None:
 
 def _summary_line(stats: ReplayStats, speed: float) -> str:
     summary = stats.summary()
-    line = f"replayed {summary['messages']} messages"
+    line = f"replayed {summary.messages} messages"
     if math.isfinite(speed):
-        late = f"p50 {summary['p50_ms']:.2f} ms, p99 {summary['p99_ms']:.2f} ms, max {summary['max_ms']:.2f} ms"
+        late = f"p50 {summary.p50_ms:.2f} ms, p99 {summary.p99_ms:.2f} ms, max {summary.max_ms:.2f} ms"
         line += f" at {speed:g}x; lateness {late}"
     return line
 

@@ -38,7 +38,7 @@ def register(sub: argparse._SubParsersAction[options.Parser]) -> None:
         "frequency (zero crossings and spectral peak) and its relative error delta, max |Delta|, IAE, ISE. "
         "Writes report.json and the paper's Figures 9-15. Exit 1 when a --max-* gate is exceeded.",
     )
-    p.add_argument("path", type=options.input_file, help="the .mcap recording")
+    p.add_argument("path", type=options.mcap_file, help="the .mcap recording")
     options.add_alignment_options(p)
     p.add_argument("-o", "--out-dir", type=Path, help="where report.json and the figures go (default NAME_validation/)")
     p.add_argument(
@@ -48,6 +48,14 @@ def register(sub: argparse._SubParsersAction[options.Parser]) -> None:
         help="'identified' (least-squares fit on this recording; default), 'recorded' (its metadata) or B1,B2",
     )
     options.add_parameter_options(p, what="the model being validated")
+    p.add_argument(
+        "--model",
+        type=options.choice(("planar", "spatial"), "unknown --model {value!r}; allowed: {allowed}"),
+        choices=("planar", "spatial"),
+        default="planar",
+        help="planar (default) or spatial: also compare with the spatial MuJoCo model (planes offset, tilt "
+        "freedoms) and report which model fits better, per quantity and overall",
+    )
     p.add_argument("--no-plots", action="store_true", help="write report.json only")
     options.add_force_option(p, "report.json and the figures in the output folder")
     gate = options.non_negative_float
@@ -83,6 +91,7 @@ def run(args: argparse.Namespace) -> int:
         overrides=options.overrides_from(args),
         release_s=args.release_s,
         max_gap_s=args.max_gap_s,
+        model=args.model,
     )
     print(table(report))
     written = write_outputs(report, out_dir, plots=not args.no_plots, replace=args.force)

@@ -17,7 +17,7 @@ def register(sub: argparse._SubParsersAction[options.Parser]) -> None:
         "the phi1 error with cumulative IAE and ISE, phase portraits, on a ready-made layout. Writes an .rrd file "
         "(default NAME.rrd beside the recording); --spawn opens the desktop viewer, --serve the web viewer.",
     )
-    p.add_argument("path", type=options.input_file, help="the .mcap recording")
+    p.add_argument("path", type=options.mcap_file, help="the .mcap recording")
     options.add_alignment_options(p)
     options.add_drive_options(p, what="the model's re-simulation (default: the recording's own /drive topic)")
     p.add_argument("--save", type=Path, metavar="FILE.rrd", help="the .rrd file to write (default NAME.rrd)")

@@ -1,0 +1,333 @@
+"""Damping identification on the fast planar kernel: the hinge losses fitted together with the
+start state, by scipy's least squares, with intervals that carry the start's uncertainty.
+
+Model: the planar equations of ``fast_planar`` (viscous b_n and/or dry friction F_n at each hinge),
+integrated by its compiled RK4 at ``FIT_DT_S``. Unknowns, fitted together:
+
+- the hinge losses of the chosen law: "viscous" (b1, b2), "coulomb" (F1, F2) or "both";
+- the start angles phi1_0, phi2_0; for a start in motion also omega1_0, omega2_0;
+- for a release from rest, a small offset tau of the release instant (the model rests at phi_0
+  until tau, then swings).
+
+Residuals: each node's gyro about its hinge minus the model's rate, in units of that node's noise
+sigma, at the instants the chip's fused values belong to (``MeasuredRun``'s ``value_t_s``: a
+node reports the latest 100 Hz fused value, 0-10 ms old; taking the sample instants instead put
+b1 1.1 % off), lost samples (NaN) left out. The model's rate between steps is cubic Hermite
+through omega and its exact derivative (the closed-form accelerations).
+
+Jacobian: central finite differences, all 2P perturbed members as ONE batched call of the
+compiled kernel (each member's result is bit-identical to a lone run, so the differences carry
+no batch noise); the release offset's column is analytic (-alpha at the instants). The state is
+integrated in blocks, so memory holds the predictions, not the trajectories (a 1 h record:
+tens of MB).
+
+Intervals: covariance s^2 (J^T J)^-1 of the normalised residuals with s^2 = RSS/(n - P) (the
+residual variance, so a misjudged noise sigma does not narrow them), 95 % half-widths
+1.96 sqrt(diag). Their coverage is tested over seeded synthetic records (tests/test_planar_fit.py).
+
+Law selection: BIC = n ln(RSS/n) + P ln n for each law; the smallest wins. Residual whiteness:
+the Ljung-Box statistic of each node's residuals over ``LJUNG_BOX_LAGS`` lags and its p-value
+(a small p: structure the model leaves unexplained).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import time
+from collections.abc import Sequence
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy import optimize, stats
+
+from pendsim_mj import fast_planar
+from pendsim_mj.errors import ParameterError
+from pendsim_mj.params import RigParams
+
+Floats = NDArray[np.float64]
+
+LAWS = ("viscous", "coulomb", "both")
+LAW_CHOICES = ("auto", *LAWS)
+FIT_DT_S = 0.01  # the recordings' MuJoCo step; the planar kernel equals MuJoCo at it to ~1e-14 rad
+BLOCK_STEPS = 20_000  # steps integrated per block (memory: 5 x 8 bytes x members per step)
+LJUNG_BOX_LAGS = 20
+MAX_RELEASE_OFFSET_S = 0.05
+_DAMPING = {
+    "viscous": ("b1_n_m_s", "b2_n_m_s"),
+    "coulomb": ("friction1_n_m", "friction2_n_m"),
+    "both": ("b1_n_m_s", "b2_n_m_s", "friction1_n_m", "friction2_n_m"),
+}
+_ROW = {name: fast_planar.COEFFICIENTS.index(name) for name in _DAMPING["both"]}
+# finite-difference steps and the optimiser's scale of each kind of unknown
+_STEP = {"damping": 1e-6, "phi": 1e-6, "omega": 1e-6}
+_SCALE = {"damping": 1e-3, "phi": 1e-2, "omega": 1e-2, "tau": 1e-3}
+
+
+@dataclasses.dataclass(frozen=True)
+class LawFit:
+    """The least-squares fit of one damping law.
+
+    Attributes:
+      law: "viscous", "coulomb" or "both".
+      names: the P unknowns: damping fields of RigParams, then "phi1_0", "phi2_0", ("omega1_0",
+        "omega2_0"), ("release_offset_s").
+      values: (P,) estimates (SI units: N m s/rad, N m, rad, rad/s, s).
+      ci95: (P,) half-widths of the 95 % intervals.
+      covariance: (P, P).
+      residual_rms_sigma: rms residual in gyro noise sigmas (1: explained to the noise level).
+      bic: n ln(RSS/n) + P ln n.
+      ljung_box_p: (2,) whiteness p-value of each node's residuals.
+      n_residuals: samples used (both nodes).
+      iterations: Jacobian evaluations; seconds: wall time.
+    """
+
+    law: str
+    names: tuple[str, ...]
+    values: Floats
+    ci95: Floats
+    covariance: Floats
+    residual_rms_sigma: float
+    bic: float
+    ljung_box_p: tuple[float, float]
+    n_residuals: int
+    iterations: int
+    seconds: float
+
+    def value(self, name: str) -> float:
+        """An estimate by name, 0 for a damping term this law does not have."""
+        return float(self.values[self.names.index(name)]) if name in self.names else 0.0
+
+    def half_width(self, name: str) -> float:
+        return float(self.ci95[self.names.index(name)]) if name in self.names else 0.0
+
+
+@dataclasses.dataclass(frozen=True)
+class _Data:
+    at: tuple[Floats, Floats]  # each node's value instants since the start, s (finite only)
+    gyro: tuple[Floats, Floats]  # its measured rate, rad/s
+    sigma: Floats  # (2,)
+
+
+class _Model:
+    """The planar model of one law with its unknowns' layout."""
+
+    def __init__(self, params: RigParams, law: str, moving: bool, data: _Data) -> None:
+        self.data = data
+        self.damping = _DAMPING[law]
+        self.moving = moving
+        names = [*self.damping, "phi1_0", "phi2_0"]
+        kinds = ["damping"] * len(self.damping) + ["phi", "phi"]
+        if moving:
+            names += ["omega1_0", "omega2_0"]
+            kinds += ["omega", "omega"]
+        else:
+            names.append("release_offset_s")
+            kinds.append("tau")
+        self.names, self.kinds = tuple(names), tuple(kinds)
+        base = fast_planar.coefficients([params])
+        for name in _DAMPING["both"]:  # a law's absent terms are zero
+            base[_ROW[name]] = 0.0
+        self.coef = base
+        end = max(float(a[-1]) for a in data.at) + MAX_RELEASE_OFFSET_S + FIT_DT_S
+        self.nstep = math.ceil(end / FIT_DT_S) + 1
+
+    def rates(self, xs: Floats) -> tuple[tuple[Floats, Floats], tuple[Floats, Floats]]:
+        """Model rates (nb, m_k) of each node at its instants, and the last member's d rate/d tau
+        (m_k,): ((rate0, rate1), (dtau0, dtau1))."""
+        nb = len(xs)
+        p = len(self.damping)
+        coef = np.repeat(self.coef, nb, axis=1)
+        for j, name in enumerate(self.damping):
+            coef[_ROW[name]] = xs[:, j]
+        coef = np.ascontiguousarray(coef)
+        phi0 = np.ascontiguousarray(xs[:, p : p + 2])
+        omega0 = np.ascontiguousarray(xs[:, p + 2 : p + 4]) if self.moving else np.zeros((nb, 2))
+        tau = np.zeros(nb) if self.moving else xs[:, -1]
+        h = FIT_DT_S
+        at = self.data.at
+        rate = [np.zeros((nb, len(a))) for a in at]
+        slope = [np.zeros(len(a)) for a in at]  # d rate / d tau of the last member only
+        lo_idx = [[int(np.searchsorted(a, tau[i])) for i in range(nb)] for a in at]
+        first = 0
+        while first < self.nstep:
+            steps = min(BLOCK_STEPS, self.nstep - first)
+            y = fast_planar.integrate(coef, phi0, omega0, steps, h, nthread=1)  # (steps+1, 5, nb)
+            alpha = fast_planar.accelerations(y[:, 0], y[:, 1], y[:, 2], y[:, 3], coef)
+            t_end = (first + steps) * h
+            last = first + steps >= self.nstep
+            for k in range(2):
+                w, a = y[:, 2 + k], alpha[k]
+                for i in range(nb):
+                    lo = lo_idx[k][i]
+                    hi = len(at[k]) if last else int(np.searchsorted(at[k], t_end + tau[i]))
+                    if hi <= lo:
+                        continue
+                    u = np.minimum((at[k][lo:hi] - tau[i]) / h - first, steps - 1e-9)
+                    j = np.minimum(u.astype(np.int64), steps - 1)
+                    f = u - j
+                    f2 = f * f
+                    f3 = f2 * f
+                    h00, h10, h01, h11 = 2 * f3 - 3 * f2 + 1, f3 - 2 * f2 + f, -2 * f3 + 3 * f2, f3 - f2
+                    rate[k][i, lo:hi] = h00 * w[j, i] + h10 * h * a[j, i] + h01 * w[j + 1, i] + h11 * h * a[j + 1, i]
+                    if i == nb - 1:
+                        slope[k][lo:hi] = -((1 - f) * a[j, i] + f * a[j + 1, i])
+                    lo_idx[k][i] = hi
+            phi0 = np.ascontiguousarray(y[-1, 0:2].T)
+            omega0 = np.ascontiguousarray(y[-1, 2:4].T)
+            first += steps
+        return (rate[0], rate[1]), (slope[0], slope[1])
+
+    def residuals(self, x: Floats) -> Floats:
+        (r0, r1), _ = self.rates(x[None, :])
+        d = self.data
+        return np.concatenate([(r0[0] - d.gyro[0]) / d.sigma[0], (r1[0] - d.gyro[1]) / d.sigma[1]])
+
+    def jacobian(self, x: Floats) -> Floats:
+        rolled = [j for j, kind in enumerate(self.kinds) if kind != "tau"]
+        steps = np.array([_STEP[self.kinds[j]] for j in rolled])
+        xs = np.repeat(x[None, :], 2 * len(rolled) + (0 if self.moving else 1), axis=0)
+        for n, j in enumerate(rolled):
+            xs[2 * n, j] += steps[n]
+            xs[2 * n + 1, j] -= steps[n]
+        (r0, r1), (s0, s1) = self.rates(xs)
+        d = self.data
+        jac = np.empty((len(d.at[0]) + len(d.at[1]), len(x)))
+        for n, j in enumerate(rolled):
+            jac[:, j] = np.concatenate(
+                [(r0[2 * n] - r0[2 * n + 1]) / d.sigma[0], (r1[2 * n] - r1[2 * n + 1]) / d.sigma[1]]
+            ) / (2 * steps[n])
+        if not self.moving:  # the unperturbed member is last
+            jac[:, -1] = np.concatenate([s0 / d.sigma[0], s1 / d.sigma[1]])
+        return jac
+
+
+def ljung_box_p(residuals: Floats, lags: int = LJUNG_BOX_LAGS) -> float:
+    """p-value of the Ljung-Box test that a series is white (over ``lags`` lags)."""
+    r = np.asarray(residuals, dtype=float) - float(np.mean(residuals))
+    n = len(r)
+    if n <= lags + 1:
+        return math.nan
+    spectrum = np.fft.rfft(r, 2 * n)
+    acov = np.fft.irfft(spectrum * np.conj(spectrum))[: lags + 1]
+    rho = acov[1:] / acov[0]
+    q = n * (n + 2) * float(np.sum(rho * rho / (n - np.arange(1, lags + 1))))
+    return float(stats.chi2.sf(q, lags))
+
+
+def fit_law(
+    params: RigParams,
+    law: str,
+    data: _Data,
+    phi0_rad: Sequence[float] | Floats,
+    omega0_rad_s: Sequence[float] | Floats,
+    moving: bool,
+    guess: dict[str, float] | None = None,
+) -> LawFit:
+    """One law's fit from the alignment's start state (see the module docstring); ``guess``:
+    first values of damping terms by name (default: the rig's b, friction 2e-4 N m)."""
+    start = time.perf_counter()
+    model = _Model(params, law, moving, data)
+    guess = guess or {"b1_n_m_s": params.b1_n_m_s, "b2_n_m_s": params.b2_n_m_s}
+    x0 = [max(guess.get(name, 2e-4), 1e-6) for name in model.damping] + list(phi0_rad)
+    x0 += list(omega0_rad_s) if moving else [0.0]
+    low = [0.0] * len(model.damping) + [-math.inf] * 2 + ([-math.inf] * 2 if moving else [-MAX_RELEASE_OFFSET_S])
+    high = [math.inf] * (len(x0) - (0 if moving else 1)) + ([] if moving else [MAX_RELEASE_OFFSET_S])
+    scale = np.array([_SCALE[k] for k in model.kinds])
+    result = optimize.least_squares(
+        model.residuals,
+        np.array(x0, dtype=float),
+        jac=lambda x: model.jacobian(x),
+        bounds=(low, high),
+        x_scale=scale,
+        method="trf",
+        xtol=1e-8,
+        ftol=1e-10,
+        gtol=1e-10,
+        max_nfev=50,
+    )
+    r = result.fun
+    n, p = len(r), len(x0)
+    rss = float(r @ r)
+    jac = result.jac
+    try:
+        covariance = (rss / max(1, n - p)) * np.linalg.inv(jac.T @ jac)
+    except np.linalg.LinAlgError:
+        covariance = np.full((p, p), math.nan)
+    ci = 1.959964 * np.sqrt(np.clip(np.diag(covariance), 0.0, None))
+    m0 = len(data.at[0])
+    return LawFit(
+        law=law,
+        names=model.names,
+        values=np.asarray(result.x, dtype=float),
+        ci95=ci,
+        covariance=covariance,
+        residual_rms_sigma=math.sqrt(rss / n),
+        bic=n * math.log(rss / n) + p * math.log(n),
+        ljung_box_p=(ljung_box_p(r[:m0]), ljung_box_p(r[m0:])),
+        n_residuals=n,
+        iterations=int(result.njev or 0),
+        seconds=time.perf_counter() - start,
+    )
+
+
+def fit_planar(
+    params: RigParams,
+    value_t_s: Floats,
+    gyro_z_rad_s: Floats,
+    *,
+    gyro_sigma_rad_s: Sequence[float],
+    phi0_rad: Sequence[float],
+    omega0_rad_s: Sequence[float] = (0.0, 0.0),
+    moving: bool | None = None,
+    law: str = "auto",
+) -> list[LawFit]:
+    """Fit the hinge losses and the start state of a free decay on the planar model.
+
+    Args:
+      params: the rig (its damping fields are only the first guess).
+      value_t_s: (m, 2) each node's value instants since the start, s (NaN: no sample).
+      gyro_z_rad_s: (m, 2) the measured rates about the hinges, rad/s (NaN: lost).
+      gyro_sigma_rad_s: each node's gyro noise sigma, rad/s.
+      phi0_rad, omega0_rad_s: the start state estimated by the alignment (first guess).
+      moving: the run starts in motion (fit omega_0, no release offset); default: any |omega_0|
+        above 0.
+      law: "viscous", "coulomb", "both", or "auto" (all three).
+
+    Returns:
+      The fit of each law tried, the one with the smallest BIC first.
+    """
+    if law not in LAW_CHOICES:
+        raise ParameterError(f"law must be one of {', '.join(LAW_CHOICES)}, got {law!r}")
+    t = np.asarray(value_t_s, dtype=float)
+    y = np.asarray(gyro_z_rad_s, dtype=float)
+    if t.shape != y.shape or t.ndim != 2 or t.shape[1] != 2:
+        raise ParameterError(f"expected value_t_s and gyro_z_rad_s of shape (m, 2), got {t.shape}, {y.shape}")
+    at, gyro = [], []
+    for k in range(2):
+        ok = np.isfinite(t[:, k]) & np.isfinite(y[:, k])
+        order = np.argsort(t[ok, k], kind="stable")
+        at.append(t[ok, k][order])
+        gyro.append(y[ok, k][order])
+        if len(at[-1]) < 10:
+            raise ParameterError(f"node {k + 1} has {len(at[-1])} usable gyro samples; the fit needs at least 10")
+    data = _Data((at[0], at[1]), (gyro[0], gyro[1]), np.asarray(gyro_sigma_rad_s, dtype=float))
+    if moving is None:
+        moving = bool(np.any(np.abs(np.asarray(omega0_rad_s, dtype=float)) > 0))
+    if law != "auto":
+        return [fit_law(params, law, data, phi0_rad, omega0_rad_s, moving)]
+    # viscous first; the others start from it: the same start state, and the dry friction that
+    # dissipates the same mean power, F_n = b_n <omega_n^2> / <|omega_n|> (fewer iterations)
+    viscous = fit_law(params, "viscous", data, phi0_rad, omega0_rad_s, moving)
+    b = [viscous.value("b1_n_m_s"), viscous.value("b2_n_m_s")]
+    n_start = len(_DAMPING["viscous"])
+    phi_v = viscous.values[n_start : n_start + 2]
+    omega_v = viscous.values[n_start + 2 : n_start + 4] if moving else omega0_rad_s
+    equivalent = {
+        f"friction{k + 1}_n_m": b[k] * float(np.mean(gyro[k] ** 2)) / max(float(np.mean(np.abs(gyro[k]))), 1e-12)
+        for k in range(2)
+    }
+    dry = fit_law(params, "coulomb", data, phi_v, omega_v, moving, guess=equivalent)
+    small = {f"friction{k + 1}_n_m": 0.05 * equivalent[f"friction{k + 1}_n_m"] for k in range(2)}
+    both = fit_law(params, "both", data, phi_v, omega_v, moving, guess={"b1_n_m_s": b[0], "b2_n_m_s": b[1], **small})
+    return sorted([viscous, dry, both], key=lambda f: f.bic)

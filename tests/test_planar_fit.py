@@ -1,0 +1,96 @@
+"""The planar damping fit (pendsim_mj.planar_fit): honest intervals (coverage over seeded
+synthetic records made with MuJoCo and the BNO055 model), accuracy with the nodes'
+imperfections, and the choice between viscous and dry-friction damping."""
+
+import math
+
+import numpy as np
+import pytest
+
+from pendsim_mj.alignment import NodeSamples, align
+from pendsim_mj.imperfections import Imperfections
+from pendsim_mj.params import DEFAULT_PARAMS
+from pendsim_mj.planar_fit import fit_planar
+from pendsim_mj.sensors import Bno055, sample_imu
+from pendsim_mj.simulation import simulate, simulate_batch
+
+RECORDS = 60  # 120 intervals; at a true 95 % the count of misses has sd 1.7 per 60
+
+
+def _fit(traj, config, law="viscous", hold_s=1.0):
+    imu = sample_imu(traj, config, hold_s=hold_s)
+    nodes = []
+    for k in range(2):
+        stamp, log, received = imu.node_times(k)
+        values = (imu.quat_wxyz[received, k], imu.gyro_rad_s[received, k], imu.accel_m_s2[received, k])
+        nodes.append(NodeSamples(log[received], *values, stamp_s=stamp[received]))
+    run = align(nodes, DEFAULT_PARAMS, fusion_rate_hz=config.fusion_rate_hz)
+    m = max(len(n.t_s) for n in run.nodes)
+    at, omega = np.full((m, 2), np.nan), np.full((m, 2), np.nan)
+    for k, node in enumerate(run.nodes):
+        at[: len(node.t_s), k], omega[: len(node.t_s), k] = node.value_t_s, node.omega_rad_s
+    return fit_planar(
+        DEFAULT_PARAMS, at, omega, gyro_sigma_rad_s=run.gyro_sigma_rad_s, phi0_rad=run.start.phi_rad,
+        omega0_rad_s=run.start.omega_rad_s, moving=run.start.kind != "release", law=law,
+    )  # fmt: skip
+
+
+def test_95_percent_intervals_cover_the_true_damping_90_to_99_percent_of_the_time():
+    rng = np.random.default_rng(11)
+    b = np.stack([rng.uniform(4e-4, 1.2e-3, RECORDS), rng.uniform(2e-4, 1e-3, RECORDS)], axis=1)
+    params = [DEFAULT_PARAMS.with_overrides(b1_n_m_s=x, b2_n_m_s=y) for x, y in b]
+    phi0 = np.stack([np.radians(rng.uniform(20, 40, RECORDS)), np.zeros(RECORDS)], axis=1)
+    runs = simulate_batch(params, phi0, np.zeros_like(phi0), 20.0)
+    covered = np.zeros(2)
+    for i in range(RECORDS):
+        fit = _fit(runs.member(i), Bno055(seed=100 + i))[0]
+        covered += np.abs(fit.values[:2] - b[i]) <= fit.ci95[:2]
+    coverage = covered / RECORDS
+    assert np.all((coverage >= 0.90) & (coverage <= 0.99)), coverage
+
+
+@pytest.fixture(scope="module")
+def imperfect_fit():
+    truth = DEFAULT_PARAMS.with_overrides(b1_n_m_s=9e-4, b2_n_m_s=3e-4)
+    traj = simulate(truth, (math.radians(34), 0.0), (0.0, 0.0), 30.0)
+    imperfect = Imperfections(
+        heading_rad=1.0,
+        axis_map_config=(0x21, 0x24),
+        axis_map_sign=(0x01, 0x04),
+        fusion_error_rad=0.003,
+        packet_loss=0.05,
+        loss_burst_samples=3,
+        clock_drift_ppm=(0.0, 50.0),
+        clock_offset_s=(0.0, 12.0),
+        latency_s=0.002,
+        fusion_phase_s=(0.0031, 0.0074),
+    )
+    return _fit(traj, Bno055(seed=5, imperfections=imperfect), law="auto")
+
+
+def test_damping_is_within_2_percent_with_the_nodes_imperfections(imperfect_fit):
+    best = imperfect_fit[0]
+    assert best.law == "viscous"
+    np.testing.assert_allclose([best.value("b1_n_m_s"), best.value("b2_n_m_s")], [9e-4, 3e-4], rtol=0.02)
+
+
+def test_a_record_with_dry_friction_is_identified_as_coulomb_and_a_viscous_one_as_viscous(imperfect_fit):
+    dry = DEFAULT_PARAMS.with_overrides(b1_n_m_s=0.0, b2_n_m_s=0.0, friction1_n_m=1e-3, friction2_n_m=4e-4)
+    fits = _fit(simulate(dry, (math.radians(34), 0.0), (0.0, 0.0), 20.0), Bno055(seed=8), law="auto")
+    assert fits[0].law == "coulomb"
+    best = fits[0]
+    # MuJoCo's soft frictionloss against the planar law: a few per cent (docs/identification.md)
+    np.testing.assert_allclose([best.value("friction1_n_m"), best.value("friction2_n_m")], [1e-3, 4e-4], rtol=0.05)
+    by_law = {f.law: f for f in fits}
+    assert by_law["viscous"].bic > by_law["coulomb"].bic + 100
+    viscous = {f.law: f for f in imperfect_fit}
+    assert viscous["coulomb"].bic > viscous["viscous"].bic + 100
+    assert viscous["both"].bic > viscous["viscous"].bic  # two idle parameters cost 2 ln n
+
+
+def test_a_run_that_starts_mid_swing_fits_its_start_rates_too():
+    truth = DEFAULT_PARAMS.with_overrides(b1_n_m_s=7e-4, b2_n_m_s=5e-4)
+    traj = simulate(truth, (0.2, -0.05), (1.1, 0.3), 20.0)
+    best = _fit(traj, Bno055(seed=9), hold_s=0.0)[0]
+    assert "omega1_0" in best.names
+    np.testing.assert_allclose([best.value("b1_n_m_s"), best.value("b2_n_m_s")], [7e-4, 5e-4], rtol=0.02)
