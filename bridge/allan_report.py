@@ -67,7 +67,7 @@ def analyse(
     if not rec.imu:
         raise RecordingError(f"{path}: no /imu/m1 or /imu/m2 topic to analyse")
     rate = float(rec.metadata.get("pendsim/imu", {}).get("sample_rate_hz", "0") or 0)
-    sampling, segments, columns = {}, {}, {}
+    sampling, segments, views = {}, {}, {}
     for node, topic in rec.imu.items():
         if len(topic.t_ns) < 2:
             raise RecordingError(f"{path}: {imu_topic(node)} has {len(topic.t_ns)} message(s); need at least 20")
@@ -84,13 +84,25 @@ def analyse(
             part = longest_uniform_segment(topic.t_ns, node_rate)
         t = topic.t_ns[part]
         segments[node] = (float(t[0]) * 1e-9, float(t[-1]) * 1e-9)
-        columns[node] = np.concatenate([topic.accel_m_s2[part], topic.gyro_rad_s[part]], axis=1)  # (n, 6)
+        views[node] = (topic.accel_m_s2[part], topic.gyro_rad_s[part])
         rate = node_rate
-    # Both nodes in one call when their records are equally long (one pool for 12 axes).
-    lengths = {len(c) for c in columns.values()}
-    if len(lengths) == 1:
-        curves = allan_curves(np.concatenate(list(columns.values()), axis=1), rate)
+    # Both nodes in one call when their records are equally long (one pool for 12 axes): one
+    # (n, 12) copy of the axes; the rest of the decoded topics (quaternions, stamps) is dropped
+    # before it is made, each node's axes once copied.
+    names = list(views)
+    lengths = {len(v[0]) for v in views.values()}
+    y = np.empty((lengths.pop() if len(lengths) == 1 else 0, 6 * len(views)))
+    if len(y):
+        rec.imu.clear()
+        del rec, topic
+        for i, node in enumerate(names):
+            accel, gyro = views.pop(node)
+            y[:, 6 * i : 6 * i + 3], y[:, 6 * i + 3 : 6 * i + 6] = accel, gyro
+            del accel, gyro
+        columns = {node: y[:, 6 * i : 6 * i + 6] for i, node in enumerate(names)}  # (n, 6) views
+        curves = allan_curves(y, rate)
     else:
+        columns = {node: np.concatenate(v, axis=1) for node, v in views.items()}  # (n, 6)
         curves = [c for data in columns.values() for c in allan_curves(data, rate)]
     axes = []
     for i, (node, data) in enumerate(columns.items()):

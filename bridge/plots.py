@@ -102,6 +102,7 @@ def validation_figures(report, directory: str | Path) -> list[Path]:
     """The paper's Figures 9-15 for a ValidationReport: measured against computed (MuJoCo and
     the planar reference, from the estimated start; MuJoCo from the nominal 30 deg dashed when
     the run starts from rest). Lines break at gaps in the samples."""
+    from pendsim_bridge.validate import FIGURES
     from pendsim_mj.quantities import BY_NAME
 
     directory = Path(directory)
@@ -109,14 +110,7 @@ def validation_figures(report, directory: str | Path) -> list[Path]:
     short = next(c.window for c in report.cases if c.window != "whole")
     gap = report.run.max_gap_s
 
-    figures = [
-        ("fig09_tangential_acceleration_m1", "tangential_m1", short),
-        ("fig10_normal_acceleration_m1", "normal_m1", short),
-        ("fig11_phi1", "phi1", short),
-        ("fig12_phi1", "phi1", "whole"),
-        ("fig13_omega1", "omega1", short),
-        ("fig15_omega2", "omega2", "whole"),
-    ]
+    figures = [(stem, quantity, short if window == "short" else window) for stem, quantity, window in FIGURES]
     out = []
     for stem, quantity, window in figures:
         m = report.case("mujoco", "estimated", window).comparisons[quantity]

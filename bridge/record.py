@@ -114,10 +114,16 @@ class RecordInterrupted(Exception):
         self.result = result
 
 
+def _engine(spec: RecordSpec) -> str:
+    """The engine that runs a spec's simulation: the planar reference on its compiled kernel
+    (``engines.FAST_PATH``); the recording still names the engine asked for."""
+    return engines.FAST_PATH.get(spec.engine, spec.engine)
+
+
 def simulate_for(spec: RecordSpec) -> Trajectory:
     """The simulated run a (non-static) spec describes (in memory: for views, not recording)."""
     return engines.run(
-        spec.engine, spec.params, spec.phi0_rad, spec.omega0_rad_s, spec.duration_s, spec.dt_s,
+        _engine(spec), spec.params, spec.phi0_rad, spec.omega0_rad_s, spec.duration_s, spec.dt_s,
         spatial=spec.model == "spatial", drive=spec.drive,
     )  # fmt: skip
 
@@ -181,7 +187,7 @@ def record(
         )  # fmt: skip
         block_steps = max(1, round(block_s / spec.dt_s))
         blocks = engines.run_blocks(
-            spec.engine, spec.params, spec.phi0_rad, spec.omega0_rad_s, spec.duration_s, spec.dt_s,
+            _engine(spec), spec.params, spec.phi0_rad, spec.omega0_rad_s, spec.duration_s, spec.dt_s,
             block_steps=block_steps, spatial=spec.model == "spatial", drive=spec.drive,
         )  # fmt: skip
     variant = SPATIAL if spec.model == "spatial" else PLANAR

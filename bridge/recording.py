@@ -465,7 +465,10 @@ class _TopicDecoder:
 
     def __init__(self, path: Path, topic: str, schema: Any, count: int) -> None:
         self.path, self.topic, self.schema = path, topic, schema
-        self.columns = {name: _Column(count) for name in ("log", *self.FIELDS[schema.name])}
+        names = [name for name in self.FIELDS[schema.name] if name not in ("sec", "nanosec")]
+        if "sec" in self.FIELDS[schema.name]:
+            names.append("stamp")
+        self.columns = {name: _Column(count) for name in ("log", *names)}
         self.layout: ros2.FixedCdr | None = None
         self.frame_id = ""
         self._decoder: Callable[[bytes], Any] | None = None
@@ -477,6 +480,10 @@ class _TopicDecoder:
         if fields is None:
             fields = self._one_by_one(data.payloads)
         self.columns["log"].add(data.log_time_ns)
+        if "sec" in fields:  # the header stamp in ns, chunk by chunk (no whole-run temporaries)
+            fields["stamp"] = fields.pop("sec").astype(np.int64) * 1_000_000_000 + fields.pop("nanosec")
+        if "orientation" in fields:
+            fields["orientation"] = rotations.xyzw_to_wxyz(fields["orientation"])
         for name, values in fields.items():
             self.columns[name].add(values, may_be_constant=name in self.CONSTANT)
 
@@ -514,7 +521,8 @@ class _TopicDecoder:
             dec = self.layout.decode(payloads)
         except ValueError:
             return None
-        out = {name: np.array(dec[name]) for name in self.FIELDS[self.schema.name] if name in (dec.dtype.names or ())}
+        # views of the chunk's payloads: the columns copy them once, into their arrays
+        out = {name: dec[name] for name in self.FIELDS[self.schema.name] if name in (dec.dtype.names or ())}
         if self.schema.name == "sensor_msgs/msg/JointState":  # the hinges (first two joints)
             out = {k: v.reshape(len(dec), -1)[:, :2] for k, v in out.items()}
         return out
@@ -572,7 +580,14 @@ def _assemble(
     path: Path, topics: dict[str, _TopicDecoder], start: int, mcap: McapFile, mjcf: bytes | None
 ) -> Recording:
     def log(d: _TopicDecoder) -> NDArray[np.int64]:
-        return d.columns["log"].result((), np.int64) - start
+        return since_start(d.columns["log"].result((), np.int64))
+
+    def since_start(t_ns: NDArray[np.int64]) -> NDArray[np.int64]:
+        """Times since the start, in place (the decoder's own array: no second copy)."""
+        if t_ns.flags.writeable:
+            t_ns -= start
+            return t_ns
+        return t_ns - start
 
     imu: dict[str, ImuTopic] = {}
     lin: dict[str, Series] = {}
@@ -582,10 +597,8 @@ def _assemble(
         d = topics.get(imu_topic(n))
         if d is not None and d.columns["log"].n:
             c = d.columns
-            stamp = c["sec"].result((), np.int64).astype(np.int64) * 1_000_000_000 + c["nanosec"].result(()) - start
             imu[n] = ImuTopic(
-                log(d), stamp.astype(np.int64), d.frame_id,
-                rotations.xyzw_to_wxyz(c["orientation"].result((4,))),
+                log(d), since_start(c["stamp"].result((), np.int64)), d.frame_id, c["orientation"].result((4,)),
                 c["angular_velocity"].result((3,)), c["linear_acceleration"].result((3,)),
                 c["orientation_covariance"].result((3, 3)), c["angular_velocity_covariance"].result((3, 3)),
                 c["linear_acceleration_covariance"].result((3, 3)),

@@ -11,6 +11,8 @@ drawn from the compiled MjModel; the four springs are line strips whose colour r
 from __future__ import annotations
 
 import contextlib
+import dataclasses
+import itertools
 import math
 import sys
 from collections.abc import Callable, Iterator
@@ -216,9 +218,11 @@ def log_trajectory(
     root: str = "/rig",
     x_offset_m: float = 0.0,
     series: str = "model",
+    springs: bool = True,
 ) -> None:
-    """The computed run: body poses, springs coloured by tension, and every plotted quantity
-    (under /plots/<quantity>/<series>)."""
+    """The computed run: body poses, springs coloured by tension (``log_springs``; not with
+    ``springs=False``), and every plotted quantity (under /plots/<quantity>/<series>). A long run
+    can be logged block by block: consecutive calls append to the same entities."""
     times = rr.TimeColumn(TIMELINE, duration=traj.t_s + time_offset_s)
     n = len(traj.t_s)
     # the support's displacement (a driven run; zero otherwise) moves the frame and both pendulums
@@ -227,16 +231,47 @@ def log_trajectory(
     frame = support + np.array([x_offset_m, 0.0, 0.0])
     if np.any(support):
         rr.send_columns(f"{root}/frame", indexes=[times], columns=rr.Transform3D.columns(translation=frame))
-    poses = {}
     for k, body in enumerate(BODIES):
         quat = traj.body_quat_wxyz()[:, k]
         position = model.body(body).pos + frame
-        poses[k] = (rotations.to_matrix(quat), position)
         rr.send_columns(
             f"{root}/{body}",
             indexes=[times],
             columns=rr.Transform3D.columns(quaternion=rotations.wxyz_to_xyzw(quat), translation=position),
         )
+    if springs:
+        force = traj.spring_force_n
+        log_springs(
+            model, traj.t_s + time_offset_s, traj.phi_rad, traj.tilt_rad, traj.support_m, force,
+            (float(force.min()), float(force.max())), root=root, x_offset_m=x_offset_m,
+        )  # fmt: skip
+    for q in QUANTITIES:
+        values = rr.Scalars.columns(scalars=q.computed(traj))
+        rr.send_columns(f"/plots/{q.name}/{series}", indexes=[times], columns=values)
+
+
+def log_springs(
+    model: mujoco.MjModel,
+    t_s: np.ndarray,
+    phi_rad: np.ndarray,
+    tilt_rad: np.ndarray,
+    support_m: np.ndarray,
+    force_n: np.ndarray,
+    force_range_n: tuple[float, float],
+    *,
+    root: str = "/rig",
+    x_offset_m: float = 0.0,
+) -> None:
+    """The four springs as line strips between their anchor points, coloured from blue (the
+    lowest tension of ``force_range_n``, N) to red (the highest), at n instants t_s (s) of a run
+    given by its angles phi_rad and tilt_rad (n, 2), its support displacement support_m (n, 2)
+    and spring tensions force_n (n, 4). Consecutive calls append (a long run in windows)."""
+    times = rr.TimeColumn(TIMELINE, duration=t_s)
+    n = len(t_s)
+    frame = np.zeros((n, 3))
+    frame[:, 0], frame[:, 2] = support_m[:, 0] + x_offset_m, support_m[:, 1]
+    quat = rotations.pendulum_quat_wxyz(phi_rad, tilt_rad)  # (n, 2, 4)
+    poses = {k: (rotations.to_matrix(quat[:, k]), model.body(body).pos + frame) for k, body in enumerate(BODIES)}
     # Spring end points in the world: each body's pose applied to the model's site positions.
     site = {name: model.site(name).pos.copy() for pair in SPRING_ENDS for name in pair}
     owner = SPRING_POINT_OWNER
@@ -249,9 +284,8 @@ def log_trajectory(
         return position + matrix @ p
 
     ends = np.stack([np.stack([world(a), world(b)], axis=1) for a, b in SPRING_ENDS], axis=1)  # (n, 4, 2, 3)
-    force = traj.spring_force_n
-    low, high = float(force.min()), float(force.max())
-    share = (force - low) / (high - low) if high > low else np.zeros_like(force)
+    low, high = force_range_n
+    share = (force_n - low) / (high - low) if high > low else np.zeros_like(force_n)
     colours = np.stack([255 * share, 60 + 0 * share, 255 * (1 - share)], axis=-1).astype(np.uint8)
     rr.send_columns(
         f"{root}/springs",
@@ -261,9 +295,6 @@ def log_trajectory(
         ),
     )
     rr.log(f"{root}/springs", rr.LineStrips3D.from_fields(labels=list(SPRINGS), radii=0.002), static=True)
-    for q in QUANTITIES:
-        values = rr.Scalars.columns(scalars=q.computed(traj))
-        rr.send_columns(f"/plots/{q.name}/{series}", indexes=[times], columns=values)
 
 
 def log_measured(run: MeasuredRun) -> None:
@@ -382,13 +413,14 @@ def view_recording(
       replace: replace an existing .rrd file (``--force``).
       warn: receives a warning line (an MJCF attachment ignored).
     """
-    from pendsim_bridge.recording import read_recording
+    from pendsim_bridge.recording import DRIVE_TOPIC, NODES, imu_topic, read_recording
     from pendsim_bridge.validate import align_recording, recorded_params
     from pendsim_mj.engines import whole_steps_s
-    from pendsim_mj.simulation import simulate
+    from pendsim_mj.simulation import simulate_blocks
     from pendsim_mj.timing import DEFAULT_MAX_GAP_S
 
-    rec = read_recording(path)  # a truncated or damaged file fails here, before Rerun sees it
+    # a truncated or damaged file fails here, before Rerun sees it (only the topics shown are decoded)
+    rec = read_recording(path, topics=[*(imu_topic(n) for n in NODES), DRIVE_TOPIC])
     params = recorded_params(rec)
     gap = DEFAULT_MAX_GAP_S if max_gap_s is None else max_gap_s
     run = align_recording(rec, params, release_s=release_s, max_gap_s=gap)
@@ -401,15 +433,22 @@ def view_recording(
         if np.count_nonzero(after) >= 2:
             drive = drive_from_held_inputs(t[after], held[after])
             duration = min(duration, whole_steps_s(float(t[after][-1] - t[after][0])))
-    traj = simulate(params, run.start.phi_rad, run.start.omega_rad_s, duration, drive=drive)
-    return view_aligned(run, traj, rec.mjcf_xml, rrd_path, replace=replace, warn=warn)
+    start = (params, run.start.phi_rad, run.start.omega_rad_s, duration)
+
+    def blocks() -> Iterator[tuple[int, Trajectory]]:
+        return simulate_blocks(*start, block_steps=VIEW_BLOCK_STEPS, drive=drive)
+
+    mjcf_xml = rec.mjcf_xml
+    del rec  # the decoded topics: the aligned run holds what is shown
+    return view_aligned(run, blocks, mjcf_xml, rrd_path, replace=replace, warn=warn)
 
 
 def view_report(
     report: ValidationReport, rrd_path: str | Path, *, replace: bool = False, warn: Callable[[str], None] = _warn_stderr
 ) -> Path:
     """A validation's measured run and its MuJoCo run (no second read, alignment or simulation)."""
-    return view_aligned(report.run, report.model_run, report.mjcf_xml, rrd_path, replace=replace, warn=warn)
+    traj = report.model_run
+    return view_aligned(report.run, lambda: iter([(0, traj)]), report.mjcf_xml, rrd_path, replace=replace, warn=warn)
 
 
 def rig_model(mjcf_xml: str | None, traj: Trajectory, *, warn: Callable[[str], None] = _warn_stderr) -> mujoco.MjModel:
@@ -427,9 +466,44 @@ def rig_model(mjcf_xml: str | None, traj: Trajectory, *, warn: Callable[[str], N
     return build_model(traj.single_params, drive_targets=targets)
 
 
+VIEW_BLOCK_STEPS = 6000  # model steps simulated and logged at once (60 s at 0.01 s)
+
+
+@dataclasses.dataclass
+class _RunSummary:
+    """What the view needs of a whole model run beyond each block, gathered block by block (13
+    numbers per step): instants, angles and rates (the phase portraits, the phi1 error), and
+    tilts, support displacement and spring tensions (the springs, coloured over the whole run's
+    tension range, logged once it is known)."""
+
+    t_s: np.ndarray
+    phi_rad: np.ndarray  # (n, 2)
+    omega_rad_s: np.ndarray  # (n, 2)
+    tilt_rad: np.ndarray  # (n, 2)
+    support_m: np.ndarray  # (n, 2)
+    force_n: np.ndarray  # (n, 4)
+
+    @property
+    def force_range_n(self) -> tuple[float, float]:
+        return float(self.force_n.min()), float(self.force_n.max())
+
+
+def _log_blocks(blocks: Iterator[tuple[int, Trajectory]], model: mujoco.MjModel) -> _RunSummary:
+    """Log each block's poses and series (not its springs) and gather the run's summary."""
+    names = ("t_s", "phi_rad", "omega_rad_s", "tilt_rad", "support_m", "spring_force_n")
+    parts: dict[str, list[np.ndarray]] = {name: [] for name in names}
+    for start, block in blocks:
+        if start:  # consecutive blocks share their boundary row: logged with the previous one
+            block = block.rows(slice(1, None))
+        log_trajectory(block, model, springs=False)
+        for name in names:
+            parts[name].append(getattr(block, name))
+    return _RunSummary(*(np.concatenate(parts[name]) for name in names))
+
+
 def view_aligned(
     run: MeasuredRun,
-    traj: Trajectory,
+    blocks: Callable[[], Iterator[tuple[int, Trajectory]]],
     mjcf_xml: str | None,
     rrd_path: str | Path,
     *,
@@ -437,23 +511,38 @@ def view_aligned(
     warn: Callable[[str], None] = _warn_stderr,
 ) -> Path:
     """Measured series (t = 0 at the start) beside a model run, the rig drawn by ``rig_model``,
-    published as the .rrd file ``rrd_path`` (``rrd_output``)."""
+    published as the .rrd file ``rrd_path`` (``rrd_output``).
+
+    ``blocks()`` yields the model run as (first row, block) pairs sharing their boundary rows
+    (``simulation.simulate_blocks``; a whole trajectory is one block): the run is logged block by
+    block and never held whole; its springs follow in windows of ``VIEW_BLOCK_STEPS`` once the
+    whole run's tension range is known."""
     from pendsim_mj.quantities import BY_NAME
     from pendsim_mj.validation import compare, resample
 
-    model = rig_model(mjcf_xml, traj, warn=warn)
+    it = blocks()
+    first = next(it)
+    model = rig_model(mjcf_xml, first[1], warn=warn)
     with rrd_output(rrd_path, replace=replace, series=("measured", "model")):
         log_series_styles(("measured", "model"))
-        log_rig_geometry(model, moving_frame=bool(np.any(traj.support_m)))
-        log_trajectory(traj, model)
+        whole = _log_blocks(itertools.chain([first], it), model)
+        del first
+        log_rig_geometry(model, moving_frame=bool(np.any(whole.support_m)))
+        for lo in range(0, len(whole.t_s), VIEW_BLOCK_STEPS):
+            rows = slice(lo, lo + VIEW_BLOCK_STEPS)
+            log_springs(
+                model, whole.t_s[rows], whole.phi_rad[rows], whole.tilt_rad[rows], whole.support_m[rows],
+                whole.force_n[rows], whole.force_range_n,
+            )  # fmt: skip
         log_measured(run)
         t, phi1, at = run.series(BY_NAME["phi1"])
-        inside = at <= traj.t_s[-1]
-        computed = resample(traj.t_s, traj.phi_rad[:, 0], np.clip(at[inside], 0.0, None))
+        inside = at <= whole.t_s[-1]
+        computed = resample(whole.t_s, whole.phi_rad[:, 0], np.clip(at[inside], 0.0, None))
         error = compare(t[inside], phi1[inside], computed, max_gap_s=run.max_gap_s)
         log_error(error.t_s, error.delta, error.iae_curve, error.ise_curve)
         measured = [(node.phi_rad, node.omega_rad_s) for node in run.nodes]
-        log_phase_portraits({"measured": measured, "model": _pendulums(traj)})
+        model_curves = [(whole.phi_rad[:, k], whole.omega_rad_s[:, k]) for k in range(2)]
+        log_phase_portraits({"measured": measured, "model": model_curves})
     return Path(rrd_path)
 
 

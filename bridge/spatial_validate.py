@@ -85,7 +85,7 @@ def model_choice(planar: CaseResult, spatial: CaseResult) -> dict[str, Any]:
     scores: dict[str, list[float]] = {m: [] for m in MODELS}
     for q in VALIDATED:
         pair = {"planar": planar.comparisons[q.name], "spatial": spatial.comparisons[q.name]}
-        scale = float(np.std(pair["planar"].measured)) or 1.0
+        scale = pair["planar"].measured_std or 1.0
         for m in MODELS:
             scores[m].append(pair[m].rms / scale)
         quantities[q.name] = {

@@ -18,6 +18,7 @@ from rest, from the nominal 30 deg.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import json
 import math
 from collections.abc import Mapping
@@ -29,6 +30,7 @@ import numpy as np
 from pendsim_bridge.recording import NODES, Recording, imu_topic, read_recording
 from pendsim_mj import engines
 from pendsim_mj.alignment import MeasuredRun, NodeSamples, align
+from pendsim_mj.checks import check_step
 from pendsim_mj.engines import whole_steps_s
 from pendsim_mj.errors import ParameterError, RecordingError
 from pendsim_mj.identification import DampingFit, LogDecrement, log_decrement, planar_damping
@@ -40,7 +42,20 @@ from pendsim_mj.trajectory import Trajectory
 from pendsim_mj.validation import Comparison, compare, resample
 
 NOMINAL_RELEASE_RAD = (math.pi / 6, 0.0)  # paper: the simulation releases M1 from 30 deg
-AT_REST_RAD_S = 0.1  # a start whose estimated rates are below this is a start from rest
+AT_REST_RAD_S = 0.1
+MODEL_BLOCK_STEPS = 6000  # model steps simulated at once (60 s at 0.01 s)
+FIGURES = (
+    ("fig09_tangential_acceleration_m1", "tangential_m1", "short"),
+    ("fig10_normal_acceleration_m1", "normal_m1", "short"),
+    ("fig11_phi1", "phi1", "short"),
+    ("fig12_phi1", "phi1", "whole"),
+    ("fig13_omega1", "omega1", "short"),
+    ("fig15_omega2", "omega2", "whole"),
+)
+"""The paper's Figures 9-13 and 15 (``plots.validation_figures``): (file stem, quantity, window).
+Of the whole-run comparisons, only these quantities keep their series (for the plots:
+``FIGURE_SERIES``); the others keep their metrics, so a long run's memory does not hold them all."""
+FIGURE_SERIES = ("t_s", "measured", "computed")  # a start whose estimated rates are below this is a start from rest
 
 
 def node_samples(rec: Recording) -> tuple[NodeSamples, NodeSamples]:
@@ -97,11 +112,45 @@ def _runs(
     duration_s: float,
     dt_s: float = 0.01,
 ) -> list[Trajectory]:
-    """One trajectory per start state (angles, rates), computed as one batch."""
+    """One trajectory per start state (angles, rates), computed as one batch (the planar
+    reference on its compiled kernel, ``engines.FAST_PATH``)."""
+    engine = engines.FAST_PATH.get(engine, engine)
     phi0 = np.array([s[0] for s in starts], dtype=float)
     omega0 = np.array([s[1] for s in starts], dtype=float)
     batch = engines.run_batch(engine, params, phi0, omega0, whole_steps_s(duration_s, dt_s), dt_s)
     return [batch.member(i) for i in range(len(starts))]  # fmt: skip
+
+
+def model_series(
+    engine: str,
+    params: RigParams,
+    start: tuple[tuple[float, float], tuple[float, float]],
+    duration_s: float,
+    dt_s: float = 0.01,
+    *,
+    block_steps: int = MODEL_BLOCK_STEPS,
+) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+    """One model run from a start state (angles, rates), simulated block by block and reduced to
+    what is compared: its instants (n,) s and each ``VALIDATED`` quantity there (n,). Memory is
+    these arrays and one block, never the whole run's Trajectory; the rows equal one run's. The
+    planar reference runs on its compiled kernel (``engines.FAST_PATH``)."""
+    engine = engines.FAST_PATH.get(engine, engine)
+    total_s = whole_steps_s(duration_s, dt_s)
+    n = check_step(total_s, dt_s) + 1
+    t = np.empty(n)
+    values = {q.name: np.empty(n) for q in VALIDATED}
+    blocks = engines.run_blocks(engine, params, start[0], start[1], total_s, dt_s, block_steps=block_steps)
+    for first, block in blocks:
+        rows = slice(first, first + len(block.t_s))
+        t[rows] = block.t_s
+        for q in VALIDATED:
+            values[q.name][rows] = q.computed(block)
+    return t, values
+
+
+def _window(inside: np.ndarray, *arrays: np.ndarray) -> tuple[np.ndarray, ...]:
+    """The arrays where ``inside``; the arrays themselves (no copy) when all of them are."""
+    return arrays if inside.all() else tuple(a[inside] for a in arrays)
 
 
 def model_at(traj: Trajectory, run: MeasuredRun, quantity: Quantity) -> np.ndarray:
@@ -195,9 +244,15 @@ class ValidationReport:
     identification: Identification | None
     run: MeasuredRun
     cases: list[CaseResult]
-    model_run: Trajectory  # MuJoCo from the estimated start, with the validated parameters
     mjcf_xml: str | None  # the recording's MJCF attachment, if any
     model_choice: dict[str, Any] | None = None  # --model spatial: planar vs spatial (spatial_validate)
+
+    @functools.cached_property
+    def model_run(self) -> Trajectory:
+        """MuJoCo from the estimated start with the validated parameters, the whole Trajectory
+        (simulated when first asked for: the validation itself keeps only what it compares)."""
+        start = self.run.start
+        return _runs("mujoco", self.params, [(start.phi_rad, start.omega_rad_s)], self.run.duration_s + 0.02)[0]
 
     def case(self, engine: str = "mujoco", release: str = "estimated", window: str = "whole") -> CaseResult:
         for c in self.cases:
@@ -238,9 +293,12 @@ def validate(
     """
     if model not in ("planar", "spatial"):
         raise ParameterError(f"model must be 'planar' or 'spatial', got {model!r}")
-    rec = read_recording(path)
+    rec = read_recording(path, topics=[imu_topic(n) for n in NODES])
     base = (params or recorded_params(rec)).with_mapping(overrides or {})
     run = align_recording(rec, base, release_s=release_s, max_gap_s=max_gap_s)
+    mjcf_xml = rec.mjcf_xml
+    covariance = [n.gyro_covariance for n in node_samples(rec)] if model == "spatial" else None
+    del rec  # the decoded topics: the aligned run holds what is compared
     identification = None
     if damping == "identified":
         identification = _identify(run, base, 120.0)
@@ -260,25 +318,26 @@ def validate(
     starts = {"estimated": (start.phi_rad, start.omega_rad_s)}
     if max(abs(w) for w in start.omega_rad_s) < AT_REST_RAD_S:
         starts["nominal"] = (NOMINAL_RELEASE_RAD, (0.0, 0.0))
-    model_run = None
+    plotted = {q for _, q, window in FIGURES if window == "whole"}
+    windows = ((f"{short_window_s:g} s", short_window_s), ("whole", math.inf))
     for engine in ("mujoco", "reference"):
-        trajectories = _runs(engine, model_params, list(starts.values()), duration + 0.02)
-        model_run = model_run or trajectories[0]
-        for release_name, traj in zip(starts, trajectories, strict=True):
-            for window_name, limit in ((f"{short_window_s:g} s", short_window_s), ("whole", math.inf)):
-                comparisons = {}
-                for q in VALIDATED:
-                    t, measured, _ = run.series(q)
-                    inside = t <= limit + 1e-9
-                    computed = model_at(traj, run, q)
-                    comparisons[q.name] = compare(t[inside], measured[inside], computed[inside], max_gap_s=max_gap_s)
-                cases.append(CaseResult(engine, release_name, window_name, comparisons))
-    assert model_run is not None
+        for release_name, state in starts.items():
+            t_model, values = model_series(engine, model_params, state, duration + 0.02)
+            by_window: dict[str, dict[str, Comparison]] = {name: {} for name, _ in windows}
+            for q in VALIDATED:
+                t, measured, at = run.series(q)
+                computed = resample(t_model, values[q.name], np.clip(at, 0.0, t_model[-1]))
+                for window_name, limit in windows:
+                    cmp = compare(*_window(t <= limit + 1e-9, t, measured, computed), max_gap_s=max_gap_s)
+                    if window_name == "whole":  # a long run's series: only those plotted stay
+                        cmp = cmp.without_series(FIGURE_SERIES if q.name in plotted else ())
+                    by_window[window_name][q.name] = cmp
+            del t_model, values
+            cases += [CaseResult(engine, release_name, name, by_window[name]) for name, _ in windows]
     choice = None
     if model == "spatial":
         from pendsim_bridge import spatial_validate
 
-        covariance = [n.gyro_covariance for n in node_samples(rec)]
         case, spatial = spatial_validate.spatial_case(
             run, model_params, max_gap_s, damping_fit=damping == "identified", covariance=covariance
         )
@@ -287,9 +346,7 @@ def validate(
         choice = spatial_validate.model_choice(planar, case)
         choice["plane_offset_m"] = spatial.plane_offset_m
         choice["spatial_params"] = {n: getattr(spatial, n) for n in spatial_validate.NAMES}
-    return ValidationReport(
-        Path(path), model_params, source, identification, run, cases, model_run, rec.mjcf_xml, choice
-    )
+    return ValidationReport(Path(path), model_params, source, identification, run, cases, mjcf_xml, choice)
 
 
 @dataclasses.dataclass(frozen=True)

@@ -218,11 +218,13 @@ def _prepare(samples: NodeSamples, index: int) -> _Node:
     if n < 100:
         raise RecordingError(f"node M{index + 1} has {n} samples; too few to align")
     stamp = log if samples.stamp_s is None else np.asarray(samples.stamp_s, dtype=float)
-    order = np.argsort(stamp, kind="stable")
-    keep = np.ones(n, dtype=bool)
-    keep[1:] = np.diff(stamp[order]) > 0  # duplicates: the first copy
-    order = order[keep]
-    stamp, log = stamp[order], log[order]
+    order: slice | np.ndarray = slice(None)  # stamps increasing (the usual case): no copies
+    if not np.all(np.diff(stamp) > 0):
+        order = np.argsort(stamp, kind="stable")
+        keep = np.ones(n, dtype=bool)
+        keep[1:] = np.diff(stamp[order]) > 0  # duplicates: the first copy
+        order = order[keep]
+        stamp, log = stamp[order], log[order]
     clock = fit_clock(stamp, log) if samples.stamp_s is not None else None
     t = clock.to_recorder(stamp) if clock is not None else log
     if clock is None:

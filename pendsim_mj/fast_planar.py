@@ -76,9 +76,10 @@ step against ``reference`` to 1e-12 rad.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import os
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 
 import numba
 import numpy as np
@@ -637,6 +638,36 @@ def solve_batch(
     if not np.all(np.isfinite(states)):
         raise SimulationDiverged(f"fast planar solver diverged (non-finite values); reduce dt_s (now {dt_s} s)")
     return _trajectory(plist, k, states, dt_s, held, drives if targets else None)
+
+
+def solve_blocks(
+    params: RigParams = DEFAULT_PARAMS,
+    phi0_rad: ArrayLike = (math.pi / 6, 0.0),
+    omega0_rad_s: ArrayLike = (0.0, 0.0),
+    duration_s: float = 120.0,
+    dt_s: float = 0.01,
+    *,
+    block_steps: int = 3000,
+) -> Iterator[tuple[int, Trajectory]]:
+    """``solve`` (undriven) in blocks of ``block_steps`` steps, each continued from the previous
+    block's last state (phi, omega and the dissipated energy: the kernel's whole state, so the
+    rows equal one run's bit for bit); memory independent of the duration. Yields (first row,
+    block) as ``reference.solve_blocks``; consecutive blocks share their boundary row."""
+    nstep = check_step(duration_s, dt_s)
+    if isinstance(block_steps, bool) or not isinstance(block_steps, int) or block_steps < 1:
+        raise ParameterError(f"block_steps must be a whole number >= 1, got {block_steps!r}")
+    plist = check_params(params)[:1]
+    phi0, omega0 = check_initial(phi0_rad, omega0_rad_s)
+    k = coefficients(plist)
+    y0 = _initial_state(phi0, omega0)
+    for first in range(0, nstep, block_steps):
+        steps = min(block_steps, nstep - first)
+        states = _run(k, y0, _UNDRIVEN, first, steps, float(dt_s), 1, 1)
+        if not np.all(np.isfinite(states)):
+            raise SimulationDiverged(f"fast planar solver diverged (non-finite values); reduce dt_s (now {dt_s} s)")
+        y0 = np.ascontiguousarray(states[-1])
+        block = _trajectory(plist, k, states, dt_s, None, None)
+        yield first, dataclasses.replace(block, t_s=np.arange(first, first + len(states)) * dt_s).member(0)
 
 
 def _trajectory(

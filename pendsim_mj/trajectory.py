@@ -138,6 +138,14 @@ class Trajectory:
         """Number of batch members (a single run counts as 1)."""
         return self.phi_rad.shape[0] if self.is_batch else 1
 
+    def rows(self, rows: slice) -> Trajectory:
+        """Some rows (instants) of a single run, as a trajectory of its own (views, no copy)."""
+        if self.is_batch:
+            raise IndexError("rows of a batch: take a member first")
+        fields = {name: getattr(self, name)[rows] for name in self.ARRAY_FIELDS}
+        tilt_rate = None if self.tilt_rate_rad_s is None else self.tilt_rate_rad_s[rows]
+        return dataclasses.replace(self, t_s=self.t_s[rows], tilt_rate_rad_s=tilt_rate, **fields)
+
     def member(self, index: int) -> Trajectory:
         """One run of a batch as a plain trajectory."""
         if not self.is_batch:

@@ -16,6 +16,8 @@ interpolated only inside segments. With uniform gap-free samples this is the pla
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Collection
+from typing import Any
 
 import numpy as np
 from scipy.integrate import cumulative_simpson, simpson
@@ -40,6 +42,8 @@ class Comparison:
         frequency"), with a hysteresis band of 4 noise sigmas of the measured series.
       f_measured_fft_hz, f_computed_fft_hz, delta_f_fft: by the interpolated spectral peak.
       covered_s: time inside covered segments, s (the whole window without gaps).
+      measured_std: standard deviation of the measured series (a scale for rms; kept when the
+        series are dropped, ``without_series``).
     """
 
     t_s: np.ndarray
@@ -59,6 +63,13 @@ class Comparison:
     f_computed_fft_hz: float
     delta_f_fft: float
     covered_s: float = float("nan")
+    measured_std: float = float("nan")
+
+    def without_series(self, keep: Collection[str] = ()) -> Comparison:
+        """This comparison with its (n,) series emptied but those named in ``keep`` (of
+        ``SERIES``): the metrics of a long window without holding its arrays."""
+        empty: dict[str, Any] = {name: np.empty(0) for name in SERIES if name not in keep}
+        return dataclasses.replace(self, **empty)
 
     def summary(self) -> dict[str, float]:
         """The scalar metrics, for tables and JSON."""
@@ -75,6 +86,10 @@ class Comparison:
             "ise": self.ise,
             "covered_s": self.covered_s,
         }
+
+
+SERIES = ("t_s", "measured", "computed", "delta", "iae_curve", "ise_curve")
+"""The (n,) series of a Comparison (the rest are its scalar metrics)."""
 
 
 def resample(t_source_s: np.ndarray, values: np.ndarray, t_target_s: np.ndarray) -> np.ndarray:
@@ -232,4 +247,5 @@ def compare(
         f_computed_fft_hz=g_c,
         delta_f_fft=abs(g_c - g_m) / g_m if g_m else float("nan"),
         covered_s=covered,
+        measured_std=float(np.std(m)),
     )

@@ -247,3 +247,20 @@ def test_pendsim_simulate_runs_on_the_fast_engine_and_writes_the_reference_traje
     assert "engine fast" in capsys.readouterr().out
     expected = reference.solve(DEFAULT_PARAMS, (40 * DEG, 0.0), (0.0, 0.0), 5.0)
     assert np.max(np.abs(np.load(out)["phi_rad"] - expected.phi_rad)) < 1e-12
+
+
+def test_blocks_continue_one_run_bit_for_bit_and_equal_the_reference_blocks():
+    from pendsim_mj import engines
+
+    start = ((0.6, -0.2), (0.1, 0.4))
+    whole = fast_planar.solve(DEFAULT_PARAMS, *start, duration_s=3.0)
+    fast = list(engines.run_blocks("fast", DEFAULT_PARAMS, *start, duration_s=3.0, block_steps=70))
+    ref = list(engines.run_blocks("reference", DEFAULT_PARAMS, *start, duration_s=3.0, block_steps=70))
+    assert [f for f, _ in fast] == [f for f, _ in ref] == list(range(0, 300, 70))
+    for (first, block), (_, ref_block) in zip(fast, ref, strict=True):
+        rows = slice(first, first + len(block.t_s))
+        assert np.array_equal(block.t_s, whole.t_s[rows])
+        for name in ("phi_rad", "omega_rad_s", "imu_accel_m_s2", "spring_force_n", "dissipated_j"):
+            assert np.array_equal(getattr(block, name), getattr(whole, name)[rows]), name
+        np.testing.assert_allclose(block.phi_rad, ref_block.phi_rad, rtol=0, atol=1e-12)
+        np.testing.assert_allclose(block.dissipated_j, ref_block.dissipated_j, rtol=0, atol=1e-12)

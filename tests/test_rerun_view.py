@@ -109,3 +109,18 @@ def test_demo_refuses_a_file_as_its_folder(tmp_path, capsys):
     target.write_text("x")
     assert main(["demo", "-o", str(target)]) == 2
     assert "is a file" in capsys.readouterr().err
+
+
+def test_the_view_gathers_a_model_run_from_its_blocks_as_from_the_whole_run(monkeypatch):
+    from pendsim_bridge import rerun_view
+    from pendsim_mj.simulation import simulate, simulate_blocks
+
+    logged = []
+    monkeypatch.setattr(rerun_view, "log_trajectory", lambda block, model, springs: logged.append(block.t_s))
+    whole = simulate(duration_s=2.0)
+    gathered = rerun_view._log_blocks(simulate_blocks(duration_s=2.0, block_steps=30), None)
+    assert np.array_equal(np.concatenate(logged), whole.t_s)  # every instant logged once
+    assert np.array_equal(gathered.t_s, whole.t_s)
+    assert np.array_equal(gathered.phi_rad, whole.phi_rad) and np.array_equal(gathered.omega_rad_s, whole.omega_rad_s)
+    assert np.array_equal(gathered.force_n, whole.spring_force_n)
+    assert gathered.force_range_n == (float(whole.spring_force_n.min()), float(whole.spring_force_n.max()))

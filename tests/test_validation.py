@@ -94,3 +94,14 @@ def test_metrics_on_gappy_samples_cover_only_the_covered_segments():
     assert r.f_measured_fft_hz == pytest.approx(f, rel=2e-3)
     gap = np.flatnonzero(np.diff(t) > 0.1)[0]
     assert r.iae_curve[gap + 1] == pytest.approx(r.iae_curve[gap])  # flat across the gap
+
+
+def test_a_comparison_without_its_series_keeps_every_metric():
+    from pendsim_mj.validation import SERIES
+
+    t = np.arange(0, 20, 0.01)
+    full = compare(t, np.sin(2 * np.pi * t), 1.01 * np.sin(2 * np.pi * 1.001 * t))
+    lean = full.without_series(keep=("t_s", "measured"))
+    assert lean.summary() == full.summary()
+    assert lean.t_s is full.t_s and lean.measured is full.measured
+    assert all(len(getattr(lean, name)) == 0 for name in SERIES if name not in ("t_s", "measured"))
