@@ -787,6 +787,7 @@ def rates_at(
     *,
     release_s: float = 0.0,
     wrt: Sequence[str] = (),
+    sensitivities_out: tuple[FloatArray, FloatArray] | None = None,
 ) -> tuple[tuple[FloatArray, FloatArray], tuple[FloatArray, FloatArray], tuple[FloatArray, FloatArray]]:
     """One undriven run's omega1, omega2 at given instants, with exact sensitivities: what a
     least-squares fit needs, without storing the trajectory.
@@ -802,6 +803,8 @@ def rates_at(
       dt_s: the step, s.
       release_s: the instant the member starts to move, s.
       wrt: names from ``SENSITIVITY_NAMES``: the unknowns to differentiate by.
+      sensitivities_out: two (m_n, P) float64 arrays (views allowed) to write the sensitivities
+        into, e.g. the columns of a Jacobian (no copy); returned as the sensitivities.
 
     Returns:
       (rates, sensitivities, slopes): each a pair over the nodes: rate (m_n,) rad/s (0 before the
@@ -817,7 +820,14 @@ def rates_at(
     nstep = max(1, math.ceil(end / dt_s) + 1)
     y0 = np.array([*np.asarray(phi0_rad, dtype=float), *np.asarray(omega0_rad_s, dtype=float)])
     rate = tuple(np.zeros(len(a)) for a in at)
-    sens = tuple(np.zeros((len(a), len(codes))) for a in at)
+    if sensitivities_out is None:
+        sens = tuple(np.zeros((len(a), len(codes))) for a in at)
+    else:
+        sens = sensitivities_out
+        if any(o.shape != (len(a), len(codes)) or o.dtype != np.float64 for o, a in zip(sens, at, strict=True)):
+            raise ParameterError(f"rates_at: sensitivities_out must be float64 arrays of shape (m_n, {len(codes)})")
+        for o in sens:
+            o[...] = 0.0
     slope = tuple(np.zeros(len(a)) for a in at)
     _rates_kernel(k, y0, float(release_s), float(dt_s), nstep, codes, at[0], at[1], rate[0], rate[1], sens[0],
                   sens[1], slope[0], slope[1])  # fmt: skip
