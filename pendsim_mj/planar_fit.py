@@ -145,27 +145,46 @@ class _Model:
             coef, x[p : p + 2], omega0, self.data.at, FIT_DT_S, release_s=release, wrt=wrt, sensitivities_out=sens
         )
 
-    def residuals(self, x: Floats) -> Floats:
-        """Normalised residuals at x; the Jacobian at x is computed in the same kernel pass and
-        kept for ``jacobian`` (scipy asks for it at almost every point it evaluates)."""
+    def full(self, x: Floats) -> tuple[Floats, Floats]:
+        """Normalised residuals (n,) and Jacobian (n, P) at x, from one kernel pass (the kernel
+        writes the sensitivities straight into the Jacobian's columns)."""
         rolled = tuple(name for name in self.names if name != "release_offset_s")
         d = self.data
         m0 = len(d.at[0])
         jac = np.empty((m0 + len(d.at[1]), len(x)))
-        sens = (jac[:m0, : len(rolled)], jac[m0:, : len(rolled)])  # the kernel writes into jac
+        sens = (jac[:m0, : len(rolled)], jac[m0:, : len(rolled)])
         (r0, r1), _, (t0, t1) = self._evaluate(x, rolled, sens)
         if not self.moving:
             jac[:m0, -1] = t0
             jac[m0:, -1] = t1
         jac[:m0] /= d.sigma[0]
         jac[m0:] /= d.sigma[1]
-        self._cached = (x.copy(), jac)
-        return np.concatenate([(r0 - d.gyro[0]) / d.sigma[0], (r1 - d.gyro[1]) / d.sigma[1]])
+        return np.concatenate([(r0 - d.gyro[0]) / d.sigma[0], (r1 - d.gyro[1]) / d.sigma[1]]), jac
 
-    def jacobian(self, x: Floats) -> Floats:
+    def reduced(self, x: Floats) -> Floats:
+        """The problem as scipy sees it, P + 1 residuals with the same cost, gradient and
+        Gauss-Newton matrix as the n of ``full``: R with R^T R = J^T J (from the eigenvectors of
+        J^T J, columns scaled to unit norm first), f~ = (R^-T J^T r, sqrt(r.r - |R^-T J^T r|^2)),
+        J~ = (R; 0). The optimiser then never copies or decomposes an n x P matrix (a 1 h
+        record: n = 576 000). J~ is kept for ``reduced_jacobian`` at the same x."""
+        r, jac = self.full(x)
+        norm = np.sqrt(np.einsum("ij,ij->j", jac, jac))
+        norm[norm == 0] = 1.0
+        if not np.all(np.isfinite(jac)):
+            raise ParameterError("the planar model diverged during the damping fit (non-finite rates)")
+        w, v = np.linalg.eigh((jac.T @ jac) / np.outer(norm, norm))
+        root = np.sqrt(np.clip(w, 0.0, None))
+        upper = (root[:, None] * v.T) * norm[None, :]  # upper^T upper = J^T J
+        inverse = np.divide(1.0, root, out=np.zeros_like(root), where=root > 1e-12 * root.max())
+        projected = inverse * (v.T @ ((jac.T @ r) / norm))
+        rest = math.sqrt(max(float(r @ r) - float(projected @ projected), 0.0))
+        self._cached = (x.copy(), np.vstack([upper, np.zeros((1, len(x)))]))
+        return np.append(projected, rest)
+
+    def reduced_jacobian(self, x: Floats) -> Floats:
         cached = getattr(self, "_cached", None)
         if cached is None or not np.array_equal(cached[0], x):
-            self.residuals(x)
+            self.reduced(x)
         jac: Floats = self._cached[1]
         return jac
 
@@ -216,9 +235,9 @@ def fit_law(
     scale = np.array([_SCALE[k] for k in model.kinds])
     n_res = len(data.at[0]) + len(data.at[1])
     result = optimize.least_squares(
-        model.residuals,
+        model.reduced,
         np.array(x0, dtype=float),
-        jac=model.jacobian,
+        jac=model.reduced_jacobian,
         bounds=(low, high),
         x_scale=scale,
         method="trf",
@@ -227,7 +246,7 @@ def fit_law(
         gtol=1e-10,
         max_nfev=50,
     )
-    r = result.fun
+    r, _ = model.full(np.asarray(result.x, dtype=float))  # the n residuals at the optimum
     n, p = len(r), len(x0)
     rss = float(r @ r)
     jac = result.jac
