@@ -597,6 +597,244 @@ def lyapunov(
     return out
 
 
+# --- rates at given instants, with their exact sensitivities (the damping fit) -----------------
+
+# Unknowns whose sensitivity ``rates_at`` can return (``wrt`` codes): the start state, then the
+# hinge losses (rows _B1, _B2, _F1, _F2 of the coefficients).
+SENSITIVITY_NAMES = (
+    "phi1_0",
+    "phi2_0",
+    "omega1_0",
+    "omega2_0",
+    "b1_n_m_s",
+    "b2_n_m_s",
+    "friction1_n_m",
+    "friction2_n_m",
+)
+
+
+@numba.njit(inline="always", cache=True)
+def _accel_partials(
+    p1: float, p2: float, w1: float, w2: float, c: tuple[float, ...]
+) -> tuple[float, float, float, float, float, float, float, float, float, float]:
+    """Undriven d(phi1'', phi2'')/d(phi1, phi2, omega_n) and the direct derivatives by b_n, F_n:
+    (a1_p1, a1_p2, a1_w1, a2_p1, a2_p2, a2_w2, a1_b1, a2_b2, a1_F1, a2_F2), from the equations of
+    the module docstring (d = phi2 - phi1; s(w) = w / sqrt(w^2 + w_s^2), s'(w) = w_s^2 / (w^2 +
+    w_s^2)^(3/2))."""
+    s1, c1 = sincos(p1)
+    s2, c2 = sincos(p2)
+    sd = s2 * c1 - c2 * s1
+    cd = c2 * c1 + s2 * s1
+    coupling = c[_KS] * cd + c[_KC] * sd  # d M1 / d phi2 = -d M1 / d phi1
+    q1 = w1 * w1 + _SMOOTH2
+    q2 = w2 * w2 + _SMOOTH2
+    r1 = math.sqrt(q1)
+    r2 = math.sqrt(q2)
+    j1 = 1.0 / c[_J1]
+    j2 = 1.0 / c[_J2]
+    return (
+        (-c[_G1] * c1 - coupling) * j1,
+        coupling * j1,
+        -(c[_B1] + c[_F1] * _SMOOTH2 / (q1 * r1)) * j1,
+        coupling * j2,
+        (-c[_G2] * c2 - coupling - c[_FS] * c2 - c[_FC] * s2) * j2,
+        -(c[_B2] + c[_F2] * _SMOOTH2 / (q2 * r2)) * j2,
+        -w1 * j1,
+        -w2 * j2,
+        -(w1 / r1) * j1,
+        -(w2 / r2) * j2,
+    )
+
+
+@numba.njit(inline="always", cache=True)
+def _sens_derivative(
+    p1: float, p2: float, w1: float, w2: float, c: tuple[float, ...], wrt: NDArray[np.int64], s: FloatArray,
+    out: FloatArray,
+) -> None:  # fmt: skip
+    """d/dt of the sensitivities s (4, P) of (phi1, phi2, omega1, omega2) at the state given, into
+    out (4, P): the variational equations of the undriven rig."""
+    a1p1, a1p2, a1w1, a2p1, a2p2, a2w2, a1b1, a2b2, a1f1, a2f2 = _accel_partials(p1, p2, w1, w2, c)
+    for col in range(s.shape[1]):
+        out[0, col] = s[2, col]
+        out[1, col] = s[3, col]
+        out[2, col] = a1p1 * s[0, col] + a1p2 * s[1, col] + a1w1 * s[2, col]
+        out[3, col] = a2p1 * s[0, col] + a2p2 * s[1, col] + a2w2 * s[3, col]
+        code = wrt[col]
+        if code == 4:
+            out[2, col] += a1b1
+        elif code == 5:
+            out[3, col] += a2b2
+        elif code == 6:
+            out[2, col] += a1f1
+        elif code == 7:
+            out[3, col] += a2f2
+
+
+@numba.njit(cache=True)
+def _rates_kernel(
+    k: FloatArray,
+    y0: FloatArray,
+    tau: float,
+    h: float,
+    nstep: int,
+    wrt: NDArray[np.int64],
+    at1: FloatArray,
+    at2: FloatArray,
+    rate1: FloatArray,
+    rate2: FloatArray,
+    sens1: FloatArray,
+    sens2: FloatArray,
+    slope1: FloatArray,
+    slope2: FloatArray,
+) -> None:
+    """One undriven member (k: (NCOEF, 1)) from y0 = (phi1, phi2, omega1, omega2) at rest until
+    ``tau``, then RK4 steps of h: each node's rate at its instants at_n (ascending, s) by cubic
+    Hermite through omega and alpha at the step ends, its sensitivities (m_n, P) to the ``wrt``
+    unknowns (RK4 on the variational equations: the exact derivative of the discrete solution),
+    and d rate / d tau (m_n,). Instants before tau: rate 0 (at rest), no sensitivity."""
+    c = _member(_chunk_coefficients(k, 0, 1), 0)
+    zero = (0.0, 0.0, 0.0, 0.0)
+    npar = len(wrt)
+    s = np.zeros((4, npar))
+    for col in range(npar):
+        if wrt[col] < 4:
+            s[wrt[col], col] = 1.0
+    ks = np.zeros((4, 4, npar))  # the four stages' d/dt of s
+    st = np.zeros((4, npar))  # a stage's s
+    p1, p2, w1, w2 = y0[0], y0[1], y0[2], y0[3]
+    a1, a2 = _accel(p1, p2, w1, w2, c, zero)
+    _sens_derivative(p1, p2, w1, w2, c, wrt, s, ks[0])
+    n1 = np.searchsorted(at1, tau)
+    n2 = np.searchsorted(at2, tau)
+    m1, m2 = len(at1), len(at2)
+    hh = 0.5 * h
+    h6 = h / 6.0
+    ends = np.zeros((2, 2, npar))  # at the step's start: each node's s of omega and of alpha
+    for step in range(nstep):
+        # RK4 of the state, in _rk4's order of operations, and of s alongside
+        q1, q2, v1, v2 = p1 + hh * w1, p2 + hh * w2, w1 + hh * a1, w2 + hh * a2
+        f1, f2 = _accel(q1, q2, v1, v2, c, zero)
+        r1, r2, x1, x2 = p1 + hh * v1, p2 + hh * v2, w1 + hh * f1, w2 + hh * f2
+        g1, g2 = _accel(r1, r2, x1, x2, c, zero)
+        t1, t2, y1, y2 = p1 + h * x1, p2 + h * x2, w1 + h * g1, w2 + h * g2
+        i1, i2 = _accel(t1, t2, y1, y2, c, zero)
+        np1 = p1 + h6 * (((w1 + 2.0 * v1) + 2.0 * x1) + y1)
+        np2 = p2 + h6 * (((w2 + 2.0 * v2) + 2.0 * x2) + y2)
+        nw1 = w1 + h6 * (((a1 + 2.0 * f1) + 2.0 * g1) + i1)
+        nw2 = w2 + h6 * (((a2 + 2.0 * f2) + 2.0 * g2) + i2)
+        na1, na2 = _accel(np1, np2, nw1, nw2, c, zero)
+        if npar:
+            for col in range(npar):
+                for r in range(4):
+                    st[r, col] = s[r, col] + hh * ks[0, r, col]
+            _sens_derivative(q1, q2, v1, v2, c, wrt, st, ks[1])
+            for col in range(npar):
+                for r in range(4):
+                    st[r, col] = s[r, col] + hh * ks[1, r, col]
+            _sens_derivative(r1, r2, x1, x2, c, wrt, st, ks[2])
+            for col in range(npar):
+                for r in range(4):
+                    st[r, col] = s[r, col] + h * ks[2, r, col]
+            _sens_derivative(t1, t2, y1, y2, c, wrt, st, ks[3])
+            for col in range(npar):
+                for n in range(2):
+                    ends[n, 0, col] = s[2 + n, col]
+                    ends[n, 1, col] = ks[0, 2 + n, col]
+                for r in range(4):
+                    s[r, col] = s[r, col] + h6 * (
+                        ((ks[0, r, col] + 2.0 * ks[1, r, col]) + 2.0 * ks[2, r, col]) + ks[3, r, col]
+                    )
+            _sens_derivative(np1, np2, nw1, nw2, c, wrt, s, ks[0])
+        last = step == nstep - 1
+        for node in range(2):
+            at = at1 if node == 0 else at2
+            rate = rate1 if node == 0 else rate2
+            sens = sens1 if node == 0 else sens2
+            slope = slope1 if node == 0 else slope2
+            idx = n1 if node == 0 else n2
+            m = m1 if node == 0 else m2
+            w0, wn, a0, an = (w1, nw1, a1, na1) if node == 0 else (w2, nw2, a2, na2)
+            while idx < m:
+                u = (at[idx] - tau) / h - step
+                if u >= 1.0 and not last:
+                    break
+                f = min(u, 1.0) if last else u  # the last step: no extrapolation
+                f2 = f * f
+                f3 = f2 * f
+                h00, h10, h01, h11 = 2 * f3 - 3 * f2 + 1, f3 - 2 * f2 + f, -2 * f3 + 3 * f2, f3 - f2
+                rate[idx] = h00 * w0 + h10 * h * a0 + h01 * wn + h11 * h * an
+                slope[idx] = -((1 - f) * a0 + f * an)
+                for col in range(npar):
+                    sens[idx, col] = (
+                        h00 * ends[node, 0, col]
+                        + h10 * h * ends[node, 1, col]
+                        + h01 * s[2 + node, col]
+                        + h11 * h * ks[0, 2 + node, col]
+                    )
+                idx += 1
+            if node == 0:
+                n1 = idx
+            else:
+                n2 = idx
+        p1, p2, w1, w2, a1, a2 = np1, np2, nw1, nw2, na1, na2
+
+
+def rates_at(
+    coef: FloatArray,
+    phi0_rad: Sequence[float] | FloatArray,
+    omega0_rad_s: Sequence[float] | FloatArray,
+    at_s: tuple[FloatArray, FloatArray],
+    dt_s: float,
+    *,
+    release_s: float = 0.0,
+    wrt: Sequence[str] = (),
+    sensitivities_out: tuple[FloatArray, FloatArray] | None = None,
+) -> tuple[tuple[FloatArray, FloatArray], tuple[FloatArray, FloatArray], tuple[FloatArray, FloatArray]]:
+    """One undriven run's omega1, omega2 at given instants, with exact sensitivities: what a
+    least-squares fit needs, without storing the trajectory.
+
+    The member rests at (phi0, omega0 = 0) until ``release_s`` (or moves from omega0 if it is 0),
+    then RK4 steps of ``dt_s`` (the kernel's arithmetic: rates equal ``integrate``'s states at the
+    steps); between steps the rate is the cubic Hermite of omega and its closed-form derivative.
+
+    Args:
+      coef: (NCOEF, 1) from ``coefficients``.
+      phi0_rad, omega0_rad_s: (2,) the start state.
+      at_s: each node's instants since the start, ascending, s: (m1,), (m2,).
+      dt_s: the step, s.
+      release_s: the instant the member starts to move, s.
+      wrt: names from ``SENSITIVITY_NAMES``: the unknowns to differentiate by.
+      sensitivities_out: two (m_n, P) float64 arrays (views allowed) to write the sensitivities
+        into, e.g. the columns of a Jacobian (no copy); returned as the sensitivities.
+
+    Returns:
+      (rates, sensitivities, slopes): each a pair over the nodes: rate (m_n,) rad/s (0 before the
+      release); d rate / d wrt (m_n, P); d rate / d release_s (m_n,).
+    """
+    k = _check_coef(coef, 1)
+    unknown = [name for name in wrt if name not in SENSITIVITY_NAMES]
+    if unknown:
+        raise ParameterError(f"rates_at: unknown sensitivity {unknown[0]!r}; allowed: {', '.join(SENSITIVITY_NAMES)}")
+    codes = np.array([SENSITIVITY_NAMES.index(name) for name in wrt], dtype=np.int64)
+    at = tuple(np.ascontiguousarray(a, dtype=np.float64) for a in at_s)
+    end = max((float(a[-1]) for a in at if len(a)), default=0.0) - release_s
+    nstep = max(1, math.ceil(end / dt_s) + 1)
+    y0 = np.array([*np.asarray(phi0_rad, dtype=float), *np.asarray(omega0_rad_s, dtype=float)])
+    rate = tuple(np.zeros(len(a)) for a in at)
+    if sensitivities_out is None:
+        sens = tuple(np.zeros((len(a), len(codes))) for a in at)
+    else:
+        sens = sensitivities_out
+        if any(o.shape != (len(a), len(codes)) or o.dtype != np.float64 for o, a in zip(sens, at, strict=True)):
+            raise ParameterError(f"rates_at: sensitivities_out must be float64 arrays of shape (m_n, {len(codes)})")
+        for o in sens:
+            o[...] = 0.0
+    slope = tuple(np.zeros(len(a)) for a in at)
+    _rates_kernel(k, y0, float(release_s), float(dt_s), nstep, codes, at[0], at[1], rate[0], rate[1], sens[0],
+                  sens[1], slope[0], slope[1])  # fmt: skip
+    return (rate[0], rate[1]), (sens[0], sens[1]), (slope[0], slope[1])
+
+
 def solve(
     params: RigParams = DEFAULT_PARAMS,
     phi0_rad: Sequence[float] = (math.pi / 6, 0.0),

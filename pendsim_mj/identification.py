@@ -299,3 +299,72 @@ def _fit(
         iterations=iterations,
         seconds=seconds,
     )
+
+
+@dataclasses.dataclass(frozen=True)
+class ModalDecrement:
+    """The per-mode decrement (``modal_decrement``).
+
+    Attributes:
+      b_n_m_s: (2,) b1, b2 mapped back from the two modal decay rates.
+      decay_rate_1_s: (2,) each mode's envelope decay rate sigma_i, 1/s (ascending frequency).
+      frequency_hz: (2,) the linearised modes' frequencies.
+      peaks: (2,) modal amplitude peaks used per mode.
+      window_s: the span measured, s.
+    """
+
+    b_n_m_s: np.ndarray
+    decay_rate_1_s: np.ndarray
+    frequency_hz: np.ndarray
+    peaks: tuple[int, int]
+    window_s: float
+
+
+def modal_decrement(t_s: np.ndarray, phi_rad: np.ndarray, params: RigParams, window_s: float = 120.0) -> ModalDecrement:
+    """b1, b2 from the decay of each normal mode's amplitude (the per-mode log decrement).
+
+    phi (n, 2) is projected onto the modal coordinates of the rig linearised at rest
+    (``nonlinear.linear.linear_modes``: M = diag(J1, J2), stiffness of gravity and springs; the
+    same parameters as the fit), q = Phi^-1 phi with mass-normalised shapes Phi (Phi^T M Phi = I).
+    Each q_i's half-cycle peaks (``analysis.peak_amplitudes``) over ``window_s`` from the first
+    give its decay rate sigma_i: the slope of ln(peak) by least squares. The modal damping
+    matrix is Phi^T B Phi with B = diag(b1, b2); taken diagonal (the approximation: the modes'
+    coupling through the off-diagonal term, nonzero unless b1/J1 = b2/J2, is neglected) each mode
+    obeys q_i'' + c_ii q_i' + w_i^2 q_i = 0, so sigma_i = c_ii / 2 = (Phi_1i^2 b1 + Phi_2i^2 b2) / 2:
+    two equations for b1, b2. Exact for the linear rig with proportional damping; small swings
+    otherwise (the modes are those of the linearised rig; measured errors in
+    docs/identification.md).
+
+    Args:
+      t_s: (n,) common instants or (n, 2) each node's own (NaN where a node has fewer samples).
+      phi_rad: (n, 2) measured angles.
+      params: the rig (its inertias, masses, springs).
+      window_s: span after the first modal peak, s.
+    """
+    from pendsim_mj.analysis import peak_amplitudes
+    from pendsim_mj.nonlinear.linear import linear_modes
+
+    if not (math.isfinite(window_s) and window_s > 0):
+        raise ParameterError(f"window_s must be > 0 s, got {window_s}")
+    columns = [_node_column(t_s, phi_rad, k) for k in range(2)]
+    start = max(float(c[0][0]) for c in columns)
+    end = min(float(c[0][-1]) for c in columns)
+    dt = float(np.median(np.diff(columns[0][0])))
+    if not end - start > 10 * dt:
+        raise ParameterError("the two nodes' angle records do not overlap: cannot project onto the modes")
+    grid = start + dt * np.arange(int((end - start) / dt) + 1)
+    phi = np.stack([np.interp(grid, c[0], c[1]) for c in columns])  # (2, m)
+    modes = linear_modes(params)
+    shapes = modes.shapes / np.sqrt(np.einsum("im,ij,jm->m", modes.shapes, modes.mass_kg_m2, modes.shapes))
+    q = np.linalg.solve(shapes, phi)  # (2, m) modal coordinates
+    rates, counts = np.zeros(2), [0, 0]
+    for i in range(2):
+        tp, ap = peak_amplitudes(grid, q[i])
+        inside = (tp <= tp[0] + window_s + 1e-9) if len(tp) else tp > 0
+        tp, ap = tp[inside], ap[inside]
+        if len(tp) < 3 or np.any(ap <= 0):
+            raise ParameterError(f"mode {i + 1}: fewer than three amplitude peaks; cannot measure its decay")
+        slope = np.polyfit(tp - tp[0], np.log(ap), 1)[0]
+        rates[i], counts[i] = -slope, len(tp)
+    b = np.linalg.solve(shapes.T**2, 2.0 * rates)  # row i: (Phi_1i^2, Phi_2i^2) . (b1, b2) = 2 sigma_i
+    return ModalDecrement(b, rates, modes.frequency_hz, (counts[0], counts[1]), float(window_s))

@@ -264,3 +264,34 @@ def test_blocks_continue_one_run_bit_for_bit_and_equal_the_reference_blocks():
             assert np.array_equal(getattr(block, name), getattr(whole, name)[rows]), name
         np.testing.assert_allclose(block.phi_rad, ref_block.phi_rad, rtol=0, atol=1e-12)
         np.testing.assert_allclose(block.dissipated_j, ref_block.dissipated_j, rtol=0, atol=1e-12)
+
+
+def test_rates_at_the_steps_equal_integrate_and_their_sensitivities_equal_central_differences():
+    """rates_at: the kernel's states at the step instants; its sensitivities the derivative of the
+    same discrete solution (central differences converge to them as step^2)."""
+    coef = fast_planar.coefficients([FRICTION])
+    t = np.arange(401) * 0.01
+    states = fast_planar.integrate(coef, np.array([[0.5, 0.1]]), np.array([[0.2, -0.3]]), 400, 0.01, nthread=1)
+    (r1, r2), _, _ = fast_planar.rates_at(coef, (0.5, 0.1), (0.2, -0.3), (t, t), 0.01)
+    np.testing.assert_allclose(r1, states[:, 2, 0], rtol=0, atol=1e-13)
+    np.testing.assert_allclose(r2, states[:, 3, 0], rtol=0, atol=1e-13)
+    at = (np.sort(np.random.default_rng(3).uniform(0, 4, 300)), np.linspace(0.0051, 3.9, 250))
+    wrt = fast_planar.SENSITIVITY_NAMES
+    _, sens, slope = fast_planar.rates_at(coef, (0.5, 0.1), (0.2, -0.3), at, 0.01, release_s=0.02, wrt=wrt)
+    state = {"phi1_0": 0.5, "phi2_0": 0.1, "omega1_0": 0.2, "omega2_0": -0.3, "release": 0.02}
+    for col, name in enumerate([*wrt, "release"]):
+        step = 1e-7 if name.endswith("_0") or name == "release" else 1e-8
+        pair = []
+        for sign in (1.0, -1.0):
+            k, x = coef.copy(), dict(state)
+            if name in x:
+                x[name] += sign * step
+            else:
+                k[fast_planar.COEFFICIENTS.index(name)] += sign * step
+            phi0, omega0 = (x["phi1_0"], x["phi2_0"]), (x["omega1_0"], x["omega2_0"])
+            pair.append(np.concatenate(fast_planar.rates_at(k, phi0, omega0, at, 0.01, release_s=x["release"])[0]))
+        numeric = (pair[0] - pair[1]) / (2 * step)
+        exact = np.concatenate(slope if name == "release" else [s[:, col] for s in sens])
+        # the release's column is -alpha interpolated linearly (not the Hermite's exact slope): O(h)
+        tolerance = 1e-2 if name == "release" else 2e-5
+        np.testing.assert_allclose(exact, numeric, rtol=0, atol=tolerance * np.abs(exact).max(), err_msg=name)
