@@ -30,6 +30,7 @@ if TYPE_CHECKING:
     from pendsim_bridge.validate import CaseResult
 
 MODELS = ("planar", "spatial")
+RELEASE_AT_START_RAD_S = 0.2  # a start "in motion" slower than this is a release at the recording's start
 PAPER_OFFSET_M = max(PLANE_OFFSET_PRESETS_M)  # 0.050: the spatial model of a rig whose offset is unknown
 
 
@@ -205,7 +206,9 @@ def identify_spatial(
             f"{path}: starts mid-swing; the tilt fit needs the release (the support's tilt there is unknown)"
         )
     t, gyro, sigma = gyro_in_swing_frames(run, [n.gyro_covariance for n in node_samples(rec)])
-    moving = run.start.kind != "release"
+    # a recording that starts at the release begins "in motion" but all but at rest: a release at
+    # its start (the tilt state there known: the support's rest), its instant fitted
+    moving = run.start.kind != "release" and max(abs(w) for w in run.start.omega_rad_s) >= RELEASE_AT_START_RAD_S
     fit = fit_tilt(
         base, run.start.phi_rad, t, gyro, sigma, omega0_rad_s=run.start.omega_rad_s, moving=moving,
         tilt_start=tilt_start or tilt_start_of(rec),

@@ -28,8 +28,8 @@ exact left b1 30 half-widths off the truth on a spatial record (its release angl
 **The support's tilt at the start** (``TILT_STARTS``): "zero", the support untilted at the
 release, as ``pendsim record --model spatial`` simulates it (its hold too repeats the release
 state, tilt 0); or "static", the support resting at its static tilt under the pendulums held at
-phi_0 (``static_tilt_rad``: where the tilt's generalized force vanishes; about 2.3 deg for M1
-released from 34 deg with the defaults, the offset coupling springs pulling it across), which is
+phi_0 (``static_tilt_rad``: where the tilt's generalized force vanishes; with the defaults 2.34 deg for
+M1 at rest, 2.04 deg held at 34 deg: the offset coupling springs pull it across), which is
 how a real support sits while the pendulums are held. With "static" the start tilts follow the
 fitted angles and stiffness in every rollout. Because the tilt oscillation is a fast (1.7-2.1 Hz)
 line, the fit is continued over growing windows (``WINDOWS_S``), so that a poor starting

@@ -185,3 +185,22 @@ def test_record_model_spatial_holds_the_support_untilted_and_identify_starts_it_
             raise RecordingError("no pendsim/run metadata")
 
     assert tilt_start_of(Elsewhere()) == "static"
+
+
+def test_a_spatial_record_that_starts_at_the_release_is_fitted_as_a_release(tmp_path, capsys):
+    """No hold: the alignment starts "in motion" at the first sample, all but at rest; the fit
+    takes it as a release at the recording's start (its instant fitted: the first fused values
+    are 0-10 ms old), so that the support's tilt there is known (untilted, as record made it)."""
+    path = tmp_path / "nohold.mcap"
+    assert main(["record", "--model", "spatial", "--duration-s", "10", "-o", str(path)]) == 0
+    capsys.readouterr()
+    written = tmp_path / "tilt.json"
+    assert main(["identify", str(path), "--model", "spatial", "--write", str(written)]) == 0
+    text = capsys.readouterr().out
+    assert "in motion at 0.000 s" in text and "release_offset_s" in text and "omega1_0" not in text
+    rows = {line.split()[0]: line.split() for line in text.splitlines() if "+-" in line}
+    for name in NAMES:
+        value, half = float(rows[name][1]), float(rows[name][3])
+        assert abs(value - getattr(DEFAULT_PARAMS, name)) <= 2 * half, (name, value, half)
+    residual = float(text.split("residual ")[1].split()[0])
+    assert residual < 1.1
