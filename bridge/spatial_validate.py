@@ -14,15 +14,15 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from pendsim_bridge.recording import read_recording
+from pendsim_bridge.recording import Recording, read_recording
 from pendsim_mj.alignment import MeasuredRun
-from pendsim_mj.errors import ParameterError
+from pendsim_mj.errors import ParameterError, RecordingError
 from pendsim_mj.model import SPATIAL
 from pendsim_mj.params import DEFAULT_PARAMS, PLANE_OFFSET_PRESETS_M, RigParams
 from pendsim_mj.quantities import VALIDATED
 from pendsim_mj.sensors import ImuNoise
 from pendsim_mj.simulation import simulate
-from pendsim_mj.spatial_identification import NAMES, TiltFit, fit_tilt
+from pendsim_mj.spatial_identification import NAMES, TILT_STARTS, TiltFit, fit_tilt, static_tilt_rad
 from pendsim_mj.timing import DEFAULT_MAX_GAP_S
 from pendsim_mj.validation import compare
 
@@ -30,6 +30,7 @@ if TYPE_CHECKING:
     from pendsim_bridge.validate import CaseResult
 
 MODELS = ("planar", "spatial")
+RELEASE_AT_START_RAD_S = 0.2  # a start "in motion" slower than this is a release at the recording's start
 PAPER_OFFSET_M = max(PLANE_OFFSET_PRESETS_M)  # 0.050: the spatial model of a rig whose offset is unknown
 
 
@@ -45,18 +46,23 @@ def spatial_case(
     *,
     damping_fit: bool = False,
     covariance: list[np.ndarray | None] | None = None,
+    tilt_start: str = "zero",
 ) -> tuple[CaseResult, RigParams]:
-    """The spatial MuJoCo model from the estimated start (tilts zero), compared over the whole run
-    on every validated quantity, as a ``CaseResult`` with engine "mujoco-spatial", and the rig it
-    ran. With ``damping_fit`` its b1, b2 are fitted to the gyros first (tilt values as given;
-    ``covariance``: each node's gyro covariance)."""
+    """The spatial MuJoCo model from the estimated start (tilts per ``tilt_start``: "zero" or
+    "static", see ``spatial_identification``), compared over the whole run on every validated
+    quantity, as a ``CaseResult`` with engine "mujoco-spatial", and the rig it ran. With
+    ``damping_fit`` its b1, b2 are fitted to the gyros first, with the start state (tilt values
+    as given; ``covariance``: each node's gyro covariance)."""
     from pendsim_bridge.validate import CaseResult, model_at, whole_steps_s
 
     start = run.start
     params = spatial_params(params)
     if damping_fit:  # the spatial model's own b1, b2 (each model with its best damping)
         t, gyro, sigma = gyro_in_swing_frames(run, covariance or [None, None])
-        fit = fit_tilt(params, start.phi_rad, t, gyro, sigma, omega0_rad_s=start.omega_rad_s, names=NAMES[2:])
+        fit = fit_tilt(
+            params, start.phi_rad, t, gyro, sigma, omega0_rad_s=start.omega_rad_s, names=NAMES[2:],
+            tilt_start=tilt_start,
+        )  # fmt: skip
         params = params.with_mapping(fit.as_mapping())
     traj = simulate(
         spatial_params(params),
@@ -65,6 +71,7 @@ def spatial_case(
         whole_steps_s(run.duration_s + 0.02, 0.01),
         0.01,
         variant=SPATIAL,
+        tilt0_rad=static_tilt_rad(params, start.phi_rad) if tilt_start == "static" else (0.0, 0.0),
     )
     comparisons = {}
     for q in VALIDATED:
@@ -136,7 +143,7 @@ class SpatialIdentification:
 
     fit: TiltFit
     params: RigParams  # the rig fitted (its plane offset)
-    release_angle_rad: tuple[float, float]
+    release_angle_rad: tuple[float, float]  # the alignment's (the fit's own: fit.value("phi1_0"), ...)
     release_time_s: float
     start_kind: str
 
@@ -163,17 +170,33 @@ def gyro_in_swing_frames(run: MeasuredRun, covariance: list[np.ndarray | None]) 
     return np.clip(t, 0.0, None), gyro, sigma
 
 
+def tilt_start_of(rec: Recording) -> str:
+    """The support's tilt at the start of a recording, as it was made: "zero" for a run pendsim
+    simulated (``record --model spatial`` starts the support untilted, its hold included; a planar
+    run has no tilt), "static" for a recording from elsewhere (a real support rests at its static
+    tilt while the pendulums are held)."""
+    try:
+        rec.run_info()
+    except RecordingError:
+        return "static"
+    return "zero"
+
+
 def identify_spatial(
     path: str | Path,
     *,
     params: RigParams | None = None,
     release_s: float | None = None,
     max_gap_s: float = DEFAULT_MAX_GAP_S,
+    tilt_start: str | None = None,
 ) -> SpatialIdentification:
-    """Tilt stiffness, tilt damping, b1 and b2 from a recording's free decay (spatial model)."""
+    """Tilt stiffness, tilt damping, b1 and b2 from a recording's free decay (spatial model), with
+    the start state; ``tilt_start`` ("zero", "static"; default ``tilt_start_of`` the recording)."""
     from pendsim_bridge.validate import align_recording, node_samples, recorded_params
 
     rec = read_recording(path)
+    if tilt_start is not None and tilt_start not in TILT_STARTS:
+        raise ParameterError(f"tilt_start must be one of {TILT_STARTS}, got {tilt_start!r}")
     # the geometry is the recording's; the fitted values start from the assumed defaults
     start_values = {n: getattr(DEFAULT_PARAMS, n) for n in NAMES}
     base = spatial_params(params or recorded_params(rec)).with_mapping(start_values)
@@ -183,7 +206,13 @@ def identify_spatial(
             f"{path}: starts mid-swing; the tilt fit needs the release (the support's tilt there is unknown)"
         )
     t, gyro, sigma = gyro_in_swing_frames(run, [n.gyro_covariance for n in node_samples(rec)])
-    fit = fit_tilt(base, run.start.phi_rad, t, gyro, sigma, omega0_rad_s=run.start.omega_rad_s)
+    # a recording that starts at the release begins "in motion" but all but at rest: a release at
+    # its start (the tilt state there known: the support's rest), its instant fitted
+    moving = run.start.kind != "release" and max(abs(w) for w in run.start.omega_rad_s) >= RELEASE_AT_START_RAD_S
+    fit = fit_tilt(
+        base, run.start.phi_rad, t, gyro, sigma, omega0_rad_s=run.start.omega_rad_s, moving=moving,
+        tilt_start=tilt_start or tilt_start_of(rec),
+    )  # fmt: skip
     return SpatialIdentification(fit, base, run.start.phi_rad, run.start.time_s, run.start.kind)
 
 
@@ -191,13 +220,19 @@ def identification_lines(path: str | Path, result: SpatialIdentification) -> lis
     """The printed tilt fit: each estimate with its 95 % interval, and the residual."""
     fit = result.fit
     phi1, phi2 = (math.degrees(a) for a in result.release_angle_rad)
+    tilt = "untilted" if fit.tilt_start == "zero" else "at its static tilt"
     lines = [
         f"{path}: {result.start_kind} at {result.release_time_s:.3f} s from {phi1:.2f} deg, {phi2:.2f} deg; "
-        f"spatial model, {1000 * result.params.plane_offset_m:g} mm between the planes",
-        "least squares of both gyros, all three axes (mujoco.sysid on the spatial model), 95 % intervals:",
+        f"spatial model, {1000 * result.params.plane_offset_m:g} mm between the planes, the support {tilt} "
+        "at the start",
+        "least squares of both gyros, all three axes, with the start state (mujoco.sysid on the spatial model), "
+        "95 % intervals:",
     ]
-    units = {"tilt_stiffness_n_m_rad": "N m/rad", "tilt_damping_n_m_s_rad": "N m s/rad"}
-    for name, value, half in zip(NAMES, fit.values, fit.ci95, strict=True):
+    units = {
+        "tilt_stiffness_n_m_rad": "N m/rad", "phi1_0": "rad", "phi2_0": "rad", "omega1_0": "rad/s",
+        "omega2_0": "rad/s", "release_offset_s": "s",
+    }  # fmt: skip
+    for name, value, half in zip(fit.names, fit.values, fit.ci95, strict=True):
         lines.append(f"  {name:24} {value:.6g} +- {half:.2g} {units.get(name, 'N m s/rad')}")
     lines.append(f"  residual {fit.residual_rms_sigma:.2f} sigma rms, {fit.iterations} iterations, {fit.seconds:.1f} s")
     return lines

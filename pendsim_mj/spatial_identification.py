@@ -13,11 +13,32 @@ stamps them, and taken at the instants the fused values belong to; and a third: 
 predicted gyro is rotated onto the measured one (``best_rotation``), since the swing frame found
 from the data is itself tilted by the tilt motion.
 
-The fit starts from the release with the support untilted (tilt 0, tilt rate 0), as
-``pendsim record --model spatial`` does; a real support held at the release rests at its static
-tilt instead (about 2.3 deg for M1 with the defaults), which this start does not model. Because
-the tilt oscillation is a fast (1.7-2.1 Hz) line, the fit is continued over growing windows
-(``WINDOWS_S``), so that a poor starting stiffness cannot lock onto a neighbouring cycle.
+**The start state is fitted too** (``START_RELEASE``, ``START_MOVING``), as in the planar fit
+(``pendsim_mj.planar_fit``), so that the intervals carry its uncertainty: the start angles
+phi1_0, phi2_0 and, for a release from rest, an offset tau of the release instant (the model
+rests until tau, then swings: the prediction at a sample instant t is the rollout's at t - tau,
+zero rates before it); for a start in motion the start rates omega1_0, omega2_0 instead.
+mujoco.sysid has no initial-state parameters: the angles and rates enter through its
+``custom_rollout`` hook (each finite-difference member's initial state built from its own
+parameter values), the offset through the ``modify_residual`` hook (the prediction, a cubic
+spline through the rollout's gyros, read at the shifted instants). Taking the alignment's start as
+exact left b1 30 half-widths off the truth on a spatial record (its release angle of M1 read
+0.09 deg off) and the tilt damping 13 half-widths off.
+
+**The support's tilt at the start** (``TILT_STARTS``): "zero", the support untilted at the
+release, as ``pendsim record --model spatial`` simulates it (its hold too repeats the release
+state, tilt 0); or "static", the support resting at its static tilt under the pendulums held at
+phi_0 (``static_tilt_rad``: where the tilt's generalized force vanishes; with the defaults 2.34 deg for
+M1 at rest, 2.04 deg held at 34 deg: the offset coupling springs pull it across), which is
+how a real support sits while the pendulums are held. With "static" the start tilts follow the
+fitted angles and stiffness in every rollout. Because the tilt oscillation is a fast (1.7-2.1 Hz)
+line, the fit is continued over growing windows (``WINDOWS_S``), so that a poor starting
+stiffness cannot lock onto a neighbouring cycle.
+
+Intervals: the covariance from the Jacobian at the optimum (``sysid.calculate_intervals``),
+scaled by the residuals' mean square in sigmas when that exceeds 1 (model error, or a misjudged
+noise sigma, widens them; an overstated sigma does not narrow them below the Jacobian's).
+Coverage over seeded records: ``bench/bench_spatial_coverage.py`` and tests/test_spatial_identify.py.
 """
 
 from __future__ import annotations
@@ -34,27 +55,37 @@ from pendsim_mj.identification import sensors_only, sysid_least_squares
 from pendsim_mj.model import HINGES, SPATIAL, TILTS, build_spec
 from pendsim_mj.params import PARAMETER_LIMITS, RigParams
 
-# what is fitted, in this order
+# what is fitted, in this order: the rig's fields, then the start state
 NAMES = ("tilt_stiffness_n_m_rad", "tilt_damping_n_m_s_rad", "b1_n_m_s", "b2_n_m_s")
+START_RELEASE = ("phi1_0", "phi2_0", "release_offset_s")  # a release from rest
+START_MOVING = ("phi1_0", "phi2_0", "omega1_0", "omega2_0")  # a start in motion
+TILT_STARTS = ("zero", "static")
 GYROS = ("imu_m1_gyro", "imu_m2_gyro")
 WINDOWS_S = (4.0, 12.0, math.inf)  # continuation: each fit starts from the previous one's values
+MAX_RELEASE_OFFSET_S = 0.05  # the release instant is searched within this of the alignment's
+MAX_START_ANGLE_CHANGE_RAD = 0.05  # and the start angles, rates within this (rad, rad/s)
+Z95 = 1.959964
 
 
 @dataclasses.dataclass(frozen=True)
 class TiltFit:
-    """Least-squares tilt stiffness, tilt damping, b1 and b2 (``NAMES``).
+    """Least-squares tilt stiffness, tilt damping, b1, b2 (those of ``NAMES`` fitted) with the
+    start state (``START_RELEASE`` or ``START_MOVING``).
 
     Attributes:
-      values: (4,) the estimates, SI units of their names.
-      ci95: (4,) half-widths of their 95 % confidence intervals.
-      covariance: (4, 4) of the estimates (from the Jacobian at the optimum, scaled by the
-        residuals' mean square in sigmas when that exceeds 1). It does not hold the uncertainty
-        of the start state, which is taken as given.
+      values: (P,) the estimates in the order of ``names``, SI units (N m/rad, N m s/rad, rad,
+        rad/s, s).
+      ci95: (P,) half-widths of their 95 % confidence intervals.
+      covariance: (P, P) of the estimates (from the Jacobian at the optimum, scaled by the
+        residuals' mean square in sigmas when that exceeds 1); it carries the start's
+        uncertainty, the start being fitted together with the rest.
       residual_rms_sigma: rms of all residuals in units of the gyro noise sigmas (about 1 when the
         model explains the data to the noise level).
       channel_rms_sigma: (2, 3) the same per node and gyro component (tangential, toward pivot,
         hinge).
       iterations: optimiser iterations over all windows; seconds: wall time.
+      names: the P unknowns.
+      tilt_start: "zero" or "static" (``TILT_STARTS``).
     """
 
     values: np.ndarray
@@ -65,10 +96,54 @@ class TiltFit:
     iterations: int
     seconds: float
     names: tuple[str, ...] = NAMES
+    tilt_start: str = "zero"
+
+    def value(self, name: str) -> float:
+        """The estimate of one unknown by name."""
+        return float(self.values[self.names.index(name)])
+
+    def half_width(self, name: str) -> float:
+        """The 95 % half-width of one unknown by name."""
+        return float(self.ci95[self.names.index(name)])
 
     def as_mapping(self) -> dict[str, float]:
-        """The estimates by parameter name (for ``RigParams.with_mapping`` and --write)."""
-        return {name: float(v) for name, v in zip(self.names, self.values, strict=True)}
+        """The rig's estimates by parameter name (for ``RigParams.with_mapping`` and --write);
+        the start state is left out."""
+        return {name: float(v) for name, v in zip(self.names, self.values, strict=True) if name in NAMES}
+
+
+def static_tilt_rad(params: RigParams, phi_rad: tuple[float, float]) -> tuple[float, float]:
+    """The tilts (rad) at which the spatial model's support rests while both pendulums are held
+    at ``phi_rad``: the tilts' generalized forces (springs, tilt stiffness, gravity) are zero."""
+    model = build_spec(params, variant=SPATIAL).compile()
+    tilt = _static_tilts(model, mujoco.MjData(model), np.asarray(phi_rad, dtype=float))
+    return float(tilt[0]), float(tilt[1])
+
+
+def _static_tilts(model: mujoco.MjModel, data: mujoco.MjData, phi_rad: np.ndarray) -> np.ndarray:
+    """Newton's method on the tilt dofs' generalized force with the hinges held at phi_rad, at
+    rest (forces nearly linear in the tilt: 3 to 4 iterations reach 1e-12 rad)."""
+    qadr = [int(model.joint(n).qposadr[0]) for n in TILTS]
+    vadr = [int(model.joint(n).dofadr[0]) for n in TILTS]
+    data.qvel[:] = 0.0
+    for k, hinge in enumerate(HINGES):
+        data.qpos[model.joint(hinge).qposadr[0]] = phi_rad[k]
+
+    def force(tilt: np.ndarray) -> np.ndarray:
+        data.qpos[qadr] = tilt
+        mujoco.mj_forward(model, data)
+        return np.asarray(data.qfrc_passive[vadr] - data.qfrc_bias[vadr])
+
+    tilt = np.zeros(2)
+    step = 1e-6
+    for _ in range(12):
+        f = force(tilt)
+        jac = np.stack([(force(tilt + step * e) - f) / step for e in np.eye(2)], axis=1)
+        delta = np.linalg.solve(jac, -f)
+        tilt = tilt + delta
+        if np.max(np.abs(delta)) < 1e-12:
+            break
+    return tilt
 
 
 def fit_tilt(
@@ -80,22 +155,29 @@ def fit_tilt(
     *,
     omega0_rad_s: tuple[float, float] = (0.0, 0.0),
     names: tuple[str, ...] = NAMES,
+    moving: bool | None = None,
+    tilt_start: str = "zero",
 ) -> TiltFit:
-    """Fit ``NAMES`` to both nodes' gyros in their swing frames after the release.
+    """Fit ``names`` and the start state to both nodes' gyros in their swing frames.
 
     Args:
       params: the rig (plane offset, geometry; its tilt and damping values are the start).
-      phi0_rad, omega0_rad_s: the state at the start (t = 0), tilts zero.
+      phi0_rad, omega0_rad_s: the alignment's start state at t = 0 (the first guess; fitted).
       value_t_s: (m, 2) each node's instants the values belong to, s after the start (NaN where
         a node has fewer samples).
       gyro_rad_s: (m, 2, 3) each node's gyro along (tangential, toward pivot, hinge), rad/s
         (NaN where missing).
       gyro_sigma_rad_s: (2, 3) noise sigmas of those components, rad/s.
-      names: the parameters fitted (a subset of ``NAMES``; the others keep their values in
+      names: the rig's parameters fitted (a subset of ``NAMES``; the others keep their values in
         ``params``), e.g. only b1, b2 for the spatial model's damping at given tilt values.
+      moving: the run starts in motion (fit the start rates, no release offset); default: any
+        |omega_0| above 0.
+      tilt_start: the support's tilt at the start, "zero" or "static" (``TILT_STARTS``).
     """
     if not names or any(n not in NAMES for n in names):
         raise ParameterError(f"names must be a non-empty subset of {NAMES}, got {names!r}")
+    if tilt_start not in TILT_STARTS:
+        raise ParameterError(f"tilt_start must be one of {TILT_STARTS}, got {tilt_start!r}")
     from mujoco import sysid
 
     if not hasattr(sysid, "optimize"):
@@ -118,14 +200,20 @@ def fit_tilt(
         columns.append((times[ok, k], gyro[ok, k]))
     if min(len(c[0]) for c in columns) < 50:
         raise ParameterError("the tilt fit needs at least 50 samples of each node after the start")
+    if moving is None:
+        moving = any(abs(w) > 0 for w in omega0_rad_s)
+    start_names = START_MOVING if moving else START_RELEASE
+    start_values = [*phi0_rad, *omega0_rad_s] if moving else [*phi0_rad, 0.0]
     start = time.perf_counter()
-    values = np.array([getattr(params, n) for n in names], dtype=float)
+    values = np.array([getattr(params, n) for n in names] + start_values, dtype=float)
+    all_names = (*names, *start_names)
+    bounds = _bounds(all_names, values)
     iterations = 0
     end_s = max(float(c[0][-1]) for c in columns)
     for window in WINDOWS_S:
         inside = [(t[t <= window], g[t <= window]) for t, g in columns]
         values, covariance, residuals, its = _fit_window(
-            sysid, params, phi0_rad, omega0_rad_s, inside, sigma, values, names
+            sysid, params, inside, sigma, values, all_names, bounds, tilt_start
         )
         iterations += its
         if window >= end_s:
@@ -133,66 +221,108 @@ def fit_tilt(
     channel = np.array([[math.sqrt(np.mean(r * r)) for r in node] for node in residuals])
     every = np.concatenate([r for node in residuals for r in node])
     rms = float(math.sqrt(np.mean(every * every)))
-    # residuals above the noise level are model error (e.g. the start state): widen accordingly
+    # residuals above the noise level are model error or a misjudged sigma: widen accordingly
     covariance = covariance * max(1.0, rms * rms)
     return TiltFit(
         values=values,
-        ci95=1.959964 * np.sqrt(np.clip(np.diag(covariance), 0.0, None)),
+        ci95=Z95 * np.sqrt(np.clip(np.diag(covariance), 0.0, None)),
         covariance=covariance,
         residual_rms_sigma=rms,
         channel_rms_sigma=channel,
         iterations=iterations,
         seconds=time.perf_counter() - start,
-        names=tuple(names),
+        names=all_names,
+        tilt_start=tilt_start,
     )
 
 
-def _fit_window(sysid, params, phi0_rad, omega0_rad_s, columns, sigma, start_values, names):
+def _bounds(names: tuple[str, ...], values: np.ndarray) -> dict[str, tuple[float, float]]:
+    """Search bounds of each unknown: the rig's within its limits, the start near the alignment's."""
+    out = {}
+    for name, value in zip(names, values, strict=True):
+        if name in NAMES:
+            out[name] = (0.0, min(PARAMETER_LIMITS[name][1], _SEARCH_MAX[name]))
+        elif name == "release_offset_s":
+            out[name] = (-MAX_RELEASE_OFFSET_S, MAX_RELEASE_OFFSET_S)
+        else:
+            out[name] = (value - MAX_START_ANGLE_CHANGE_RAD, value + MAX_START_ANGLE_CHANGE_RAD)
+    return out
+
+
+def _fit_window(sysid, params, columns, sigma, start_values, names, bounds, tilt_start):
     """One sysid fit over the samples given; returns (values, covariance, residuals per node and
     component, iterations)."""
+    from scipy.interpolate import CubicSpline
+
     spec = sensors_only(build_spec(params, variant=SPATIAL), GYROS)
     model = spec.compile()
     dt = model.opt.timestep
-    t = dt * np.arange(math.ceil(max(float(c[0][-1]) for c in columns) / dt) + 2)
+    end_s = max(float(c[0][-1]) for c in columns) + MAX_RELEASE_OFFSET_S
+    t = dt * np.arange(math.ceil(end_s / dt) + 3)
     adr = [int(model.sensor(n).adr[0]) for n in GYROS]
     sensor_ts = sysid.TimeSeries.from_names(t, np.zeros((len(t), 6)), model, names=list(GYROS))
     control_ts = sysid.TimeSeries(t, np.zeros((len(t), 0)))
-    qpos = np.zeros(model.nq)
-    qvel = np.zeros(model.nv)
-    for k, hinge in enumerate(HINGES):
-        qpos[model.joint(hinge).qposadr[0]] = phi0_rad[k]
-        qvel[model.joint(hinge).dofadr[0]] = omega0_rad_s[k]
-    initial = sysid.create_initial_state(model, qpos, qvel, mujoco.MjData(model).act)
+    initial = sysid.create_initial_state(model, np.zeros(model.nq), np.zeros(model.nv), mujoco.MjData(model).act)
+    hinge_q = [int(model.joint(h).qposadr[0]) for h in HINGES]
+    hinge_v = [int(model.joint(h).dofadr[0]) for h in HINGES]
+    tilt_q = [int(model.joint(n).qposadr[0]) for n in TILTS]
     last: list = []
 
-    def residual(_params, pred, meas, _model, _return_all, state=None):
+    def value(p, name: str, default: float = 0.0) -> float:
+        return float(p[name].value[0]) if name in names else default
+
+    def rollout(*, models, datas, initial_states, param_dicts, **kwargs):
+        # each member starts from its own start state (sysid has no initial-state parameters)
+        states = []
+        per_member = len(models) // len(param_dicts)
+        for i, m in enumerate(models):
+            p = param_dicts[i // per_member]
+            qpos = np.zeros(m.nq)
+            qvel = np.zeros(m.nv)
+            phi = np.array([value(p, "phi1_0"), value(p, "phi2_0")])
+            qpos[hinge_q] = phi
+            qvel[hinge_v] = [value(p, "omega1_0"), value(p, "omega2_0")]
+            if tilt_start == "static":
+                qpos[tilt_q] = _static_tilts(m, datas[0], phi)
+            states.append(sysid.create_initial_state(m, qpos, qvel, datas[0].act))
+        return sysid.sysid_rollout(models=models, datas=datas, initial_states=states, **kwargs)
+
+    def residual(p, pred, meas, _model, _return_all, state=None):
         stamps = pred.times - dt  # sysid stamps each prediction one step late (see identification.py)
+        tau = value(p, "release_offset_s")
+        spline = (
+            CubicSpline(stamps, pred.data[:, adr[0] : adr[0] + 3]),
+            CubicSpline(stamps, pred.data[:, adr[1] : adr[1] + 3]),
+        )
         per_node = []
         for k, (at, measured) in enumerate(columns):
-            predicted = np.stack([np.interp(at, stamps, pred.data[:, adr[k] + j]) for j in range(3)], axis=1)
+            since = at - tau  # the model rests until the release at tau
+            predicted = np.where((since >= 0)[:, None], spline[k](np.maximum(since, 0.0)), 0.0)
             predicted = predicted @ best_rotation(predicted, measured).T
             per_node.append([(predicted[:, j] - measured[:, j]) / sigma[k, j] for j in range(3)])
         last[:] = [per_node]
-        full = np.stack([np.interp(t, stamps, pred.data[:, a + j]) for a in adr for j in range(3)], axis=1)
+        full = np.concatenate([spline[0](t), spline[1](t)], axis=1)
         res = np.concatenate([r for node in per_node for r in node])
         return res, sysid.TimeSeries(meas.times, full, signal_mapping=meas.signal_mapping), meas
 
     parameters = sysid.ParameterDict()
-    for name, value in zip(names, start_values, strict=True):
-        low, high = PARAMETER_LIMITS[name]
+    for name, v in zip(names, start_values, strict=True):
+        low, high = bounds[name]
         parameters.add(
             sysid.Parameter(
                 name,
-                nominal=float(np.clip(value, low, high)),
-                min_value=0.0,
-                max_value=min(high, _SEARCH_MAX[name]),
-                modifier=_modifier(name),
+                nominal=float(np.clip(v, low, high)),
+                min_value=low,
+                max_value=high,
+                modifier=_modifier(name) if name in NAMES else None,
             )
         )
     sequences = sysid.ModelSequences("rig", spec, "decay", initial, control_ts, sensor_ts)
-    residual_fn = sysid.build_residual_fn(models_sequences=[sequences], modify_residual=residual)
+    residual_fn = sysid.build_residual_fn(
+        models_sequences=[sequences], modify_residual=residual, custom_rollout=rollout
+    )
     x, _, covariance, iterations = sysid_least_squares(sysid, parameters, residual_fn)
-    return x, covariance, last[0], iterations
+    return x, covariance, last[0], iterations  # last: the residuals at x (sysid_least_squares ends there)
 
 
 def best_rotation(predicted: np.ndarray, measured: np.ndarray) -> np.ndarray:
