@@ -312,6 +312,11 @@ def validate(
     run = align_recording(rec, base, release_s=release_s, max_gap_s=max_gap_s)
     mjcf_xml = rec.mjcf_xml
     covariance = [n.gyro_covariance for n in node_samples(rec)] if model == "spatial" else None
+    tilt_start = "zero"
+    if model == "spatial":
+        from pendsim_bridge.spatial_validate import tilt_start_of
+
+        tilt_start = tilt_start_of(rec)
     del rec  # the decoded topics: the aligned run holds what is compared
     identification = None
     if damping == "identified":
@@ -353,7 +358,12 @@ def validate(
         from pendsim_bridge import spatial_validate
 
         case, spatial = spatial_validate.spatial_case(
-            run, model_params, max_gap_s, damping_fit=damping == "identified", covariance=covariance
+            run,
+            model_params,
+            max_gap_s,
+            damping_fit=damping == "identified",
+            covariance=covariance,
+            tilt_start=tilt_start,
         )
         cases.append(case)
         planar = next(c for c in cases if (c.engine, c.release, c.window) == ("mujoco", "estimated", "whole"))
