@@ -62,7 +62,7 @@ PHASE_STEP_S = 0.00025  # grid of the fusion-phase search
 FIRST_SWING_S = 1.5  # M1's sign: its largest excursion this long after the start is positive
 LARGE_SWING = 0.5  # the large swing: gyro magnitude above this share of its 99th percentile
 UNEXPLAINED_REFUSED = 0.5  # a found start whose model leaves this share of the motion unexplained is refused
-UNEXPLAINED_POOR = 0.1  # above this share the start fit is reported as poor
+UNEXPLAINED_POOR = 0.03  # above this share the start fit is reported as poor (a 5 % frequency error gives 0.02)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -438,8 +438,11 @@ def _unexplained(model: _StartModel, traj, x: Floats, data) -> float:
     return float(np.sqrt(np.mean(r * r)) / max(float(np.sqrt(np.mean(m * m))), 1e-9))
 
 
-def _check_found_start(start: StartState, nodes: Sequence[_Node], instants: Sequence[Floats], window_s: float) -> None:
-    """Refuse a found start that is not the start of the swing that follows it.
+def _check_found_start(
+    start: StartState, detected_s: float, nodes: Sequence[_Node], instants: Sequence[Floats], window_s: float
+) -> None:
+    """Refuse a found start (detected at ``detected_s``, s) that is not the start of the swing
+    that follows it.
 
     Raises:
       RecordingError: a release from rest not at the largest excursion of the swing after it, or
@@ -447,9 +450,10 @@ def _check_found_start(start: StartState, nodes: Sequence[_Node], instants: Sequ
     """
     what = "release from rest" if start.kind == "release" else "start in motion"
     advice = "give the release instant with --release-s (seconds on the recording's clock)"
-    where = f"the {what} found at {start.time_s:.3f} s"
+    where = f"the {what} found at {detected_s:.3f} s"
     if start.kind == "release":
-        after = [n.phi[(at >= start.time_s) & (at <= start.time_s + FIRST_SWING_S)] for n, at in zip(nodes, instants)]
+        span = (start.time_s, start.time_s + FIRST_SWING_S)
+        after = [n.phi[(at >= span[0]) & (at <= span[1])] for n, at in zip(nodes, instants, strict=True)]
         swing = max(float(np.max(np.abs(a))) if len(a) else 0.0 for a in after)
         held = max(abs(a) for a in start.phi_rad)
         if held < 0.5 * swing:
@@ -555,7 +559,7 @@ def align(
         fit_window_s=start_fit_s,
     )
     if kind != "given":
-        _check_found_start(start, prepared, instants, start_fit_s)
+        _check_found_start(start, t0, prepared, instants, start_fit_s)
 
     runs = []
     for node, at, phase in zip(prepared, instants, phases, strict=True):
