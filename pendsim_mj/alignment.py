@@ -4,10 +4,11 @@ Works on arrays (time stamps, quaternions, gyro and accelerometer per node), fro
 
 1. **Clocks**: each node's stamps are mapped to the recorder's clock by the lower envelope of
    (stamp, log time) (``timing.fit_clock``): drifting node clocks line up, latency drops out.
-2. **Start**: the motion is found from the gyro magnitudes (no axis assumed). If the pendulums
-   rest (hand wobble allowed) for at least 0.1 s before it, the run starts at a *release* from
-   rest; otherwise it starts *in motion* at its first samples (a recording started at the
-   release, a replay cut, a start mid-swing). ``release_s`` gives the start instead.
+2. **Start**: the large swing is found from the gyro magnitudes (no axis assumed) and traced
+   back to its foot. If the pendulums rest (hand wobble allowed) for at least 0.1 s before it,
+   the run starts at a *release* from rest; otherwise it starts *in motion* at its first samples
+   (a recording started at the release, a replay cut, a start mid-swing). ``release_s`` gives
+   the start instead. A found start the model from it cannot explain is refused.
 3. **Swing frames** (``swing_frame``): each node's hinge axis, mounting and angle from its own
    data, whatever the heading, mount and axis remap. Signs: M1's first large excursion counts as
    positive (the paper releases M1 to +34 deg; the rig is mirror symmetric, so this convention

@@ -164,7 +164,7 @@ def add_imperfection_options(p: argparse.ArgumentParser, *, transport: bool = Tr
         "--hold-wobble-deg",
         type=options.float_in(0.0, 5.0, "deg"),
         default=0.0,
-        help="with --hold-s: rms hand tremor of the held pendulums, deg (fades out before the release)",
+        help="with --hold-s: rms angle the hand moves the held pendulums by (slow drift plus 8-12 Hz tremor), deg",
     )
 
 
