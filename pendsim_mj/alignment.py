@@ -39,7 +39,7 @@ from pendsim_mj import engines
 from pendsim_mj.errors import ParameterError, RecordingError
 from pendsim_mj.params import RigParams
 from pendsim_mj.quantities import BY_NAME, Quantity
-from pendsim_mj.sensors import ImuNoise
+from pendsim_mj.sensors import MIN_MOTION_RAD_S, ImuNoise
 from pendsim_mj.swing_frame import SwingFrame, fit_swing_frame
 from pendsim_mj.timing import (
     DEFAULT_MAX_GAP_S,
@@ -56,7 +56,6 @@ from pendsim_mj.timing import (
 Floats = NDArray[np.float64]
 StartKind = Literal["release", "in motion", "given"]
 
-MIN_MOTION_RAD_S = 0.05  # a node whose gyro magnitude never (99th percentile) exceeds this does not swing
 MIN_REST_S = 0.1  # rest this long before the motion makes it a release
 ANGLE_SIGMA_RAD = 0.002  # weight of the fused angle in the start fit (the gyro's own sigma weights rates)
 PHASE_STEP_S = 0.00025  # grid of the fusion-phase search
