@@ -442,13 +442,18 @@ def start_line(path: str | Path, run: MeasuredRun) -> str:
     )
 
 
+def _before(count: int) -> str:
+    return f" from the start, {count} before it" if count else ""
+
+
 def coverage_line(run: MeasuredRun) -> str:
     """How much of the run each node's samples cover; one line."""
     parts = []
     for name, node in zip(NODES, run.nodes, strict=True):
         c = node.coverage
         part = (
-            f"{name} {100 * c.covered_fraction:.1f} % ({c.samples} samples, {100 * c.lost_fraction:.1f} % lost, "
+            f"{name} {100 * c.covered_fraction:.1f} % ({c.samples} samples{_before(node.before_start)}, "
+            f"{100 * c.lost_fraction:.1f} % lost, "
             f"{c.gaps} gaps over {run.max_gap_s:g} s, longest {c.longest_gap_s:.3f} s"
         )
         if node.clock is not None and abs(node.clock.drift_ppm) >= 1:

@@ -107,6 +107,10 @@ class NodeRun:
       off_hinge_gyro_rad_s: (m, 2) gyro along the swing frame's tangential and toward-pivot
         directions, rad/s: zero for a planar swing; the tilt rate of a spatial one (what
         ``pendsim_mj.spatial_identification`` fits).
+      before_start: the node's samples left out as before the start: a hold before a release,
+        or, for a start in motion or a given one, samples whose (fused) values are older than
+        the start (the first sample of a recording that starts in motion: its value is up to one
+        fusion period old).
     """
 
     t_s: Floats
@@ -121,6 +125,7 @@ class NodeRun:
     coverage: Coverage
     gyro_sigma_rad_s: float
     off_hinge_gyro_rad_s: Floats | None = None
+    before_start: int = 0
 
 
 @dataclasses.dataclass(frozen=True)
@@ -583,6 +588,7 @@ def align(
                 gyro_sigma_rad_s=node.sigma,
                 off_hinge_gyro_rad_s=node.gyro[keep]
                 @ np.stack([node.frame.tangential, node.frame.toward_pivot], axis=1),
+                before_start=int(np.count_nonzero(~keep)),
             )
         )
     return MeasuredRun(nodes=(runs[0], runs[1]), start=start, fusion_rate_hz=fusion_rate_hz, max_gap_s=max_gap_s)

@@ -241,7 +241,7 @@ def run(args: argparse.Namespace) -> int:
         )
         print(f"wrote {args.rerun}")
     size_mb = result.size_bytes / 1e6
-    print(f"wrote {args.output}: {args.duration_s:g} s, {result.samples} IMU samples per node, {size_mb:.2f} MB")
+    print(f"wrote {args.output}: {result.recorded_s:g} s, {result.samples_text()}, {size_mb:.2f} MB")  # hold included
     return 0
 
 
