@@ -11,11 +11,13 @@ import numpy as np
 
 from pendsim_bridge.recording import NODES, imu_topic, read_recording
 from pendsim_mj.allan import (
+    MIN_MOTION_RAD_S,
     AllanCurve,
     NoiseTerms,
     SamplingReport,
     allan_curves,
     check_sampling,
+    gyro_motion,
     longest_uniform_segment,
     noise_terms,
 )
@@ -51,6 +53,11 @@ class AllanReport:
     sampling: dict[str, SamplingReport]
     segment: dict[str, tuple[float, float]]  # node -> analysed (start, end) s
     axes: list[AxisResult]
+    largest_motion_rad_s: dict[str, float] = dataclasses.field(default_factory=dict)  # node -> turning rate
+
+    def moved(self, node: str) -> bool:
+        """The node turned (somewhere outside the analysed stretch: ``pendsim_mj.allan.gyro_motion``)."""
+        return self.largest_motion_rad_s.get(node, 0.0) > MIN_MOTION_RAD_S
 
 
 def analyse(
@@ -59,29 +66,43 @@ def analyse(
     """Read the IMU topics of a recording and analyse every accelerometer and gyro axis.
 
     Raises:
-      RecordingError: unreadable file, no IMU topic, or (without ``longest_segment``) gaps or
-        irregular timestamps, which Allan deviation cannot take.
+      RecordingError: unreadable file, no IMU topic, or (without ``longest_segment``, which
+        analyses the longest static, uniformly sampled stretch) a node that turns
+        (``pendsim_mj.allan.gyro_motion``), gaps or irregular timestamps, which Allan deviation
+        cannot take.
     """
     path = Path(path)
     rec = read_recording(path, topics=[imu_topic(n) for n in NODES], progress=progress)
     if not rec.imu:
         raise RecordingError(f"{path}: no /imu/m1 or /imu/m2 topic to analyse")
     rate = float(rec.metadata.get("pendsim/imu", {}).get("sample_rate_hz", "0") or 0)
-    sampling, segments, views = {}, {}, {}
+    sampling, segments, views, largest = {}, {}, {}, {}
     for node, topic in rec.imu.items():
         if len(topic.t_ns) < 2:
             raise RecordingError(f"{path}: {imu_topic(node)} has {len(topic.t_ns)} message(s); need at least 20")
         node_rate = rate or 1e9 / float(np.median(np.diff(topic.t_ns)))
+        motion = gyro_motion(topic.gyro_rad_s, node_rate)
+        largest[node] = motion.largest_rad_s
+        if not motion.static and not longest_segment:
+            at_s = (topic.t_ns[motion.largest_index] - topic.t_ns[0]) * 1e-9
+            raise RecordingError(
+                f"{path}: {imu_topic(node)} is not static: it turns at up to {motion.largest_rad_s:.3g} rad/s "
+                f"({at_s:.1f} s into the recording; a node at rest stays below {MIN_MOTION_RAD_S} rad/s); Allan "
+                "deviation needs a static recording ('pendsim record --static'), or '--longest-segment' analyses "
+                "the longest static, uniformly sampled stretch"
+            )
         report = check_sampling(topic.t_ns, node_rate)
         sampling[node] = report
         part = slice(None)
-        if not report.uniform:
-            if not longest_segment:
-                raise RecordingError(
-                    f"{path}: {imu_topic(node)} is not uniformly sampled ({report.describe()}); Allan deviation "
-                    "needs uniform sampling. '--longest-segment' analyses the longest uniform stretch"
-                )
-            part = longest_uniform_segment(topic.t_ns, node_rate)
+        if not report.uniform and not longest_segment:
+            raise RecordingError(
+                f"{path}: {imu_topic(node)} is not uniformly sampled ({report.describe()}); Allan deviation "
+                "needs uniform sampling. '--longest-segment' analyses the longest uniform stretch"
+            )
+        if not (report.uniform and motion.static):
+            part = longest_uniform_segment(topic.t_ns, node_rate, usable=~motion.moving)
+            if part.stop - part.start < 20:
+                raise RecordingError(f"{path}: {imu_topic(node)} has no static, uniformly sampled stretch to analyse")
         t = topic.t_ns[part]
         segments[node] = (float(t[0]) * 1e-9, float(t[-1]) * 1e-9)
         views[node] = (topic.accel_m_s2[part], topic.gyro_rad_s[part])
@@ -128,7 +149,7 @@ def analyse(
             )
     counts = {node: len(data) for node, data in columns.items()}
     duration = max(end - start for start, end in segments.values())
-    return AllanReport(path, rate, duration, counts, sampling, segments, axes)
+    return AllanReport(path, rate, duration, counts, sampling, segments, axes, largest)
 
 
 def table(report: AllanReport) -> str:
@@ -138,8 +159,13 @@ def table(report: AllanReport) -> str:
         f"({', '.join(f'{n}: {c} samples' for n, c in report.n_samples.items())})"
     ]
     for node, s in report.sampling.items():
-        if not s.uniform:
-            start, end = report.segment[node]
+        start, end = report.segment[node]
+        if report.moved(node):
+            turns = f"turns at up to {report.largest_motion_rad_s[node]:.3g} rad/s"
+            lines.append(
+                f"{node}: {s.describe()}, {turns}; analysed the longest static, uniform stretch {start:.3f}-{end:.3f} s"
+            )
+        elif not s.uniform:
             lines.append(f"{node}: {s.describe()}; analysed the longest uniform stretch {start:.3f}-{end:.3f} s")
     lines.append("")
     head = f"{'node':4} {'sensor':13} {'axis':4}"
@@ -183,7 +209,13 @@ def as_json(report: AllanReport) -> dict:
         "duration_s": report.duration_s,
         "n_samples": report.n_samples,
         "sampling": {
-            n: {"uniform": s.uniform, "gaps": s.gaps, "irregular": s.irregular, "analysed_s": list(report.segment[n])}
+            n: {
+                "uniform": s.uniform,
+                "gaps": s.gaps,
+                "irregular": s.irregular,
+                "analysed_s": list(report.segment[n]),
+                "largest_motion_rad_s": report.largest_motion_rad_s.get(n),
+            }
             for n, s in report.sampling.items()
         },
         "axes": [

@@ -19,6 +19,8 @@ from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Literal
 
+import numpy as np
+
 from pendsim_bridge.mcap_writer import BulkMcapWriter
 from pendsim_bridge.recording import RunInfo
 from pendsim_bridge.recording_writer import RecordingWriter
@@ -84,7 +86,7 @@ class RecordResult:
 
     Attributes:
       path: the file.
-      samples: IMU samples per node written.
+      samples: IMU sample instants per node (lost packets included: they set ``recorded_s``).
       recorded_s: recording time written (hold included), s.
       requested_s: recording time asked for (hold included), s.
       size_bytes: file size.
@@ -100,6 +102,20 @@ class RecordResult:
     size_bytes: int
     start_time_ns: int
     interrupted: bool = False
+    written_per_node: tuple[int, int] | None = None
+
+    @property
+    def written(self) -> tuple[int, int]:
+        """IMU messages written per node (M1, M2): ``samples`` less the lost packets."""
+        return self.written_per_node if self.written_per_node is not None else (self.samples, self.samples)
+
+    def samples_text(self) -> str:
+        """ "N IMU samples per node", or, where packets were lost, both counts and the share lost."""
+        m1, m2 = self.written
+        if m1 == m2 == self.samples:
+            return f"{self.samples} IMU samples per node"
+        lost = 100 * (1 - (m1 + m2) / (2 * self.samples)) if self.samples else 0.0
+        return f"{m1} (M1) and {m2} (M2) IMU samples of {self.samples}, {lost:.1f} % lost"
 
 
 class RecordInterrupted(Exception):
@@ -206,11 +222,13 @@ def record(
             compression=spec.compression, static=static, spatial=spec.model == "spatial", drive=spec.drive,
         )  # fmt: skip
         given = 0  # samples of a block handed to the writer in full, not yet counted
+        per_node = np.zeros(2, dtype=int)  # messages written per node (lost packets are not)
         pieces = _blocks(sampler, blocks, spec, block_s)
         try:
             with _signals_set(stop):
                 for samples, traj, first, last in pieces:
                     rw.write_imu(samples)
+                    per_node += len(samples.t_s) if samples.received is None else samples.received.sum(axis=0)
                     if traj is not None:
                         rw.write_steps(traj, first, last)
                     given = len(samples.t_s)
@@ -232,7 +250,7 @@ def record(
             )
     result = RecordResult(
         output, written.samples, max(written.samples - 1, 0) / spec.imu.sample_rate_hz, requested,
-        output.stat().st_size, start, interrupted,
+        output.stat().st_size, start, interrupted, (int(per_node[0]), int(per_node[1])),
     )  # fmt: skip
     if interrupted:
         raise RecordInterrupted(result)

@@ -69,7 +69,9 @@ def node_samples(rec: Recording) -> tuple[NodeSamples, NodeSamples]:
     """Both nodes' /imu/mN samples as arrays (log times and header stamps in s)."""
     missing = [imu_topic(n) for n in NODES if n not in rec.imu]
     if missing:
-        raise RecordingError(f"{rec.path}: validation needs both /imu/m1 and /imu/m2; {', '.join(missing)} missing")
+        raise RecordingError(
+            f"{rec.path}: needs both /imu/m1 and /imu/m2 (M1's and M2's IMU); {', '.join(missing)} missing"
+        )
     out = []
     for n in NODES:
         topic = rec.imu[n]
@@ -104,10 +106,9 @@ def align_recording(
     max_gap_s: float = DEFAULT_MAX_GAP_S,
 ) -> MeasuredRun:
     """The measured run of a recording (``pendsim_mj.alignment.align`` on its IMU topics)."""
+    samples = node_samples(rec)  # its errors name the file already
     try:
-        return align(
-            node_samples(rec), params, fusion_rate_hz=fusion_rate_of(rec), release_s=release_s, max_gap_s=max_gap_s
-        )
+        return align(samples, params, fusion_rate_hz=fusion_rate_of(rec), release_s=release_s, max_gap_s=max_gap_s)
     except RecordingError as exc:
         raise RecordingError(f"{rec.path}: {exc}") from None
 
@@ -488,6 +489,7 @@ def report_json(report: ValidationReport) -> dict[str, Any]:
             "estimated_angle_rad": list(run.start.phi_rad),
             "estimated_rate_rad_s": list(run.start.omega_rad_s),
             "start_fit_rms_sigma": run.start.fit_rms,
+            "start_fit_unexplained": run.start.unexplained,
             "nominal_angle_rad": list(NOMINAL_RELEASE_RAD) if report.has_nominal else None,
         },
         "nodes": nodes,
@@ -523,7 +525,14 @@ def start_line(path: str | Path, run: MeasuredRun) -> str:
     rates = ""
     if s.kind != "release":
         rates = f", {math.degrees(s.omega_rad_s[0]):.2f} deg/s, {math.degrees(s.omega_rad_s[1]):.2f} deg/s"
-    return f"{path}: {how} at {s.time_s:.3f} s on the recording's clock; from {phi1:.2f} deg, {phi2:.2f} deg{rates}"
+    note = f"; {s.fit_note()}" if s.poor_fit else ""
+    return (
+        f"{path}: {how} at {s.time_s:.3f} s on the recording's clock; from {phi1:.2f} deg, {phi2:.2f} deg{rates}{note}"
+    )
+
+
+def _before(count: int) -> str:
+    return f" from the start, {count} before it" if count else ""
 
 
 def coverage_line(run: MeasuredRun) -> str:
@@ -532,7 +541,8 @@ def coverage_line(run: MeasuredRun) -> str:
     for name, node in zip(NODES, run.nodes, strict=True):
         c = node.coverage
         part = (
-            f"{name} {100 * c.covered_fraction:.1f} % ({c.samples} samples, {100 * c.lost_fraction:.1f} % lost, "
+            f"{name} {100 * c.covered_fraction:.1f} % ({c.samples} samples{_before(node.before_start)}, "
+            f"{100 * c.lost_fraction:.1f} % lost, "
             f"{c.gaps} gaps over {run.max_gap_s:g} s, longest {c.longest_gap_s:.3f} s"
         )
         if node.clock is not None and abs(node.clock.drift_ppm) >= 1:

@@ -4,10 +4,11 @@ Works on arrays (time stamps, quaternions, gyro and accelerometer per node), fro
 
 1. **Clocks**: each node's stamps are mapped to the recorder's clock by the lower envelope of
    (stamp, log time) (``timing.fit_clock``): drifting node clocks line up, latency drops out.
-2. **Start**: the motion is found from the gyro magnitudes (no axis assumed). If the pendulums
-   rest (hand wobble allowed) for at least 0.1 s before it, the run starts at a *release* from
-   rest; otherwise it starts *in motion* at its first samples (a recording started at the
-   release, a replay cut, a start mid-swing). ``release_s`` gives the start instead.
+2. **Start**: the large swing is found from the gyro magnitudes (no axis assumed) and traced
+   back to its foot. If the pendulums rest (hand wobble allowed) for at least 0.1 s before it,
+   the run starts at a *release* from rest; otherwise it starts *in motion* at its first samples
+   (a recording started at the release, a replay cut, a start mid-swing). ``release_s`` gives
+   the start instead. A found start the model from it cannot explain is refused.
 3. **Swing frames** (``swing_frame``): each node's hinge axis, mounting and angle from its own
    data, whatever the heading, mount and axis remap. Signs: M1's first large excursion counts as
    positive (the paper releases M1 to +34 deg; the rig is mirror symmetric, so this convention
@@ -38,7 +39,7 @@ from pendsim_mj import engines
 from pendsim_mj.errors import ParameterError, RecordingError
 from pendsim_mj.params import RigParams
 from pendsim_mj.quantities import BY_NAME, Quantity
-from pendsim_mj.sensors import ImuNoise
+from pendsim_mj.sensors import MIN_MOTION_RAD_S, ImuNoise
 from pendsim_mj.swing_frame import SwingFrame, fit_swing_frame
 from pendsim_mj.timing import (
     DEFAULT_MAX_GAP_S,
@@ -55,11 +56,13 @@ from pendsim_mj.timing import (
 Floats = NDArray[np.float64]
 StartKind = Literal["release", "in motion", "given"]
 
-MIN_MOTION_RAD_S = 0.05  # a node whose gyro magnitude never (99th percentile) exceeds this does not swing
 MIN_REST_S = 0.1  # rest this long before the motion makes it a release
 ANGLE_SIGMA_RAD = 0.002  # weight of the fused angle in the start fit (the gyro's own sigma weights rates)
 PHASE_STEP_S = 0.00025  # grid of the fusion-phase search
 FIRST_SWING_S = 1.5  # M1's sign: its largest excursion this long after the start is positive
+LARGE_SWING = 0.5  # the large swing: gyro magnitude above this share of its 99th percentile
+UNEXPLAINED_REFUSED = 0.5  # a found start whose model leaves this share of the motion unexplained is refused
+UNEXPLAINED_POOR = 0.03  # above this share the start fit is reported as poor (a 5 % frequency error gives 0.02)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -104,6 +107,10 @@ class NodeRun:
       off_hinge_gyro_rad_s: (m, 2) gyro along the swing frame's tangential and toward-pivot
         directions, rad/s: zero for a planar swing; the tilt rate of a spatial one (what
         ``pendsim_mj.spatial_identification`` fits).
+      before_start: the node's samples left out as before the start: a hold before a release,
+        or, for a start in motion or a given one, samples whose (fused) values are older than
+        the start (the first sample of a recording that starts in motion: its value is up to one
+        fusion period old).
     """
 
     t_s: Floats
@@ -118,6 +125,7 @@ class NodeRun:
     coverage: Coverage
     gyro_sigma_rad_s: float
     off_hinge_gyro_rad_s: Floats | None = None
+    before_start: int = 0
 
 
 @dataclasses.dataclass(frozen=True)
@@ -130,6 +138,10 @@ class StartState:
       time_s: the start on the recorder's clock, s.
       phi_rad, omega_rad_s: (phi1, phi2) and (omega1, omega2) there (rates 0 for a release).
       fit_rms: rms of the start fit's residuals in units of their sigmas.
+      unexplained: how much of the motion over the start fit's window after the start the model
+        leaves unexplained: rms of the angle residuals over the rms of the angles' change since
+        the start (both nodes); 0 is a perfect fit, 1 is no better than "nothing moves".
+      fit_window_s: the start fit's window after the start, s.
     """
 
     kind: StartKind
@@ -137,6 +149,22 @@ class StartState:
     phi_rad: tuple[float, float]
     omega_rad_s: tuple[float, float]
     fit_rms: float
+    unexplained: float = 0.0
+    fit_window_s: float = 1.0
+
+    @property
+    def poor_fit(self) -> bool:
+        """The model does not explain the first seconds after the start (UNEXPLAINED_POOR)."""
+        return not self.unexplained <= UNEXPLAINED_POOR
+
+    def fit_note(self) -> str:
+        """A warning when the fit is poor, else "" (one sentence)."""
+        if not self.poor_fit:
+            return ""
+        return (
+            f"poor start fit: the model leaves {100 * self.unexplained:.0f} % of the motion over the first "
+            f"{self.fit_window_s:g} s unexplained; check the start (give --release-s) or the rig parameters"
+        )
 
 
 @dataclasses.dataclass(frozen=True)
@@ -266,11 +294,13 @@ def _detect_start(nodes: Sequence[_Node]) -> tuple[StartKind, float]:
     # could otherwise be taken for it).
     k = int(np.argmax(top))
     node, s, peak = nodes[k], speeds[k], top[k]
-    i_big = int(np.argmax(s > 0.3 * peak))
+    i_big = int(np.argmax(s > LARGE_SWING * peak))  # the large swing (a hand's wobble stays far below)
     pre = s[node.t <= node.t[i_big] - 0.2]
     level = max(1.5 * float(np.quantile(pre, 0.95)), 0.03) if len(pre) >= 8 else 0.03
     i = i_big
-    while i > 0 and s[i - 1] > level:
+    while i > 0 and s[i - 1] > level:  # back to the level of what came before it
+        i -= 1
+    while i > 0 and s[i - 1] < s[i]:  # and down the release's rising rate to its foot
         i -= 1
     rested = node.t[i] - node.t[0] >= MIN_REST_S
     if rested:
@@ -282,14 +312,20 @@ def _detect_start(nodes: Sequence[_Node]) -> tuple[StartKind, float]:
     return "in motion", max(float(n.t[0]) for n in nodes)
 
 
-def _orient(nodes: list[_Node], t0: float) -> list[_Node]:
-    """Signs: M1's largest excursion over the first swing positive; M2 coupled to M1 as the
-    springs couple them (alpha2 rises with phi1)."""
+def _orient(nodes: list[_Node], t0: float, kind: StartKind) -> list[_Node]:
+    """Signs: M1's largest excursion over the first swing positive (for a release from rest that
+    is its release angle: its held angle decides, not a comparison with the next, hardly
+    smaller, excursion on the other side); M2 coupled to M1 as the springs couple them (alpha2
+    rises with phi1)."""
     m1, m2 = nodes
     assert m1.frame is not None and m2.frame is not None
     phi1 = m1.phi
     first = (m1.t >= t0) & (m1.t <= t0 + FIRST_SWING_S)
-    if first.any() and phi1[first][np.argmax(np.abs(phi1[first]))] < 0:
+    largest = phi1[first][np.argmax(np.abs(phi1[first]))] if first.any() else 0.0
+    held = phi1[(m1.t >= t0 - 0.1) & (m1.t <= t0)]
+    if kind == "release" and len(held) and abs(float(np.median(held))) >= 0.5 * abs(largest):
+        largest = float(np.median(held))
+    if largest < 0:
         m1 = m1.with_frame(m1.frame.flipped())
         phi1 = -phi1
     t2, phi2, omega2 = m2.t, m2.phi, m2.omega
@@ -355,7 +391,7 @@ def _residuals(model: _StartModel, traj, member: int, x: Floats, data) -> Floats
     return np.concatenate(out)
 
 
-def _fit_start(model: _StartModel, x0: Floats, data, *, iterations: int = 8) -> tuple[Floats, float]:
+def _fit_start(model: _StartModel, x0: Floats, data, *, iterations: int = 8) -> tuple[Floats, float, float]:
     """Gauss-Newton on the start parameters; the Jacobian by finite differences, one batch of
     rollouts per iteration (a shift of the release instant needs no rollout)."""
     x = np.asarray(x0, dtype=float)
@@ -389,7 +425,55 @@ def _fit_start(model: _StartModel, x0: Floats, data, *, iterations: int = 8) -> 
             break
     batch = model.rollouts([x])
     r = _residuals(model, batch, 0, x, data)
-    return x, float(np.sqrt(np.mean(r * r)))
+    return x, float(np.sqrt(np.mean(r * r))), _unexplained(model, batch, x, data)
+
+
+def _unexplained(model: _StartModel, traj, x: Floats, data) -> float:
+    """rms of the model's angle residuals after the start over the rms of the measured angles'
+    change since the start (both nodes): 0 a perfect fit, about 1 or more a model that does not
+    describe what follows the start at all."""
+    phi0, _, start = model.states(x)
+    residual, motion = [], []
+    for k, (at, phi, _omega, _sigma) in enumerate(data):
+        after = at >= start
+        p, _ = _predict(traj.t_s, traj.phi_rad[0, :, k], traj.omega_rad_s[0, :, k], at[after] - start, None)
+        residual.append(p - phi[after])
+        motion.append(phi[after] - phi0[k])
+    r, m = np.concatenate(residual), np.concatenate(motion)
+    if len(r) == 0:
+        return math.inf
+    return float(np.sqrt(np.mean(r * r)) / max(float(np.sqrt(np.mean(m * m))), 1e-9))
+
+
+def _check_found_start(
+    start: StartState, detected_s: float, nodes: Sequence[_Node], instants: Sequence[Floats], window_s: float
+) -> None:
+    """Refuse a found start (detected at ``detected_s``, s) that is not the start of the swing
+    that follows it.
+
+    Raises:
+      RecordingError: a release from rest not at the largest excursion of the swing after it, or
+        a model (from the start) that leaves UNEXPLAINED_REFUSED of the motion unexplained.
+    """
+    what = "release from rest" if start.kind == "release" else "start in motion"
+    advice = "give the release instant with --release-s (seconds on the recording's clock)"
+    where = f"the {what} found at {detected_s:.3f} s"
+    if start.kind == "release":
+        span = (start.time_s, start.time_s + FIRST_SWING_S)
+        after = [n.phi[(at >= span[0]) & (at <= span[1])] for n, at in zip(nodes, instants, strict=True)]
+        swing = max(float(np.max(np.abs(a))) if len(a) else 0.0 for a in after)
+        held = max(abs(a) for a in start.phi_rad)
+        if held < 0.5 * swing:
+            raise RecordingError(
+                f"{where} is not where the swing starts: it is from {math.degrees(held):.2f} deg while the swing "
+                f"after it reaches {math.degrees(swing):.2f} deg (a release is at the largest excursion); {advice}"
+            )
+    if not start.unexplained <= UNEXPLAINED_REFUSED:
+        raise RecordingError(
+            f"{where} does not start the motion that follows it: the model from there leaves "
+            f"{100 * start.unexplained:.0f} % of the next {window_s:g} s unexplained; {advice}, "
+            "or check the rig parameters"
+        )
 
 
 def _fit_data(nodes: Sequence[_Node], instants: Sequence[Floats], lo: float, hi: float):
@@ -456,7 +540,7 @@ def align(
         except RecordingError as exc:
             raise RecordingError(f"node M{k + 1}: {exc}") from None
         frames.append(node.with_frame(frame))
-    prepared = _orient(frames, t0)
+    prepared = _orient(frames, t0, kind)
     prepared = [dataclasses.replace(n, sigma=_gyro_sigma(n, nodes[k].gyro_covariance)) for k, n in enumerate(prepared)]
 
     # Start state: least squares of the model's first seconds against both nodes.
@@ -470,7 +554,7 @@ def align(
         x = np.array([t0] + [float(np.mean(h)) if len(h) else p for h, p in zip(held, phi_now, strict=True)])
     else:
         x = np.array(phi_now + omega_now)
-    x, rms = _fit_start(model, x, _fit_data(prepared, instants, lo, hi))
+    x, rms, unexplained = _fit_start(model, x, _fit_data(prepared, instants, lo, hi))
     phi0, omega0, start_time = model.states(x)
     start = StartState(
         kind=kind,
@@ -478,7 +562,11 @@ def align(
         phi_rad=(float(phi0[0]), float(phi0[1])),
         omega_rad_s=(float(omega0[0]), float(omega0[1])),
         fit_rms=rms,
+        unexplained=unexplained,
+        fit_window_s=start_fit_s,
     )
+    if kind != "given":
+        _check_found_start(start, t0, prepared, instants, start_fit_s)
 
     runs = []
     for node, at, phase in zip(prepared, instants, phases, strict=True):
@@ -502,6 +590,7 @@ def align(
                 gyro_sigma_rad_s=node.sigma,
                 off_hinge_gyro_rad_s=node.gyro[keep]
                 @ np.stack([node.frame.tangential, node.frame.toward_pivot], axis=1),
+                before_start=int(np.count_nonzero(~keep)),
             )
         )
     return MeasuredRun(nodes=(runs[0], runs[1]), start=start, fusion_rate_hz=fusion_rate_hz, max_gap_s=max_gap_s)

@@ -32,6 +32,7 @@ import allantools
 import numpy as np
 
 from pendsim_mj.errors import ParameterError
+from pendsim_mj.sensors import MIN_MOTION_RAD_S
 
 TAUS_PER_DECADE = 12
 ONE_SIGMA = math.erf(1 / math.sqrt(2))  # 0.6827: 1-sigma confidence
@@ -258,11 +259,56 @@ def check_sampling(t_ns: np.ndarray, rate_hz: float) -> SamplingReport:
     return SamplingReport(nominal * 1e-9, gaps, int(irregular.sum()), deviation)
 
 
-def longest_uniform_segment(t_ns: np.ndarray, rate_hz: float) -> slice:
-    """The longest run of samples with no gap and no irregular interval."""
+MOTION_WINDOW_S = 0.1  # the gyro's turning rate is averaged over this before it counts as motion
+
+
+@dataclasses.dataclass(frozen=True)
+class Motion:
+    """How a node turns during a recording that should be static.
+
+    Attributes:
+      rate_rad_s: (n,) magnitude of the gyro less its median (the bias), averaged over
+        MOTION_WINDOW_S, rad/s.
+      largest_rad_s: its largest value, rad/s; at index ``largest_index``.
+    """
+
+    rate_rad_s: np.ndarray
+    largest_rad_s: float
+    largest_index: int
+
+    @property
+    def moving(self) -> np.ndarray:
+        """(n,) True where the node turns faster than MIN_MOTION_RAD_S (validate's "no motion")."""
+        return self.rate_rad_s > MIN_MOTION_RAD_S
+
+    @property
+    def static(self) -> bool:
+        return not bool(self.moving.any())
+
+
+def gyro_motion(gyro_rad_s: np.ndarray, rate_hz: float) -> Motion:
+    """How a node whose (n, 3) gyro samples come at ``rate_hz`` turns (see ``Motion``). Noise
+    (the BNO055's 0.001-0.002 rad/s) averages to a few 0.001 rad/s; a pendulum swinging by
+    1 deg turns at 0.09 rad/s at its centre."""
+    g = np.asarray(gyro_rad_s, dtype=float)
+    if len(g) == 0:
+        return Motion(np.zeros(0), 0.0, 0)
+    speed = np.linalg.norm(g - np.median(g, axis=0), axis=1)
+    k = min(len(speed), max(1, round(MOTION_WINDOW_S * rate_hz)))
+    rate = np.convolve(speed, np.ones(k) / k, mode="same")
+    i = int(np.argmax(rate))
+    return Motion(rate, float(rate[i]), i)
+
+
+def longest_uniform_segment(t_ns: np.ndarray, rate_hz: float, usable: np.ndarray | None = None) -> slice:
+    """The longest run of samples with no gap and no irregular interval (and, given a (n,) bool
+    ``usable``, only usable samples: e.g. the static ones)."""
     nominal = 1e9 / rate_hz
     dt = np.diff(np.asarray(t_ns, dtype=np.int64)).astype(float)
-    bad = np.flatnonzero(np.abs(dt - nominal) > 0.1 * nominal)
+    broken = np.abs(dt - nominal) > 0.1 * nominal
+    if usable is not None:
+        broken |= ~usable[1:] | ~usable[:-1]
+    bad = np.flatnonzero(broken)
     edges = np.concatenate([[-1], bad, [len(t_ns) - 1]])
     lengths = np.diff(edges)
     i = int(np.argmax(lengths))

@@ -34,7 +34,7 @@ import numpy as np
 from pendsim_mj.analysis import log_decrement_damping
 from pendsim_mj.errors import ParameterError
 from pendsim_mj.model import HINGES, build_spec
-from pendsim_mj.params import RigParams
+from pendsim_mj.params import PARAMETER_LIMITS, RigParams
 from pendsim_mj.planar_fit import LawFit, fit_planar
 from pendsim_mj.sensors import fused_instants
 
@@ -101,14 +101,11 @@ class DampingFit:
     laws: tuple[LawFit, ...] = ()
 
     def overrides(self) -> dict[str, float]:
-        """The fitted hinge losses as RigParams fields (b and friction of both hinges)."""
+        """The fitted hinge losses as RigParams fields (b and friction of both hinges); a value
+        below the smallest nonzero one RigParams takes (a fit's 1e-53) is 0."""
         b, f = self.b_n_m_s, self.friction_n_m
-        return {
-            "b1_n_m_s": float(b[0]),
-            "b2_n_m_s": float(b[1]),
-            "friction1_n_m": float(f[0]),
-            "friction2_n_m": float(f[1]),
-        }
+        values = {"b1_n_m_s": b[0], "b2_n_m_s": b[1], "friction1_n_m": f[0], "friction2_n_m": f[1]}
+        return {k: float(v) if abs(v) >= PARAMETER_LIMITS[k][0] else 0.0 for k, v in values.items()}
 
 
 def planar_damping(

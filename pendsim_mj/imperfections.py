@@ -23,9 +23,12 @@ All of it is off by default: the paper is silent on it. Each item, and how it is
 - **Clocks**: each node stamps its samples with its own clock, which runs ``clock_drift_ppm``
   fast and reads ``clock_offset_s`` at the recording's start; the recorder logs each message at
   its arrival, ``latency_s`` (mean of an exponential) after it was sampled.
-- **Hand wobble**: while the pendulums are held before the release, the hand trembles (a sum of
-  sinusoids of 0.5-10 Hz with the given rms angle), fading out over the last 0.5 s so the
-  release itself is from rest.
+- **Hand wobble**: while the pendulums are held before the release, the hand moves them about
+  the hinge: a slow drift (0.1-2 Hz) carrying most of the given rms angle, plus physiological
+  tremor (8-12 Hz) of a small share of it (``TREMOR_SHARE``: 0.02 deg rms at 1 deg, 0.1 mm at
+  the bob's 0.3 m, tremor accelerations of a few 0.1 m/s^2 as in hand-held tremor studies).
+  Both fade out over the last 0.5 s so the release itself is from rest. At 2 deg the held
+  pendulum turns at about 0.2 rad/s rms, a tenth of a 30 deg swing's peak rate.
 """
 
 from __future__ import annotations
@@ -44,7 +47,9 @@ Floats = NDArray[np.float64]
 DEFAULT_AXIS_MAP_CONFIG = 0x24  # datasheet: x = x, y = y, z = z
 DEFAULT_AXIS_MAP_SIGN = 0x00
 WOBBLE_FADE_S = 0.5  # the hand's tremor fades out over the last 0.5 s before the release
-WOBBLE_BAND_HZ = (0.5, 10.0)  # slow drift of the hand up to physiological tremor
+WOBBLE_DRIFT_HZ = (0.1, 2.0)  # the hand's slow drift while holding
+WOBBLE_TREMOR_HZ = (8.0, 12.0)  # physiological tremor
+TREMOR_SHARE = 0.02  # tremor's rms angle as a share of the wobble's
 
 
 @dataclasses.dataclass(frozen=True)
@@ -182,8 +187,12 @@ def smooth_process(
 
 def hold_wobble(rng: np.random.Generator, t_s: Floats, rms_rad: float) -> tuple[Floats, Floats, Floats]:
     """The held pendulums' tremor at instants ``t_s`` (m,) before the release (t < 0): angle,
-    rate and angular acceleration, each (m, 2); faded to rest over the last WOBBLE_FADE_S."""
-    w, dw, ddw = smooth_process(rng, t_s, rms_rad, *WOBBLE_BAND_HZ, (2,))
+    rate and angular acceleration, each (m, 2); faded to rest over the last WOBBLE_FADE_S.
+    ``rms_rad`` is the total rms angle: slow drift plus a TREMOR_SHARE of it as tremor."""
+    tremor_rad = TREMOR_SHARE * rms_rad
+    drift = smooth_process(rng, t_s, math.sqrt(rms_rad**2 - tremor_rad**2), *WOBBLE_DRIFT_HZ, (2,))
+    tremor = smooth_process(rng, t_s, tremor_rad, *WOBBLE_TREMOR_HZ, (2,))
+    w, dw, ddw = (a + b for a, b in zip(drift, tremor, strict=True))
     # fade = sin^2(b t) over the last WOBBLE_FADE_S (0 with zero slope at t = 0), 1 before
     b = math.pi / (2 * WOBBLE_FADE_S)
     t = np.asarray(t_s).reshape(-1, 1)

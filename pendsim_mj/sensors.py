@@ -56,6 +56,9 @@ CALIBRATION_FIELDS = ("system", "gyro", "accel", "mag")
 Vec3 = tuple[float, float, float]
 
 
+MIN_MOTION_RAD_S = 0.05  # a node whose gyro stays below this does not move (40x the gyro noise sigma)
+
+
 @dataclasses.dataclass(frozen=True)
 class ImuNoise:
     """Noise of one BNO055 (the same for both nodes), per sensor axis x, y, z.

@@ -4,6 +4,7 @@ and the pendsim allan command."""
 import dataclasses
 import json
 import math
+import re
 
 import allantools
 import numpy as np
@@ -12,8 +13,10 @@ import pytest
 from pendsim_bridge.cli import main
 from pendsim_bridge.recording import RunInfo, read_recording, write_recording
 from pendsim_mj.allan import (
+    MIN_MOTION_RAD_S,
     allan_curves,
     check_sampling,
+    gyro_motion,
     longest_uniform_segment,
     noise_terms,
     overlapping_adev,
@@ -202,3 +205,51 @@ def test_allan_on_a_missing_or_broken_file_is_one_line_exit_2(tmp_path, capsys):
     bad.write_bytes(b"not mcap")
     assert main(["allan", str(bad)]) == 2
     assert "bad.mcap: not an MCAP file" in capsys.readouterr().err
+
+
+def test_a_node_at_rest_is_static_with_a_gyro_bias_and_a_1_deg_swing_is_motion():
+    rng = np.random.default_rng(3)
+    t = np.arange(0, 60, 1 / FS)
+    noise = rng.normal(size=(len(t), 3)) * ImuNoise().gyro_sigma_rad_s
+    at_rest = gyro_motion(noise + np.array([0.02, -0.03, 0.01]), FS)  # a bias of 0.04 rad/s: not motion
+    assert at_rest.static and at_rest.largest_rad_s < 0.01
+    w = 2 * math.pi * 0.86
+    swing = noise.copy()
+    swing[:, 2] += math.radians(1.0) * w * np.cos(w * t)  # 1 deg at the rig's 0.86 Hz
+    moving = gyro_motion(swing, FS)
+    assert not moving.static and moving.largest_rad_s > MIN_MOTION_RAD_S
+
+
+@pytest.fixture(scope="module")
+def held_then_swinging(tmp_path_factory):
+    path = tmp_path_factory.mktemp("allan_moving") / "held.mcap"
+    assert main(["record", "--hold-s", "20", "--duration-s", "5", "-o", str(path)]) == 0
+    return path
+
+
+def test_allan_on_a_swinging_recording_is_refused_naming_the_motion(held_then_swinging, capsys):
+    capsys.readouterr()
+    assert main(["allan", str(held_then_swinging), "--no-plots"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1
+    assert re.fullmatch(
+        r"pendsim: error: .*held\.mcap: /imu/m1 is not static: it turns at up to 2\.\d+ rad/s \(20\.\d s into the "
+        r"recording; .*'pendsim record --static'\), or '--longest-segment' analyses the longest static, .*",
+        err[0],
+    )
+
+
+def test_allan_longest_segment_analyses_only_the_static_hold_of_a_swinging_recording(held_then_swinging, capsys):
+    capsys.readouterr()
+    assert main(["allan", str(held_then_swinging), "--no-plots", "--longest-segment"]) == 0
+    out = capsys.readouterr().out
+    stretch = re.search(
+        r"m1: uniform, turns at up to [\d.]+ rad/s; analysed the longest static, uniform stretch ([\d.]+)-([\d.]+) s",
+        out,
+    )
+    assert stretch and float(stretch[1]) == 0.0 and 19.8 < float(stretch[2]) <= 20.0  # the hold, not the swing
+    rows = {
+        tuple(line.split()[:3]): line.split() for line in out.split("\n\n")[1].splitlines() if line.startswith("m1")
+    }
+    for k, axis in enumerate("xyz"):  # the noise table of the hold: the gyro's own noise
+        assert float(rows[("m1", "gyroscope", axis)][3]) == pytest.approx(ImuNoise().gyro_sigma_rad_s[k], rel=0.15)

@@ -114,3 +114,25 @@ def test_inspect_of_garbage_is_one_line_exit_2(tmp_path, capsys, content):
     assert "junk.mcap: not an MCAP file" in _one_error_line(capsys)
     assert main(["inspect", str(tmp_path / "absent.mcap")]) == 2
     assert "absent.mcap: no such file" in _one_error_line(capsys)
+
+
+def test_record_summary_counts_what_each_node_wrote_and_the_hold(tmp_path, capsys):
+    out = tmp_path / "lossy.mcap"
+    assert main(["record", "-o", str(out), "--duration-s", "4", "--hold-s", "1", "--packet-loss", "0.1"]) == 0
+    rec = read_recording(out)
+    m1, m2 = (len(rec.imu[n].t_ns) for n in ("m1", "m2"))
+    assert m1 < 401 and m2 < 401 and m1 != m2  # 5 s at 80 Hz: 401 instants, some lost per node
+    lost = 100 * (1 - (m1 + m2) / 802)
+    assert f"wrote {out}: 5 s, {m1} (M1) and {m2} (M2) IMU samples of 401, {lost:.1f} % lost" in capsys.readouterr().out
+
+
+def test_a_recording_without_both_nodes_is_refused_naming_the_file_once(tmp_path, capsys):
+    csv = tmp_path / "lab.csv"
+    csv.write_text("t_ms,gx,gy,gz\n" + "".join(f"{12.5 * i},0.1,0,0\n" for i in range(5)))
+    lab = tmp_path / "lab.mcap"
+    assert main(["import", str(csv), "-o", str(lab), "--node", "m1", "--columns", "t_ms,gx,gy,gz"]) == 0
+    assert ", 0.050 s, m1: 5 samples" in capsys.readouterr().out  # first to last stamp, as inspect says
+    for command in ("validate", "identify"):
+        assert main([command, str(lab)]) == 2
+        line = _one_error_line(capsys)
+        assert line == f"pendsim: error: {lab}: needs both /imu/m1 and /imu/m2 (M1's and M2's IMU); /imu/m2 missing"

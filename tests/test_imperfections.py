@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from pendsim_bridge.recording import RunInfo, read_recording, write_recording
+from pendsim_mj import imperfections as imp
 from pendsim_mj import rotations
 from pendsim_mj.errors import ParameterError
 from pendsim_mj.imperfections import Imperfections, all_axis_remaps, axis_remap_matrix, gilbert_loss
@@ -172,3 +173,21 @@ def test_imperfections_are_seeded_and_off_by_default(swing):
     plain = sample_imu(swing, Bno055())
     assert plain.received is None and plain.stamp_s is None and plain.log_t_s is None
     np.testing.assert_allclose(plain.fused_t_s * 100, np.rint(plain.fused_t_s * 100), atol=1e-9)  # fusion grid
+
+
+def test_hand_wobble_is_a_slow_drift_with_a_small_8_to_12_hz_tremor_and_slow_rates():
+    # the process itself, over a long hold (t < -WOBBLE_FADE_S: not faded), against its spectrum
+    rms = math.radians(2.0)
+    rate_hz = 200.0
+    t = np.arange(-200.0, -imp.WOBBLE_FADE_S, 1 / rate_hz)
+    for seed in range(3):
+        angle, rate, _ = imp.hold_wobble(np.random.default_rng(seed), t, rms)
+        power = np.abs(np.fft.rfft(angle[:, 0])) ** 2
+        f = np.fft.rfftfreq(len(t), 1 / rate_hz)
+        share = {
+            band: power[(f >= band[0]) & (f <= band[1])].sum() / power[1:].sum() for band in ((0.05, 2.5), (8, 12))
+        }
+        assert share[(0.05, 2.5)] > 0.99
+        assert math.sqrt(share[(8, 12)]) == pytest.approx(imp.TREMOR_SHARE, rel=0.3)
+        assert np.std(angle) == pytest.approx(rms, rel=0.3)
+        assert np.sqrt(np.mean(rate**2)) < 0.3  # rad/s: a tenth of a 30 deg swing's 2.7 rad/s peak

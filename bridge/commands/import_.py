@@ -90,7 +90,7 @@ def run(args: argparse.Namespace) -> int:
     result = import_file(args.source, args.output, spec, replace=args.force)
     counts = ", ".join(f"{n}: {k} samples" for n, k in result.samples.items())
     print(
-        f"wrote {result.path}: {result.format} file {result.source.name}, {result.duration_s:.1f} s, {counts}, "
+        f"wrote {result.path}: {result.format} file {result.source.name}, {result.duration_s:.3f} s, {counts}, "
         f"{result.size_bytes / 1e6:.2f} MB"
     )
     return 0

@@ -164,7 +164,7 @@ def add_imperfection_options(p: argparse.ArgumentParser, *, transport: bool = Tr
         "--hold-wobble-deg",
         type=options.float_in(0.0, 5.0, "deg"),
         default=0.0,
-        help="with --hold-s: rms hand tremor of the held pendulums, deg (fades out before the release)",
+        help="with --hold-s: rms angle the hand moves the held pendulums by (slow drift plus 8-12 Hz tremor), deg",
     )
 
 
@@ -241,7 +241,7 @@ def run(args: argparse.Namespace) -> int:
         )
         print(f"wrote {args.rerun}")
     size_mb = result.size_bytes / 1e6
-    print(f"wrote {args.output}: {args.duration_s:g} s, {result.samples} IMU samples per node, {size_mb:.2f} MB")
+    print(f"wrote {args.output}: {result.recorded_s:g} s, {result.samples_text()}, {size_mb:.2f} MB")  # hold included
     return 0
 
 
