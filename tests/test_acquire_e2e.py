@@ -341,11 +341,44 @@ def test_serve_listens_on_loopback_only_and_ends_with_acquire(tmp_path):
         for port in (web, web + 1):
             assert _listening(port) == ["0100007F"], port  # 127.0.0.1, nothing else
         acquire.signal(signal.SIGTERM)
-        assert acquire.finish() == 0, acquire.err
+        assert acquire.finish() == 2, acquire.err  # nothing arrived: nothing to keep
     finally:
         acquire.kill()
     deadline = time.monotonic() + 10
     while (_listening(web) or _listening(web + 1)) and time.monotonic() < deadline:
         time.sleep(0.1)
     assert not _listening(web) and not _listening(web + 1)  # the viewer's process group ended with it
-    assert "no packets arrived" in "\n".join(acquire.out)
+    assert acquire.err[-1].startswith("pendsim: error: no IMU sample arrived"), acquire.err
+    assert not list(tmp_path.glob("*.mcap")) and not list(tmp_path.glob(".*"))
+
+
+def test_acquire_with_no_node_sending_writes_nothing_and_says_what_each_port_got(tmp_path, capsys):
+    p1, p2 = free_udp_ports(2)
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sender:
+
+        def send_junk() -> None:
+            time.sleep(0.3)
+            for _ in range(4):
+                sender.sendto(b"not a packet", ("127.0.0.1", p2))
+
+        thread = threading.Thread(target=send_junk)
+        thread.start()
+        args = [
+            "acquire",
+            "-o",
+            str(tmp_path / "run.mcap"),
+            "--duration-s",
+            "1",
+            "--node",
+            f"m1={p1}",
+            "--node",
+            f"m2={p2}",
+        ]
+        code = main(args)
+        thread.join()
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2
+    assert err[0].startswith("listening: ") and len(err) == 2, err  # the start line, then one error line
+    assert err[1].startswith("pendsim: error: no IMU sample arrived in 1.0 s"), err
+    assert f"m1 port {p1}: no packets" in err[1] and f"m2 port {p2}: 4 packet(s)" in err[1], err
+    assert list(tmp_path.iterdir()) == []  # no file, no temporary left

@@ -48,7 +48,7 @@ from pendsim_bridge.acquire.packets import PacketError, StreamFormat
 from pendsim_bridge.acquire.ports import BNO055_NDOF, DEFAULT_NODES, NodeSpec, check_nodes
 from pendsim_bridge.acquire.sink import RecordingSink
 from pendsim_mj import __version__
-from pendsim_mj.errors import OutputError, ParameterError
+from pendsim_mj.errors import OutputError, ParameterError, RecordingError
 from pendsim_mj.outputs import describe_os_error, publish, temporary_sibling
 from pendsim_mj.params import DEFAULT_PARAMS, RigParams
 
@@ -418,6 +418,9 @@ def _run(
                 "pendsim/acquisition_result", _result_metadata(results, (now - start_ns) * 1e-9, stop_reason)
             )
             sink.close()
+            if sink.messages == 0:  # nothing a recording could hold: no file, one line saying why
+                partial.unlink(missing_ok=True)
+                raise RecordingError(_nothing_arrived(results, spec, (now - start_ns) * 1e-9))
             if live is not None:
                 live.send()
             publish(partial, output, replace=replace)
@@ -569,6 +572,21 @@ def _node_result(node: _Node) -> NodeResult:
     return NodeResult(node.spec.name, node.spec.port, node.stream.counters(), drift, p50, p99, node.host_dropped)
 
 
+def _nothing_arrived(results: tuple[NodeResult, ...], spec: AcquireSpec, duration_s: float) -> str:
+    """The error when no IMU sample arrived from any node: what each port received."""
+    parts = []
+    for r in results:
+        c = r.counters
+        got = f"{c.received} packet(s)" if c.received else "no packets"
+        if c.malformed_reasons:
+            got += " (" + ", ".join(f"{k} {v}" for k, v in c.malformed_reasons) + ")"
+        parts.append(f"{r.name} port {r.port}: {got}")
+    return (
+        f"no IMU sample arrived in {duration_s:.1f} s ({'; '.join(parts)}); nothing written. "
+        f"Is each node sending {spec.stream.format} packets to {spec.bind} and its port?"
+    )
+
+
 def _result_metadata(results: tuple[NodeResult, ...], duration_s: float, stop_reason: str) -> dict[str, str]:
     out = {"duration_s": f"{duration_s:.3f}", "stop_reason": stop_reason}
     for r in results:
@@ -579,6 +597,11 @@ def _result_metadata(results: tuple[NodeResult, ...], duration_s: float, stop_re
         out[f"{r.name}.jitter_p99_ms"] = f"{r.jitter_p99_ms:.3f}"
         out[f"{r.name}.host_dropped"] = str(r.host_dropped)
     return out
+
+
+def _number(value: float, width: int, decimals: int) -> str:
+    """A table cell: "-" where there is no value (a node with too few packets for a clock fit)."""
+    return f"{value:{width}.{decimals}f}" if math.isfinite(value) else f"{'-':>{width}}"
 
 
 def summary(result: AcquireResult) -> str:
@@ -593,8 +616,8 @@ def summary(result: AcquireResult) -> str:
         c = r.counters
         lines.append(
             f"  {r.name:4} {r.port:5d} {c.received:9d} {c.written:8d} {c.lost:6d} {c.duplicated:5d} "
-            f"{c.reordered:6d} {c.late:5d} {c.malformed:5d} {r.drift_ppm:10.2f} "
-            f"{r.jitter_p50_ms:8.3f} / {r.jitter_p99_ms:7.3f}"
+            f"{c.reordered:6d} {c.late:5d} {c.malformed:5d} {_number(r.drift_ppm, 10, 2)} "
+            f"{_number(r.jitter_p50_ms, 8, 3)} / {_number(r.jitter_p99_ms, 7, 3)}"
         )
         if c.malformed_reasons:
             lines.append("       malformed: " + ", ".join(f"{k} {v}" for k, v in c.malformed_reasons))
