@@ -116,7 +116,12 @@ def validation_figures(report, directory: str | Path) -> list[Path]:
         m = report.case("mujoco", "estimated", window).comparisons[quantity]
         r = report.case("reference", "estimated", window).comparisons[quantity]
         q = BY_NAME[quantity]
-        fig, ax = plt.subplots(figsize=(9, 4.2), dpi=100)
+        if window == "whole":  # a long overlay hides the measured line: the differences below it
+            fig, (ax, low) = plt.subplots(
+                2, 1, figsize=(9, 6), dpi=100, sharex=True, gridspec_kw={"height_ratios": [2.2, 1]}
+            )
+        else:
+            fig, ax = plt.subplots(figsize=(9, 4.2), dpi=100)
         t, measured, computed, reference = _broken(m.t_s, m.measured, m.computed, r.computed, max_gap_s=gap)
         ax.plot(t, measured, color="black", linewidth=1.0, label="measured (IMU)")
         ax.plot(t, computed, color="tab:orange", linewidth=1.0, label="computed: MuJoCo, estimated start")
@@ -126,11 +131,19 @@ def validation_figures(report, directory: str | Path) -> list[Path]:
             tn, nominal = _broken(n.t_s, n.computed, max_gap_s=gap)
             label = "computed: MuJoCo, nominal 30 deg"
             ax.plot(tn, nominal, color="tab:green", linewidth=0.8, linestyle="--", label=label)
-        ax.set_xlabel("time since the start t (s)")
         ax.set_ylabel(f"{q.label} ({q.unit})")
         ax.set_title(f"{q.description}, {'first ' + window if window != 'whole' else 'whole run'}")
         ax.grid(True, alpha=0.3)
         legend_outside(ax)
+        if window == "whole":
+            low.plot(t, computed - measured, color="tab:orange", linewidth=0.8, label="MuJoCo, estimated start")
+            low.plot(t, reference - measured, color="tab:blue", linewidth=0.6, linestyle=":", label="planar reference")
+            low.axhline(0.0, color="black", linewidth=0.6)
+            low.set_ylabel(f"computed - measured ({q.unit})", fontsize=8)
+            low.grid(True, alpha=0.3)
+            legend_outside(low)
+            ax = low
+        ax.set_xlabel("time since the start t (s)")
         fig.tight_layout()
         out.append(
             save_figure(fig, directory / f"{stem}_{'whole' if window == 'whole' else window.replace(' ', '')}.png")

@@ -62,7 +62,7 @@ FIGURES = (
 """The paper's Figures 9-13 and 15 (``plots.validation_figures``): (file stem, quantity, window).
 Of the whole-run comparisons, only these quantities keep their series (for the plots:
 ``FIGURE_SERIES``); the others keep their metrics, so a long run's memory does not hold them all."""
-FIGURE_SERIES = ("t_s", "measured", "computed")  # a start whose estimated rates are below this is a start from rest
+FIGURE_SERIES = ("t_s", "measured", "computed")
 
 
 def node_samples(rec: Recording) -> tuple[NodeSamples, NodeSamples]:

@@ -75,6 +75,28 @@ def test_every_png_legend_lies_outside_the_plot_areas(recordings, tmp_path, monk
     assert matplotlib.get_backend().lower() == "agg"
 
 
+def test_whole_run_figures_show_the_differences_under_the_overlay(recordings, tmp_path, monkeypatch):
+    saved = {}
+    original = plots.save_figure
+
+    def keep_then_save(figure, path):
+        saved[path.name] = [(a.get_ylabel(), [line.get_ydata() for line in a.get_lines()]) for a in figure.axes]
+        return original(figure, path)
+
+    monkeypatch.setattr(plots, "save_figure", keep_then_save)
+    report = validate(recordings / "run.mcap", damping="recorded")
+    plots.validation_figures(report, tmp_path / "validation")
+    whole = {name: axes for name, axes in saved.items() if "whole" in name}
+    assert set(whole) == {"fig12_phi1_whole.png", "fig15_omega2_whole.png"}
+    for name, quantity in (("fig12_phi1_whole.png", "phi1"), ("fig15_omega2_whole.png", "omega2")):
+        (_, _), (label, lines) = whole[name]
+        assert label.startswith("computed - measured")
+        m = report.case("mujoco", "estimated", "whole").comparisons[quantity]
+        np.testing.assert_allclose(lines[0], m.computed - m.measured)  # no gaps here: the series unbroken
+        assert np.max(np.abs(lines[0])) < 0.05 * np.max(np.abs(m.measured))  # small against the swing
+    assert all(len(axes) == 1 for name, axes in saved.items() if "whole" not in name and "fig14" not in name)
+
+
 def _static_rows(rrd) -> dict[str, list[dict]]:
     rows: dict[str, list[dict]] = {}
     for chunk in rr.chunk.RrdReader(str(rrd)).stream():
