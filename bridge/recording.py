@@ -196,7 +196,7 @@ class Recording:
         if self.drive_input is None or len(self.drive_input[0]) < 2:
             return None
         t_ns, held = self.drive_input
-        return t_ns * 1e-9, np.asarray(held, dtype=np.float64)
+        return np.asarray(t_ns * 1e-9, dtype=np.float64), np.asarray(held, dtype=np.float64)
 
     def drive_from(self, start_s: float, *, until_s: float | None = None) -> Drive | None:
         """The recording's drive from ``start_s`` (s on its clock: the release) on, drive time 0
