@@ -42,7 +42,7 @@ from pendsim_bridge import ros2
 from pendsim_bridge.mcap_reader import ChannelData, McapFile, scan_mcap
 from pendsim_bridge.mcap_writer import BulkMcapWriter
 from pendsim_mj import __version__, rotations
-from pendsim_mj.drives import CHANNEL_LABELS, NCHANNEL, Drive
+from pendsim_mj.drives import CHANNEL_LABELS, NCHANNEL, Drive, recorded_drive
 from pendsim_mj.errors import ParameterError, RecordingError
 from pendsim_mj.imperfections import Imperfections
 from pendsim_mj.params import RigParams
@@ -188,6 +188,22 @@ class Recording:
     @property
     def complete(self) -> bool:
         return not self.problems
+
+    @property
+    def drive_input_s(self) -> tuple[NDArray[np.float64], NDArray[np.float64]] | None:
+        """The /drive topic as (t_s (n,) on the recording's clock, held inputs (n, 4)); None for a
+        free run (or a topic of fewer than two steps)."""
+        if self.drive_input is None or len(self.drive_input[0]) < 2:
+            return None
+        t_ns, held = self.drive_input
+        return np.asarray(t_ns * 1e-9, dtype=np.float64), np.asarray(held, dtype=np.float64)
+
+    def drive_from(self, start_s: float, *, until_s: float | None = None) -> Drive | None:
+        """The recording's drive from ``start_s`` (s on its clock: the release) on, drive time 0
+        there (``pendsim_mj.drives.recorded_drive``: covering [0, until_s] since the start); None
+        for a free run."""
+        inputs = self.drive_input_s
+        return None if inputs is None else recorded_drive(*inputs, start_s, until_s=until_s)
 
     def params(self) -> RigParams:
         """The rig parameters recorded in the metadata (RecordingError if they are not valid)."""

@@ -25,7 +25,7 @@ import rerun as rr
 import rerun.blueprint as rrb
 
 from pendsim_mj import rotations
-from pendsim_mj.drives import Drive, drive_from_held_inputs
+from pendsim_mj.drives import Drive
 from pendsim_mj.errors import ModelError, OutputError
 from pendsim_mj.mjcf_guard import compile_untrusted
 from pendsim_mj.model import BODIES, SPRING_ENDS, SPRING_POINT_OWNER, SPRINGS
@@ -408,13 +408,14 @@ def view_recording(
       release_s, max_gap_s: as ``validate.align_recording`` (the start on the recording's clock
         instead of finding it; the longest gap interpolated across).
       drive: the drive of the re-simulation, from the start on; by default the one the recording
-        holds on its /drive topic from the start on (none for a free run). The start is found by
-        the free model over its first second (``pendsim_mj.alignment``).
+        holds on its /drive topic from the start on (none for a free run;
+        ``validate.recording_drive``). The start is found by the model, driven by it, over its
+        first second (``pendsim_mj.alignment``).
       replace: replace an existing .rrd file (``--force``).
       warn: receives a warning line (an MJCF attachment ignored).
     """
     from pendsim_bridge.recording import DRIVE_TOPIC, NODES, imu_topic, read_recording
-    from pendsim_bridge.validate import align_recording, recorded_params
+    from pendsim_bridge.validate import align_recording, recorded_params, recording_drive
     from pendsim_mj.engines import whole_steps_s
     from pendsim_mj.simulation import simulate_blocks
     from pendsim_mj.timing import DEFAULT_MAX_GAP_S
@@ -425,14 +426,8 @@ def view_recording(
     gap = DEFAULT_MAX_GAP_S if max_gap_s is None else max_gap_s
     run = align_recording(rec, params, release_s=release_s, max_gap_s=gap)
     duration = whole_steps_s(run.duration_s + 0.02)
-    if drive is None and rec.drive_input is not None:
-        t_ns, held = rec.drive_input
-        t = t_ns * 1e-9 - run.start.time_s  # since the start (the drive's steps begin at the release)
-        step = float(np.median(np.diff(t))) if len(t) > 1 else 0.0
-        after = t >= -0.5 * step
-        if np.count_nonzero(after) >= 2:
-            drive = drive_from_held_inputs(t[after], held[after])
-            duration = min(duration, whole_steps_s(float(t[after][-1] - t[after][0])))
+    if drive is None:
+        drive = recording_drive(rec, run)  # the recording's /drive from the start on (None: a free run)
     start = (params, run.start.phi_rad, run.start.omega_rad_s, duration)
 
     def blocks() -> Iterator[tuple[int, Trajectory]]:

@@ -195,6 +195,11 @@ def identify_spatial(
     from pendsim_bridge.validate import align_recording, node_samples, recorded_params
 
     rec = read_recording(path)
+    if rec.drive_input_s is not None:
+        raise ParameterError(
+            f"{path} is a driven recording (a /drive topic); the spatial fit takes free decays only: "
+            "identify it with the planar model (drop --model spatial)"
+        )
     if tilt_start is not None and tilt_start not in TILT_STARTS:
         raise ParameterError(f"tilt_start must be one of {TILT_STARTS}, got {tilt_start!r}")
     # the geometry is the recording's; the fitted values start from the assumed defaults

@@ -65,18 +65,26 @@ def identification_table(path: str | Path, result: Identification) -> str:
     if result.start_kind != "release":
         w1, w2 = (math.degrees(w) for w in result.release_rate_rad_s)
         rates = f" at {w1:.2f} deg/s, {w2:.2f} deg/s"
-    lines = [
-        f"{path}: {start} at {result.release_time_s:.3f} s, from {phi1:.2f} deg, {phi2:.2f} deg{rates}",
-        "log decrement b = 2 J ln(A0/AT)/t1 (the paper's, per pendulum; biased on the coupled rig: b2 off by"
-        " -83 to +108 % on synthetic runs, docs/identification.md):",
-    ]
+    lines = [f"{path}: {start} at {result.release_time_s:.3f} s, from {phi1:.2f} deg, {phi2:.2f} deg{rates}"]
+    if result.driven:
+        lines.append(
+            "driven recording: log and per-mode decrement skipped (they assume a free decay); "
+            "the least-squares fit below is driven by the recorded /drive inputs"
+        )
+    else:
+        lines.append(
+            "log decrement b = 2 J ln(A0/AT)/t1 (the paper's, per pendulum; biased on the coupled rig: b2 off by"
+            " -83 to +108 % on synthetic runs, docs/identification.md):"
+        )
     for n, d in enumerate(result.log_decrement, start=1):
         lines.append(
             f"  b{n} = {d.b_n_m_s:.5g} N m s/rad  (A0 {math.degrees(d.a0_rad):.3f} deg, "
             f"AT {math.degrees(d.at_rad):.3f} deg, t1 {d.window_s:.2f} s)"
         )
     m = result.modal_decrement
-    if m is None:
+    if result.driven:
+        pass
+    elif m is None:
         lines.append("per-mode decrement: not measured (a mode without three amplitude peaks in the window)")
     else:
         lines.append(

@@ -27,10 +27,11 @@ from typing import Any
 
 import numpy as np
 
-from pendsim_bridge.recording import NODES, Recording, imu_topic, read_recording
+from pendsim_bridge.recording import DRIVE_TOPIC, NODES, Recording, imu_topic, read_recording
 from pendsim_mj import engines
 from pendsim_mj.alignment import MeasuredRun, NodeSamples, align
 from pendsim_mj.checks import check_step
+from pendsim_mj.drives import Drive
 from pendsim_mj.engines import whole_steps_s
 from pendsim_mj.errors import ParameterError, RecordingError
 from pendsim_mj.identification import (
@@ -105,12 +106,26 @@ def align_recording(
     release_s: float | None = None,
     max_gap_s: float = DEFAULT_MAX_GAP_S,
 ) -> MeasuredRun:
-    """The measured run of a recording (``pendsim_mj.alignment.align`` on its IMU topics)."""
+    """The measured run of a recording (``pendsim_mj.alignment.align`` on its IMU topics, and on
+    its /drive topic for a driven run)."""
     samples = node_samples(rec)  # its errors name the file already
     try:
-        return align(samples, params, fusion_rate_hz=fusion_rate_of(rec), release_s=release_s, max_gap_s=max_gap_s)
+        return align(
+            samples,
+            params,
+            fusion_rate_hz=fusion_rate_of(rec),
+            release_s=release_s,
+            max_gap_s=max_gap_s,
+            drive_input=rec.drive_input_s,
+        )
     except RecordingError as exc:
         raise RecordingError(f"{rec.path}: {exc}") from None
+
+
+def recording_drive(rec: Recording, run: MeasuredRun) -> Drive | None:
+    """The recording's drive from the aligned run's start on (drive time 0 there), covering the
+    whole run; None for a free run."""
+    return rec.drive_from(run.start.time_s, until_s=run.duration_s + 0.1)
 
 
 def _runs(
@@ -119,13 +134,15 @@ def _runs(
     starts: list[tuple[tuple[float, float], tuple[float, float]]],
     duration_s: float,
     dt_s: float = 0.01,
+    drive: Drive | None = None,
 ) -> list[Trajectory]:
     """One trajectory per start state (angles, rates), computed as one batch (the planar
-    reference on its compiled kernel, ``engines.FAST_PATH``)."""
+    reference on its compiled kernel, ``engines.FAST_PATH``), driven by ``drive`` (time 0 at
+    the start) or free."""
     engine = engines.FAST_PATH.get(engine, engine)
     phi0 = np.array([s[0] for s in starts], dtype=float)
     omega0 = np.array([s[1] for s in starts], dtype=float)
-    batch = engines.run_batch(engine, params, phi0, omega0, whole_steps_s(duration_s, dt_s), dt_s)
+    batch = engines.run_batch(engine, params, phi0, omega0, whole_steps_s(duration_s, dt_s), dt_s, drive=drive)
     return [batch.member(i) for i in range(len(starts))]  # fmt: skip
 
 
@@ -137,17 +154,19 @@ def model_series(
     dt_s: float = 0.01,
     *,
     block_steps: int = MODEL_BLOCK_STEPS,
+    drive: Drive | None = None,
 ) -> tuple[np.ndarray, dict[str, np.ndarray]]:
     """One model run from a start state (angles, rates), simulated block by block and reduced to
     what is compared: its instants (n,) s and each ``VALIDATED`` quantity there (n,). Memory is
-    these arrays and one block, never the whole run's Trajectory; the rows equal one run's. The
-    planar reference runs on its compiled kernel (``engines.FAST_PATH``)."""
+    these arrays and one block, never the whole run's Trajectory (a driven run: see
+    ``engines.run_blocks``); the rows equal one run's. The planar reference runs on its compiled
+    kernel (``engines.FAST_PATH``). ``drive``: the run's inputs, time 0 at the start."""
     engine = engines.FAST_PATH.get(engine, engine)
     total_s = whole_steps_s(duration_s, dt_s)
     n = check_step(total_s, dt_s) + 1
     t = np.empty(n)
     values = {q.name: np.empty(n) for q in VALIDATED}
-    blocks = engines.run_blocks(engine, params, start[0], start[1], total_s, dt_s, block_steps=block_steps)
+    blocks = engines.run_blocks(engine, params, start[0], start[1], total_s, dt_s, block_steps=block_steps, drive=drive)
     for first, block in blocks:
         rows = slice(first, first + len(block.t_s))
         t[rows] = block.t_s
@@ -176,6 +195,7 @@ class Identification:
     release_rate_rad_s: tuple[float, float] = (0.0, 0.0)
     start_kind: str = "release"
     modal_decrement: ModalDecrement | None = None  # None: a mode without three amplitude peaks
+    driven: bool = False  # the fit used the recorded drive; the decrements (free decay only) are skipped
 
 
 def identify(
@@ -189,11 +209,12 @@ def identify(
 ) -> Identification:
     """Both damping estimates from a recording's free decay (``law``: the planar fit's damping
     law, "auto" chooses by BIC)."""
-    rec = read_recording(path)
+    rec = read_recording(path, topics=[*(imu_topic(n) for n in NODES), DRIVE_TOPIC])
     params = params or recorded_params(rec)
     run = align_recording(rec, params, release_s=release_s, max_gap_s=max_gap_s)
+    drive = recording_drive(rec, run)
     del rec  # the decoded recording is not needed by the fit (a 1 h record: about 120 MB)
-    return _identify(run, params, window_s, law)
+    return _identify(run, params, window_s, law, drive)
 
 
 def _per_node(run: MeasuredRun, names: tuple[str, str]) -> tuple[np.ndarray, np.ndarray]:
@@ -208,15 +229,22 @@ def _per_node(run: MeasuredRun, names: tuple[str, str]) -> tuple[np.ndarray, np.
     return t, values
 
 
-def _identify(run: MeasuredRun, params: RigParams, window_s: float, law: str = "auto") -> Identification:
+def _identify(
+    run: MeasuredRun, params: RigParams, window_s: float, law: str = "auto", drive: Drive | None = None
+) -> Identification:
     """Log decrement of the measured angles and the planar least-squares fit of the gyros (hinge
-    losses and start state together; the one call into ``pendsim_mj.identification``)."""
-    t_phi, phi = _per_node(run, ("phi1", "phi2"))
-    decrement = log_decrement(t_phi, phi, params, min(window_s, run.duration_s))
-    try:
-        modal: ModalDecrement | None = modal_decrement(t_phi, phi, params, min(window_s, run.duration_s))
-    except ParameterError:
-        modal = None
+    losses and start state together; the one call into ``pendsim_mj.identification``). A driven
+    run (``drive``, time 0 at the start): the fit with the drive, no decrements (they assume a
+    free decay)."""
+    decrement: list[LogDecrement] = []
+    modal: ModalDecrement | None = None
+    if drive is None:
+        t_phi, phi = _per_node(run, ("phi1", "phi2"))
+        decrement = log_decrement(t_phi, phi, params, min(window_s, run.duration_s))
+        try:
+            modal = modal_decrement(t_phi, phi, params, min(window_s, run.duration_s))
+        except ParameterError:
+            modal = None
     t_omega, omega = _per_node(run, ("omega1", "omega2"))
     # the model is evaluated where each value belongs (the sample instants moved by the fusion age)
     values_t = np.full_like(t_omega, np.nan)
@@ -232,8 +260,11 @@ def _identify(run: MeasuredRun, params: RigParams, window_s: float, law: str = "
         omega0_rad_s=start.omega_rad_s,
         moving=start.kind != "release",
         law=law,
+        drive=drive,
     )
-    return Identification(decrement, fit, start.phi_rad, start.time_s, start.omega_rad_s, start.kind, modal)
+    return Identification(
+        decrement, fit, start.phi_rad, start.time_s, start.omega_rad_s, start.kind, modal, drive is not None
+    )
 
 
 def recorded_params(rec: Recording) -> RigParams:
@@ -261,13 +292,15 @@ class ValidationReport:
     cases: list[CaseResult]
     mjcf_xml: str | None  # the recording's MJCF attachment, if any
     model_choice: dict[str, Any] | None = None  # --model spatial: planar vs spatial (spatial_validate)
+    drive: Drive | None = None  # a driven recording's drive from the start on (every model run has it)
 
     @functools.cached_property
     def model_run(self) -> Trajectory:
         """MuJoCo from the estimated start with the validated parameters, the whole Trajectory
         (simulated when first asked for: the validation itself keeps only what it compares)."""
         start = self.run.start
-        return _runs("mujoco", self.params, [(start.phi_rad, start.omega_rad_s)], self.run.duration_s + 0.02)[0]
+        state = [(start.phi_rad, start.omega_rad_s)]
+        return _runs("mujoco", self.params, state, self.run.duration_s + 0.02, drive=self.drive)[0]
 
     def case(self, engine: str = "mujoco", release: str = "estimated", window: str = "whole") -> CaseResult:
         for c in self.cases:
@@ -308,9 +341,15 @@ def validate(
     """
     if model not in ("planar", "spatial"):
         raise ParameterError(f"model must be 'planar' or 'spatial', got {model!r}")
-    rec = read_recording(path, topics=[imu_topic(n) for n in NODES])
+    rec = read_recording(path, topics=[*(imu_topic(n) for n in NODES), DRIVE_TOPIC])
+    if model == "spatial" and rec.drive_input_s is not None:
+        raise ParameterError(
+            f"{path} is a driven recording (a /drive topic); --model spatial validates free runs only: "
+            "validate it with the planar model (drop --model spatial)"
+        )
     base = (params or recorded_params(rec)).with_mapping(overrides or {})
     run = align_recording(rec, base, release_s=release_s, max_gap_s=max_gap_s)
+    drive = recording_drive(rec, run)
     mjcf_xml = rec.mjcf_xml
     covariance = [n.gyro_covariance for n in node_samples(rec)] if model == "spatial" else None
     tilt_start = "zero"
@@ -321,7 +360,7 @@ def validate(
     del rec  # the decoded topics: the aligned run holds what is compared
     identification = None
     if damping == "identified":
-        identification = _identify(run, base, 120.0)
+        identification = _identify(run, base, 120.0, drive=drive)
         fit = identification.fit
         model_params = base.with_mapping(fit.overrides())
         source = f"identified (least squares, {fit.law} law)"
@@ -342,7 +381,7 @@ def validate(
     windows = ((f"{short_window_s:g} s", short_window_s), ("whole", math.inf))
     for engine in ("mujoco", "reference"):
         for release_name, state in starts.items():
-            t_model, values = model_series(engine, model_params, state, duration + 0.02)
+            t_model, values = model_series(engine, model_params, state, duration + 0.02, drive=drive)
             by_window: dict[str, dict[str, Comparison]] = {name: {} for name, _ in windows}
             for q in VALIDATED:
                 t, measured, at = run.series(q)
@@ -371,7 +410,7 @@ def validate(
         choice = spatial_validate.model_choice(planar, case)
         choice["plane_offset_m"] = spatial.plane_offset_m
         choice["spatial_params"] = {n: getattr(spatial, n) for n in spatial_validate.NAMES}
-    return ValidationReport(Path(path), model_params, source, identification, run, cases, mjcf_xml, choice)
+    return ValidationReport(Path(path), model_params, source, identification, run, cases, mjcf_xml, choice, drive)
 
 
 @dataclasses.dataclass(frozen=True)

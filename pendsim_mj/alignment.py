@@ -7,8 +7,10 @@ Works on arrays (time stamps, quaternions, gyro and accelerometer per node), fro
 2. **Start**: the large swing is found from the gyro magnitudes (no axis assumed) and traced
    back to its foot. If the pendulums rest (hand wobble allowed) for at least 0.1 s before it,
    the run starts at a *release* from rest; otherwise it starts *in motion* at its first samples
-   (a recording started at the release, a replay cut, a start mid-swing). ``release_s`` gives
-   the start instead. A found start the model from it cannot explain is refused.
+   (a recording started at the release, a replay cut, a start mid-swing). A driven run (its
+   recorded inputs given) starts where its drive starts: a release there if the pendulums rest
+   before it, else in motion at its first samples. ``release_s`` gives the start instead. A
+   found start the model from it cannot explain is refused.
 3. **Swing frames** (``swing_frame``): each node's hinge axis, mounting and angle from its own
    data, whatever the heading, mount and axis remap. Signs: M1's first large excursion counts as
    positive (the paper releases M1 to +34 deg; the rig is mirror symmetric, so this convention
@@ -16,7 +18,9 @@ Works on arrays (time stamps, quaternions, gyro and accelerometer per node), fro
    M1 (d alpha2 / d phi1 > 0, about 5 s^-2 on the paper's rig).
 4. **Start state**: least squares of the model's first ``start_fit_s`` seconds against both
    nodes' angles and rates: the release instant and angles (from rest) for a release, else the
-   full state (angles and rates) at the first samples.
+   full state (angles and rates) at the first samples. A driven run's model is driven by the
+   recorded inputs (drive time 0 at the start); as the drive breaks the rig's mirror symmetry,
+   the sign of the swing frames is the one whose start fit is better.
 5. **Fusion timing**: a BNO055 sample carries the latest 100 Hz fused value, so it is 0-10 ms
    old in a pattern set by where the chip's fusion ticks fall; that phase is found per node by
    the best fit of the model.
@@ -36,6 +40,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from pendsim_mj import engines
+from pendsim_mj.drives import Drive, Target, recorded_drive
 from pendsim_mj.errors import ParameterError, RecordingError
 from pendsim_mj.params import RigParams
 from pendsim_mj.quantities import BY_NAME, Quantity
@@ -312,6 +317,33 @@ def _detect_start(nodes: Sequence[_Node]) -> tuple[StartKind, float]:
     return "in motion", max(float(n.t[0]) for n in nodes)
 
 
+def _drive_onset_s(drive_input: tuple[Floats, Floats]) -> float | None:
+    """When the recorded drive starts: the first step with an input (recorder's clock, s), None
+    if it never has one."""
+    t, held = drive_input
+    active = np.flatnonzero(np.any(np.asarray(held) != 0, axis=1))
+    return float(t[active[0]]) if len(active) else None
+
+
+def _detect_driven_start(nodes: Sequence[_Node], onset_s: float) -> tuple[StartKind, float]:
+    """A driven run starts where its drive starts (``onset_s``): ('release', onset_s) if the
+    pendulum that moves most rests (hand wobble allowed) for the MIN_REST_S before it, else
+    ('in motion', first common instant). Its large swing may come long after the start (a
+    resonance building up), so it does not mark the start as it does for a free decay."""
+    speeds = [np.linalg.norm(n.gyro, axis=1) for n in nodes]
+    top = [float(np.quantile(s, 0.99)) for s in speeds]
+    k = int(np.argmax(top))
+    node, s = nodes[k], speeds[k]
+    level = max(0.1 * top[k], 0.03)
+    rested = onset_s - float(node.t[0]) >= MIN_REST_S
+    if rested:
+        before = s[(node.t >= onset_s - 0.5) & (node.t < onset_s)]
+        rested = len(before) >= 8 and float(np.mean(before <= level)) >= 0.9
+    if rested:
+        return "release", onset_s
+    return "in motion", max(float(n.t[0]) for n in nodes)
+
+
 def _orient(nodes: list[_Node], t0: float, kind: StartKind) -> list[_Node]:
     """Signs: M1's largest excursion over the first swing positive (for a release from rest that
     is its release angle: its held angle decides, not a comparison with the next, hardly
@@ -350,6 +382,27 @@ class _StartModel:
     params: RigParams
     engine: str
     horizon_s: float
+    drive_input: tuple[Floats, Floats] | None = None  # (t_s on the recorder's clock, held (n, 4))
+
+    @property
+    def timed(self) -> bool:
+        """The values' instants get a common shift fitted too (``shift_s``): a driven run that
+        starts in motion. The drive is fixed on the recorder's clock, so a few ms error of the
+        fused values' instants (the fusion phase) is no longer absorbed by the start state as it
+        is in a free decay; a release fits its instant, which the drive starts with, instead."""
+        return self.drive_input is not None and self.kind == "in motion"
+
+    def shift_s(self, x: Floats) -> float:
+        """The shift of the values' instants, s: a value at ``at`` belongs to at + shift."""
+        return float(x[4]) if self.timed else 0.0
+
+    def drive(self) -> Drive | None:
+        """The recorded drive from t0 on (None: a free run). A driven release starts at t0, its
+        drive's onset; the fitted release instant then moves the drive with it (it absorbs an
+        error of the values' instants: ``align`` turns it into their shift)."""
+        if self.drive_input is None:
+            return None
+        return recorded_drive(*self.drive_input, self.t0, until_s=self.horizon_s + 0.1)
 
     def states(self, x: Floats) -> tuple[Floats, Floats, float]:
         """(phi0 (2,), omega0 (2,), start instant) of a parameter vector."""
@@ -360,7 +413,9 @@ class _StartModel:
     def rollouts(self, xs: Sequence[Floats]):
         phi0 = np.array([self.states(x)[0] for x in xs])
         omega0 = np.array([self.states(x)[1] for x in xs])
-        return engines.run_batch(self.engine, self.params, phi0, omega0, engines.whole_steps_s(self.horizon_s))
+        drive = self.drive()
+        duration = engines.whole_steps_s(self.horizon_s)
+        return engines.run_batch(self.engine, self.params, phi0, omega0, duration, drive=drive)
 
 
 def _predict(traj_t: Floats, phi: Floats, omega: Floats, at: Floats, rest_phi: float | None) -> tuple[Floats, Floats]:
@@ -383,6 +438,7 @@ def _predict(traj_t: Floats, phi: Floats, omega: Floats, at: Floats, rest_phi: f
 
 def _residuals(model: _StartModel, traj, member: int, x: Floats, data) -> Floats:
     phi0, _, start = model.states(x)
+    start -= model.shift_s(x)
     out = []
     for k, (at, phi, omega, sigma) in enumerate(data):
         rest = float(phi0[k]) if model.kind == "release" else None
@@ -400,6 +456,9 @@ def _fit_start(model: _StartModel, x0: Floats, data, *, iterations: int = 8) -> 
     if model.kind == "release":
         steps[0] = 1e-4
         rolled = rolled[1:]
+    if model.timed:  # the values' shift: no rollout either
+        steps[4] = 1e-4
+        rolled.remove(4)
     cost = math.inf
     previous = x
     for _ in range(iterations):
@@ -433,6 +492,7 @@ def _unexplained(model: _StartModel, traj, x: Floats, data) -> float:
     change since the start (both nodes): 0 a perfect fit, about 1 or more a model that does not
     describe what follows the start at all."""
     phi0, _, start = model.states(x)
+    start -= model.shift_s(x)
     residual, motion = [], []
     for k, (at, phi, _omega, _sigma) in enumerate(data):
         after = at >= start
@@ -446,19 +506,25 @@ def _unexplained(model: _StartModel, traj, x: Floats, data) -> float:
 
 
 def _check_found_start(
-    start: StartState, detected_s: float, nodes: Sequence[_Node], instants: Sequence[Floats], window_s: float
+    start: StartState,
+    detected_s: float,
+    nodes: Sequence[_Node],
+    instants: Sequence[Floats],
+    window_s: float,
+    driven: bool = False,
 ) -> None:
     """Refuse a found start (detected at ``detected_s``, s) that is not the start of the swing
     that follows it.
 
     Raises:
-      RecordingError: a release from rest not at the largest excursion of the swing after it, or
-        a model (from the start) that leaves UNEXPLAINED_REFUSED of the motion unexplained.
+      RecordingError: a release from rest (of a free run) not at the largest excursion of the
+        swing after it, or a model (from the start) that leaves UNEXPLAINED_REFUSED of the
+        motion unexplained.
     """
     what = "release from rest" if start.kind == "release" else "start in motion"
     advice = "give the release instant with --release-s (seconds on the recording's clock)"
     where = f"the {what} found at {detected_s:.3f} s"
-    if start.kind == "release":
+    if start.kind == "release" and not driven:  # a drive may swing the pendulums beyond the release
         span = (start.time_s, start.time_s + FIRST_SWING_S)
         after = [n.phi[(at >= span[0]) & (at <= span[1])] for n, at in zip(nodes, instants, strict=True)]
         swing = max(float(np.max(np.abs(a))) if len(a) else 0.0 for a in after)
@@ -485,6 +551,30 @@ def _fit_data(nodes: Sequence[_Node], instants: Sequence[Floats], lo: float, hi:
     return out
 
 
+def _mirrored_differs(drive: Drive | None) -> bool:
+    """The mirror image of the run (both angles negated) is driven differently: a hinge torque or
+    a sideways support acceleration changes sign under it; a vertical one does not."""
+    return drive is not None and any(t is not Target.PIVOT_Z for t in drive.targets)
+
+
+def _start_fit(
+    model: _StartModel, nodes: Sequence[_Node], instants: Sequence[Floats], start_fit_s: float
+) -> tuple[Floats, float, float]:
+    """The start parameters fitted from the nodes' series at model.t0: (x, rms, unexplained) of
+    ``_fit_start``."""
+    t0, kind = model.t0, model.kind
+    lo = t0 - 0.3 if kind == "release" else t0
+    hi = t0 + start_fit_s
+    phi_now = [float(np.interp(t0, at, n.phi)) for n, at in zip(nodes, instants, strict=True)]
+    omega_now = [float(np.interp(t0, at, n.omega)) for n, at in zip(nodes, instants, strict=True)]
+    if kind == "release":
+        held = [n.phi[(at >= t0 - 0.3) & (at <= t0)] for n, at in zip(nodes, instants, strict=True)]
+        x = np.array([t0] + [float(np.mean(h)) if len(h) else p for h, p in zip(held, phi_now, strict=True)])
+    else:
+        x = np.array(phi_now + omega_now + ([0.0] if model.timed else []))
+    return _fit_start(model, x, _fit_data(nodes, instants, lo, hi))
+
+
 def align(
     nodes: Sequence[NodeSamples],
     params: RigParams,
@@ -494,6 +584,7 @@ def align(
     max_gap_s: float = DEFAULT_MAX_GAP_S,
     start_fit_s: float = 1.0,
     engine: str = "mujoco",
+    drive_input: tuple[Floats, Floats] | None = None,
 ) -> MeasuredRun:
     """The measured run of two nodes (M1's, M2's) against which ``params`` will be compared.
 
@@ -506,6 +597,9 @@ def align(
       max_gap_s: spacing above which samples are not interpolated across, s.
       start_fit_s: length of the start fit, s.
       engine: the model that fits the start ("mujoco" or "reference").
+      drive_input: a driven run's recorded inputs: (n,) the start of each step on the recorder's
+        clock, s, and (n, 4) the inputs held over it (``pendsim_mj.drives`` channels); None for
+        a free run. The model is driven by them from the start on (``drives.recorded_drive``).
 
     Raises:
       RecordingError: too few samples, no motion, no swing to find a frame in.
@@ -515,6 +609,12 @@ def align(
         raise ParameterError(f"align needs the two nodes (M1, M2), got {len(nodes)}")
     check_max_gap(max_gap_s)
     prepared = [_prepare(n, k) for k, n in enumerate(nodes)]
+    onset_s = None
+    if drive_input is not None:
+        drive_input = (np.asarray(drive_input[0], dtype=float), np.asarray(drive_input[1], dtype=float))
+        onset_s = _drive_onset_s(drive_input)
+        if onset_s is None:  # a drive topic that never drives: a free run
+            drive_input = None
     phases: list[float | None] = [None, None]
     if fusion_rate_hz:  # where each chip's fusion ticks fall: the phase that makes its gyro smoothest
         phases = [fusion_phase(n.stamp, n.gyro, fusion_rate_hz) for n in prepared]
@@ -529,6 +629,8 @@ def align(
                 f"({first:.3f} to {last - 1.0:.3f} s on the recording's clock, leaving 1 s to compare)"
             )
         kind, t0 = "given", float(release_s)
+    elif onset_s is not None:
+        kind, t0 = _detect_driven_start(prepared, onset_s)
     else:
         kind, t0 = _detect_start(prepared)
     frames = []
@@ -544,18 +646,22 @@ def align(
     prepared = [dataclasses.replace(n, sigma=_gyro_sigma(n, nodes[k].gyro_covariance)) for k, n in enumerate(prepared)]
 
     # Start state: least squares of the model's first seconds against both nodes.
-    model = _StartModel(kind, t0, params, engine, start_fit_s + 0.6)
-    lo = t0 - 0.3 if kind == "release" else t0
-    hi = t0 + start_fit_s
-    phi_now = [float(np.interp(t0, at, n.phi)) for n, at in zip(prepared, instants, strict=True)]
-    omega_now = [float(np.interp(t0, at, n.omega)) for n, at in zip(prepared, instants, strict=True)]
-    if kind == "release":
-        held = [n.phi[(at >= t0 - 0.3) & (at <= t0)] for n, at in zip(prepared, instants, strict=True)]
-        x = np.array([t0] + [float(np.mean(h)) if len(h) else p for h, p in zip(held, phi_now, strict=True)])
-    else:
-        x = np.array(phi_now + omega_now)
-    x, rms, unexplained = _fit_start(model, x, _fit_data(prepared, instants, lo, hi))
+    model = _StartModel(kind, t0, params, engine, start_fit_s + 0.6, drive_input)
+    x, rms, unexplained = _start_fit(model, prepared, instants, start_fit_s)
+    if drive_input is not None and _mirrored_differs(model.drive()):
+        # the drive has a sense (a torque, a sideways support): the frames' sign must match it
+        flipped = [n.with_frame(n.frame.flipped()) for n in prepared if n.frame is not None]
+        x_f, rms_f, unexplained_f = _start_fit(model, flipped, instants, start_fit_s)
+        if rms_f < rms:
+            prepared, x, rms, unexplained = flipped, x_f, rms_f, unexplained_f
     phi0, omega0, start_time = model.states(x)
+    shift = model.shift_s(x)
+    if drive_input is not None and kind == "release":
+        # the drive's clock is the reference: the release is at its onset, the fitted offset
+        # from it an error of the values' instants (the fusion phase: a free decay absorbs it)
+        shift, start_time = t0 - start_time, t0
+    if shift:  # the values' instants as the driven start fit found them
+        instants = [at + shift for at in instants]
     start = StartState(
         kind=kind,
         time_s=start_time,
@@ -566,7 +672,7 @@ def align(
         fit_window_s=start_fit_s,
     )
     if kind != "given":
-        _check_found_start(start, t0, prepared, instants, start_fit_s)
+        _check_found_start(start, t0, prepared, instants, start_fit_s, driven=drive_input is not None)
 
     runs = []
     for node, at, phase in zip(prepared, instants, phases, strict=True):

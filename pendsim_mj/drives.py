@@ -438,6 +438,57 @@ def drive_from_held_inputs(t_s: ArrayLike, held: ArrayLike) -> Drive:
     return Drive(**signals)
 
 
+def recorded_drive(t_s: ArrayLike, held: ArrayLike, start_s: float, *, until_s: float | None = None) -> Drive | None:
+    """A recording's drive from ``start_s`` on: drive time 0 = ``start_s`` (the release).
+
+    The recorded inputs are held over steps starting at t_s (a /drive topic, stamped on the
+    recording's clock); they become TimeSeries through (t_k + dt/2 - start, u_k) as in
+    ``drive_from_held_inputs``: zero before the recorded steps (nothing driven yet), the last
+    value held after them (until ``until_s``, to cover a model run a few steps longer than the
+    topic). Only the steps from about one second before the start to ``until_s`` are used.
+
+    Args:
+      t_s: (n,) start of each recorded step on the recording's clock, s (ascending).
+      held: (n, 4) the inputs held over those steps, channels in ``Target`` order.
+      start_s: the start (release) on the same clock, s.
+      until_s: the drive must cover [0, until_s] (since the start), s; default: to the last step.
+
+    Returns:
+      The drive, or None when no channel is ever non-zero over that span.
+    """
+    t = np.asarray(t_s, dtype=float)
+    u = np.asarray(held, dtype=float)
+    if t.ndim != 1 or u.shape != (len(t), NCHANNEL) or len(t) < 2:
+        raise ParameterError(f"need (n,) times and (n, {NCHANNEL}) inputs with n >= 2, got {t.shape}, {u.shape}")
+    dt = float(np.median(np.diff(t)))
+    mid = t - start_s + 0.5 * dt
+    end = mid[-1] + 0.5 * dt if until_s is None else max(float(until_s), 0.0)
+    keep = (mid >= -1.0) & (mid <= end + dt)
+    if not keep.any():  # the topic ends before the start: its last value held on
+        keep = np.zeros(len(t), dtype=bool)
+        keep[-1] = True
+    mid, u = mid[keep], u[keep]
+    first, last = float(mid[0] - 0.5 * dt), float(mid[-1] + 0.5 * dt)
+    knots = [mid]
+    values = [u]
+    if first > 0.25 * dt:  # the drive begins after the start: nothing driven before its first step
+        knots = [np.array([0.0, first - 1e-6 * dt]), *knots]
+        values = [np.zeros((2, NCHANNEL)), *values]
+    if knots[0][0] > -0.5 * dt:
+        knots = [np.array([min(first, 0.0) - 0.5 * dt]), *knots]
+        values = [values[0][:1], *values]
+    tail = max(last, end) + 0.5 * dt
+    knots.append(np.array([tail]))
+    values.append(u[-1:])
+    k, v = np.concatenate(knots), np.concatenate(values)
+    signals = {}
+    for target in Target:
+        column = v[:, target.index]
+        if np.any(column):
+            signals[target.value] = TimeSeries(tuple(k.tolist()), tuple(column.tolist()), f"recorded {target.value}")
+    return Drive(**signals) if signals else None
+
+
 def stack_inputs(drives: Sequence[Drive | None], nstep: int, dt_s: float) -> NDArray[np.float64]:
     """(nbatch, nstep, 4) held inputs of several drives (``held_inputs`` of each)."""
     return np.stack([held_inputs(d, nstep, dt_s) for d in drives])

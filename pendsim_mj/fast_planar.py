@@ -599,6 +599,8 @@ def lyapunov(
 
 # --- rates at given instants, with their exact sensitivities (the damping fit) -----------------
 
+_UNDRIVEN_STEPS = np.zeros((0, NINPUT))  # ``rates_at`` without inputs
+
 # Unknowns whose sensitivity ``rates_at`` can return (``wrt`` codes): the start state, then the
 # hinge losses (rows _B1, _B2, _F1, _F2 of the coefficients).
 SENSITIVITY_NAMES = (
@@ -615,9 +617,11 @@ SENSITIVITY_NAMES = (
 
 @numba.njit(inline="always", cache=True)
 def _accel_partials(
-    p1: float, p2: float, w1: float, w2: float, c: tuple[float, ...]
+    p1: float, p2: float, w1: float, w2: float, c: tuple[float, ...], u: tuple[float, float, float, float]
 ) -> tuple[float, float, float, float, float, float, float, float, float, float]:
-    """Undriven d(phi1'', phi2'')/d(phi1, phi2, omega_n) and the direct derivatives by b_n, F_n:
+    """d(phi1'', phi2'')/d(phi1, phi2, omega_n) and the direct derivatives by b_n, F_n with the held
+    inputs u (``_accel``; the torques add no partial, a support acceleration adds
+    -m_n OC_n (a_v cos phi_n - a_h sin phi_n) / J_n to d phi_n'' / d phi_n):
     (a1_p1, a1_p2, a1_w1, a2_p1, a2_p2, a2_w2, a1_b1, a2_b2, a1_F1, a2_F2), from the equations of
     the module docstring (d = phi2 - phi1; s(w) = w / sqrt(w^2 + w_s^2), s'(w) = w_s^2 / (w^2 +
     w_s^2)^(3/2))."""
@@ -633,11 +637,11 @@ def _accel_partials(
     j1 = 1.0 / c[_J1]
     j2 = 1.0 / c[_J2]
     return (
-        (-c[_G1] * c1 - coupling) * j1,
+        (-c[_G1] * c1 - coupling - c[_MOC1] * (u[3] * c1 - u[2] * s1)) * j1,
         coupling * j1,
         -(c[_B1] + c[_F1] * _SMOOTH2 / (q1 * r1)) * j1,
         coupling * j2,
-        (-c[_G2] * c2 - coupling - c[_FS] * c2 - c[_FC] * s2) * j2,
+        (-c[_G2] * c2 - coupling - c[_FS] * c2 - c[_FC] * s2 - c[_MOC2] * (u[3] * c2 - u[2] * s2)) * j2,
         -(c[_B2] + c[_F2] * _SMOOTH2 / (q2 * r2)) * j2,
         -w1 * j1,
         -w2 * j2,
@@ -648,12 +652,12 @@ def _accel_partials(
 
 @numba.njit(inline="always", cache=True)
 def _sens_derivative(
-    p1: float, p2: float, w1: float, w2: float, c: tuple[float, ...], wrt: NDArray[np.int64], s: FloatArray,
-    out: FloatArray,
+    p1: float, p2: float, w1: float, w2: float, c: tuple[float, ...], u: tuple[float, float, float, float],
+    wrt: NDArray[np.int64], s: FloatArray, out: FloatArray,
 ) -> None:  # fmt: skip
     """d/dt of the sensitivities s (4, P) of (phi1, phi2, omega1, omega2) at the state given, into
-    out (4, P): the variational equations of the undriven rig."""
-    a1p1, a1p2, a1w1, a2p1, a2p2, a2w2, a1b1, a2b2, a1f1, a2f2 = _accel_partials(p1, p2, w1, w2, c)
+    out (4, P): the variational equations of the rig with the held inputs u."""
+    a1p1, a1p2, a1w1, a2p1, a2p2, a2w2, a1b1, a2b2, a1f1, a2f2 = _accel_partials(p1, p2, w1, w2, c, u)
     for col in range(s.shape[1]):
         out[0, col] = s[2, col]
         out[1, col] = s[3, col]
@@ -677,6 +681,7 @@ def _rates_kernel(
     tau: float,
     h: float,
     nstep: int,
+    held: FloatArray,
     wrt: NDArray[np.int64],
     at1: FloatArray,
     at2: FloatArray,
@@ -687,13 +692,17 @@ def _rates_kernel(
     slope1: FloatArray,
     slope2: FloatArray,
 ) -> None:
-    """One undriven member (k: (NCOEF, 1)) from y0 = (phi1, phi2, omega1, omega2) at rest until
-    ``tau``, then RK4 steps of h: each node's rate at its instants at_n (ascending, s) by cubic
-    Hermite through omega and alpha at the step ends, its sensitivities (m_n, P) to the ``wrt``
-    unknowns (RK4 on the variational equations: the exact derivative of the discrete solution),
-    and d rate / d tau (m_n,). Instants before tau: rate 0 (at rest), no sensitivity."""
+    """One member (k: (NCOEF, 1)) from y0 = (phi1, phi2, omega1, omega2) at rest until ``tau``,
+    then RK4 steps of h, step j holding the inputs held[j] (held: (H >= nstep, NINPUT), or H = 0:
+    undriven; the drive's time 0 is tau): each node's rate at its instants at_n (ascending, s) by
+    cubic Hermite through omega and alpha at the step ends (alpha of the step's own inputs), its
+    sensitivities (m_n, P) to the ``wrt`` unknowns (RK4 on the variational equations: the exact
+    derivative of the discrete solution), and d rate / d tau (m_n,). Instants before tau: rate 0
+    (at rest), no sensitivity."""
     c = _member(_chunk_coefficients(k, 0, 1), 0)
     zero = (0.0, 0.0, 0.0, 0.0)
+    inp = zero
+    driven = held.shape[0] > 0
     npar = len(wrt)
     s = np.zeros((4, npar))
     for col in range(npar):
@@ -703,7 +712,7 @@ def _rates_kernel(
     st = np.zeros((4, npar))  # a stage's s
     p1, p2, w1, w2 = y0[0], y0[1], y0[2], y0[3]
     a1, a2 = _accel(p1, p2, w1, w2, c, zero)
-    _sens_derivative(p1, p2, w1, w2, c, wrt, s, ks[0])
+    _sens_derivative(p1, p2, w1, w2, c, zero, wrt, s, ks[0])
     n1 = np.searchsorted(at1, tau)
     n2 = np.searchsorted(at2, tau)
     m1, m2 = len(at1), len(at2)
@@ -711,31 +720,36 @@ def _rates_kernel(
     h6 = h / 6.0
     ends = np.zeros((2, 2, npar))  # at the step's start: each node's s of omega and of alpha
     for step in range(nstep):
+        if driven:  # this step's inputs: the start's alpha and the variational slope with them
+            inp = (held[step, 0], held[step, 1], held[step, 2], held[step, 3])
+            a1, a2 = _accel(p1, p2, w1, w2, c, inp)
+            if npar:
+                _sens_derivative(p1, p2, w1, w2, c, inp, wrt, s, ks[0])
         # RK4 of the state, in _rk4's order of operations, and of s alongside
         q1, q2, v1, v2 = p1 + hh * w1, p2 + hh * w2, w1 + hh * a1, w2 + hh * a2
-        f1, f2 = _accel(q1, q2, v1, v2, c, zero)
+        f1, f2 = _accel(q1, q2, v1, v2, c, inp)
         r1, r2, x1, x2 = p1 + hh * v1, p2 + hh * v2, w1 + hh * f1, w2 + hh * f2
-        g1, g2 = _accel(r1, r2, x1, x2, c, zero)
+        g1, g2 = _accel(r1, r2, x1, x2, c, inp)
         t1, t2, y1, y2 = p1 + h * x1, p2 + h * x2, w1 + h * g1, w2 + h * g2
-        i1, i2 = _accel(t1, t2, y1, y2, c, zero)
+        i1, i2 = _accel(t1, t2, y1, y2, c, inp)
         np1 = p1 + h6 * (((w1 + 2.0 * v1) + 2.0 * x1) + y1)
         np2 = p2 + h6 * (((w2 + 2.0 * v2) + 2.0 * x2) + y2)
         nw1 = w1 + h6 * (((a1 + 2.0 * f1) + 2.0 * g1) + i1)
         nw2 = w2 + h6 * (((a2 + 2.0 * f2) + 2.0 * g2) + i2)
-        na1, na2 = _accel(np1, np2, nw1, nw2, c, zero)
+        na1, na2 = _accel(np1, np2, nw1, nw2, c, inp)
         if npar:
             for col in range(npar):
                 for r in range(4):
                     st[r, col] = s[r, col] + hh * ks[0, r, col]
-            _sens_derivative(q1, q2, v1, v2, c, wrt, st, ks[1])
+            _sens_derivative(q1, q2, v1, v2, c, inp, wrt, st, ks[1])
             for col in range(npar):
                 for r in range(4):
                     st[r, col] = s[r, col] + hh * ks[1, r, col]
-            _sens_derivative(r1, r2, x1, x2, c, wrt, st, ks[2])
+            _sens_derivative(r1, r2, x1, x2, c, inp, wrt, st, ks[2])
             for col in range(npar):
                 for r in range(4):
                     st[r, col] = s[r, col] + h * ks[2, r, col]
-            _sens_derivative(t1, t2, y1, y2, c, wrt, st, ks[3])
+            _sens_derivative(t1, t2, y1, y2, c, inp, wrt, st, ks[3])
             for col in range(npar):
                 for n in range(2):
                     ends[n, 0, col] = s[2 + n, col]
@@ -744,7 +758,7 @@ def _rates_kernel(
                     s[r, col] = s[r, col] + h6 * (
                         ((ks[0, r, col] + 2.0 * ks[1, r, col]) + 2.0 * ks[2, r, col]) + ks[3, r, col]
                     )
-            _sens_derivative(np1, np2, nw1, nw2, c, wrt, s, ks[0])
+            _sens_derivative(np1, np2, nw1, nw2, c, inp, wrt, s, ks[0])
         last = step == nstep - 1
         for node in range(2):
             at = at1 if node == 0 else at2
@@ -789,9 +803,10 @@ def rates_at(
     release_s: float = 0.0,
     wrt: Sequence[str] = (),
     sensitivities_out: tuple[FloatArray, FloatArray] | None = None,
+    inputs: FloatArray | None = None,
 ) -> tuple[tuple[FloatArray, FloatArray], tuple[FloatArray, FloatArray], tuple[FloatArray, FloatArray]]:
-    """One undriven run's omega1, omega2 at given instants, with exact sensitivities: what a
-    least-squares fit needs, without storing the trajectory.
+    """One run's omega1, omega2 at given instants, with exact sensitivities: what a least-squares
+    fit needs, without storing the trajectory.
 
     The member rests at (phi0, omega0 = 0) until ``release_s`` (or moves from omega0 if it is 0),
     then RK4 steps of ``dt_s`` (the kernel's arithmetic: rates equal ``integrate``'s states at the
@@ -806,6 +821,9 @@ def rates_at(
       wrt: names from ``SENSITIVITY_NAMES``: the unknowns to differentiate by.
       sensitivities_out: two (m_n, P) float64 arrays (views allowed) to write the sensitivities
         into, e.g. the columns of a Jacobian (no copy); returned as the sensitivities.
+      inputs: (H, NINPUT) the inputs held over the steps from the release on (``drives.held_inputs``
+        with the drive's time 0 at ``release_s``; H at least the steps the instants need), or
+        None (undriven).
 
     Returns:
       (rates, sensitivities, slopes): each a pair over the nodes: rate (m_n,) rad/s (0 before the
@@ -829,8 +847,13 @@ def rates_at(
             raise ParameterError(f"rates_at: sensitivities_out must be float64 arrays of shape (m_n, {len(codes)})")
         for o in sens:
             o[...] = 0.0
+    held = _UNDRIVEN_STEPS
+    if inputs is not None:
+        held = np.ascontiguousarray(inputs, dtype=np.float64)
+        if held.ndim != 2 or held.shape[1] != NINPUT or held.shape[0] < nstep:
+            raise ParameterError(f"rates_at: inputs must have shape (>= {nstep}, {NINPUT}), got {held.shape}")
     slope = tuple(np.zeros(len(a)) for a in at)
-    _rates_kernel(k, y0, float(release_s), float(dt_s), nstep, codes, at[0], at[1], rate[0], rate[1], sens[0],
+    _rates_kernel(k, y0, float(release_s), float(dt_s), nstep, held, codes, at[0], at[1], rate[0], rate[1], sens[0],
                   sens[1], slope[0], slope[1])  # fmt: skip
     return (rate[0], rate[1]), (sens[0], sens[1]), (slope[0], slope[1])
 

@@ -32,6 +32,7 @@ import mujoco
 import numpy as np
 
 from pendsim_mj.analysis import log_decrement_damping
+from pendsim_mj.drives import Drive
 from pendsim_mj.errors import ParameterError
 from pendsim_mj.model import HINGES, build_spec
 from pendsim_mj.params import PARAMETER_LIMITS, RigParams
@@ -118,13 +119,14 @@ def planar_damping(
     omega0_rad_s: tuple[float, float] = (0.0, 0.0),
     moving: bool | None = None,
     law: str = "auto",
+    drive: Drive | None = None,
 ) -> DampingFit:
     """The planar fit (``planar_fit.fit_planar``, same arguments) as a DampingFit: the law with
     the smallest BIC (or the one asked for), every law tried in ``laws``."""
     start = time.perf_counter()
     fits = fit_planar(
         params, value_t_s, gyro_z_rad_s, gyro_sigma_rad_s=gyro_sigma_rad_s, phi0_rad=phi0_rad,
-        omega0_rad_s=omega0_rad_s, moving=moving, law=law,
+        omega0_rad_s=omega0_rad_s, moving=moving, law=law, drive=drive,
     )  # fmt: skip
     best = fits[0]
     names = ("b1_n_m_s", "b2_n_m_s")

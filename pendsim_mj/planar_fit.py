@@ -22,6 +22,10 @@ Jacobian was off by up to 2e-4 relative in the friction columns); the release of
 -alpha at the instants. One pass of one member per Jacobian, nothing stored but the predictions
 and their sensitivities (a 1 h record: tens of MB).
 
+Drives: a driven run's inputs (``pendsim_mj.drives``, its time 0 at the release: a shifted release
+shifts the drive with it) are held over the kernel's steps as in every engine; the Jacobian stays
+exact (``fast_planar.rates_at`` with ``inputs``).
+
 Intervals: covariance s^2 (J^T J)^-1 of the normalised residuals with s^2 = RSS/(n - P) (the
 residual variance, so a misjudged noise sigma does not narrow them), 95 % half-widths
 1.96 sqrt(diag). Their coverage is tested over seeded synthetic records (tests/test_planar_fit.py).
@@ -43,6 +47,7 @@ from numpy.typing import NDArray
 from scipy import fft, optimize, stats
 
 from pendsim_mj import fast_planar
+from pendsim_mj.drives import Drive, held_inputs
 from pendsim_mj.errors import ParameterError
 from pendsim_mj.params import RigParams
 
@@ -107,6 +112,7 @@ class _Data:
     at: tuple[Floats, Floats]  # each node's value instants since the start, s (finite only)
     gyro: tuple[Floats, Floats]  # its measured rate, rad/s
     sigma: Floats  # (2,)
+    inputs: Floats | None = None  # (H, NINPUT) held over the steps from the release on, or None
 
 
 class _Model:
@@ -142,8 +148,9 @@ class _Model:
         omega0 = x[p + 2 : p + 4] if self.moving else (0.0, 0.0)
         release = 0.0 if self.moving else float(x[-1])
         return fast_planar.rates_at(
-            coef, x[p : p + 2], omega0, self.data.at, FIT_DT_S, release_s=release, wrt=wrt, sensitivities_out=sens
-        )
+            coef, x[p : p + 2], omega0, self.data.at, FIT_DT_S, release_s=release, wrt=wrt, sensitivities_out=sens,
+            inputs=self.data.inputs,
+        )  # fmt: skip
 
     def full(self, x: Floats) -> tuple[Floats, Floats]:
         """Normalised residuals (n,) and Jacobian (n, P) at x, from one kernel pass (the kernel
@@ -281,8 +288,10 @@ def fit_planar(
     omega0_rad_s: Sequence[float] = (0.0, 0.0),
     moving: bool | None = None,
     law: str = "auto",
+    drive: Drive | None = None,
 ) -> list[LawFit]:
-    """Fit the hinge losses and the start state of a free decay on the planar model.
+    """Fit the hinge losses and the start state of a free decay (or of a driven run) on the
+    planar model.
 
     Args:
       params: the rig (its damping fields are only the first guess).
@@ -293,6 +302,8 @@ def fit_planar(
       moving: the run starts in motion (fit omega_0, no release offset); default: any |omega_0|
         above 0.
       law: "viscous", "coulomb", "both", or "auto" (all three).
+      drive: the run's drive, its time 0 at the start (for a release: at the fitted release
+        instant, the drive starting with the swing), or None for a free decay.
 
     Returns:
       The fit of each law tried, the one with the smallest BIC first.
@@ -311,7 +322,11 @@ def fit_planar(
         gyro.append(y[ok, k][order])
         if len(at[-1]) < 10:
             raise ParameterError(f"node {k + 1} has {len(at[-1])} usable gyro samples; the fit needs at least 10")
-    data = _Data((at[0], at[1]), (gyro[0], gyro[1]), np.asarray(gyro_sigma_rad_s, dtype=float))
+    inputs = None
+    if drive:  # the steps the latest release offset needs (``fast_planar.rates_at``), and one more
+        end_s = max(float(at[0][-1]), float(at[1][-1])) + MAX_RELEASE_OFFSET_S
+        inputs = held_inputs(drive, math.ceil(end_s / FIT_DT_S) + 2, FIT_DT_S)
+    data = _Data((at[0], at[1]), (gyro[0], gyro[1]), np.asarray(gyro_sigma_rad_s, dtype=float), inputs)
     if moving is None:
         moving = bool(np.any(np.abs(np.asarray(omega0_rad_s, dtype=float)) > 0))
     if law != "auto":
