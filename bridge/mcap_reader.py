@@ -278,7 +278,7 @@ class McapFile:
         t0 = min((r.start_ns for r in self.chunk_refs), default=0)
         t_end = max((r.end_ns for r in self.chunk_refs), default=0)
         return (
-            f"recovered {n} messages in {len(self.chunk_refs)} chunks, {(t_end - t0) / 1e9:.3f} s of log time "
+            f"{n} messages in {len(self.chunk_refs)} chunks intact, {(t_end - t0) / 1e9:.3f} s of log time "
             f"({self.bytes_read} of {self.file_size} bytes)"
         )
 
@@ -996,7 +996,7 @@ class McapContents:
         t0 = min((int(m.log_time_ns[0]) for m in self.messages.values() if len(m)), default=0)
         t_end = max((int(m.log_time_ns[-1]) for m in self.messages.values() if len(m)), default=0)
         return (
-            f"recovered {self.message_count} messages in {self.chunks} chunks, {(t_end - t0) / 1e9:.3f} s of log "
+            f"{self.message_count} messages in {self.chunks} chunks intact, {(t_end - t0) / 1e9:.3f} s of log "
             f"time ({self.bytes_read} of {self.file_size} bytes)"
         )
 

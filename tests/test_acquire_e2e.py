@@ -51,17 +51,20 @@ def _diagnostics(path):
 
 
 def test_the_readme_pair_records_a_release_that_validates(tmp_path):
-    """README: `pendsim nodes --duration-s 30 &` then `pendsim acquire -o run.mcap --duration-s 32`
-    (here 6 s and 8 s, on free ports), then validate."""
+    """README: `pendsim acquire -o run.mcap --duration-s 34 &` (listening first) then
+    `pendsim nodes --duration-s 30` (here 8 s and 6 s, on free ports), then validate."""
     p1, p2 = free_udp_ports(2)
     ports = ["--node", f"m1={p1}", "--node", f"m2={p2}"]
-    nodes = Pendsim(["nodes", "--duration-s", "6", *ports], cwd=tmp_path)
     acquire = Pendsim(["acquire", "-o", "run.mcap", "--duration-s", "8", *ports], cwd=tmp_path)
+    nodes = None
     try:
+        acquire.wait_for("listening:")
+        nodes = Pendsim(["nodes", "--duration-s", "6", *ports], cwd=tmp_path)
         assert nodes.finish() == 0, nodes.err
         assert acquire.finish() == 0, acquire.err
     finally:
-        nodes.kill()
+        if nodes is not None:
+            nodes.kill()
         acquire.kill()
     out = "\n".join(acquire.out)
     assert "wrote run.mcap" in out and "(stopped: duration)" in out
