@@ -408,7 +408,7 @@ def _run(
                     status_line.show(_status_text(nodes, (now - start_ns) * 1e-9), (now - start_ns) * 1e-9)
                 if now >= next_flush:
                     next_flush = now + round(FLUSH_S * 1e9)
-                    sink.flush(_settled_ns(nodes, now))
+                    sink.flush(_settled_ns(nodes, now, start_ns))
             now = time.monotonic_ns()
             _release(nodes, now, sink, live, utc_ns, start_ns, final=True)
             status_line.end()
@@ -494,22 +494,24 @@ def _release(
         t_ns = np.maximum.accumulate(np.maximum(t_ns - steps, node.last_log_ns + 1)) + steps
         node.last_log_ns = int(t_ns[-1])
         rows = np.array([a.packet.row for a in released], dtype=np.float64)
-        behind = t_ns <= sink.written_upto_ns  # a node back from a long silence with old samples
-        if np.any(behind):
-            node.stream.count_written_late(int(np.count_nonzero(behind)))
-            t_ns, rows = t_ns[~behind], rows[~behind]
-        sink.add_samples(node.spec.name, t_ns, rows)
-        if live is not None:
-            live.add(node.spec.name, t_ns, rows)
+        behind = t_ns < sink.written_upto_ns  # older than the file: a node back from a long silence
+        late = sink.add_samples(node.spec.name, t_ns, rows)
+        if late:
+            node.stream.count_written_late(late)
+        if live is not None and not np.all(behind):
+            live.add(node.spec.name, t_ns[~behind], rows[~behind])
 
 
-def _settled_ns(nodes: list[_Node], now_ns: int) -> int | None:
+def _settled_ns(nodes: list[_Node], now_ns: int, start_ns: int) -> int | None:
     """The log time up to which every node has released its samples, so that what is written is
-    in log-time order across nodes: None (everything) when no node is sending; a node silent for
-    STALE_S holds nothing back; one still warming up holds everything back (-1)."""
+    in log-time order across nodes. A node holds the writing back (-1: nothing yet) until it has
+    released samples, unless it has been silent for STALE_S: since its last packet, or since the
+    start for a node not heard from yet (its first samples may be stamped before what the others
+    sent so far). None (everything) when every node is silent that long."""
     settled = None
     for node in nodes:
-        if not node.last_read_ns or now_ns - node.last_read_ns > STALE_S * 1e9:
+        heard_ns = node.last_read_ns or start_ns
+        if now_ns - heard_ns > STALE_S * 1e9:
             continue
         if node.last_log_ns < 0:
             return -1
@@ -604,10 +606,19 @@ def _number(value: float, width: int, decimals: int) -> str:
     return f"{value:{width}.{decimals}f}" if math.isfinite(value) else f"{'-':>{width}}"
 
 
+def samples_text(nodes: tuple[NodeResult, ...]) -> str:
+    """The samples written per node: "2560 IMU samples per node" or "2560 (m1) and 2391 (m2) IMU
+    samples" (as ``pendsim record`` says it)."""
+    written = [r.counters.written for r in nodes]
+    if len(nodes) > 1 and len(set(written)) == 1:
+        return f"{written[0]} IMU samples per node"
+    return " and ".join(f"{r.counters.written} ({r.name})" for r in nodes) + " IMU samples"
+
+
 def summary(result: AcquireResult) -> str:
     """The lines printed at the end."""
     lines = [
-        f"wrote {result.path}: {result.duration_s:.1f} s, {result.messages} IMU samples, "
+        f"wrote {result.path}: {result.duration_s:.1f} s, {samples_text(result.nodes)}, "
         f"{result.size_bytes / 1e6:.2f} MB (stopped: {result.stop_reason})"
     ]
     head = f"  {'node':4} {'port':>5} {'received':>9} {'written':>8} {'lost':>6} {'dup':>5} {'reord':>6}"
