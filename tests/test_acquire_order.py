@@ -14,6 +14,7 @@ from mcap.reader import make_reader
 from pendsim_bridge.acquire.packets import V1Codec
 from pendsim_bridge.acquire.ports import NodeSpec
 from pendsim_bridge.acquire.receiver import STALE_S, AcquireSpec, acquire, summary
+from pendsim_bridge.mcap_reader import read_mcap
 from pendsim_bridge.recording import read_recording
 
 RATE_HZ = 80.0
@@ -49,32 +50,59 @@ def _send(port: int, node_id: int, started: threading.Event, *, after_s: float, 
     return seq
 
 
-def _acquire_two(tmp_path, m1: dict, m2: dict, duration_s: float):
-    """acquire (in this thread) while the two nodes send from threads; returns (result, sent)."""
+def _send_garbage(port: int, started: threading.Event, *, until_s: float) -> None:
+    """Datagrams of the right size that are no packet (a node with a broken build), at 80 Hz."""
+    rng = np.random.default_rng(5)
+    started.wait()
+    t0 = time.monotonic()
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        while time.monotonic() - t0 < until_s:
+            s.sendto(rng.integers(0, 256, 70, dtype=np.uint8).tobytes(), ("127.0.0.1", port))
+            time.sleep(1.0 / RATE_HZ)
+
+
+def _acquire_two(tmp_path, m1: dict, m2: dict | None, duration_s: float, *, watch_at_s: float | None = None):
+    """acquire (in this thread) while the two nodes send from threads (m2 None: garbage); returns
+    (result, sent, the partial file's /imu/m1 log times ``watch_at_s`` after the start)."""
     p1, p2 = free_udp_ports(2)
     started = threading.Event()
     sent: dict[str, int] = {}
+    partial: list[str] = []
+    watched: dict[str, np.ndarray] = {}
 
     def node(name, port, node_id, kwargs):
         sent[name] = _send(port, node_id, started, **kwargs)
 
-    threads = [
-        threading.Thread(target=node, args=("m1", p1, 1, m1)),
-        threading.Thread(target=node, args=("m2", p2, 2, m2)),
-    ]
+    def watch():
+        started.wait()
+        time.sleep(watch_at_s)
+        contents = read_mcap(partial[0], payloads=False)  # as written so far (no summary yet)
+        times = [m.log_time_ns for c, m in contents.messages.items() if contents.channels[c].topic == "/imu/m1"]
+        watched["m1"] = np.concatenate(times) if times else np.zeros(0, np.int64)
+
+    threads = [threading.Thread(target=node, args=("m1", p1, 1, m1))]
+    if m2 is None:
+        threads.append(threading.Thread(target=_send_garbage, args=(p2, started), kwargs={"until_s": duration_s}))
+    else:
+        threads.append(threading.Thread(target=node, args=("m2", p2, 2, m2)))
+    if watch_at_s is not None:
+        threads.append(threading.Thread(target=watch))
     for t in threads:
         t.start()
+
+    def say(line: str) -> None:
+        if "listening" in line:
+            partial.append(line.split("writing ")[1].split(" until done")[0])
+            started.set()
+
     spec = AcquireSpec(nodes=(NodeSpec("m1", p1), NodeSpec("m2", p2)), duration_s=duration_s, rate_hz=RATE_HZ)
     try:
-        result = acquire(
-            spec, tmp_path / "run.mcap", say=lambda line: started.set() if "listening" in line else None,
-            status=lambda line: None,
-        )  # fmt: skip
+        result = acquire(spec, tmp_path / "run.mcap", say=say, status=lambda line: None)
     finally:
         started.set()
         for t in threads:
             t.join()
-    return result, sent
+    return result, sent, watched.get("m1")
 
 
 def _log_times_in_file_order(path) -> np.ndarray:
@@ -88,7 +116,7 @@ def test_a_node_that_starts_later_with_older_samples_loses_none_of_them(tmp_path
     acquisition began, m2 half a second later with 1.75 s of backlog, stamped before m1's first.
     Before the fix the file had passed those times (ValueError: a message ... comes after messages
     ... were written); now nothing is written until both have reported, so every sample is kept."""
-    result, sent = _acquire_two(
+    result, sent, _ = _acquire_two(
         tmp_path,
         dict(after_s=0.55, backlog=80, until_s=3.0),
         dict(after_s=1.05, backlog=140, until_s=3.0),
@@ -110,7 +138,7 @@ def test_samples_older_than_the_file_after_a_long_silence_are_counted_late(tmp_p
     """m2 stays silent past STALE_S (m1 is then written on its own), then sends two seconds of
     backlog: what is older than the file is counted late and dropped, the rest written."""
     after_s = STALE_S + 0.7
-    result, sent = _acquire_two(
+    result, sent, _ = _acquire_two(
         tmp_path,
         dict(after_s=0.0, backlog=0, until_s=after_s + 1.0),
         dict(after_s=after_s, backlog=160, until_s=after_s + 1.0),
@@ -125,3 +153,15 @@ def test_samples_older_than_the_file_after_a_long_silence_are_counted_late(tmp_p
     assert rec.imu["m2"].t_ns[0] >= rec.imu["m1"].t_ns[0]
     log = _log_times_in_file_order(result.path)
     assert np.all(np.diff(log) >= 0)
+
+
+def test_a_node_sending_only_malformed_packets_does_not_hold_the_writing_back(tmp_path):
+    """m2 sends only datagrams that do not decode: after STALE_S it holds nothing back, so m1's
+    samples reach the file while acquire runs (what a killed acquire leaves), not at the end."""
+    result, sent, so_far = _acquire_two(
+        tmp_path, dict(after_s=0.0, backlog=0, until_s=STALE_S + 3.0), None, STALE_S + 3.5, watch_at_s=STALE_S + 2.0
+    )
+    assert so_far is not None and len(so_far) > 0
+    assert (so_far[-1] - so_far[0]) * 1e-9 >= STALE_S  # written up to within a second of the watch
+    m1, m2 = result.nodes
+    assert m1.counters.written == sent["m1"] and m2.counters.written == 0 and m2.counters.malformed > 100

@@ -155,22 +155,26 @@ class _Node:
         self.device_s: list[float] = []  # accepted packets: device time and arrival (s since start)
         self.arrival_s: list[float] = []
         self.last_read_ns = 0  # when the loop last read one (a loop behind its sockets reads old datagrams)
+        self.last_sample_ns = 0  # when it last read a packet that was accepted (malformed ones hold nothing back)
         self.last_log_ns = -1  # latest log time released
         self.sock: socket.socket | None = None
         self.previous = NodeCounters()
         self.host_dropped = 0  # datagrams this host's socket dropped (its buffer was full)
 
-    def receive(self, data: bytes, arrival_ns: int, start_ns: int) -> None:
+    def receive(self, data: bytes, arrival_ns: int, start_ns: int) -> bool:
+        """Decode and account one datagram; True if its sample was accepted."""
         try:
             packet = self.codec.decode(data)
         except PacketError as exc:
             self.stream.count_malformed(exc.reason)
-            return
-        if self.stream.offer(packet, arrival_ns) == "accepted":
-            device_s, arrival_s = packet.device_time_us * 1e-6, (arrival_ns - start_ns) * 1e-9
-            self.clock.add(device_s, arrival_s)
-            self.device_s.append(device_s)
-            self.arrival_s.append(arrival_s)
+            return False
+        if self.stream.offer(packet, arrival_ns) != "accepted":
+            return False
+        device_s, arrival_s = packet.device_time_us * 1e-6, (arrival_ns - start_ns) * 1e-9
+        self.clock.add(device_s, arrival_s)
+        self.device_s.append(device_s)
+        self.arrival_s.append(arrival_s)
+        return True
 
     def line(self) -> ClockRelation | None:
         return self.clock.relation() if self.clock.count else None
@@ -462,8 +466,10 @@ def _drain(node: _Node, start_ns: int) -> None:
                 arrival_ns = sec * 1_000_000_000 + nsec + realtime_to_monotonic
             elif level == socket.SOL_SOCKET and kind == SO_RXQ_OVFL and len(value) >= 4:
                 node.host_dropped = int.from_bytes(value[:4], sys.byteorder)
-        node.receive(data, arrival_ns or time.monotonic_ns(), start_ns)
+        accepted = node.receive(data, arrival_ns or time.monotonic_ns(), start_ns)
         node.last_read_ns = time.monotonic_ns()
+        if accepted:
+            node.last_sample_ns = node.last_read_ns
 
 
 def _release(
@@ -505,12 +511,13 @@ def _release(
 def _settled_ns(nodes: list[_Node], now_ns: int, start_ns: int) -> int | None:
     """The log time up to which every node has released its samples, so that what is written is
     in log-time order across nodes. A node holds the writing back (-1: nothing yet) until it has
-    released samples, unless it has been silent for STALE_S: since its last packet, or since the
-    start for a node not heard from yet (its first samples may be stamped before what the others
-    sent so far). None (everything) when every node is silent that long."""
+    released samples, unless no sample of it has come for STALE_S: since its last one, or since
+    the start for a node not heard from yet (its first samples may be stamped before what the
+    others sent so far); malformed packets do not count. None (everything) when every node is
+    silent that long."""
     settled = None
     for node in nodes:
-        heard_ns = node.last_read_ns or start_ns
+        heard_ns = node.last_sample_ns or start_ns
         if now_ns - heard_ns > STALE_S * 1e9:
             continue
         if node.last_log_ns < 0:
