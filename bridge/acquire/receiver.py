@@ -500,12 +500,11 @@ def _release(
         t_ns = np.maximum.accumulate(np.maximum(t_ns - steps, node.last_log_ns + 1)) + steps
         node.last_log_ns = int(t_ns[-1])
         rows = np.array([a.packet.row for a in released], dtype=np.float64)
-        behind = t_ns < sink.written_upto_ns  # older than the file: a node back from a long silence
-        late = sink.add_samples(node.spec.name, t_ns, rows)
-        if late:
-            node.stream.count_written_late(late)
-        if live is not None and not np.all(behind):
-            live.add(node.spec.name, t_ns[~behind], rows[~behind])
+        taken = sink.add_samples(node.spec.name, t_ns, rows)
+        if not np.all(taken):  # older than the file: a node back from a long silence
+            node.stream.count_written_late(int(np.count_nonzero(~taken)))
+        if live is not None and np.any(taken):
+            live.add(node.spec.name, t_ns[taken], rows[taken])
 
 
 def _settled_ns(nodes: list[_Node], now_ns: int, start_ns: int) -> int | None:

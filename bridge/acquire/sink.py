@@ -117,19 +117,19 @@ class RecordingSink:
         if len(t_ns):
             self._buffer.setdefault(channel, []).append((t_ns, payloads))
 
-    def add_samples(self, node: str, t_ns: NDArray[np.int64], rows: NDArray[np.float64]) -> int:
+    def add_samples(self, node: str, t_ns: NDArray[np.int64], rows: NDArray[np.float64]) -> NDArray[np.bool_]:
         """n samples of one node: log times (n,) ns, non-decreasing, and (n, len(ROW_FIELDS)) rows.
 
-        Returns how many were older than what the file already holds (``written_upto_ns``): those
-        are dropped, since an MCAP file's chunks are written in log-time order (the caller counts
-        them late)."""
+        Returns (n,) which were taken: those older than what the file already holds
+        (``written_upto_ns``) are dropped, since an MCAP file's chunks are written in log-time
+        order (the caller counts them late)."""
         t_ns = np.asarray(t_ns, dtype=np.int64)
-        behind = t_ns < self.written_upto_ns
-        if np.any(behind):
-            t_ns, rows = t_ns[~behind], rows[~behind]
+        taken = t_ns >= self.written_upto_ns
+        if not np.all(taken):
+            t_ns, rows = t_ns[taken], rows[taken]
         n = len(t_ns)
         if not n:
-            return int(np.count_nonzero(behind))
+            return taken
         sec, nanosec = ros2.split_time(t_ns)
         groups = self.groups
         quat = rows[:, GROUP_SLICES["quat"]] if "quat" in groups else np.tile([1.0, 0.0, 0.0, 0.0], (n, 1))
@@ -153,7 +153,7 @@ class RecordingSink:
         if "calib" in groups:
             self._add_calibration(node, t_ns, rows[:, GROUP_SLICES["calib"]].astype(np.uint8))
         self.messages += n
-        return int(np.count_nonzero(behind))
+        return taken
 
     def _add_calibration(self, node: str, t_ns: NDArray[np.int64], levels: NDArray[np.uint8]) -> None:
         """Calibration at 1 Hz (the first sample of each second) and whenever it changes."""
