@@ -2,8 +2,10 @@
 
 Each file becomes a table of named columns in file order:
 
-- **CSV**: comma, semicolon or tab separated (found from the first line), an optional header row
-  (names), lines starting with ``#`` skipped.
+- **CSV**: comma, semicolon or tab separated (found from the first line of numbers), an optional
+  header row (names), lines starting with ``#`` skipped; lines before the header that are not
+  data, an empty field after a delimiter ending a line and a last line cut short are left out,
+  each with a note.
 - **LabVIEW measurement file** (``.lvm``, read with ``lvm-read``): the first segment's channels
   (``X_Value`` included when the file has an X column; a ``Comment`` column is dropped); the
   header's date and time go to the metadata.
@@ -17,15 +19,18 @@ wf_increment), else a uniform ``rate_hz``. Units as for acquisition (``accel=m/s
 Every value must be a finite number, times must increase, quaternions must be unit length and
 calibration levels 0-3: anything else is an error naming the row and column.
 
-The recording has the layout of ``pendsim record`` (``acquire.sink``), with metadata
-``pendsim/import`` naming the source file (path, size, SHA-256, format, map, units).
+Log times are the file's times, taken as UTC when they are Unix times; with ``start_utc_ns`` the
+first sample is at that instant (for times counted from a node's boot). /tf_static is at the
+first sample. The recording has the layout of ``pendsim record`` (``acquire.sink``), with
+metadata ``pendsim/import`` naming the source file (path, size, SHA-256, format, map, units,
+time base, notes).
 """
 
 from __future__ import annotations
 
 import dataclasses
+import datetime
 import hashlib
-import io
 import math
 import re
 from pathlib import Path
@@ -51,6 +56,7 @@ from pendsim_mj.outputs import atomic_output
 from pendsim_mj.params import DEFAULT_PARAMS, RigParams
 
 IMPORT_FORMATS = ("csv", "lvm", "tdms")
+UNIX_2000_S = 946_684_800.0  # 2000-01-01T00:00:00Z: file times from here on are taken as Unix (UTC) times
 SUFFIXES = {".csv": "csv", ".txt": "csv", ".lvm": "lvm", ".tdms": "tdms"}
 TDMS_VERSIONS = (4712, 4713)  # the lead-in's version number: TDMS 1.0 and 2.0
 
@@ -64,6 +70,7 @@ class Table:
     values: NDArray[np.float64]
     timing: tuple[float, float] | None = None  # (delta_s, x0_s)
     notes: tuple[tuple[str, str], ...] = ()
+    skipped: tuple[str, ...] = ()  # what reading left out, for the user (lines before the header, ...)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -76,6 +83,9 @@ class ImportSpec:
       units: units of the values.
       node: the file holds this one node (names without the ``m1.`` prefix).
       rate_hz: sample rate when the file has no time column and no timing of its own.
+      start_utc_ns: the UTC time of the file's first sample, ns since 1970 (None: the file's own
+        times, taken as UTC when they are Unix times from 2000 on, else as relative: counted from
+        the node's boot or the file's zero).
       params, mjcf_xml, mjcf_source: the rig to record with the data.
       compression: chunk compression.
     """
@@ -85,6 +95,7 @@ class ImportSpec:
     units: Units = dataclasses.field(default_factory=Units)
     node: str | None = None
     rate_hz: float | None = None
+    start_utc_ns: int | None = None
     params: RigParams = DEFAULT_PARAMS
     mjcf_xml: str | None = None
     mjcf_source: str = "built by pendsim from the rig parameters"
@@ -97,6 +108,8 @@ class ImportSpec:
             raise ParameterError(f"unknown node {self.node!r}; allowed: {', '.join(NODE_NAMES)}")
         if self.rate_hz is not None and not (math.isfinite(self.rate_hz) and self.rate_hz > 0):
             raise ParameterError(f"rate_hz must be a finite number > 0 Hz, got {self.rate_hz!r}")
+        if self.start_utc_ns is not None and not 0 <= self.start_utc_ns < 2**63 - 10**18:
+            raise ParameterError(f"the start time must be from 1970 on, got {self.start_utc_ns!r} ns")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -107,6 +120,7 @@ class ImportResult:
     samples: dict[str, int]  # per node
     duration_s: float
     size_bytes: int
+    notes: tuple[str, ...] = ()  # for the user: what was left out, how the times were read
 
 
 def format_of(path: Path, given: str | None) -> str:
@@ -132,8 +146,24 @@ def _is_number(text: str) -> bool:
     return True
 
 
+def _fields(line: str, delimiter: str) -> list[str]:
+    return [c.strip() for c in line.split(delimiter)]
+
+
+def _first_data_line(lines: list[tuple[int, str]]) -> tuple[int, str] | None:
+    """(index into lines, delimiter) of the first line whose fields are all numbers (two or more,
+    with the delimiter that gives the most), or None."""
+    for index, (_, line) in enumerate(lines):
+        best = max((",", ";", "\t"), key=line.count)
+        if line.count(best) and all(_is_number(c) for c in _fields(line.rstrip(best + " "), best)):
+            return index, best
+    return None
+
+
 def read_csv(path: Path) -> Table:
-    """A CSV file as a Table (header row optional)."""
+    """A CSV file as a Table: a header row optional; lines before the header that are not data
+    (a node's boot messages) skipped, an empty field after the last delimiter of a line ignored, a
+    last line cut short (a logger stopped mid-line) dropped, each with a note."""
     try:
         text = path.read_text(encoding="utf-8-sig")
     except UnicodeDecodeError:
@@ -143,31 +173,61 @@ def read_csv(path: Path) -> Table:
     lines = [(i + 1, line) for i, line in enumerate(text.splitlines()) if line.strip() and not line.startswith("#")]
     if not lines:
         raise RecordingError(f"{path}: no data lines")
-    first = lines[0][1]
-    delimiter = max((",", ";", "\t"), key=first.count)
-    head = [c.strip() for c in first.split(delimiter)]
-    header = not all(_is_number(c) for c in head)
+    found = _first_data_line(lines)
+    if found is None:
+        raise RecordingError(f"{path}: no data lines (no line of numbers separated by commas, semicolons or tabs)")
+    first, delimiter = found
+    notes: list[str] = []
+    start = first
+    if first > 0 and delimiter in lines[first - 1][1]:
+        start = first - 1  # the header
+    if start > 0:
+        numbers = f"line {lines[0][0]}" if start == 1 else f"lines {lines[0][0]}-{lines[start - 1][0]}"
+        notes.append(f"skipped {numbers} before the {'header' if start < first else 'data'}: not data")
+    rows: list[tuple[int, list[str]]] = []
+    trailing = 0
+    for number, line in lines[start:]:
+        body = line.rstrip()
+        if body.endswith(delimiter) and delimiter.strip():
+            body, trailing = body[: -len(delimiter)], trailing + 1
+        rows.append((number, _fields(body, delimiter)))
+    if trailing:
+        notes.append(f"{trailing} line(s) end in {delimiter!r}: the empty field after it is not a column")
+    head = rows[0][1]
+    header = start < first
     names = tuple(head) if header else tuple(f"column{i + 1}" for i in range(len(head)))
-    rows = lines[1:] if header else lines
-    if not rows:
+    data = rows[1:] if header else rows
+    if data:  # a last line cut short: fewer fields, or its last field not (yet) a number
+        number, parts = data[-1]
+        short = len(parts) < len(names) or (
+            len(parts) == len(names) and not _is_number(parts[-1]) and all(_is_number(p) for p in parts[:-1])
+        )
+        if short:
+            why = f"{len(parts)} of {len(names)} fields" if len(parts) < len(names) else f"ends in {parts[-1]!r}"
+            if len(data) == 1:
+                raise RecordingError(f"{path}: no complete data line (line {number} is cut short: {why})")
+            notes.append(f"dropped the last line {number}: cut short ({why})")
+            data = data[:-1]
+    if not data:
         raise RecordingError(f"{path}: a header but no data lines")
-    try:  # numpy's C parser; the loop below finds the line to blame when it fails
-        values = np.loadtxt(io.StringIO("\n".join(line for _, line in rows)), delimiter=delimiter, ndmin=2)
-        if values.shape[1] == len(names):
-            return Table(names, values)
+    try:  # numpy's conversion; the loop below finds the line to blame when it fails
+        values = np.array([parts for _, parts in data], dtype=float)
+        if values.shape == (len(data), len(names)):
+            return Table(names, values, skipped=tuple(notes))
     except ValueError:
         pass
-    values = np.empty((len(rows), len(names)))
-    for r, (number, line) in enumerate(rows):
-        parts = line.split(delimiter)
+    values = np.empty((len(data), len(names)))
+    for r, (number, parts) in enumerate(data):
         if len(parts) != len(names):
-            raise RecordingError(f"{path}: line {number} has {len(parts)} fields, the header {len(names)}")
+            first_line = "header" if header else "first line"
+            raise RecordingError(f"{path}: line {number} has {len(parts)} fields, the {first_line} {len(names)}")
         try:
             values[r] = [float(p) for p in parts]
         except ValueError:
-            bad = next(p for p in parts if not _is_number(p))
-            raise RecordingError(f"{path}: line {number}: {bad.strip()!r} is not a number") from None
-    return Table(names, values)
+            k = next(i for i, p in enumerate(parts) if not _is_number(p))
+            what = f"column {k + 1} ({names[k]!r})" if header else f"column {k + 1}"
+            raise RecordingError(f"{path}: line {number}, {what}: {parts[k]!r} is not a number") from None
+    return Table(names, values, skipped=tuple(notes))
 
 
 def read_lvm(path: Path) -> Table:
@@ -401,8 +461,24 @@ def import_file(
     mapped = map_columns(table.names, spec.columns, spec.node)
     per_node = {c.node: node_samples(source, table, c, spec.units, spec.rate_hz) for c in mapped}
     t0 = min(float(t[0]) for t, _, _ in per_node.values())
-    shift_s = -t0 if t0 < 0 else 0.0  # log times are not negative
     timings = {node: how for node, (_, _, how) in per_node.items()}
+    notes = list(table.skipped)
+    if spec.start_utc_ns is not None:  # the first sample at the given instant
+        base_ns, shift_s, time_base = spec.start_utc_ns, -t0, f"utc: the first sample at {utc_iso(spec.start_utc_ns)}"
+    elif t0 >= UNIX_2000_S:
+        base_ns, shift_s, time_base = 0, 0.0, "utc: the file's times are Unix times"
+    else:
+        base_ns, shift_s = 0, -t0 if t0 < 0 else 0.0  # log times are not negative
+        time_base = "relative: the file's own times (e.g. from the node's boot), not UTC"
+        notes.append(
+            f"the times are not UTC (the first is {t0:g} s): log times count from the file's zero; "
+            "--start-utc places the first sample in time"
+        )
+    if len(per_node) == 1:
+        notes.append(
+            f"one node ({next(iter(per_node))}): inspect and allan read the recording; validate, identify and view "
+            "need both nodes"
+        )
     rate = float(np.median(np.diff(next(iter(per_node.values()))[0]))) if len(table.values) > 1 else 0.0
     metadata = {
         "pendsim/import": {
@@ -415,6 +491,8 @@ def import_file(
             "units": spec.units.describe(),
             "time": "; ".join(f"{n}: {how}" for n, how in timings.items()),
             "time_shift_s": repr(shift_s),
+            "time_base": time_base,
+            **({"notes": "; ".join(notes)} if notes else {}),
             "pendsim_version": __version__,
             "mjcf": spec.mjcf_source,
             **dict(table.notes),
@@ -422,6 +500,7 @@ def import_file(
         "pendsim/imu": {"sample_rate_hz": repr(1.0 / rate) if rate > 0 else "0", **BNO055_NDOF},
     }
     mjcf = spec.mjcf_xml if spec.mjcf_xml is not None else exact_mjcf(spec.params)
+    log_ns = {node: base_ns + np.rint((t + shift_s) * 1e9).astype(np.int64) for node, (t, _, _) in per_node.items()}
     with atomic_output(output, replace=replace) as tmp:
         sink = RecordingSink(
             tmp,
@@ -430,13 +509,39 @@ def import_file(
             params=spec.params,
             mjcf_xml=mjcf,
             metadata=metadata,
-            start_time_ns=0,
+            start_time_ns=min(int(t[0]) for t in log_ns.values()),  # /tf_static with the first sample
             compression=spec.compression,
         )
-        for node, (t, rows, _) in per_node.items():
-            sink.add_samples(node, np.rint((t + shift_s) * 1e9).astype(np.int64), rows)
+        for node, (_, rows, _) in per_node.items():
+            sink.add_samples(node, log_ns[node], rows)
         sink.close()
     duration = max(float(t[-1] - t[0]) for t, _, _ in per_node.values())
     return ImportResult(
-        output, source, fmt, {n: len(t) for n, (t, _, _) in per_node.items()}, duration, output.stat().st_size
+        output,
+        source,
+        fmt,
+        {n: len(t) for n, (t, _, _) in per_node.items()},
+        duration,
+        output.stat().st_size,
+        tuple(notes),
     )
+
+
+def utc_iso(t_ns: int) -> str:
+    """ns since 1970 as ISO 8601 UTC with a Z, to the microsecond."""
+    moment = datetime.datetime(1970, 1, 1, tzinfo=datetime.UTC) + datetime.timedelta(microseconds=t_ns // 1000)
+    return moment.strftime("%Y-%m-%dT%H:%M:%S.%fZ")
+
+
+def parse_utc(text: str) -> int:
+    """An ISO 8601 time with its zone (``2026-11-25T10:00:00Z``, ``...+01:00``) as ns since 1970."""
+    try:
+        moment = datetime.datetime.fromisoformat(text.strip())
+    except ValueError:
+        raise ParameterError(f"{text!r} is not an ISO 8601 time such as 2026-11-25T10:00:00Z") from None
+    if moment.tzinfo is None:
+        raise ParameterError(f"{text!r} has no time zone: end it in Z (UTC) or an offset such as +01:00")
+    since = moment - datetime.datetime(1970, 1, 1, tzinfo=datetime.UTC)
+    if since < datetime.timedelta(0):
+        raise ParameterError(f"{text!r} is before 1970")
+    return since // datetime.timedelta(microseconds=1) * 1000

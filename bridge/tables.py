@@ -39,8 +39,17 @@ def contents_table(contents: McapContents) -> str:
     starts = [int(m.log_time_ns[0]) for m in contents.messages.values() if len(m)]
     ends = [int(m.log_time_ns[-1]) for m in contents.messages.values() if len(m)]
     if starts:
+        from pendsim_bridge.importers import UNIX_2000_S, utc_iso
+
         t0, t1 = min(starts) / 1e9, max(ends) / 1e9
         lines.append(f"duration {t1 - t0:.3f} s (log time {t0:.3f} to {t1:.3f} s)")
+        if t0 >= UNIX_2000_S:
+            lines.append(f"starts {utc_iso(min(starts))} (log times are UTC)")
+        else:
+            lines.append(
+                "log times are not UTC (as UTC they would fall in 1970): relative to the source's own zero, such as "
+                "a node's boot (pendsim import --start-utc places them)"
+            )
     lines.append(f"{'topic':32} {'schema':30} {'messages':>9} {'rate (Hz)':>10}")
     for cid, ch in sorted(contents.channels.items(), key=lambda kv: kv[1].topic):
         data = contents.messages.get(cid)

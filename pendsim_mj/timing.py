@@ -252,6 +252,19 @@ def roughness(t_s: Floats, values: Floats, max_step_s: float) -> float:
     return float(np.mean(second * second))
 
 
+def fusion_phase_stretch(stamp_s: Floats, fusion_rate_hz: float, phase_s: float) -> tuple[float, float]:
+    """The phases that give every sample the same fusion tick as ``phase_s`` does: (lo_s, hi_s],
+    lo_s < phase_s <= hi_s (s; not reduced to one period). Within it the value instants
+    (``fused_value_instants``) all move alike, so the values' own smoothness (``fusion_phase``)
+    cannot tell its phases apart; a fit against the other node through the model can. Its ends
+    are the samples' own phases in the fusion period (stamps mod 1 / fusion_rate_hz): 80 Hz
+    samples of 100 Hz fusion on one clock fall at four, so the stretch is 2.5 ms wide; samples on
+    a clock that drifts against the ticks spread over the period and narrow it."""
+    period = 1.0 / fusion_rate_hz
+    after = np.mod(np.asarray(stamp_s, dtype=float) - phase_s, period)  # each sample's time since its tick
+    return phase_s - (period - float(np.max(after))), phase_s + float(np.min(after))
+
+
 def fusion_phase(stamp_s: Floats, values: Floats, fusion_rate_hz: float, *, step_s: float = 0.00025) -> float:
     """Where a chip's fusion ticks fall on its node's clock (s in [0, 1 / fusion_rate_hz)), found
     from the data alone: the phase whose value instants (``fused_value_instants``) make the

@@ -131,10 +131,16 @@ def test_the_file_is_written_up_to_where_every_sending_node_has_released():
     from pendsim_bridge.acquire.receiver import STALE_S, _settled_ns
 
     now = 100 * 10**9
-    active = lambda last_log: SimpleNamespace(last_read_ns=now - 10**8, last_log_ns=last_log)  # noqa: E731
-    silent = SimpleNamespace(last_read_ns=now - int((STALE_S + 1) * 1e9), last_log_ns=5)
-    never = SimpleNamespace(last_read_ns=0, last_log_ns=-1)
-    assert _settled_ns([active(70), active(90)], now) == 70  # the slower node bounds it
-    assert _settled_ns([active(70), silent], now) == 70  # a silent node holds nothing back
-    assert _settled_ns([active(70), active(-1)], now) == -1  # one still warming up holds everything
-    assert _settled_ns([never, silent], now) is None  # nobody sending: write everything given
+    long_ago = now - int((STALE_S + 1) * 1e9)  # the start, for a node not heard from since
+    just = now - int((STALE_S - 1) * 1e9)
+    active = lambda last_log: SimpleNamespace(last_sample_ns=now - 10**8, last_log_ns=last_log)  # noqa: E731
+    silent = SimpleNamespace(last_sample_ns=long_ago, last_log_ns=5)
+    never = SimpleNamespace(last_sample_ns=0, last_log_ns=-1)  # no valid packet yet (malformed ones or none)
+    assert _settled_ns([active(70), active(90)], now, long_ago) == 70  # the slower node bounds it
+    assert _settled_ns([active(70), silent], now, long_ago) == 70  # a silent node holds nothing back
+    assert _settled_ns([active(70), active(-1)], now, long_ago) == -1  # one still warming up holds everything
+    assert _settled_ns([never, silent], now, long_ago) is None  # nobody sending: write everything given
+    # A node not heard from yet holds everything back for STALE_S after the start (its first
+    # samples may be older than the others'), then no longer.
+    assert _settled_ns([active(70), never], now, just) == -1
+    assert _settled_ns([active(70), never], now, long_ago) == 70

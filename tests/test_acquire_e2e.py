@@ -71,6 +71,8 @@ def test_the_readme_pair_records_a_release_that_validates(tmp_path):
     assert [p.name for p in tmp_path.iterdir()] == ["run.mcap"]  # published, nothing left beside it
     rec = read_recording(tmp_path / "run.mcap")
     assert rec.complete and len(rec.imu["m1"].t_ns) > 300 and len(rec.imu["m2"].t_ns) > 300
+    m1, m2 = len(rec.imu["m1"].t_ns), len(rec.imu["m2"].t_ns)  # the summary says what each node wrote
+    assert (f"{m1} IMU samples per node" if m1 == m2 else f"{m1} (m1) and {m2} (m2) IMU samples") in out
     meta = rec.metadata["pendsim/acquisition"]
     assert json.loads(meta["nodes"]) == {"m1": {"port": p1, "node_id": 1}, "m2": {"port": p2, "node_id": 2}}
     assert meta["format"] == "pendsim-v1" and meta["start_utc"].endswith("+00:00") and meta["host"]

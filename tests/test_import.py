@@ -160,8 +160,12 @@ def _error(capsys) -> str:
         ("t_s,AccX\n0,1\n", [], "column 2 'AccX' is not a pendsim name (t_s, m1.gx, ...); give --columns"),
         ("t_s,gx,gy,gz\n0,1,2,3\n", [], "say which node (m1.gx or m2.gx), or give --node"),
         ("a,b,c,d\n0,1,2,3\n", ["--columns", "t_s,m1.gx,m1.gy"], "the column map has 3 entries, the file 4 columns"),
-        ("t_s,m1.gx,m1.gy,m1.gz\n0,1,2,3\n1,x,2,3\n", [], "line 3: 'x' is not a number"),
-        ("t_s,m1.gx,m1.gy,m1.gz\n0,1,2,3\n1,1,2\n", [], "line 3 has 3 fields, the header 4"),
+        ("t_s,m1.gx,m1.gy,m1.gz\n0,1,2,3\n1,x,2,3\n", [], "line 3, column 2 ('m1.gx'): 'x' is not a number"),
+        ("t_s,m1.gx,m1.gy,m1.gz,\n0,1,2,3,\n1,,2,3,\n2,1,2,3,\n", [], "line 3, column 2 ('m1.gx'): '' is not a number"),
+        ("t_s,m1.gx,m1.gy,m1.gz\n0,1,2,3\n1,1,2\n2,1,2,3\n", [], "line 3 has 3 fields, the header 4"),
+        ("boot ok\nt_s,m1.gx,m1.gy,m1.gz\n1,2,3\n", [], "no complete data line"),
+        ("t_s,m1.gx,m1.gy,m1.gz\n0,1,2,3\n", ["--start-utc", "2026-11-25T10:00"], "has no time zone: end it in Z"),
+        ("t_s,m1.gx,m1.gy,m1.gz\n0,1,2,3\n", ["--start-utc", "noon"], "is not an ISO 8601 time"),
         ("t_s,m1.gx,m1.gy,m1.gz\n1,1,2,3\n0,1,2,3\n", [], "time does not increase at row 2"),
         ("t_s,m1.gx,m1.gy,m1.gz\n0,nan,2,3\n1,1,2,3\n", [], "row 1, column 'm1.gx': not a finite number"),
         ("m1.gx,m1.gy,m1.gz\n0,1,2\n", [], "no time column"),
@@ -190,3 +194,68 @@ def test_files_that_are_not_what_they_claim_are_refused(tmp_path, capsys, name, 
     assert main(["import", str(tmp_path / name), "-o", str(tmp_path / "out.mcap")]) == 2
     assert message in _error(capsys)
     assert not (tmp_path / "out.mcap").exists()
+
+
+def _millis_csv(path, rows: int = 401, boot_ms: int = 123_456) -> np.ndarray:
+    """One node's CSV as an Arduino sketch prints it with millis(): times from the node's boot."""
+    t_ms = boot_ms + 12.5 * np.arange(rows)
+    path.write_text("t_ms,gx,gy,gz\n" + "".join(f"{t},{0.01 * k:g},0,0\n" for k, t in enumerate(t_ms)))
+    return t_ms
+
+
+def _tf_static_and_imu_log_times(path):
+    from mcap.reader import make_reader
+
+    with open(path, "rb") as f:
+        times = [(channel.topic, message.log_time) for _, channel, message in make_reader(f).iter_messages()]
+    return [t for topic, t in times if topic == "/tf_static"], [t for topic, t in times if topic == "/imu/m1"]
+
+
+def test_boot_relative_times_keep_their_duration_and_start_utc_places_them(tmp_path, capsys):
+    import datetime
+
+    t_ms = _millis_csv(tmp_path / "node.csv")
+    span_s = (t_ms[-1] - t_ms[0]) / 1e3
+    relative, placed = tmp_path / "relative.mcap", tmp_path / "placed.mcap"
+    assert main(["import", str(tmp_path / "node.csv"), "-o", str(relative), "--node", "m1"]) == 0
+    err = capsys.readouterr().err
+    assert "note: the times are not UTC (the first is 123.456 s)" in err
+    assert "note: one node (m1): inspect and allan read the recording; validate, identify and view need both" in err
+    tf, imu = _tf_static_and_imu_log_times(relative)
+    assert tf == [imu[0]] and imu[0] == 123_456_000_000  # /tf_static with the first sample, not at 0
+    assert main(["inspect", str(relative)]) == 0
+    out = capsys.readouterr().out
+    assert f"duration {span_s:.3f} s" in out and "log times are not UTC" in out
+
+    args = ["import", str(tmp_path / "node.csv"), "-o", str(placed), "--node", "m1"]
+    assert main([*args, "--start-utc", "2026-11-25T11:00:00+01:00"]) == 0
+    assert "not UTC" not in capsys.readouterr().err
+    start_ns = int(datetime.datetime(2026, 11, 25, 10, tzinfo=datetime.UTC).timestamp()) * 10**9
+    tf, imu = _tf_static_and_imu_log_times(placed)
+    assert tf == [start_ns] and imu[0] == start_ns
+    np.testing.assert_array_equal(np.array(imu) - start_ns, np.rint((t_ms - t_ms[0]) * 1e6).astype(np.int64))
+    rec = read_recording(placed)
+    assert rec.metadata["pendsim/import"]["time_base"] == "utc: the first sample at 2026-11-25T10:00:00.000000Z"
+    assert main(["inspect", str(placed)]) == 0
+    out = capsys.readouterr().out
+    assert f"duration {span_s:.3f} s" in out and "starts 2026-11-25T10:00:00.000000Z (log times are UTC)" in out
+
+
+def test_boot_lines_trailing_commas_and_a_cut_last_line_are_left_out_with_a_note(tmp_path, capsys):
+    t_ms = 1000 + 12.5 * np.arange(50)
+    gyro_dps = 0.5 * np.arange(50)
+    boot = "ets Jul 29 2019 12:21:46\nrst:0x1 (POWERON_RESET),boot:0x13\nBNO055 found\n"
+    body = "".join(f"{t:g},{g:g},0,0,\n" for t, g in zip(t_ms, gyro_dps, strict=True))
+    (tmp_path / "serial.csv").write_text(boot + "t_ms,gx,gy,gz,\n" + body + "1625,0.5,0.")  # the logger stopped
+    out = tmp_path / "serial.mcap"
+    assert main(["import", str(tmp_path / "serial.csv"), "-o", str(out), "--node", "m1"]) == 0
+    notes = [line for line in capsys.readouterr().err.splitlines() if line.startswith("note: ")]
+    assert notes[:3] == [
+        "note: skipped lines 1-3 before the header: not data",
+        "note: 51 line(s) end in ',': the empty field after it is not a column",
+        "note: dropped the last line 55: cut short (3 of 4 fields)",
+    ]
+    imu = read_recording(out).imu["m1"]
+    assert len(imu.t_ns) == 50
+    np.testing.assert_allclose(imu.gyro_rad_s[:, 0], np.radians(gyro_dps), rtol=1e-15)
+    np.testing.assert_array_equal(imu.t_ns - imu.t_ns[0], np.rint((t_ms - t_ms[0]) * 1e6).astype(np.int64))

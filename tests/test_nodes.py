@@ -102,3 +102,13 @@ def test_sending_holds_the_schedule(samples):
     assert result.completed and result.sent["m1"] == 400
     # One schedule from the start: the run ends with its last packet, lateness does not add up.
     assert result.duration_s < 1.0 + 0.25
+
+
+def test_nodes_help_says_which_log_files_it_writes(capsys):
+    from pendsim_bridge.cli import main
+
+    with pytest.raises(SystemExit) as stop:
+        main(["nodes", "--help"])
+    assert stop.value.code == 0
+    text = " ".join(capsys.readouterr().out.split())
+    assert "--log FILE.jsonl|FILE.csv" in text and "JSON lines (.jsonl) or CSV (.csv)" in text

@@ -155,22 +155,26 @@ class _Node:
         self.device_s: list[float] = []  # accepted packets: device time and arrival (s since start)
         self.arrival_s: list[float] = []
         self.last_read_ns = 0  # when the loop last read one (a loop behind its sockets reads old datagrams)
+        self.last_sample_ns = 0  # when it last read a packet that was accepted (malformed ones hold nothing back)
         self.last_log_ns = -1  # latest log time released
         self.sock: socket.socket | None = None
         self.previous = NodeCounters()
         self.host_dropped = 0  # datagrams this host's socket dropped (its buffer was full)
 
-    def receive(self, data: bytes, arrival_ns: int, start_ns: int) -> None:
+    def receive(self, data: bytes, arrival_ns: int, start_ns: int) -> bool:
+        """Decode and account one datagram; True if its sample was accepted."""
         try:
             packet = self.codec.decode(data)
         except PacketError as exc:
             self.stream.count_malformed(exc.reason)
-            return
-        if self.stream.offer(packet, arrival_ns) == "accepted":
-            device_s, arrival_s = packet.device_time_us * 1e-6, (arrival_ns - start_ns) * 1e-9
-            self.clock.add(device_s, arrival_s)
-            self.device_s.append(device_s)
-            self.arrival_s.append(arrival_s)
+            return False
+        if self.stream.offer(packet, arrival_ns) != "accepted":
+            return False
+        device_s, arrival_s = packet.device_time_us * 1e-6, (arrival_ns - start_ns) * 1e-9
+        self.clock.add(device_s, arrival_s)
+        self.device_s.append(device_s)
+        self.arrival_s.append(arrival_s)
+        return True
 
     def line(self) -> ClockRelation | None:
         return self.clock.relation() if self.clock.count else None
@@ -408,7 +412,7 @@ def _run(
                     status_line.show(_status_text(nodes, (now - start_ns) * 1e-9), (now - start_ns) * 1e-9)
                 if now >= next_flush:
                     next_flush = now + round(FLUSH_S * 1e9)
-                    sink.flush(_settled_ns(nodes, now))
+                    sink.flush(_settled_ns(nodes, now, start_ns))
             now = time.monotonic_ns()
             _release(nodes, now, sink, live, utc_ns, start_ns, final=True)
             status_line.end()
@@ -462,8 +466,10 @@ def _drain(node: _Node, start_ns: int) -> None:
                 arrival_ns = sec * 1_000_000_000 + nsec + realtime_to_monotonic
             elif level == socket.SOL_SOCKET and kind == SO_RXQ_OVFL and len(value) >= 4:
                 node.host_dropped = int.from_bytes(value[:4], sys.byteorder)
-        node.receive(data, arrival_ns or time.monotonic_ns(), start_ns)
+        accepted = node.receive(data, arrival_ns or time.monotonic_ns(), start_ns)
         node.last_read_ns = time.monotonic_ns()
+        if accepted:
+            node.last_sample_ns = node.last_read_ns
 
 
 def _release(
@@ -494,22 +500,24 @@ def _release(
         t_ns = np.maximum.accumulate(np.maximum(t_ns - steps, node.last_log_ns + 1)) + steps
         node.last_log_ns = int(t_ns[-1])
         rows = np.array([a.packet.row for a in released], dtype=np.float64)
-        behind = t_ns <= sink.written_upto_ns  # a node back from a long silence with old samples
-        if np.any(behind):
-            node.stream.count_written_late(int(np.count_nonzero(behind)))
-            t_ns, rows = t_ns[~behind], rows[~behind]
-        sink.add_samples(node.spec.name, t_ns, rows)
-        if live is not None:
-            live.add(node.spec.name, t_ns, rows)
+        taken = sink.add_samples(node.spec.name, t_ns, rows)
+        if not np.all(taken):  # older than the file: a node back from a long silence
+            node.stream.count_written_late(int(np.count_nonzero(~taken)))
+        if live is not None and np.any(taken):
+            live.add(node.spec.name, t_ns[taken], rows[taken])
 
 
-def _settled_ns(nodes: list[_Node], now_ns: int) -> int | None:
+def _settled_ns(nodes: list[_Node], now_ns: int, start_ns: int) -> int | None:
     """The log time up to which every node has released its samples, so that what is written is
-    in log-time order across nodes: None (everything) when no node is sending; a node silent for
-    STALE_S holds nothing back; one still warming up holds everything back (-1)."""
+    in log-time order across nodes. A node holds the writing back (-1: nothing yet) until it has
+    released samples, unless no sample of it has come for STALE_S: since its last one, or since
+    the start for a node not heard from yet (its first samples may be stamped before what the
+    others sent so far); malformed packets do not count. None (everything) when every node is
+    silent that long."""
     settled = None
     for node in nodes:
-        if not node.last_read_ns or now_ns - node.last_read_ns > STALE_S * 1e9:
+        heard_ns = node.last_sample_ns or start_ns
+        if now_ns - heard_ns > STALE_S * 1e9:
             continue
         if node.last_log_ns < 0:
             return -1
@@ -604,10 +612,19 @@ def _number(value: float, width: int, decimals: int) -> str:
     return f"{value:{width}.{decimals}f}" if math.isfinite(value) else f"{'-':>{width}}"
 
 
+def samples_text(nodes: tuple[NodeResult, ...]) -> str:
+    """The samples written per node: "2560 IMU samples per node" or "2560 (m1) and 2391 (m2) IMU
+    samples" (as ``pendsim record`` says it)."""
+    written = [r.counters.written for r in nodes]
+    if len(nodes) > 1 and len(set(written)) == 1:
+        return f"{written[0]} IMU samples per node"
+    return " and ".join(f"{r.counters.written} ({r.name})" for r in nodes) + " IMU samples"
+
+
 def summary(result: AcquireResult) -> str:
     """The lines printed at the end."""
     lines = [
-        f"wrote {result.path}: {result.duration_s:.1f} s, {result.messages} IMU samples, "
+        f"wrote {result.path}: {result.duration_s:.1f} s, {samples_text(result.nodes)}, "
         f"{result.size_bytes / 1e6:.2f} MB (stopped: {result.stop_reason})"
     ]
     head = f"  {'node':4} {'port':>5} {'received':>9} {'written':>8} {'lost':>6} {'dup':>5} {'reord':>6}"

@@ -107,7 +107,8 @@ class RecordingSink:
                 self._channels["diagnostics"] = w.register_channel(
                     DIAGNOSTICS_TOPIC, sid["diagnostic_msgs/msg/DiagnosticArray"], "cdr"
                 )
-            w.write_messages(tf_static, np.array([start_time_ns]), static_tf_message(params, Bno055(), start_time_ns))
+        # Through the buffer like every message, so that written_upto_ns knows when it is written.
+        self._add(tf_static, np.array([start_time_ns], np.int64), static_tf_message(params, Bno055(), start_time_ns))
 
     def _errors(self) -> contextlib.AbstractContextManager[None]:
         return _os_errors(self.path)
@@ -116,12 +117,19 @@ class RecordingSink:
         if len(t_ns):
             self._buffer.setdefault(channel, []).append((t_ns, payloads))
 
-    def add_samples(self, node: str, t_ns: NDArray[np.int64], rows: NDArray[np.float64]) -> None:
-        """n samples of one node: log times (n,) ns, non-decreasing, and (n, len(ROW_FIELDS)) rows."""
+    def add_samples(self, node: str, t_ns: NDArray[np.int64], rows: NDArray[np.float64]) -> NDArray[np.bool_]:
+        """n samples of one node: log times (n,) ns, non-decreasing, and (n, len(ROW_FIELDS)) rows.
+
+        Returns (n,) which were taken: those older than what the file already holds
+        (``written_upto_ns``) are dropped, since an MCAP file's chunks are written in log-time
+        order (the caller counts them late)."""
+        t_ns = np.asarray(t_ns, dtype=np.int64)
+        taken = t_ns >= self.written_upto_ns
+        if not np.all(taken):
+            t_ns, rows = t_ns[taken], rows[taken]
         n = len(t_ns)
         if not n:
-            return
-        t_ns = np.asarray(t_ns, dtype=np.int64)
+            return taken
         sec, nanosec = ros2.split_time(t_ns)
         groups = self.groups
         quat = rows[:, GROUP_SLICES["quat"]] if "quat" in groups else np.tile([1.0, 0.0, 0.0, 0.0], (n, 1))
@@ -145,6 +153,7 @@ class RecordingSink:
         if "calib" in groups:
             self._add_calibration(node, t_ns, rows[:, GROUP_SLICES["calib"]].astype(np.uint8))
         self.messages += n
+        return taken
 
     def _add_calibration(self, node: str, t_ns: NDArray[np.int64], levels: NDArray[np.uint8]) -> None:
         """Calibration at 1 Hz (the first sample of each second) and whenever it changes."""
@@ -160,7 +169,9 @@ class RecordingSink:
             self._add(self._channels[f"calib_{node}"], t_ns[keep], payload)
 
     def add_diagnostics(self, t_ns: int, statuses: list[ros2.DiagnosticStatus]) -> None:
-        """One /diagnostics message."""
+        """One /diagnostics message (at ``t_ns``, or when the file already holds later messages, at
+        the latest of them)."""
+        t_ns = max(t_ns, self.written_upto_ns)
         payload = np.frombuffer(ros2.encode_diagnostic_array(t_ns, statuses), np.uint8)[None]
         self._add(self._channels["diagnostics"], np.array([t_ns], np.int64), payload)
 

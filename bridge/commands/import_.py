@@ -3,12 +3,13 @@
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 
 from pendsim_bridge import options
 from pendsim_bridge.acquire.packets import Units, parse_units
 from pendsim_bridge.commands.acquire import add_mjcf_option, argument, mjcf_from
-from pendsim_bridge.importers import IMPORT_FORMATS
+from pendsim_bridge.importers import IMPORT_FORMATS, parse_utc
 from pendsim_bridge.mcap_writer import COMPRESSIONS
 
 
@@ -59,6 +60,14 @@ def register(sub: argparse._SubParsersAction[options.Parser]) -> None:
         type=options.float_in(0.0, 100_000.0, "Hz", low_open=True, name="rate_hz"),
         help="sample rate, for a file with no time column and no timing of its own, Hz",
     )
+    p.add_argument(
+        "--start-utc",
+        type=argument(parse_utc, "time"),
+        metavar="TIME",
+        help="when the first sample was taken, ISO 8601 with its zone, e.g. 2026-11-25T10:00:00Z: for files whose "
+        "times count from the node's boot (millis()) or from zero (default: the file's times, taken as UTC if they "
+        "are Unix times, else kept relative and said so)",
+    )
     options.add_parameter_options(p, what="the rig recorded with the data")
     add_mjcf_option(p)
     p.add_argument(
@@ -82,12 +91,15 @@ def run(args: argparse.Namespace) -> int:
         units=args.units or Units(),
         node=args.node,
         rate_hz=args.rate_hz,
+        start_utc_ns=args.start_utc,
         params=options.params_from(args),
         mjcf_xml=mjcf,
         mjcf_source=mjcf_source,
         compression=args.compression,
     )
     result = import_file(args.source, args.output, spec, replace=args.force)
+    for note in result.notes:
+        print(f"note: {note}", file=sys.stderr)
     counts = ", ".join(f"{n}: {k} samples" for n, k in result.samples.items())
     print(
         f"wrote {result.path}: {result.format} file {result.source.name}, {result.duration_s:.3f} s, {counts}, "

@@ -82,7 +82,12 @@ def register(sub: argparse._SubParsersAction[options.Parser]) -> None:
         help="a node's clock reading at the start, s (default: drawn from --seed, 10-600 s)",
     )
     add_imperfection_options(p, transport=False)  # loss, drift and latency are this command's own
-    p.add_argument("--log", type=Path, metavar="FILE", help="write what was sent to FILE (.jsonl or .csv)")
+    p.add_argument(
+        "--log",
+        type=Path,
+        metavar="FILE.jsonl|FILE.csv",
+        help="write what was sent to this file, JSON lines (.jsonl) or CSV (.csv): the name must end in one of them",
+    )
     p.add_argument("--force", action="store_true", help="replace the log file if it exists")
     p.set_defaults(handler=run)
 
