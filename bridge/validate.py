@@ -71,7 +71,8 @@ def node_samples(rec: Recording) -> tuple[NodeSamples, NodeSamples]:
     missing = [imu_topic(n) for n in NODES if n not in rec.imu]
     if missing:
         raise RecordingError(
-            f"{rec.path}: needs both /imu/m1 and /imu/m2 (M1's and M2's IMU); {', '.join(missing)} missing"
+            f"{rec.path}: needs both /imu/m1 and /imu/m2 (M1's and M2's IMU); {', '.join(missing)} missing; "
+            "a one-node recording is for 'pendsim inspect' and 'pendsim allan' (docs/acquisition.md)"
         )
     out = []
     for n in NODES:
@@ -558,7 +559,10 @@ def start_line(path: str | Path, run: MeasuredRun) -> str:
     phi1, phi2 = (math.degrees(a) for a in s.phi_rad)
     how = {
         "release": "release from rest found",
-        "in motion": "the recording starts in motion; the model starts from the state at its first samples",
+        "in motion": (
+            "no hold before the release (the recording starts in motion or at its release); "
+            "the model starts from the state at its first samples"
+        ),
         "given": "start given",
     }[s.kind]
     rates = ""
@@ -619,7 +623,8 @@ def table(report: ValidationReport) -> str:
         nominal = report.case("mujoco", "nominal", "whole").comparisons["phi1"]
         lines.append("")
         lines.append(
-            f"from the nominal 30 deg instead (the paper's simulation): phi1 max|Delta| {nominal.max_abs:.4g} rad, "
+            "from the nominal 30 deg at rest instead (the paper's simulation; compared because the estimated start "
+            f"is at rest within {AT_REST_RAD_S:g} rad/s): phi1 max|Delta| {nominal.max_abs:.4g} rad, "
             f"IAE {nominal.iae:.4g} rad s over the whole run"
         )
     return "\n".join(lines)

@@ -135,4 +135,7 @@ def test_a_recording_without_both_nodes_is_refused_naming_the_file_once(tmp_path
     for command in ("validate", "identify"):
         assert main([command, str(lab)]) == 2
         line = _one_error_line(capsys)
-        assert line == f"pendsim: error: {lab}: needs both /imu/m1 and /imu/m2 (M1's and M2's IMU); /imu/m2 missing"
+        assert line == (
+            f"pendsim: error: {lab}: needs both /imu/m1 and /imu/m2 (M1's and M2's IMU); /imu/m2 missing; "
+            "a one-node recording is for 'pendsim inspect' and 'pendsim allan' (docs/acquisition.md)"
+        )
