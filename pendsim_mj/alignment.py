@@ -68,6 +68,11 @@ FIRST_SWING_S = 1.5  # M1's sign: its largest excursion this long after the star
 LARGE_SWING = 0.5  # the large swing: gyro magnitude above this share of its 99th percentile
 UNEXPLAINED_REFUSED = 0.5  # a found start whose model leaves this share of the motion unexplained is refused
 UNEXPLAINED_POOR = 0.03  # above this share the start fit is reported as poor (a 5 % frequency error gives 0.02)
+FRAME_FIT_S = 600.0
+"""The swing frames are fitted on the samples within this long of the start (before and after it),
+s. The motion is what carries the mounting; a long run's later hours at rest add only noise to the
+fit's kinematic columns, enough to flip its choice of handedness (a 6 h free decay: M2 found
+mirrored, 80 mm from its hinge), and memory that grows with the run."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -315,6 +320,13 @@ def _detect_start(nodes: Sequence[_Node]) -> tuple[StartKind, float]:
     if rested:
         return "release", t_onset - 0.5 / node.rate_hz
     return "in motion", max(float(n.t[0]) for n in nodes)
+
+
+def _frame_window(instants: Floats, start_s: float) -> slice:
+    """The samples (a slice of the increasing ``instants``, s) whose instants lie within
+    ``FRAME_FIT_S`` of the start ``start_s`` (s): what the swing frame is fitted on."""
+    lo, hi = np.searchsorted(instants, [start_s - FRAME_FIT_S, start_s + FRAME_FIT_S], side="left")
+    return slice(int(lo), int(hi))
 
 
 def _drive_onset_s(drive_input: tuple[Floats, Floats]) -> float | None:
@@ -635,9 +647,15 @@ def align(
         kind, t0 = _detect_start(prepared)
     frames = []
     for k, node in enumerate(prepared):
+        near = _frame_window(instants[k], t0)
         try:
             frame = fit_swing_frame(
-                instants[k], node.quat, node.gyro, node.accel, g_m_s2=params.g_m_s2, max_step_s=2.5 / node.rate_hz
+                instants[k][near],
+                node.quat[near],
+                node.gyro[near],
+                node.accel[near],
+                g_m_s2=params.g_m_s2,
+                max_step_s=2.5 / node.rate_hz,
             )
         except RecordingError as exc:
             raise RecordingError(f"node M{k + 1}: {exc}") from None
