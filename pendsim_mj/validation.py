@@ -134,6 +134,24 @@ def _detrend_in_time(t: np.ndarray, x: np.ndarray, window_s: float) -> np.ndarra
     return x - (upper - lower) / window_s
 
 
+RESOLVED_SIGMAS = 8.0
+"""The swing is resolved while the measured series leaves its mean by more than this many noise
+sigmas (``analysis.noise_level``): white noise of that sigma practically never does (p < 1e-14)."""
+RESOLVED_MARGIN_S = 10.0
+"""The frequencies are measured up to this long after the last resolved sample, s."""
+
+
+def _resolved_end(t: np.ndarray, m: np.ndarray, sigma: float) -> int:
+    """Samples (a prefix of t, m (n,)) over which the measured swing is resolved: up to
+    ``RESOLVED_MARGIN_S`` after the last one that leaves the series' mean by more than
+    ``RESOLVED_SIGMAS`` noise sigmas; all n when none does (a series without a swing) or the
+    swing lasts to the end (the usual case)."""
+    beyond = np.flatnonzero(np.abs(m - m.mean()) > RESOLVED_SIGMAS * sigma)
+    if len(beyond) == 0:
+        return len(t)
+    return max(int(np.searchsorted(t, t[beyond[-1]] + RESOLVED_MARGIN_S, side="right")), min(len(t), 8))
+
+
 def _covered_zero_crossing_hz(
     t: np.ndarray, x: np.ndarray, band: float, segs, window: int, dx: float, uniform: bool
 ) -> float:
@@ -221,14 +239,19 @@ def compare(
     covered = float(step[step <= max_gap_s].sum())
     # zero crossings with hysteresis at 4 noise sigmas of the measured series (noise near zero
     # would add crossings and raise the measured frequency)
-    band = 4.0 * noise_level(m)
-    g_m = spectral_peak_hz(*_uniform_grid(t, m, segs, dx))
-    g_c = spectral_peak_hz(*_uniform_grid(t, c, segs, dx))
+    sigma = noise_level(m)
+    band = 4.0 * sigma
+    # Frequencies over the resolved swing only (a long decay's hours of noise would outweigh it)
+    n_f = _resolved_end(t, m, sigma)
+    t_f, m_f, c_f = t[:n_f], m[:n_f], c[:n_f]
+    segs_f = segs if n_f == len(t) else segments(t_f, max_gap_s)
+    g_m = spectral_peak_hz(*_uniform_grid(t_f, m_f, segs_f, dx))
+    g_c = spectral_peak_hz(*_uniform_grid(t_f, c_f, segs_f, dx))
     # Crossings of the oscillation about its running mean over one period: a decaying swing moves
     # the mean of quantities like r omega^2 + g cos phi, so the global mean would miss crossings.
     period = round(1.0 / (g_m * dx)) if g_m > 0 else 0
-    f_m = _frequency(_covered_zero_crossing_hz, t, m, band, segs, period, dx, uniform)
-    f_c = _frequency(_covered_zero_crossing_hz, t, c, band, segs, period, dx, uniform)
+    f_m = _frequency(_covered_zero_crossing_hz, t_f, m_f, band, segs_f, period, dx, uniform)
+    f_c = _frequency(_covered_zero_crossing_hz, t_f, c_f, band, segs_f, period, dx, uniform)
     return Comparison(
         t_s=t,
         measured=m,
