@@ -289,7 +289,8 @@ def fusion_phase(stamp_s: Floats, values: Floats, fusion_rate_hz: float, *, step
     for lo, hi in _blocks(len(stamp)):  # block by block, every phase: memory flat with the run
         block = v[lo:hi].astype(float)
         for j, p in enumerate(phases):
-            s, c = _second_difference_sums(fused_value_instants(stamp[lo:hi], fusion_rate_hz, float(p)), block, max_step)
+            instants = fused_value_instants(stamp[lo:hi], fusion_rate_hz, float(p))
+            s, c = _second_difference_sums(instants, block, max_step)
             sums[j] += s
             counts[j] += c
     costs = np.divide(sums, counts, out=np.zeros(len(phases)), where=counts > 0)
