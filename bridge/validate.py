@@ -387,10 +387,10 @@ def validate(
                 t, measured, at = run.series(q)
                 computed = resample(t_model, values[q.name], np.clip(at, 0.0, t_model[-1]))
                 for window_name, limit in windows:
-                    cmp = compare(*_window(t <= limit + 1e-9, t, measured, computed), max_gap_s=max_gap_s)
-                    if window_name == "whole":  # a long run's series: only those plotted stay
-                        cmp = cmp.without_series(FIGURE_SERIES if q.name in plotted else ())
-                    by_window[window_name][q.name] = cmp
+                    # a long run's series: only those plotted stay, and its errors go window by window
+                    kept = None if window_name != "whole" else FIGURE_SERIES if q.name in plotted else ()
+                    inside = _window(t <= limit + 1e-9, t, measured, computed)
+                    by_window[window_name][q.name] = compare(*inside, max_gap_s=max_gap_s, series=kept)
             del t_model, values
             cases += [CaseResult(engine, release_name, name, by_window[name]) for name, _ in windows]
     choice = None

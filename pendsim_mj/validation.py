@@ -92,8 +92,17 @@ SERIES = ("t_s", "measured", "computed", "delta", "iae_curve", "ise_curve")
 """The (n,) series of a Comparison (the rest are its scalar metrics)."""
 
 
+SPLINE_MARGIN = 64
+"""Source samples on each side of a window of targets that its local spline is fitted over
+(``resample``): a cubic spline's dependence on a sample decays by 2 - sqrt(3) = 0.27 per knot,
+so 64 knots away it is below 1e-36 of it, far below rounding."""
+
+
 def resample(t_source_s: np.ndarray, values: np.ndarray, t_target_s: np.ndarray) -> np.ndarray:
-    """Values of a smooth series at other instants (cubic spline), along axis 0."""
+    """Values of a smooth series at other instants (cubic spline, not-a-knot ends), along axis 0.
+    Targets are taken ``WINDOW_SAMPLES`` at a time, each window from a spline through its part of
+    the source and ``SPLINE_MARGIN`` samples either side: the whole-run spline's values to
+    rounding, in memory flat with the run."""
     t_source_s = np.asarray(t_source_s, dtype=float)
     t_target_s = np.asarray(t_target_s, dtype=float)
     if t_target_s.min() < t_source_s[0] - 1e-9 or t_target_s.max() > t_source_s[-1] + 1e-9:
@@ -101,7 +110,16 @@ def resample(t_source_s: np.ndarray, values: np.ndarray, t_target_s: np.ndarray)
             f"cannot resample to {t_target_s.min():.3f}-{t_target_s.max():.3f} s from a series over "
             f"{t_source_s[0]:.3f}-{t_source_s[-1]:.3f} s"
         )
-    return CubicSpline(t_source_s, values, axis=0)(t_target_s)
+    n = len(t_target_s)
+    if n <= WINDOW_SAMPLES:
+        return CubicSpline(t_source_s, values, axis=0)(t_target_s)
+    out = np.empty((n, *np.shape(values)[1:]))
+    for a in range(0, n, WINDOW_SAMPLES):
+        targets = t_target_s[a : a + WINDOW_SAMPLES]
+        lo, hi = np.searchsorted(t_source_s, [targets.min(), targets.max()])
+        lo, hi = max(int(lo) - SPLINE_MARGIN, 0), min(int(hi) + SPLINE_MARGIN, len(t_source_s))
+        out[a : a + WINDOW_SAMPLES] = CubicSpline(t_source_s[lo:hi], values[lo:hi], axis=0)(targets)
+    return out
 
 
 def _frequency(fn, *args) -> float:
@@ -200,8 +218,58 @@ def _integrals(t: np.ndarray, y: np.ndarray, segs) -> tuple[float, np.ndarray]:
     return total, curve
 
 
+WINDOW_SAMPLES = 1 << 16
+"""Samples whose errors are computed at once when a comparison keeps no curves (``compare`` with
+``series`` leaving out the curves): memory flat with the run; the metrics are the whole run's (the
+windows share their end samples and hold an even number of intervals, so Simpson's rule adds up to
+the whole run's)."""
+
+
+def _simpson_windows(lo: int, hi: int, size: int = WINDOW_SAMPLES):
+    """(a, b) sample ranges covering [lo, hi): consecutive ones share an end sample, each holds
+    ``size`` (even) intervals but the last, which holds at least two."""
+    a = lo
+    while True:
+        b = min(a + size + 1, hi)
+        if hi - b < 2:  # what would be left is one interval: the last window takes it
+            b = hi
+        yield a, b
+        if b >= hi:
+            return
+        a = b - 1
+
+
+def _windowed_errors(t: np.ndarray, m: np.ndarray, c: np.ndarray, segs, uniform: bool, dx: float):
+    """(iae, ise, sum of squares, max |Delta|) of Delta = c - m over the covered segments, window
+    by window (``WINDOW_SAMPLES``): equal to the whole-run computation."""
+    iae = ise = sum_sq = 0.0
+    max_abs = 0.0
+    for lo, hi in segs:
+        for a, b in _simpson_windows(lo, hi):
+            delta = c[a:b] - m[a:b]
+            abs_delta = np.abs(delta)
+            squared = delta * delta
+            first = a if a == lo else a + 1  # the shared end sample counts once in the sums
+            sum_sq += float(np.sum(squared[first - a :]))
+            max_abs = max(max_abs, float(abs_delta.max()))
+            if b - a < 2:
+                continue
+            if uniform:
+                iae += float(simpson(abs_delta, dx=dx))
+                ise += float(simpson(squared, dx=dx))
+            else:
+                iae += float(simpson(abs_delta, x=t[a:b]))
+                ise += float(simpson(squared, x=t[a:b]))
+    return iae, ise, sum_sq, max_abs
+
+
 def compare(
-    t_s: np.ndarray, measured: np.ndarray, computed: np.ndarray, *, max_gap_s: float = DEFAULT_MAX_GAP_S
+    t_s: np.ndarray,
+    measured: np.ndarray,
+    computed: np.ndarray,
+    *,
+    max_gap_s: float = DEFAULT_MAX_GAP_S,
+    series: Collection[str] | None = None,
 ) -> Comparison:
     """All metrics of computed against measured at the same instants (increasing; irregular
     spacing and gaps allowed: see the module docstring).
@@ -210,7 +278,12 @@ def compare(
       t_s: (n,) instants, s.
       measured, computed: (n,) the two series there.
       max_gap_s: spacing above which the samples are not integrated or interpolated across, s.
+      series: which of the (n,) ``SERIES`` the result keeps (None: all of them; the others are
+        empty, as ``Comparison.without_series`` leaves them). Without
+        "delta", "iae_curve" and "ise_curve" the errors are computed window by window
+        (``WINDOW_SAMPLES``, memory flat with n), with the same metrics.
     """
+    keep = set(SERIES) if series is None else set(series)
     t = np.asarray(t_s, dtype=float)
     m = np.asarray(measured, dtype=float)
     c = np.asarray(computed, dtype=float)
@@ -226,16 +299,23 @@ def compare(
     uniform = len(segs) == 1 and np.max(np.abs(step - step.mean())) <= 1e-6 * step.mean() + 1e-12
     if uniform:
         dx = float(step.mean())
-    delta = c - m
-    abs_delta = np.abs(delta)
-    squared = delta * delta
-    if uniform:
-        iae, ise = float(simpson(abs_delta, dx=dx)), float(simpson(squared, dx=dx))
-        iae_curve = cumulative_simpson(abs_delta, dx=dx, initial=0.0)
-        ise_curve = cumulative_simpson(squared, dx=dx, initial=0.0)
+    empty = np.empty(0)
+    delta = iae_curve = ise_curve = empty
+    if keep & {"delta", "iae_curve", "ise_curve"}:
+        delta = c - m
+        abs_delta = np.abs(delta)
+        squared = delta * delta
+        if uniform:
+            iae, ise = float(simpson(abs_delta, dx=dx)), float(simpson(squared, dx=dx))
+            iae_curve = cumulative_simpson(abs_delta, dx=dx, initial=0.0)
+            ise_curve = cumulative_simpson(squared, dx=dx, initial=0.0)
+        else:
+            iae, iae_curve = _integrals(t, abs_delta, segs)
+            ise, ise_curve = _integrals(t, squared, segs)
+        sum_sq, max_abs = float(np.sum(squared)), float(abs_delta.max())
+        del abs_delta, squared
     else:
-        iae, iae_curve = _integrals(t, abs_delta, segs)
-        ise, ise_curve = _integrals(t, squared, segs)
+        iae, ise, sum_sq, max_abs = _windowed_errors(t, m, c, segs, uniform, dx)
     covered = float(step[step <= max_gap_s].sum())
     # zero crossings with hysteresis at 4 noise sigmas of the measured series (noise near zero
     # would add crossings and raise the measured frequency)
@@ -253,16 +333,16 @@ def compare(
     f_m = _frequency(_covered_zero_crossing_hz, t_f, m_f, band, segs_f, period, dx, uniform)
     f_c = _frequency(_covered_zero_crossing_hz, t_f, c_f, band, segs_f, period, dx, uniform)
     return Comparison(
-        t_s=t,
-        measured=m,
-        computed=c,
-        delta=delta,
+        t_s=t if "t_s" in keep else empty,
+        measured=m if "measured" in keep else empty,
+        computed=c if "computed" in keep else empty,
+        delta=delta if "delta" in keep else empty,
         iae=iae,
         ise=ise,
-        iae_curve=iae_curve,
-        ise_curve=ise_curve,
-        rms=float(np.sqrt(np.mean(squared))),
-        max_abs=float(abs_delta.max()),
+        iae_curve=iae_curve if "iae_curve" in keep else empty,
+        ise_curve=ise_curve if "ise_curve" in keep else empty,
+        rms=float(np.sqrt(sum_sq / len(t))),
+        max_abs=max_abs,
         f_measured_hz=f_m,
         f_computed_hz=f_c,
         delta_f=abs(f_c - f_m) / f_m if f_m else float("nan"),
@@ -270,5 +350,12 @@ def compare(
         f_computed_fft_hz=g_c,
         delta_f_fft=abs(g_c - g_m) / g_m if g_m else float("nan"),
         covered_s=covered,
-        measured_std=float(np.std(m)),
+        measured_std=_std(m),
     )
+
+
+def _std(x: np.ndarray) -> float:
+    """Standard deviation of x (n,), window by window (no (n,) temporaries)."""
+    mean = float(np.mean(x))
+    total = sum(float(np.sum((x[a : a + WINDOW_SAMPLES] - mean) ** 2)) for a in range(0, len(x), WINDOW_SAMPLES))
+    return float(np.sqrt(total / len(x)))

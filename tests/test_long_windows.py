@@ -6,16 +6,18 @@ import math
 
 import numpy as np
 import pytest
+from scipy.interpolate import CubicSpline
 
 from pendsim_bridge.record import RecordSpec, record
 from pendsim_bridge.recording import NODES, imu_topic, read_recording
 from pendsim_bridge.validate import align_recording, validate
 from pendsim_mj import rotations
+from pendsim_mj.analysis import hann_magnitude, padded_length, spectral_peak_hz
 from pendsim_mj.imperfections import random_mount
 from pendsim_mj.nonlinear.linear import linear_modes
 from pendsim_mj.params import DEFAULT_PARAMS
 from pendsim_mj.sensors import Bno055
-from pendsim_mj.validation import compare
+from pendsim_mj.validation import SERIES, WINDOW_SAMPLES, compare, resample
 
 DAMPING_FACTOR = 10.0  # the paper's hinge damping x10: the swing is lost in the noise within 2 minutes
 PARAMS = DEFAULT_PARAMS.with_overrides(
@@ -84,3 +86,58 @@ def test_zero_crossing_frequency_of_a_decay_into_quantised_noise_is_the_oscillat
     result = compare(t, noisy, clean)
     assert result.f_measured_hz == pytest.approx(f_hz, rel=1e-3)
     assert result.f_computed_hz == pytest.approx(f_hz, rel=1e-3)
+
+
+def _series(n, *, gaps=False):
+    rng = np.random.default_rng(4)
+    t = np.arange(n) / 80.0
+    if gaps:  # lost samples: single ones and a burst, and a lone sample between two gaps
+        keep = rng.random(n) > 0.02
+        keep[1000:1040] = False
+        keep[70_000:70_020] = False
+        keep[70_030:70_050] = False
+        t = t[keep] + rng.normal(0.0, 1e-4, keep.sum())  # jittered instants: not uniform
+    measured = np.sin(2 * math.pi * 0.87 * t) * np.exp(-t / 900.0) + rng.normal(0.0, 0.01, len(t))
+    computed = np.sin(2 * math.pi * 0.871 * t + 0.01) * np.exp(-t / 880.0)
+    return t, measured, computed
+
+
+@pytest.mark.parametrize("gaps", [False, True])
+def test_metrics_computed_window_by_window_equal_the_whole_run_s(gaps):
+    # three windows and a remainder (validation.WINDOW_SAMPLES each): the errors without their
+    # curves, window by window, against the whole-run computation with the curves
+    t, measured, computed = _series(3 * WINDOW_SAMPLES + 1001, gaps=gaps)
+    whole = compare(t, measured, computed)
+    windowed = compare(t, measured, computed, series=())
+    for name, value in whole.summary().items():
+        assert windowed.summary()[name] == pytest.approx(value, rel=1e-12, abs=1e-15), name
+    assert windowed.measured_std == pytest.approx(whole.measured_std, rel=1e-12)
+    assert all(len(getattr(windowed, name)) == 0 for name in SERIES)
+    assert whole.iae == pytest.approx(whole.iae_curve[-1], rel=1e-12)  # the curves' total: the same rule
+
+
+def test_resampling_window_by_window_equals_one_spline_through_the_whole_series():
+    # a model series at 100 Hz to the measured instants (80 Hz, jittered) of 3 windows and more
+    t_model = np.arange(0.0, 2900.0, 0.01)
+    values = np.sin(2 * math.pi * 0.87 * t_model) * np.exp(-t_model / 900.0) + 0.1 * np.cos(9.0 * t_model)
+    t = np.clip(_series(3 * WINDOW_SAMPLES + 1001, gaps=True)[0], 0.0, None)
+    whole = CubicSpline(t_model, values)(t)
+    np.testing.assert_allclose(resample(t_model, values, t), whole, rtol=0, atol=1e-13)
+
+
+def test_the_spectral_peak_of_a_long_series_in_parts_is_the_whole_spectrum_s():
+    # 4 h at 80 Hz: too long for one zero-padded spectrum (analysis.SPECTRUM_PARTS parts); the
+    # truth is the peak of the whole spectrum, refined by the same parabola
+    fs, n = 80.0, 1_152_000
+    t = np.arange(n) / fs
+    rng = np.random.default_rng(2)
+    x = np.sin(2 * math.pi * 0.8771 * t) * np.exp(-t / 3000.0) + 0.3 * np.sin(2 * math.pi * 1.4745 * t)
+    x += rng.normal(0.0, 0.05, n)
+    nfft = padded_length(n)
+    spectrum = hann_magnitude(x, nfft)
+    k = int(np.argmax(spectrum[1:])) + 1
+    a, b, c = np.log(spectrum[k - 1 : k + 2])
+    truth = (k + 0.5 * (a - c) / (a - 2 * b + c)) * fs / nfft
+    del spectrum
+    assert spectral_peak_hz(t, x) == pytest.approx(truth, rel=1e-9)
+    assert spectral_peak_hz(t, x, min_hz=1.0) == pytest.approx(1.4745, rel=1e-4)  # the band still applies
