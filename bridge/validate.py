@@ -105,10 +105,12 @@ def align_recording(
     *,
     release_s: float | None = None,
     max_gap_s: float = DEFAULT_MAX_GAP_S,
+    samples: tuple[NodeSamples, NodeSamples] | None = None,
 ) -> MeasuredRun:
     """The measured run of a recording (``pendsim_mj.alignment.align`` on its IMU topics, and on
-    its /drive topic for a driven run)."""
-    samples = node_samples(rec)  # its errors name the file already
+    its /drive topic for a driven run); ``samples``: its ``node_samples`` if the caller has them."""
+    if samples is None:
+        samples = node_samples(rec)  # its errors name the file already
     try:
         return align(
             samples,
@@ -348,10 +350,12 @@ def validate(
             "validate it with the planar model (drop --model spatial)"
         )
     base = (params or recorded_params(rec)).with_mapping(overrides or {})
-    run = align_recording(rec, base, release_s=release_s, max_gap_s=max_gap_s)
+    samples = node_samples(rec)  # the measured series, decoded once
+    run = align_recording(rec, base, release_s=release_s, max_gap_s=max_gap_s, samples=samples)
     drive = recording_drive(rec, run)
     mjcf_xml = rec.mjcf_xml
-    covariance = [n.gyro_covariance for n in node_samples(rec)] if model == "spatial" else None
+    covariance = [n.gyro_covariance for n in samples] if model == "spatial" else None
+    del samples
     tilt_start = "zero"
     if model == "spatial":
         from pendsim_bridge.spatial_validate import tilt_start_of

@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 from scipy.interpolate import CubicSpline
 
+from pendsim_bridge import plots
 from pendsim_bridge.record import RecordSpec, record
 from pendsim_bridge.recording import NODES, imu_topic, read_recording
 from pendsim_bridge.validate import align_recording, validate
@@ -141,3 +142,23 @@ def test_the_spectral_peak_of_a_long_series_in_parts_is_the_whole_spectrum_s():
     del spectrum
     assert spectral_peak_hz(t, x) == pytest.approx(truth, rel=1e-9)
     assert spectral_peak_hz(t, x, min_hz=1.0) == pytest.approx(1.4745, rel=1e-4)  # the band still applies
+
+
+def test_a_long_whole_run_line_is_drawn_as_its_envelope_broken_at_gaps():
+    # 1 h at 80 Hz with a 5 s gap: every drawn point is a sample, each run of samples keeps its
+    # lowest and highest, and no drawn segment bridges the gap
+    t = np.arange(288_000) / 80.0
+    t = t[(t < 1000.0) | (t > 1005.0)]
+    y = np.sin(2 * math.pi * 0.87 * t) * np.exp(-t / 900.0)
+    drawn_t, drawn_y = plots._envelope(t, y, 0.1)
+    real = np.isfinite(drawn_y)
+    assert real.sum() <= 2 * plots.ENVELOPE_BUCKETS + 4 and np.count_nonzero(~real) == 1
+    i = np.searchsorted(t, drawn_t[real])
+    np.testing.assert_array_equal(t[i], drawn_t[real])
+    np.testing.assert_array_equal(y[i], drawn_y[real])
+    assert drawn_y[real].max() == y.max() and drawn_y[real].min() == y.min()
+    gap = np.flatnonzero(~real)[0]
+    assert drawn_t[gap - 1] < 1000.0 < 1005.0 < drawn_t[gap + 1]
+    short_t, short_y = plots._envelope(t[:9600], y[:9600], 0.1)  # a short run's line: all of it
+    np.testing.assert_array_equal(short_t, t[:9600])
+    np.testing.assert_array_equal(short_y, y[:9600])
