@@ -81,7 +81,8 @@ class NodeSamples:
 
     Attributes:
       log_t_s: (n,) when the recorder logged each sample, s on its clock.
-      quat_wxyz: (n, 4) fused orientation.
+      quat_wxyz: (n, 4) fused orientation (this and the two below float64, or float32 to save
+        memory: ``bridge.recording.read_recording(sensor_float32=True)``).
       gyro_rad_s: (n, 3) angular velocity, sensor axes.
       accel_m_s2: (n, 3) acceleration with gravity (specific force), sensor axes.
       stamp_s: (n,) the node's own time stamps, s (None: use log_t_s).
@@ -245,6 +246,13 @@ class _Node:
         return self.clock.to_recorder(fused) if self.clock is not None else fused
 
 
+def _floating(values: Floats) -> Floats:
+    """values as a float array: float32 ones as they are (a long recording's sensor values; what
+    is computed from them is float64), anything else as float64."""
+    a = np.asarray(values)
+    return a if a.dtype in (np.float32, np.float64) else a.astype(float)
+
+
 def _prepare(samples: NodeSamples, index: int) -> _Node:
     log = np.asarray(samples.log_t_s, dtype=float)
     n = len(log)
@@ -273,9 +281,9 @@ def _prepare(samples: NodeSamples, index: int) -> _Node:
         t=t,
         stamp=stamp,
         clock=clock,
-        quat=np.asarray(samples.quat_wxyz, dtype=float)[order],
-        gyro=np.asarray(samples.gyro_rad_s, dtype=float)[order],
-        accel=np.asarray(samples.accel_m_s2, dtype=float)[order],
+        quat=_floating(samples.quat_wxyz)[order],
+        gyro=_floating(samples.gyro_rad_s)[order],
+        accel=_floating(samples.accel_m_s2)[order],
         sigma=sigma,
         rate_hz=nominal_rate_hz(t),
     )
@@ -696,7 +704,9 @@ def align(
     for node, at, phase in zip(prepared, instants, phases, strict=True):
         # from the release on (values just before it are the model's rest); from the first values
         # after a start in motion
-        keep = node.t >= start_time - 1e-9 if kind == "release" else at >= start_time - 1e-9
+        # the instants increase: what is kept is a suffix, taken as views (no copies of the run)
+        first = int(np.searchsorted(node.t if kind == "release" else at, start_time - 1e-9, side="left"))
+        keep = slice(first, None)
         assert node.frame is not None
         t = node.t[keep] - start_time
         runs.append(
@@ -714,7 +724,7 @@ def align(
                 gyro_sigma_rad_s=node.sigma,
                 off_hinge_gyro_rad_s=node.gyro[keep]
                 @ np.stack([node.frame.tangential, node.frame.toward_pivot], axis=1),
-                before_start=int(np.count_nonzero(~keep)),
+                before_start=first,
             )
         )
     return MeasuredRun(nodes=(runs[0], runs[1]), start=start, fusion_rate_hz=fusion_rate_hz, max_gap_s=max_gap_s)

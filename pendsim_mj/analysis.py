@@ -111,38 +111,52 @@ part's transform still holds the whole series."""
 def _dft_magnitude(w: np.ndarray, k: int, nfft: int) -> float:
     """|sum_j w_j exp(-2 pi i k j / nfft)|: one bin of the zero-padded transform (the phase taken
     from the exact integer k j mod nfft)."""
-    j = np.arange(len(w), dtype=np.int64)
-    return float(np.abs(np.sum(w * np.exp(-2j * np.pi * ((k * j) % nfft) / nfft))))
+    total = 0j
+    for lo in range(0, len(w), _TURN_BLOCK):
+        j = np.arange(lo, min(lo + _TURN_BLOCK, len(w)), dtype=np.int64)
+        total += complex(np.sum(w[j] * np.exp(-2j * np.pi * ((k * j) % nfft) / nfft)))
+    return float(abs(total))
 
 
 def _peak_in_parts(y: np.ndarray, nfft: int, bottom: int, top: int) -> float:
     """The peak bin of ``hann_magnitude(y, nfft)`` in [bottom, top), refined as in
     ``spectral_peak_hz_batch`` (in bins; NaN for a non-finite y, 0 for a constant one), without
     holding the whole spectrum: bins k = SPECTRUM_PARTS m + r are the transform of length
-    nfft / SPECTRUM_PARTS of y's windowed samples turned by exp(-2 pi i r j / nfft); the three
-    bins around the peak are summed directly."""
+    nfft / SPECTRUM_PARTS of y's windowed samples turned by exp(-2 pi i r j / nfft), made in one
+    reused buffer; the three bins around the peak are summed directly."""
+    from scipy import fft
+
     if not np.all(np.isfinite(y)):
         return float("nan")
     if not np.any(y != 0):
         return 0.0
     w = (y - y.mean()) * np.hanning(len(y))
-    j = np.arange(len(w), dtype=np.int64)
     length = nfft // SPECTRUM_PARTS
+    buffer = np.zeros(length, dtype=complex)
     best, k = -1.0, bottom
     for r in range(SPECTRUM_PARTS):
-        bins = SPECTRUM_PARTS * np.arange(length) + r
-        first, last = np.searchsorted(bins, [bottom, top])
+        first = max(0, -(-(bottom - r) // SPECTRUM_PARTS))  # the part's bins m with bottom <= 8 m + r < top
+        last = min(length, -(-(top - r) // SPECTRUM_PARTS))
         if last <= first:
             continue
-        magnitude = np.abs(np.fft.fft(w * np.exp(-2j * np.pi * ((r * j) % nfft) / nfft), n=length)[first:last])
+        for lo in range(0, len(w), _TURN_BLOCK):  # w turned by exp(-2 pi i r j / nfft), block by block
+            j = np.arange(lo, min(lo + _TURN_BLOCK, len(w)), dtype=np.int64)
+            buffer[j] = w[j] * np.exp(-2j * np.pi * ((r * j) % nfft) / nfft)
+        buffer[len(w) :] = 0.0
+        spectrum = fft.fft(buffer, overwrite_x=True)
+        magnitude = np.abs(spectrum[first:last])
+        del spectrum
         i = int(np.argmax(magnitude))
         if magnitude[i] > best:
-            best, k = float(magnitude[i]), int(bins[first + i])
+            best, k = float(magnitude[i]), SPECTRUM_PARTS * (first + i) + r
     if k >= nfft // 2:  # the last bin: no neighbour above it
         return float(k)
     a, b, c = (math.log(_dft_magnitude(w, kk, nfft) + 1e-300) for kk in (k - 1, k, k + 1))
     denom = a - 2 * b + c
     return k + (0.5 * (a - c) / denom if denom != 0 else 0.0)
+
+
+_TURN_BLOCK = 1 << 16
 
 
 def _hysteresis_sign(y: np.ndarray, band: float) -> np.ndarray | None:

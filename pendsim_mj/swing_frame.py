@@ -154,7 +154,7 @@ def fit_swing_frame(
     if float(np.max(np.abs(omega))) < 0.02:
         raise RecordingError("a node's gyro never turns faster than 0.02 rad/s: no swing to find its hinge axis in")
     quat = np.asarray(quat_wxyz, dtype=float)
-    reference = quat[0]
+    reference = quat[0].copy()  # not a view: the frame must not keep the node's samples alive
     quat_axis = relative_axis(quat, reference)
     theta = np.unwrap(twist_angle(quat, reference, quat_axis))
     alpha, ok = _derivative(t_s, omega, max_step_s)

@@ -23,6 +23,10 @@ from pendsim_mj.errors import RecordingError
 Floats = NDArray[np.float64]
 
 DEFAULT_MAX_GAP_S = 0.1
+ROUGHNESS_BLOCK = 65536
+"""Samples taken at once by the whole-run loops here (``fit_clock``, ``roughness``,
+``fusion_phase``): bounds their memory (a few MB) whatever the run's length; the results are the
+whole run's."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -128,8 +132,9 @@ def fit_clock(stamp_s: Floats, log_s: Floats) -> ClockRelation | None:
     if len(x) < 2 or not np.all(np.diff(x) > 0):
         return None
     fit = ClockFit(max_drift_ppm=1e5)  # clamped at 10 %: a rate off by over 1 % is refused below
-    for xi, yi in zip(x.tolist(), y.tolist(), strict=True):
-        fit.add(xi, yi)
+    for lo in range(0, len(x), ROUGHNESS_BLOCK):  # in blocks: no whole-run lists of Python floats
+        for xi, yi in zip(x[lo : lo + ROUGHNESS_BLOCK].tolist(), y[lo : lo + ROUGHNESS_BLOCK].tolist(), strict=True):
+            fit.add(xi, yi)
     relation = fit.relation()
     return relation if 0.99 < relation.rate < 1.01 else None
 
@@ -233,11 +238,6 @@ def check_max_gap(max_gap_s: float) -> None:
         from pendsim_mj.errors import ParameterError
 
         raise ParameterError(f"max_gap_s must be a finite number in (0, 10] s, got {max_gap_s!r}")
-
-
-ROUGHNESS_BLOCK = 65536
-"""Samples whose second differences are taken at once (``roughness``, ``fusion_phase``): bounds
-their memory (a few MB) whatever the run's length; the sums are the whole run's."""
 
 
 def _second_difference_sums(t: Floats, v: Floats, max_step_s: float) -> tuple[float, int]:
