@@ -62,7 +62,8 @@ FIGURES = (
 )
 """The paper's Figures 9-13 and 15 (``plots.validation_figures``): (file stem, quantity, window).
 Of the whole-run comparisons, only these quantities keep their series (for the plots:
-``FIGURE_SERIES``); the others keep their metrics, so a long run's memory does not hold them all."""
+``FIGURE_SERIES``; not of the planar reference from the nominal start, which no figure draws); the
+others keep their metrics, so a long run's memory does not hold them all."""
 FIGURE_SERIES = ("t_s", "measured", "computed")
 
 
@@ -106,9 +107,11 @@ def align_recording(
     release_s: float | None = None,
     max_gap_s: float = DEFAULT_MAX_GAP_S,
     samples: tuple[NodeSamples, NodeSamples] | None = None,
+    off_hinge: bool = True,
 ) -> MeasuredRun:
     """The measured run of a recording (``pendsim_mj.alignment.align`` on its IMU topics, and on
-    its /drive topic for a driven run); ``samples``: its ``node_samples`` if the caller has them."""
+    its /drive topic for a driven run); ``samples``: its ``node_samples`` if the caller has them;
+    ``off_hinge``: keep the gyros off the hinge axes (for a spatial fit)."""
     if samples is None:
         samples = node_samples(rec)  # its errors name the file already
     try:
@@ -119,6 +122,7 @@ def align_recording(
             release_s=release_s,
             max_gap_s=max_gap_s,
             drive_input=rec.drive_input_s,
+            off_hinge=off_hinge,
         )
     except RecordingError as exc:
         raise RecordingError(f"{rec.path}: {exc}") from None
@@ -352,7 +356,9 @@ def validate(
         )
     base = (params or recorded_params(rec)).with_mapping(overrides or {})
     samples = node_samples(rec)  # the measured series, decoded once
-    run = align_recording(rec, base, release_s=release_s, max_gap_s=max_gap_s, samples=samples)
+    run = align_recording(
+        rec, base, release_s=release_s, max_gap_s=max_gap_s, samples=samples, off_hinge=model == "spatial"
+    )
     drive = recording_drive(rec, run)
     mjcf_xml = rec.mjcf_xml
     covariance = [n.gyro_covariance for n in samples] if model == "spatial" else None
@@ -393,7 +399,8 @@ def validate(
                 computed = resample(t_model, values[q.name], np.clip(at, 0.0, t_model[-1]))
                 for window_name, limit in windows:
                     # a long run's series: only those plotted stay, and its errors go window by window
-                    kept = None if window_name != "whole" else FIGURE_SERIES if q.name in plotted else ()
+                    drawn = q.name in plotted and (engine, release_name) != ("reference", "nominal")
+                    kept = None if window_name != "whole" else FIGURE_SERIES if drawn else ()
                     inside = _window(t <= limit + 1e-9, t, measured, computed)
                     by_window[window_name][q.name] = compare(*inside, max_gap_s=max_gap_s, series=kept)
             del t_model, values

@@ -605,6 +605,7 @@ def align(
     start_fit_s: float = 1.0,
     engine: str = "mujoco",
     drive_input: tuple[Floats, Floats] | None = None,
+    off_hinge: bool = True,
 ) -> MeasuredRun:
     """The measured run of two nodes (M1's, M2's) against which ``params`` will be compared.
 
@@ -620,6 +621,8 @@ def align(
       drive_input: a driven run's recorded inputs: (n,) the start of each step on the recorder's
         clock, s, and (n, 4) the inputs held over it (``pendsim_mj.drives`` channels); None for
         a free run. The model is driven by them from the start on (``drives.recorded_drive``).
+      off_hinge: keep each node's gyro off its hinge axis (``NodeRun.off_hinge_gyro_rad_s``,
+        what a spatial fit needs; False: None, 16 bytes a sample less).
 
     Raises:
       RecordingError: too few samples, no motion, no swing to find a frame in.
@@ -709,6 +712,7 @@ def align(
         keep = slice(first, None)
         assert node.frame is not None
         t = node.t[keep] - start_time
+        off_axes = np.stack([node.frame.tangential, node.frame.toward_pivot], axis=1)
         runs.append(
             NodeRun(
                 t_s=t,
@@ -722,8 +726,7 @@ def align(
                 fusion_phase_s=phase,
                 coverage=coverage(t, max_gap_s, node.rate_hz),
                 gyro_sigma_rad_s=node.sigma,
-                off_hinge_gyro_rad_s=node.gyro[keep]
-                @ np.stack([node.frame.tangential, node.frame.toward_pivot], axis=1),
+                off_hinge_gyro_rad_s=node.gyro[keep] @ off_axes if off_hinge else None,
                 before_start=first,
             )
         )
