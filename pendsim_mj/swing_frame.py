@@ -38,6 +38,7 @@ from pendsim_mj.errors import RecordingError
 Floats = NDArray[np.float64]
 
 _QUARTER_TURN = np.array([[0.0, -1.0], [1.0, 0.0]])
+ANGLE_BLOCK = 1 << 16  # orientations turned into angles at once (SwingFrame.angle)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -79,8 +80,15 @@ class SwingFrame:
         )
 
     def angle(self, quat_wxyz: Floats) -> Floats:
-        """phi (n,) of orientations (n, 4), rad (continuous: unwrapped)."""
-        return np.unwrap(twist_angle(quat_wxyz, self.reference_quat_wxyz, self.quat_axis)) + self.angle_offset_rad
+        """phi (n,) of orientations (n, 4), rad (continuous: unwrapped), computed ``ANGLE_BLOCK``
+        samples at a time (memory flat with n; each block unwrapped on from the one before)."""
+        quat = np.asarray(quat_wxyz)
+        out = np.empty(len(quat))
+        for lo in range(0, len(quat), ANGLE_BLOCK):
+            theta = twist_angle(quat[lo : lo + ANGLE_BLOCK], self.reference_quat_wxyz, self.quat_axis)
+            before = out[lo - 1 : lo]  # the previous block's last (unwrapped) angle; none for the first
+            out[lo : lo + ANGLE_BLOCK] = np.unwrap(np.concatenate([before, theta]))[len(before) :]
+        return out + self.angle_offset_rad
 
     def rate(self, gyro_rad_s: Floats) -> Floats:
         """omega (n,) from gyro readings (n, 3), rad/s."""

@@ -18,6 +18,7 @@ from pendsim_mj.imperfections import random_mount
 from pendsim_mj.nonlinear.linear import linear_modes
 from pendsim_mj.params import DEFAULT_PARAMS
 from pendsim_mj.sensors import Bno055
+from pendsim_mj.swing_frame import ANGLE_BLOCK, SwingFrame, relative_axis, twist_angle
 from pendsim_mj.validation import SERIES, WINDOW_SAMPLES, compare, resample
 
 DAMPING_FACTOR = 10.0  # the paper's hinge damping x10: the swing is lost in the noise within 2 minutes
@@ -162,3 +163,14 @@ def test_a_long_whole_run_line_is_drawn_as_its_envelope_broken_at_gaps():
     short_t, short_y = plots._envelope(t[:9600], y[:9600], 0.1)  # a short run's line: all of it
     np.testing.assert_array_equal(short_t, t[:9600])
     np.testing.assert_array_equal(short_y, y[:9600])
+
+
+def test_angles_block_by_block_equal_the_whole_run_unwrapped_twist():
+    # a swing that wraps around many times across swing_frame.ANGLE_BLOCK boundaries
+    phi = np.cumsum(np.random.default_rng(0).normal(0.0, 0.3, 3 * ANGLE_BLOCK + 77))
+    quat = rotations.pendulum_quat_wxyz(phi)
+    axis = relative_axis(quat, quat[0])
+    frame = SwingFrame(np.eye(3)[2], np.eye(3)[1], np.eye(3)[0], 0.4, axis, quat[0].copy(), 0.1, False, 0.0)
+    whole = np.unwrap(twist_angle(quat, quat[0], axis)) + 0.1
+    assert np.ptp(whole) > 100.0
+    np.testing.assert_allclose(frame.angle(quat), whole, rtol=0, atol=1e-12)
