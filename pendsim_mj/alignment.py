@@ -380,7 +380,11 @@ def _orient(nodes: list[_Node], t0: float, kind: StartKind) -> list[_Node]:
     if largest < 0:
         m1 = m1.with_frame(m1.frame.flipped())
         phi1 = -phi1
-    t2, phi2, omega2 = m2.t, m2.phi, m2.omega
+    # M2's sign from the first FRAME_FIT_S after the start (as its frame: the hours at rest of a
+    # long run would add only noise to the regression, and memory)
+    lo, hi = np.searchsorted(m2.t, [t0, t0 + FRAME_FIT_S])
+    near = slice(max(int(lo) - 1, 0), int(hi) + 1)
+    t2, phi2, omega2 = m2.t[near], m2.phi[near], m2.omega[near]
     span = t2[2:] - t2[:-2]
     ok = (span > 0) & (span < 3.0 / m2.rate_hz) & (t2[1:-1] >= t0)
     alpha2 = (omega2[2:] - omega2[:-2]) / np.where(span > 0, span, 1.0)

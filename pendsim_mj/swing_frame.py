@@ -92,13 +92,23 @@ class SwingFrame:
 
     def rate(self, gyro_rad_s: Floats) -> Floats:
         """omega (n,) from gyro readings (n, 3), rad/s."""
-        return np.asarray(gyro_rad_s) @ self.hinge_axis
+        return _along(gyro_rad_s, self.hinge_axis)
 
     def tangential_of(self, accel_m_s2: Floats) -> Floats:
-        return np.asarray(accel_m_s2) @ self.tangential
+        return _along(accel_m_s2, self.tangential)
 
     def normal_of(self, accel_m_s2: Floats) -> Floats:
-        return np.asarray(accel_m_s2) @ self.toward_pivot
+        return _along(accel_m_s2, self.toward_pivot)
+
+
+def _along(vectors: Floats, direction: Floats) -> Floats:
+    """vectors (n, 3) (float64, or float32 sensor values) along a unit direction (3,): (n,)
+    float64, ``ANGLE_BLOCK`` rows at a time (no float64 copy of a long run's float32 values)."""
+    v = np.asarray(vectors)
+    out = np.empty(len(v))
+    for lo in range(0, len(v), ANGLE_BLOCK):
+        out[lo : lo + ANGLE_BLOCK] = v[lo : lo + ANGLE_BLOCK] @ direction
+    return out
 
 
 def dominant_axis(vectors: Floats) -> Floats:
