@@ -174,3 +174,24 @@ def test_angles_block_by_block_equal_the_whole_run_unwrapped_twist():
     whole = np.unwrap(twist_angle(quat, quat[0], axis)) + 0.1
     assert np.ptp(whole) > 100.0
     np.testing.assert_allclose(frame.angle(quat), whole, rtol=0, atol=1e-12)
+
+
+def test_sensor_values_read_as_float32_align_as_the_float64_ones(mostly_at_rest):
+    # the BNO055's 16-bit outputs in float32: the same values to 1e-7 of each, the run aligned from
+    # them the same to far below the sensor's resolution (quaternion LSB 6e-5, gyro 1.1e-3 rad/s)
+    topics = [imu_topic(n) for n in NODES]
+    full = read_recording(mostly_at_rest, topics=topics)
+    half = read_recording(mostly_at_rest, topics=topics, sensor_float32=True)
+    for n in NODES:
+        a, b = full.imu[n], half.imu[n]
+        np.testing.assert_array_equal(b.t_ns, a.t_ns)
+        np.testing.assert_array_equal(b.stamp_ns, a.stamp_ns)
+        for name in ("quat_wxyz", "gyro_rad_s", "accel_m_s2"):
+            assert getattr(b, name).dtype == np.float32
+            np.testing.assert_array_equal(getattr(b, name), getattr(a, name).astype(np.float32))
+    run64, run32 = align_recording(full, PARAMS), align_recording(half, PARAMS)
+    assert run32.start.time_s == pytest.approx(run64.start.time_s, abs=1e-6)
+    for n64, n32 in zip(run64.nodes, run32.nodes, strict=True):
+        assert n32.phi_rad.dtype == np.float64
+        np.testing.assert_allclose(n32.phi_rad, n64.phi_rad, rtol=0, atol=1e-6)
+        np.testing.assert_allclose(n32.omega_rad_s, n64.omega_rad_s, rtol=0, atol=1e-6)
