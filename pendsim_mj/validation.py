@@ -41,6 +41,8 @@ class Comparison:
       f_measured_hz, f_computed_hz, delta_f: by interpolated zero crossings (the paper's "natural
         frequency"), with a hysteresis band of 4 noise sigmas of the measured series.
       f_measured_fft_hz, f_computed_fft_hz, delta_f_fft: by the interpolated spectral peak.
+        Both frequencies over the resolved swing (``RESOLVED_SIGMAS``): the whole window unless
+        the measured swing sinks into its noise before the end (a long free decay).
       covered_s: time inside covered segments, s (the whole window without gaps).
       measured_std: standard deviation of the measured series (a scale for rms; kept when the
         series are dropped, ``without_series``).
@@ -279,9 +281,9 @@ def compare(
       measured, computed: (n,) the two series there.
       max_gap_s: spacing above which the samples are not integrated or interpolated across, s.
       series: which of the (n,) ``SERIES`` the result keeps (None: all of them; the others are
-        empty, as ``Comparison.without_series`` leaves them). Without
-        "delta", "iae_curve" and "ise_curve" the errors are computed window by window
-        (``WINDOW_SAMPLES``, memory flat with n), with the same metrics.
+        empty, as ``Comparison.without_series`` leaves them). Without "delta", "iae_curve" and
+        "ise_curve" the errors are computed window by window (``WINDOW_SAMPLES``, memory flat
+        with n), with the same metrics.
     """
     keep = set(SERIES) if series is None else set(series)
     t = np.asarray(t_s, dtype=float)
