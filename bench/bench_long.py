@@ -17,7 +17,8 @@ the next:
   states only), and the static recording read once plus ``allantools.oadev`` on its 12 axes
   (same tau grid as ``allan``).
 
-Targets (issue 16, "Done when"): validate 1 h <= 30 s CPU and 500 MB, 6 h < 180 s and 500 MB;
+Targets (issue 16, "Done when"): validate 1 h <= 30 s CPU and 500 MB (with and without the damping
+fit), 6 h < 180 s and 500 MB;
 view --save 1 h <= 10 s and 500 MB; allan 6 h <= 5 s wall and 600 MB and faster than the
 read-once + allantools anchor. The machine's load average is printed with the table: on a
 shared machine wall times are upper bounds; CPU times are what the targets compare.
@@ -70,6 +71,7 @@ for node in ("m1", "m2"):
 
 TARGETS = {  # (measurement, duration_s): (CPU s, wall s, peak MB); None: not a target
     ("validate --damping recorded", 3600): (30.0, None, 500.0),
+    ("validate", 3600): (30.0, None, 500.0),
     ("validate --damping recorded", 21600): (180.0, None, 500.0),
     ("view --save", 3600): (10.0, None, 500.0),
     ("allan (plots)", 21600): (None, 5.0, 600.0),

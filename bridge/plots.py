@@ -98,10 +98,43 @@ def _broken(t, *series, max_gap_s: float):
     return tuple(np.insert(np.asarray(x, dtype=float), cuts, np.nan) for x in (t, *series))
 
 
+ENVELOPE_BUCKETS = 4000
+"""A whole-run line longer than ENVELOPE_ABOVE points is drawn as its envelope: the lowest and the
+highest point of each of this many runs of samples (in time order), far more than a figure's
+pixel columns, so the picture is the same; memory and drawing time no longer grow with the run."""
+ENVELOPE_ABOVE = 50_000
+
+
+def _envelope(t, y, max_gap_s: float):
+    """(t, y) of a line to draw: itself (NaN-broken at gaps, ``_broken``) up to ENVELOPE_ABOVE
+    points, else each covered segment's min-max envelope over ENVELOPE_BUCKETS runs of samples,
+    segments broken by NaN."""
+    import numpy as np
+
+    t = np.asarray(t, dtype=float)
+    y = np.asarray(y, dtype=float)
+    if len(t) <= ENVELOPE_ABOVE:
+        return _broken(t, y, max_gap_s=max_gap_s)
+    size = -(-len(t) // ENVELOPE_BUCKETS)
+    cuts = np.flatnonzero(np.diff(t) > max_gap_s) + 1
+    parts_t, parts_y = [], []
+    for lo, hi in zip(np.concatenate([[0], cuts]), np.concatenate([cuts, [len(t)]]), strict=True):
+        rows = -(-(hi - lo) // size)
+        padded = np.full(rows * size, np.nan)
+        padded[: hi - lo] = y[lo:hi]
+        padded = padded.reshape(rows, size)
+        first = lo + size * np.arange(rows)
+        keep = np.unique(np.concatenate([first + np.nanargmin(padded, axis=1), first + np.nanargmax(padded, axis=1)]))
+        parts_t += [t[keep], [np.nan]]
+        parts_y += [y[keep], [np.nan]]
+    return np.concatenate(parts_t[:-1]), np.concatenate(parts_y[:-1])
+
+
 def validation_figures(report, directory: str | Path) -> list[Path]:
     """The paper's Figures 9-15 for a ValidationReport: measured against computed (MuJoCo and
     the planar reference, from the estimated start; MuJoCo from the nominal 30 deg dashed when
-    the run starts from rest). Lines break at gaps in the samples."""
+    the run starts from rest). Lines break at gaps in the samples; a long run's lines are drawn as
+    their envelopes (``_envelope``)."""
     from pendsim_bridge.validate import FIGURES
     from pendsim_mj.quantities import BY_NAME
 
@@ -122,22 +155,24 @@ def validation_figures(report, directory: str | Path) -> list[Path]:
             )
         else:
             fig, ax = plt.subplots(figsize=(9, 4.2), dpi=100)
-        t, measured, computed, reference = _broken(m.t_s, m.measured, m.computed, r.computed, max_gap_s=gap)
-        ax.plot(t, measured, color="black", linewidth=1.0, label="measured (IMU)")
-        ax.plot(t, computed, color="tab:orange", linewidth=1.0, label="computed: MuJoCo, estimated start")
-        ax.plot(t, reference, color="tab:blue", linewidth=0.8, linestyle=":", label="computed: planar reference")
+        ax.plot(*_envelope(m.t_s, m.measured, gap), color="black", linewidth=1.0, label="measured (IMU)")
+        label = "computed: MuJoCo, estimated start"
+        ax.plot(*_envelope(m.t_s, m.computed, gap), color="tab:orange", linewidth=1.0, label=label)
+        label = "computed: planar reference"
+        ax.plot(*_envelope(r.t_s, r.computed, gap), color="tab:blue", linewidth=0.8, linestyle=":", label=label)
         if report.has_nominal:
             n = report.case("mujoco", "nominal", window).comparisons[quantity]
-            tn, nominal = _broken(n.t_s, n.computed, max_gap_s=gap)
             label = "computed: MuJoCo, nominal 30 deg"
-            ax.plot(tn, nominal, color="tab:green", linewidth=0.8, linestyle="--", label=label)
+            ax.plot(*_envelope(n.t_s, n.computed, gap), color="tab:green", linewidth=0.8, linestyle="--", label=label)
         ax.set_ylabel(f"{q.label} ({q.unit})")
         ax.set_title(f"{q.description}, {'first ' + window if window != 'whole' else 'whole run'}")
         ax.grid(True, alpha=0.3)
         legend_outside(ax)
         if window == "whole":
-            low.plot(t, computed - measured, color="tab:orange", linewidth=0.8, label="MuJoCo, estimated start")
-            low.plot(t, reference - measured, color="tab:blue", linewidth=0.6, linestyle=":", label="planar reference")
+            label = "MuJoCo, estimated start"
+            low.plot(*_envelope(m.t_s, m.computed - m.measured, gap), color="tab:orange", linewidth=0.8, label=label)
+            difference = _envelope(r.t_s, r.computed - m.measured, gap)
+            low.plot(*difference, color="tab:blue", linewidth=0.6, linestyle=":", label="planar reference")
             low.axhline(0.0, color="black", linewidth=0.6)
             low.set_ylabel(f"computed - measured ({q.unit})", fontsize=8)
             low.grid(True, alpha=0.3)

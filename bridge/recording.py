@@ -337,6 +337,7 @@ def read_recording(
     strict: bool = True,
     topics: Collection[str] | None = None,
     progress: Callable[[int], None] | None = None,
+    sensor_float32: bool = False,
 ) -> Recording:
     """Read a recording into numpy arrays per topic, chunk by chunk: each chunk's messages are
     decoded straight into per-field arrays (payloads are never all held at once).
@@ -348,6 +349,9 @@ def read_recording(
         could be read (and the problems).
       topics: read only these topics (others are skipped without inflating their chunks).
       progress: called with bytes read, for a progress bar.
+      sensor_float32: keep the IMU's orientation, angular velocity and acceleration as float32
+        (half the memory of a long recording; the BNO055 outputs 16-bit integers, which float32
+        holds to 1e-7 of their value, far below one LSB); stamps and log times stay int64.
 
     Raises:
       RecordingError: a damaged file (strict), or a known topic with an unexpected schema.
@@ -358,7 +362,7 @@ def read_recording(
         if strict and mcap.problems:
             raise RecordingError(mcap.error_text())
         wanted_topics = set(EXPECTED_SCHEMAS) - {"/tf_static"} if topics is None else set(topics)
-        decoders = _topic_decoders(path, mcap, wanted_topics)
+        decoders = _topic_decoders(path, mcap, wanted_topics, sensor_float32)
         for chunk in mcap.chunks(channels=set(decoders), progress=progress):
             for cid, data in chunk.channels.items():
                 if cid in decoders:
@@ -397,7 +401,9 @@ def _start_time_ns(path: Path, mcap: McapFile) -> int:
     return min((r.start_ns for r in mcap.chunk_refs), default=0)
 
 
-def _topic_decoders(path: Path, mcap: McapFile, topics: set[str]) -> dict[int, _TopicDecoder]:
+def _topic_decoders(
+    path: Path, mcap: McapFile, topics: set[str], sensor_float32: bool = False
+) -> dict[int, _TopicDecoder]:
     """A decoder per channel of the wanted known topics, after checking its schema."""
     out: dict[int, _TopicDecoder] = {}
     for cid, channel in mcap.channels.items():
@@ -418,7 +424,7 @@ def _topic_decoders(path: Path, mcap: McapFile, topics: set[str]) -> dict[int, _
                 "(ros2msg/cdr)"
             )
         count = sum(r.index_count(cid) for r in mcap.chunk_refs)
-        out[cid] = _TopicDecoder(path, channel.topic, schema, count)
+        out[cid] = _TopicDecoder(path, channel.topic, schema, count, sensor_float32)
     return out
 
 
@@ -479,8 +485,11 @@ class _TopicDecoder:
     }  # fmt: skip
     CONSTANT = frozenset({"orientation_covariance", "angular_velocity_covariance", "linear_acceleration_covariance"})
 
-    def __init__(self, path: Path, topic: str, schema: Any, count: int) -> None:
+    SENSOR = frozenset({"orientation", "angular_velocity", "linear_acceleration"})
+
+    def __init__(self, path: Path, topic: str, schema: Any, count: int, sensor_float32: bool = False) -> None:
         self.path, self.topic, self.schema = path, topic, schema
+        self.sensor_float32 = sensor_float32 and schema.name == "sensor_msgs/msg/Imu"
         names = [name for name in self.FIELDS[schema.name] if name not in ("sec", "nanosec")]
         if "sec" in self.FIELDS[schema.name]:
             names.append("stamp")
@@ -501,6 +510,8 @@ class _TopicDecoder:
         if "orientation" in fields:
             fields["orientation"] = rotations.xyzw_to_wxyz(fields["orientation"])
         for name, values in fields.items():
+            if self.sensor_float32 and name in self.SENSOR:
+                values = values.astype(np.float32)
             self.columns[name].add(values, may_be_constant=name in self.CONSTANT)
 
     def _layout_for(self, payloads: NDArray[np.uint8]) -> ros2.FixedCdr | None:

@@ -62,7 +62,8 @@ FIGURES = (
 )
 """The paper's Figures 9-13 and 15 (``plots.validation_figures``): (file stem, quantity, window).
 Of the whole-run comparisons, only these quantities keep their series (for the plots:
-``FIGURE_SERIES``); the others keep their metrics, so a long run's memory does not hold them all."""
+``FIGURE_SERIES``; not of the planar reference from the nominal start, which no figure draws); the
+others keep their metrics, so a long run's memory does not hold them all."""
 FIGURE_SERIES = ("t_s", "measured", "computed")
 
 
@@ -106,10 +107,14 @@ def align_recording(
     *,
     release_s: float | None = None,
     max_gap_s: float = DEFAULT_MAX_GAP_S,
+    samples: tuple[NodeSamples, NodeSamples] | None = None,
+    off_hinge: bool = True,
 ) -> MeasuredRun:
     """The measured run of a recording (``pendsim_mj.alignment.align`` on its IMU topics, and on
-    its /drive topic for a driven run)."""
-    samples = node_samples(rec)  # its errors name the file already
+    its /drive topic for a driven run); ``samples``: its ``node_samples`` if the caller has them;
+    ``off_hinge``: keep the gyros off the hinge axes (for a spatial fit)."""
+    if samples is None:
+        samples = node_samples(rec)  # its errors name the file already
     try:
         return align(
             samples,
@@ -118,6 +123,7 @@ def align_recording(
             release_s=release_s,
             max_gap_s=max_gap_s,
             drive_input=rec.drive_input_s,
+            off_hinge=off_hinge,
         )
     except RecordingError as exc:
         raise RecordingError(f"{rec.path}: {exc}") from None
@@ -342,17 +348,22 @@ def validate(
     """
     if model not in ("planar", "spatial"):
         raise ParameterError(f"model must be 'planar' or 'spatial', got {model!r}")
-    rec = read_recording(path, topics=[*(imu_topic(n) for n in NODES), DRIVE_TOPIC])
+    # the sensor values as float32: half the memory of a long recording (stamps stay exact)
+    rec = read_recording(path, topics=[*(imu_topic(n) for n in NODES), DRIVE_TOPIC], sensor_float32=True)
     if model == "spatial" and rec.drive_input_s is not None:
         raise ParameterError(
             f"{path} is a driven recording (a /drive topic); --model spatial validates free runs only: "
             "validate it with the planar model (drop --model spatial)"
         )
     base = (params or recorded_params(rec)).with_mapping(overrides or {})
-    run = align_recording(rec, base, release_s=release_s, max_gap_s=max_gap_s)
+    samples = node_samples(rec)  # the measured series, decoded once
+    run = align_recording(
+        rec, base, release_s=release_s, max_gap_s=max_gap_s, samples=samples, off_hinge=model == "spatial"
+    )
     drive = recording_drive(rec, run)
     mjcf_xml = rec.mjcf_xml
-    covariance = [n.gyro_covariance for n in node_samples(rec)] if model == "spatial" else None
+    covariance = [n.gyro_covariance for n in samples] if model == "spatial" else None
+    del samples
     tilt_start = "zero"
     if model == "spatial":
         from pendsim_bridge.spatial_validate import tilt_start_of
@@ -388,10 +399,11 @@ def validate(
                 t, measured, at = run.series(q)
                 computed = resample(t_model, values[q.name], np.clip(at, 0.0, t_model[-1]))
                 for window_name, limit in windows:
-                    cmp = compare(*_window(t <= limit + 1e-9, t, measured, computed), max_gap_s=max_gap_s)
-                    if window_name == "whole":  # a long run's series: only those plotted stay
-                        cmp = cmp.without_series(FIGURE_SERIES if q.name in plotted else ())
-                    by_window[window_name][q.name] = cmp
+                    # a long run's series: only those plotted stay, and its errors go window by window
+                    drawn = q.name in plotted and (engine, release_name) != ("reference", "nominal")
+                    kept = None if window_name != "whole" else FIGURE_SERIES if drawn else ()
+                    inside = _window(t <= limit + 1e-9, t, measured, computed)
+                    by_window[window_name][q.name] = compare(*inside, max_gap_s=max_gap_s, series=kept)
             del t_model, values
             cases += [CaseResult(engine, release_name, name, by_window[name]) for name, _ in windows]
     choice = None

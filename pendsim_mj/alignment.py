@@ -68,6 +68,11 @@ FIRST_SWING_S = 1.5  # M1's sign: its largest excursion this long after the star
 LARGE_SWING = 0.5  # the large swing: gyro magnitude above this share of its 99th percentile
 UNEXPLAINED_REFUSED = 0.5  # a found start whose model leaves this share of the motion unexplained is refused
 UNEXPLAINED_POOR = 0.03  # above this share the start fit is reported as poor (a 5 % frequency error gives 0.02)
+FRAME_FIT_S = 600.0
+"""The swing frames are fitted on the samples within this long of the start (before and after it),
+s. The motion is what carries the mounting; a long run's later hours at rest add only noise to the
+fit's kinematic columns, enough to flip its choice of handedness (a 6 h free decay: M2 found
+mirrored, 80 mm from its hinge), and memory that grows with the run."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -76,7 +81,8 @@ class NodeSamples:
 
     Attributes:
       log_t_s: (n,) when the recorder logged each sample, s on its clock.
-      quat_wxyz: (n, 4) fused orientation.
+      quat_wxyz: (n, 4) fused orientation (this and the two below float64, or float32 to save
+        memory: ``bridge.recording.read_recording(sensor_float32=True)``).
       gyro_rad_s: (n, 3) angular velocity, sensor axes.
       accel_m_s2: (n, 3) acceleration with gravity (specific force), sensor axes.
       stamp_s: (n,) the node's own time stamps, s (None: use log_t_s).
@@ -240,6 +246,13 @@ class _Node:
         return self.clock.to_recorder(fused) if self.clock is not None else fused
 
 
+def _floating(values: Floats) -> Floats:
+    """values as a float array: float32 ones as they are (a long recording's sensor values; what
+    is computed from them is float64), anything else as float64."""
+    a = np.asarray(values)
+    return a if a.dtype in (np.float32, np.float64) else a.astype(float)
+
+
 def _prepare(samples: NodeSamples, index: int) -> _Node:
     log = np.asarray(samples.log_t_s, dtype=float)
     n = len(log)
@@ -268,9 +281,9 @@ def _prepare(samples: NodeSamples, index: int) -> _Node:
         t=t,
         stamp=stamp,
         clock=clock,
-        quat=np.asarray(samples.quat_wxyz, dtype=float)[order],
-        gyro=np.asarray(samples.gyro_rad_s, dtype=float)[order],
-        accel=np.asarray(samples.accel_m_s2, dtype=float)[order],
+        quat=_floating(samples.quat_wxyz)[order],
+        gyro=_floating(samples.gyro_rad_s)[order],
+        accel=_floating(samples.accel_m_s2)[order],
         sigma=sigma,
         rate_hz=nominal_rate_hz(t),
     )
@@ -317,6 +330,13 @@ def _detect_start(nodes: Sequence[_Node]) -> tuple[StartKind, float]:
     return "in motion", max(float(n.t[0]) for n in nodes)
 
 
+def _frame_window(instants: Floats, start_s: float) -> slice:
+    """The samples (a slice of the increasing ``instants``, s) whose instants lie within
+    ``FRAME_FIT_S`` of the start ``start_s`` (s): what the swing frame is fitted on."""
+    lo, hi = np.searchsorted(instants, [start_s - FRAME_FIT_S, start_s + FRAME_FIT_S], side="left")
+    return slice(int(lo), int(hi))
+
+
 def _drive_onset_s(drive_input: tuple[Floats, Floats]) -> float | None:
     """When the recorded drive starts: the first step with an input (recorder's clock, s), None
     if it never has one."""
@@ -360,7 +380,11 @@ def _orient(nodes: list[_Node], t0: float, kind: StartKind) -> list[_Node]:
     if largest < 0:
         m1 = m1.with_frame(m1.frame.flipped())
         phi1 = -phi1
-    t2, phi2, omega2 = m2.t, m2.phi, m2.omega
+    # M2's sign from the first FRAME_FIT_S after the start (as its frame: the hours at rest of a
+    # long run would add only noise to the regression, and memory)
+    lo, hi = np.searchsorted(m2.t, [t0, t0 + FRAME_FIT_S])
+    near = slice(max(int(lo) - 1, 0), int(hi) + 1)
+    t2, phi2, omega2 = m2.t[near], m2.phi[near], m2.omega[near]
     span = t2[2:] - t2[:-2]
     ok = (span > 0) & (span < 3.0 / m2.rate_hz) & (t2[1:-1] >= t0)
     alpha2 = (omega2[2:] - omega2[:-2]) / np.where(span > 0, span, 1.0)
@@ -585,6 +609,7 @@ def align(
     start_fit_s: float = 1.0,
     engine: str = "mujoco",
     drive_input: tuple[Floats, Floats] | None = None,
+    off_hinge: bool = True,
 ) -> MeasuredRun:
     """The measured run of two nodes (M1's, M2's) against which ``params`` will be compared.
 
@@ -600,6 +625,8 @@ def align(
       drive_input: a driven run's recorded inputs: (n,) the start of each step on the recorder's
         clock, s, and (n, 4) the inputs held over it (``pendsim_mj.drives`` channels); None for
         a free run. The model is driven by them from the start on (``drives.recorded_drive``).
+      off_hinge: keep each node's gyro off its hinge axis (``NodeRun.off_hinge_gyro_rad_s``,
+        what a spatial fit needs; False: None, 16 bytes a sample less).
 
     Raises:
       RecordingError: too few samples, no motion, no swing to find a frame in.
@@ -635,9 +662,15 @@ def align(
         kind, t0 = _detect_start(prepared)
     frames = []
     for k, node in enumerate(prepared):
+        near = _frame_window(instants[k], t0)
         try:
             frame = fit_swing_frame(
-                instants[k], node.quat, node.gyro, node.accel, g_m_s2=params.g_m_s2, max_step_s=2.5 / node.rate_hz
+                instants[k][near],
+                node.quat[near],
+                node.gyro[near],
+                node.accel[near],
+                g_m_s2=params.g_m_s2,
+                max_step_s=2.5 / node.rate_hz,
             )
         except RecordingError as exc:
             raise RecordingError(f"node M{k + 1}: {exc}") from None
@@ -678,9 +711,12 @@ def align(
     for node, at, phase in zip(prepared, instants, phases, strict=True):
         # from the release on (values just before it are the model's rest); from the first values
         # after a start in motion
-        keep = node.t >= start_time - 1e-9 if kind == "release" else at >= start_time - 1e-9
+        # the instants increase: what is kept is a suffix, taken as views (no copies of the run)
+        first = int(np.searchsorted(node.t if kind == "release" else at, start_time - 1e-9, side="left"))
+        keep = slice(first, None)
         assert node.frame is not None
         t = node.t[keep] - start_time
+        off_axes = np.stack([node.frame.tangential, node.frame.toward_pivot], axis=1)
         runs.append(
             NodeRun(
                 t_s=t,
@@ -694,9 +730,8 @@ def align(
                 fusion_phase_s=phase,
                 coverage=coverage(t, max_gap_s, node.rate_hz),
                 gyro_sigma_rad_s=node.sigma,
-                off_hinge_gyro_rad_s=node.gyro[keep]
-                @ np.stack([node.frame.tangential, node.frame.toward_pivot], axis=1),
-                before_start=int(np.count_nonzero(~keep)),
+                off_hinge_gyro_rad_s=node.gyro[keep] @ off_axes if off_hinge else None,
+                before_start=first,
             )
         )
     return MeasuredRun(nodes=(runs[0], runs[1]), start=start, fusion_rate_hz=fusion_rate_hz, max_gap_s=max_gap_s)

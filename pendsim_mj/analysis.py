@@ -80,6 +80,10 @@ def spectral_peak_hz_batch(t_s: np.ndarray, x: np.ndarray, max_hz: float = np.in
     out = np.zeros(len(rows))
     if top < bottom + 1:
         return out
+    if 16 * nbins > _SPECTRUM_BYTES:  # one row's spectrum is too large to hold: each row in parts
+        for i, row in enumerate(rows):
+            out[i] = _peak_in_parts(row, nfft, bottom, top) / (nfft * dt)
+        return out
     block = max(1, _SPECTRUM_BYTES // (16 * nbins))
     for lo in range(0, len(rows), block):
         y = rows[lo : lo + block]
@@ -96,6 +100,63 @@ def spectral_peak_hz_batch(t_s: np.ndarray, x: np.ndarray, max_hz: float = np.in
         freq[~np.all(np.isfinite(y), axis=1)] = np.nan
         out[lo : lo + block] = freq
     return out
+
+
+SPECTRUM_PARTS = 8
+"""A long series' zero-padded spectrum is computed in this many interleaved parts (bins r, r + 8,
+r + 16, ...; ``_peak_in_parts``): an eighth of its memory. padded_length is at least 8 n, so each
+part's transform still holds the whole series."""
+
+
+def _dft_magnitude(w: np.ndarray, k: int, nfft: int) -> float:
+    """|sum_j w_j exp(-2 pi i k j / nfft)|: one bin of the zero-padded transform (the phase taken
+    from the exact integer k j mod nfft)."""
+    total = 0j
+    for lo in range(0, len(w), _TURN_BLOCK):
+        j = np.arange(lo, min(lo + _TURN_BLOCK, len(w)), dtype=np.int64)
+        total += complex(np.sum(w[j] * np.exp(-2j * np.pi * ((k * j) % nfft) / nfft)))
+    return float(abs(total))
+
+
+def _peak_in_parts(y: np.ndarray, nfft: int, bottom: int, top: int) -> float:
+    """The peak bin of ``hann_magnitude(y, nfft)`` in [bottom, top), refined as in
+    ``spectral_peak_hz_batch`` (in bins; NaN for a non-finite y, 0 for a constant one), without
+    holding the whole spectrum: bins k = SPECTRUM_PARTS m + r are the transform of length
+    nfft / SPECTRUM_PARTS of y's windowed samples turned by exp(-2 pi i r j / nfft), made in one
+    reused buffer; the three bins around the peak are summed directly."""
+    from scipy import fft
+
+    if not np.all(np.isfinite(y)):
+        return float("nan")
+    if not np.any(y != 0):
+        return 0.0
+    w = (y - y.mean()) * np.hanning(len(y))
+    length = nfft // SPECTRUM_PARTS
+    buffer = np.zeros(length, dtype=complex)
+    best, k = -1.0, bottom
+    for r in range(SPECTRUM_PARTS):
+        first = max(0, -(-(bottom - r) // SPECTRUM_PARTS))  # the part's bins m with bottom <= 8 m + r < top
+        last = min(length, -(-(top - r) // SPECTRUM_PARTS))
+        if last <= first:
+            continue
+        for lo in range(0, len(w), _TURN_BLOCK):  # w turned by exp(-2 pi i r j / nfft), block by block
+            j = np.arange(lo, min(lo + _TURN_BLOCK, len(w)), dtype=np.int64)
+            buffer[j] = w[j] * np.exp(-2j * np.pi * ((r * j) % nfft) / nfft)
+        buffer[len(w) :] = 0.0
+        spectrum = fft.fft(buffer, overwrite_x=True)
+        magnitude = np.abs(spectrum[first:last])
+        del spectrum
+        i = int(np.argmax(magnitude))
+        if magnitude[i] > best:
+            best, k = float(magnitude[i]), SPECTRUM_PARTS * (first + i) + r
+    if k >= nfft // 2:  # the last bin: no neighbour above it
+        return float(k)
+    a, b, c = (math.log(_dft_magnitude(w, kk, nfft) + 1e-300) for kk in (k - 1, k, k + 1))
+    denom = a - 2 * b + c
+    return k + (0.5 * (a - c) / denom if denom != 0 else 0.0)
+
+
+_TURN_BLOCK = 1 << 16
 
 
 def _hysteresis_sign(y: np.ndarray, band: float) -> np.ndarray | None:

@@ -38,6 +38,7 @@ from pendsim_mj.errors import RecordingError
 Floats = NDArray[np.float64]
 
 _QUARTER_TURN = np.array([[0.0, -1.0], [1.0, 0.0]])
+ANGLE_BLOCK = 1 << 16  # orientations turned into angles at once (SwingFrame.angle)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -79,18 +80,35 @@ class SwingFrame:
         )
 
     def angle(self, quat_wxyz: Floats) -> Floats:
-        """phi (n,) of orientations (n, 4), rad (continuous: unwrapped)."""
-        return np.unwrap(twist_angle(quat_wxyz, self.reference_quat_wxyz, self.quat_axis)) + self.angle_offset_rad
+        """phi (n,) of orientations (n, 4), rad (continuous: unwrapped), computed ``ANGLE_BLOCK``
+        samples at a time (memory flat with n; each block unwrapped on from the one before)."""
+        quat = np.asarray(quat_wxyz)
+        out = np.empty(len(quat))
+        for lo in range(0, len(quat), ANGLE_BLOCK):
+            theta = twist_angle(quat[lo : lo + ANGLE_BLOCK], self.reference_quat_wxyz, self.quat_axis)
+            before = out[lo - 1 : lo]  # the previous block's last (unwrapped) angle; none for the first
+            out[lo : lo + ANGLE_BLOCK] = np.unwrap(np.concatenate([before, theta]))[len(before) :]
+        return out + self.angle_offset_rad
 
     def rate(self, gyro_rad_s: Floats) -> Floats:
         """omega (n,) from gyro readings (n, 3), rad/s."""
-        return np.asarray(gyro_rad_s) @ self.hinge_axis
+        return _along(gyro_rad_s, self.hinge_axis)
 
     def tangential_of(self, accel_m_s2: Floats) -> Floats:
-        return np.asarray(accel_m_s2) @ self.tangential
+        return _along(accel_m_s2, self.tangential)
 
     def normal_of(self, accel_m_s2: Floats) -> Floats:
-        return np.asarray(accel_m_s2) @ self.toward_pivot
+        return _along(accel_m_s2, self.toward_pivot)
+
+
+def _along(vectors: Floats, direction: Floats) -> Floats:
+    """vectors (n, 3) (float64, or float32 sensor values) along a unit direction (3,): (n,)
+    float64, ``ANGLE_BLOCK`` rows at a time (no float64 copy of a long run's float32 values)."""
+    v = np.asarray(vectors)
+    out = np.empty(len(v))
+    for lo in range(0, len(v), ANGLE_BLOCK):
+        out[lo : lo + ANGLE_BLOCK] = v[lo : lo + ANGLE_BLOCK] @ direction
+    return out
 
 
 def dominant_axis(vectors: Floats) -> Floats:
@@ -154,7 +172,7 @@ def fit_swing_frame(
     if float(np.max(np.abs(omega))) < 0.02:
         raise RecordingError("a node's gyro never turns faster than 0.02 rad/s: no swing to find its hinge axis in")
     quat = np.asarray(quat_wxyz, dtype=float)
-    reference = quat[0]
+    reference = quat[0].copy()  # not a view: the frame must not keep the node's samples alive
     quat_axis = relative_axis(quat, reference)
     theta = np.unwrap(twist_angle(quat, reference, quat_axis))
     alpha, ok = _derivative(t_s, omega, max_step_s)

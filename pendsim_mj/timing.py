@@ -23,6 +23,10 @@ from pendsim_mj.errors import RecordingError
 Floats = NDArray[np.float64]
 
 DEFAULT_MAX_GAP_S = 0.1
+ROUGHNESS_BLOCK = 65536
+"""Samples taken at once by the whole-run loops here (``fit_clock``, ``roughness``,
+``fusion_phase``): bounds their memory (a few MB) whatever the run's length; the results are the
+whole run's."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -128,8 +132,9 @@ def fit_clock(stamp_s: Floats, log_s: Floats) -> ClockRelation | None:
     if len(x) < 2 or not np.all(np.diff(x) > 0):
         return None
     fit = ClockFit(max_drift_ppm=1e5)  # clamped at 10 %: a rate off by over 1 % is refused below
-    for xi, yi in zip(x.tolist(), y.tolist(), strict=True):
-        fit.add(xi, yi)
+    for lo in range(0, len(x), ROUGHNESS_BLOCK):  # in blocks: no whole-run lists of Python floats
+        for xi, yi in zip(x[lo : lo + ROUGHNESS_BLOCK].tolist(), y[lo : lo + ROUGHNESS_BLOCK].tolist(), strict=True):
+            fit.add(xi, yi)
     relation = fit.relation()
     return relation if 0.99 < relation.rate < 1.01 else None
 
@@ -235,21 +240,40 @@ def check_max_gap(max_gap_s: float) -> None:
         raise ParameterError(f"max_gap_s must be a finite number in (0, 10] s, got {max_gap_s!r}")
 
 
-def roughness(t_s: Floats, values: Floats, max_step_s: float) -> float:
-    """Mean square of the second divided differences of values (n, ...) over instants t_s (n,),
-    over triples whose spacing stays within ``max_step_s``: small when the instants are where the
-    values belong, large when they are jittered against them."""
-    t = np.asarray(t_s, dtype=float)
-    v = np.asarray(values, dtype=float).reshape(len(t), -1)
-    h1, h2 = np.diff(t)[:-1], np.diff(t)[1:]
+def _second_difference_sums(t: Floats, v: Floats, max_step_s: float) -> tuple[float, int]:
+    """(sum of squares, count) of the second divided differences of v (n, k) over t (n,), over
+    triples whose spacing stays within ``max_step_s``."""
+    h = np.diff(t)
+    h1, h2 = h[:-1], h[1:]
     ok = (h1 > 0) & (h2 > 0) & (h1 <= max_step_s) & (h2 <= max_step_s)
     if not ok.any():
-        return 0.0
+        return 0.0, 0
     h1, h2 = h1[ok, None], h2[ok, None]
     d1 = (v[1:-1][ok] - v[:-2][ok]) / h1
     d2 = (v[2:][ok] - v[1:-1][ok]) / h2
     second = 2.0 * (d2 - d1) / (h1 + h2)
-    return float(np.mean(second * second))
+    return float(np.sum(second * second)), int(second.size)
+
+
+def _blocks(n: int):
+    """(lo, hi) sample ranges of ``ROUGHNESS_BLOCK`` triple centres each, overlapping by two
+    samples: every triple of n samples lies in exactly one."""
+    for lo in range(0, max(n - 2, 0), ROUGHNESS_BLOCK):
+        yield lo, min(lo + ROUGHNESS_BLOCK + 2, n)
+
+
+def roughness(t_s: Floats, values: Floats, max_step_s: float) -> float:
+    """Mean square of the second divided differences of values (n, ...) over instants t_s (n,),
+    over triples whose spacing stays within ``max_step_s``: small when the instants are where the
+    values belong, large when they are jittered against them. Computed in blocks of
+    ``ROUGHNESS_BLOCK`` samples (memory flat with n)."""
+    t = np.asarray(t_s, dtype=float)
+    v = np.asarray(values).reshape(len(t), -1)
+    total, count = 0.0, 0
+    for lo, hi in _blocks(len(t)):
+        s, c = _second_difference_sums(t[lo:hi], v[lo:hi].astype(float), max_step_s)
+        total, count = total + s, count + c
+    return total / count if count else 0.0
 
 
 def fusion_phase_stretch(stamp_s: Floats, fusion_rate_hz: float, phase_s: float) -> tuple[float, float]:
@@ -271,11 +295,18 @@ def fusion_phase(stamp_s: Floats, values: Floats, fusion_rate_hz: float, *, step
     values (n, ...) (e.g. the gyro) smoothest in time."""
     period = 1.0 / fusion_rate_hz
     stamp = np.asarray(stamp_s, dtype=float)
+    v = np.asarray(values).reshape(len(stamp), -1)
     max_step = 2.5 * float(np.median(np.diff(stamp)))
     phases = np.arange(0.0, period, step_s)
-    costs = np.array(
-        [roughness(fused_value_instants(stamp, fusion_rate_hz, float(p)), values, max_step) for p in phases]
-    )
+    sums, counts = np.zeros(len(phases)), np.zeros(len(phases))
+    for lo, hi in _blocks(len(stamp)):  # block by block, every phase: memory flat with the run
+        block = v[lo:hi].astype(float)
+        for j, p in enumerate(phases):
+            instants = fused_value_instants(stamp[lo:hi], fusion_rate_hz, float(p))
+            s, c = _second_difference_sums(instants, block, max_step)
+            sums[j] += s
+            counts[j] += c
+    costs = np.divide(sums, counts, out=np.zeros(len(phases)), where=counts > 0)
     # Within the stretch between two sample phases every value instant moves alike, so the
     # roughness is flat there: only the stretch is found, and its middle is taken (within
     # +-1/8 period of the truth at 80 Hz sampling of 100 Hz fusion; a common shift is absorbed by

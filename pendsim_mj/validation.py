@@ -41,6 +41,8 @@ class Comparison:
       f_measured_hz, f_computed_hz, delta_f: by interpolated zero crossings (the paper's "natural
         frequency"), with a hysteresis band of 4 noise sigmas of the measured series.
       f_measured_fft_hz, f_computed_fft_hz, delta_f_fft: by the interpolated spectral peak.
+        Both frequencies over the resolved swing (``RESOLVED_SIGMAS``): the whole window unless
+        the measured swing sinks into its noise before the end (a long free decay).
       covered_s: time inside covered segments, s (the whole window without gaps).
       measured_std: standard deviation of the measured series (a scale for rms; kept when the
         series are dropped, ``without_series``).
@@ -92,8 +94,17 @@ SERIES = ("t_s", "measured", "computed", "delta", "iae_curve", "ise_curve")
 """The (n,) series of a Comparison (the rest are its scalar metrics)."""
 
 
+SPLINE_MARGIN = 64
+"""Source samples on each side of a window of targets that its local spline is fitted over
+(``resample``): a cubic spline's dependence on a sample decays by 2 - sqrt(3) = 0.27 per knot,
+so 64 knots away it is below 1e-36 of it, far below rounding."""
+
+
 def resample(t_source_s: np.ndarray, values: np.ndarray, t_target_s: np.ndarray) -> np.ndarray:
-    """Values of a smooth series at other instants (cubic spline), along axis 0."""
+    """Values of a smooth series at other instants (cubic spline, not-a-knot ends), along axis 0.
+    Targets are taken ``WINDOW_SAMPLES`` at a time, each window from a spline through its part of
+    the source and ``SPLINE_MARGIN`` samples either side: the whole-run spline's values to
+    rounding, in memory flat with the run."""
     t_source_s = np.asarray(t_source_s, dtype=float)
     t_target_s = np.asarray(t_target_s, dtype=float)
     if t_target_s.min() < t_source_s[0] - 1e-9 or t_target_s.max() > t_source_s[-1] + 1e-9:
@@ -101,7 +112,16 @@ def resample(t_source_s: np.ndarray, values: np.ndarray, t_target_s: np.ndarray)
             f"cannot resample to {t_target_s.min():.3f}-{t_target_s.max():.3f} s from a series over "
             f"{t_source_s[0]:.3f}-{t_source_s[-1]:.3f} s"
         )
-    return CubicSpline(t_source_s, values, axis=0)(t_target_s)
+    n = len(t_target_s)
+    if n <= WINDOW_SAMPLES:
+        return CubicSpline(t_source_s, values, axis=0)(t_target_s)
+    out = np.empty((n, *np.shape(values)[1:]))
+    for a in range(0, n, WINDOW_SAMPLES):
+        targets = t_target_s[a : a + WINDOW_SAMPLES]
+        lo, hi = np.searchsorted(t_source_s, [targets.min(), targets.max()])
+        lo, hi = max(int(lo) - SPLINE_MARGIN, 0), min(int(hi) + SPLINE_MARGIN, len(t_source_s))
+        out[a : a + WINDOW_SAMPLES] = CubicSpline(t_source_s[lo:hi], values[lo:hi], axis=0)(targets)
+    return out
 
 
 def _frequency(fn, *args) -> float:
@@ -132,6 +152,24 @@ def _detrend_in_time(t: np.ndarray, x: np.ndarray, window_s: float) -> np.ndarra
     upper = np.interp(centre + window_s / 2, t, area)
     lower = np.interp(centre - window_s / 2, t, area)
     return x - (upper - lower) / window_s
+
+
+RESOLVED_SIGMAS = 8.0
+"""The swing is resolved while the measured series leaves its mean by more than this many noise
+sigmas (``analysis.noise_level``): white noise of that sigma practically never does (p < 1e-14)."""
+RESOLVED_MARGIN_S = 10.0
+"""The frequencies are measured up to this long after the last resolved sample, s."""
+
+
+def _resolved_end(t: np.ndarray, m: np.ndarray, sigma: float) -> int:
+    """Samples (a prefix of t, m (n,)) over which the measured swing is resolved: up to
+    ``RESOLVED_MARGIN_S`` after the last one that leaves the series' mean by more than
+    ``RESOLVED_SIGMAS`` noise sigmas; all n when none does (a series without a swing) or the
+    swing lasts to the end (the usual case)."""
+    beyond = np.flatnonzero(np.abs(m - m.mean()) > RESOLVED_SIGMAS * sigma)
+    if len(beyond) == 0:
+        return len(t)
+    return max(int(np.searchsorted(t, t[beyond[-1]] + RESOLVED_MARGIN_S, side="right")), min(len(t), 8))
 
 
 def _covered_zero_crossing_hz(
@@ -182,8 +220,58 @@ def _integrals(t: np.ndarray, y: np.ndarray, segs) -> tuple[float, np.ndarray]:
     return total, curve
 
 
+WINDOW_SAMPLES = 1 << 16
+"""Samples whose errors are computed at once when a comparison keeps no curves (``compare`` with
+``series`` leaving out the curves): memory flat with the run; the metrics are the whole run's (the
+windows share their end samples and hold an even number of intervals, so Simpson's rule adds up to
+the whole run's)."""
+
+
+def _simpson_windows(lo: int, hi: int, size: int = WINDOW_SAMPLES):
+    """(a, b) sample ranges covering [lo, hi): consecutive ones share an end sample, each holds
+    ``size`` (even) intervals but the last, which holds at least two."""
+    a = lo
+    while True:
+        b = min(a + size + 1, hi)
+        if hi - b < 2:  # what would be left is one interval: the last window takes it
+            b = hi
+        yield a, b
+        if b >= hi:
+            return
+        a = b - 1
+
+
+def _windowed_errors(t: np.ndarray, m: np.ndarray, c: np.ndarray, segs, uniform: bool, dx: float):
+    """(iae, ise, sum of squares, max |Delta|) of Delta = c - m over the covered segments, window
+    by window (``WINDOW_SAMPLES``): equal to the whole-run computation."""
+    iae = ise = sum_sq = 0.0
+    max_abs = 0.0
+    for lo, hi in segs:
+        for a, b in _simpson_windows(lo, hi):
+            delta = c[a:b] - m[a:b]
+            abs_delta = np.abs(delta)
+            squared = delta * delta
+            first = a if a == lo else a + 1  # the shared end sample counts once in the sums
+            sum_sq += float(np.sum(squared[first - a :]))
+            max_abs = max(max_abs, float(abs_delta.max()))
+            if b - a < 2:
+                continue
+            if uniform:
+                iae += float(simpson(abs_delta, dx=dx))
+                ise += float(simpson(squared, dx=dx))
+            else:
+                iae += float(simpson(abs_delta, x=t[a:b]))
+                ise += float(simpson(squared, x=t[a:b]))
+    return iae, ise, sum_sq, max_abs
+
+
 def compare(
-    t_s: np.ndarray, measured: np.ndarray, computed: np.ndarray, *, max_gap_s: float = DEFAULT_MAX_GAP_S
+    t_s: np.ndarray,
+    measured: np.ndarray,
+    computed: np.ndarray,
+    *,
+    max_gap_s: float = DEFAULT_MAX_GAP_S,
+    series: Collection[str] | None = None,
 ) -> Comparison:
     """All metrics of computed against measured at the same instants (increasing; irregular
     spacing and gaps allowed: see the module docstring).
@@ -192,7 +280,12 @@ def compare(
       t_s: (n,) instants, s.
       measured, computed: (n,) the two series there.
       max_gap_s: spacing above which the samples are not integrated or interpolated across, s.
+      series: which of the (n,) ``SERIES`` the result keeps (None: all of them; the others are
+        empty, as ``Comparison.without_series`` leaves them). Without "delta", "iae_curve" and
+        "ise_curve" the errors are computed window by window (``WINDOW_SAMPLES``, memory flat
+        with n), with the same metrics.
     """
+    keep = set(SERIES) if series is None else set(series)
     t = np.asarray(t_s, dtype=float)
     m = np.asarray(measured, dtype=float)
     c = np.asarray(computed, dtype=float)
@@ -208,38 +301,50 @@ def compare(
     uniform = len(segs) == 1 and np.max(np.abs(step - step.mean())) <= 1e-6 * step.mean() + 1e-12
     if uniform:
         dx = float(step.mean())
-    delta = c - m
-    abs_delta = np.abs(delta)
-    squared = delta * delta
-    if uniform:
-        iae, ise = float(simpson(abs_delta, dx=dx)), float(simpson(squared, dx=dx))
-        iae_curve = cumulative_simpson(abs_delta, dx=dx, initial=0.0)
-        ise_curve = cumulative_simpson(squared, dx=dx, initial=0.0)
+    empty = np.empty(0)
+    delta = iae_curve = ise_curve = empty
+    if keep & {"delta", "iae_curve", "ise_curve"}:
+        delta = c - m
+        abs_delta = np.abs(delta)
+        squared = delta * delta
+        if uniform:
+            iae, ise = float(simpson(abs_delta, dx=dx)), float(simpson(squared, dx=dx))
+            iae_curve = cumulative_simpson(abs_delta, dx=dx, initial=0.0)
+            ise_curve = cumulative_simpson(squared, dx=dx, initial=0.0)
+        else:
+            iae, iae_curve = _integrals(t, abs_delta, segs)
+            ise, ise_curve = _integrals(t, squared, segs)
+        sum_sq, max_abs = float(np.sum(squared)), float(abs_delta.max())
+        del abs_delta, squared
     else:
-        iae, iae_curve = _integrals(t, abs_delta, segs)
-        ise, ise_curve = _integrals(t, squared, segs)
+        iae, ise, sum_sq, max_abs = _windowed_errors(t, m, c, segs, uniform, dx)
     covered = float(step[step <= max_gap_s].sum())
     # zero crossings with hysteresis at 4 noise sigmas of the measured series (noise near zero
     # would add crossings and raise the measured frequency)
-    band = 4.0 * noise_level(m)
-    g_m = spectral_peak_hz(*_uniform_grid(t, m, segs, dx))
-    g_c = spectral_peak_hz(*_uniform_grid(t, c, segs, dx))
+    sigma = noise_level(m)
+    band = 4.0 * sigma
+    # Frequencies over the resolved swing only (a long decay's hours of noise would outweigh it)
+    n_f = _resolved_end(t, m, sigma)
+    t_f, m_f, c_f = t[:n_f], m[:n_f], c[:n_f]
+    segs_f = segs if n_f == len(t) else segments(t_f, max_gap_s)
+    g_m = spectral_peak_hz(*_uniform_grid(t_f, m_f, segs_f, dx))
+    g_c = spectral_peak_hz(*_uniform_grid(t_f, c_f, segs_f, dx))
     # Crossings of the oscillation about its running mean over one period: a decaying swing moves
     # the mean of quantities like r omega^2 + g cos phi, so the global mean would miss crossings.
     period = round(1.0 / (g_m * dx)) if g_m > 0 else 0
-    f_m = _frequency(_covered_zero_crossing_hz, t, m, band, segs, period, dx, uniform)
-    f_c = _frequency(_covered_zero_crossing_hz, t, c, band, segs, period, dx, uniform)
+    f_m = _frequency(_covered_zero_crossing_hz, t_f, m_f, band, segs_f, period, dx, uniform)
+    f_c = _frequency(_covered_zero_crossing_hz, t_f, c_f, band, segs_f, period, dx, uniform)
     return Comparison(
-        t_s=t,
-        measured=m,
-        computed=c,
-        delta=delta,
+        t_s=t if "t_s" in keep else empty,
+        measured=m if "measured" in keep else empty,
+        computed=c if "computed" in keep else empty,
+        delta=delta if "delta" in keep else empty,
         iae=iae,
         ise=ise,
-        iae_curve=iae_curve,
-        ise_curve=ise_curve,
-        rms=float(np.sqrt(np.mean(squared))),
-        max_abs=float(abs_delta.max()),
+        iae_curve=iae_curve if "iae_curve" in keep else empty,
+        ise_curve=ise_curve if "ise_curve" in keep else empty,
+        rms=float(np.sqrt(sum_sq / len(t))),
+        max_abs=max_abs,
         f_measured_hz=f_m,
         f_computed_hz=f_c,
         delta_f=abs(f_c - f_m) / f_m if f_m else float("nan"),
@@ -247,5 +352,12 @@ def compare(
         f_computed_fft_hz=g_c,
         delta_f_fft=abs(g_c - g_m) / g_m if g_m else float("nan"),
         covered_s=covered,
-        measured_std=float(np.std(m)),
+        measured_std=_std(m),
     )
+
+
+def _std(x: np.ndarray) -> float:
+    """Standard deviation of x (n,), window by window (no (n,) temporaries)."""
+    mean = float(np.mean(x))
+    total = sum(float(np.sum((x[a : a + WINDOW_SAMPLES] - mean) ** 2)) for a in range(0, len(x), WINDOW_SAMPLES))
+    return float(np.sqrt(total / len(x)))
