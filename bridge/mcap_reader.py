@@ -365,11 +365,12 @@ def _group(
 ) -> dict[int, ChannelData]:
     out: dict[int, ChannelData] = {}
     sizes = prefix["length"].astype(np.int64) - MESSAGE_FIELDS.size
-    present = np.unique(prefix["channel"])
-    if channels is not None:
-        present = present[np.isin(present, list(channels))]
+    of_message = prefix["channel"].astype(np.int64)
+    present = np.unique(of_message) if channels is None else sorted(channels)
     for c in present:
-        at = np.flatnonzero(prefix["channel"] == c)
+        at = np.flatnonzero(of_message == c)
+        if not len(at):
+            continue
         log = prefix["log_time"][at].astype(np.int64)
         pub = prefix["publish_time"][at].astype(np.int64)
         size = sizes[at]

@@ -92,8 +92,10 @@ def decompress(compression: str, data: bytes | memoryview, uncompressed_size: in
         if compression == "":
             raw = bytes(data)
         elif compression == "zstd":
-            raw = _zstd_one_frame(data, uncompressed_size)
-            if raw is None:  # several frames, or a frame that claims another size: read with a bound
+            one = _zstd_one_frame(data, uncompressed_size)
+            if one is not None:
+                raw = one
+            else:  # several frames, or a frame that claims another size: read with a bound
                 import zstandard
 
                 with zstandard.ZstdDecompressor().stream_reader(io.BytesIO(data), read_across_frames=True) as r:
