@@ -29,6 +29,18 @@ def _read_rrd(path):
     return rows, static, values
 
 
+def _times_with(path, entity, *components):
+    """Per component, the sorted instants (s) at which ``entity`` has a value of it."""
+    found = {c: [] for c in components}
+    for chunk in rr.chunk.RrdReader(str(path)).stream():
+        if str(chunk.entity_path) == entity and not chunk.is_static:
+            batch = chunk.to_record_batch()
+            for c in components:
+                if c in batch.schema.names:
+                    found[c].append(batch.column("time").cast("int64").to_numpy())
+    return [np.sort(np.concatenate(found[c])) for c in components]
+
+
 @pytest.fixture(scope="module")
 def recording(tmp_path_factory):
     path = tmp_path_factory.mktemp("view") / "run.mcap"
@@ -44,7 +56,10 @@ def test_view_writes_the_rig_and_measured_against_model_series(recording, tmp_pa
     for entity in ("/rig/frame/geoms", "/rig/m1/geoms", "/rig/m2/geoms", "/rig/m1/points", "/rig/m1/imu_m1"):
         assert static[entity] == 1, entity
     steps = rows["/rig/m1"]
-    assert steps == rows["/rig/m2"] == rows["/rig/springs"] == rows["/plots/phi1/model"] > 1900
+    assert steps == rows["/rig/m2"] == rows["/plots/phi1/model"] > 1900
+    # the springs' strips as the run is logged, their colours once the run's tension range is known
+    strips, colours = _times_with(rrd, "/rig/springs", "LineStrips3D:strips", "LineStrips3D:colors")
+    assert len(strips) == steps and np.array_equal(strips, colours)
     # the measured series, one row per IMU sample after the release
     rec = read_recording(recording)
     run = align_recording(rec, recorded_params(rec))
@@ -114,13 +129,22 @@ def test_demo_refuses_a_file_as_its_folder(tmp_path, capsys):
 def test_the_view_gathers_a_model_run_from_its_blocks_as_from_the_whole_run(monkeypatch):
     from pendsim_bridge import rerun_view
     from pendsim_mj.simulation import simulate, simulate_blocks
+    from pendsim_mj.validation import resample
 
-    logged = []
+    logged, springs = [], []
     monkeypatch.setattr(rerun_view, "log_trajectory", lambda block, model, springs: logged.append(block.t_s))
+    monkeypatch.setattr(rerun_view, "log_springs", lambda model, t_s, *args: springs.append(t_s))
     whole = simulate(duration_s=2.0)
-    gathered = rerun_view._log_blocks(simulate_blocks(duration_s=2.0, block_steps=30), None)
-    assert np.array_equal(np.concatenate(logged), whole.t_s)  # every instant logged once
-    assert np.array_equal(gathered.t_s, whole.t_s)
-    assert np.array_equal(gathered.phi_rad, whole.phi_rad) and np.array_equal(gathered.omega_rad_s, whole.omega_rad_s)
-    assert np.array_equal(gathered.force_n, whole.spring_force_n)
-    assert gathered.force_range_n == (float(whole.spring_force_n.min()), float(whole.spring_force_n.max()))
+    at = np.sort(np.random.default_rng(0).uniform(0.0, 2.0, 500))  # measured instants, anywhere
+    phi1_at = rerun_view._ModelAtInstants(at)
+    kept, moving = rerun_view._log_blocks(simulate_blocks(duration_s=2.0, block_steps=30), None, phi1_at)
+    assert np.array_equal(np.concatenate(logged), whole.t_s) and np.array_equal(np.concatenate(springs), whole.t_s)
+    assert np.array_equal(kept["t_s"], whole.t_s) and not moving
+    for name, values in (
+        ("phi_rad", whole.phi_rad),
+        ("omega_rad_s", whole.omega_rad_s),
+        ("force_n", whole.spring_force_n),
+    ):
+        assert np.array_equal(kept[name], values.astype(np.float32)), name
+    # phi1 at the instants, block by block: one cubic spline through the whole run
+    np.testing.assert_allclose(phi1_at.finish(), resample(whole.t_s, whole.phi_rad[:, 0], at), rtol=0, atol=1e-13)
