@@ -2,6 +2,7 @@
 files fail fast (serving: test_serve.py)."""
 
 import collections
+import itertools
 import math
 import time
 
@@ -148,3 +149,66 @@ def test_the_view_gathers_a_model_run_from_its_blocks_as_from_the_whole_run(monk
         assert np.array_equal(kept[name], values.astype(np.float32)), name
     # phi1 at the instants, block by block: one cubic spline through the whole run
     np.testing.assert_allclose(phi1_at.finish(), resample(whole.t_s, whole.phi_rad[:, 0], at), rtol=0, atol=1e-13)
+
+
+def _log_windows(count: int, rows: int = 50_000) -> None:
+    rng = np.random.default_rng(0)
+    for k in range(count):
+        times = rr.TimeColumn("time", duration=np.arange(k * rows, (k + 1) * rows) * 0.01)
+        rr.send_columns("/plots/x", indexes=[times], columns=rr.Scalars.columns(scalars=rng.normal(size=rows)))
+
+
+def _unpublished_bytes(folder, published):
+    return sum(f.stat().st_size for f in folder.iterdir() if f.is_file() and f != published)
+
+
+def test_the_rrd_is_written_to_disk_while_it_is_logged_and_opens_in_rerun(tmp_path):
+    # the proxy for memory flat with duration: the bytes reach the disk while logging goes on,
+    # under a temporary name (the file itself appears only when the block ends)
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    from pendsim_bridge.rerun_view import rrd_output
+
+    out = tmp_path / "stream.rrd"
+    on_disk = []
+    with rrd_output(out, series=None):
+        for _ in range(8):
+            _log_windows(1)
+            rr.get_global_data_recording().flush(timeout_sec=10)
+            deadline = time.monotonic() + 10
+            while _unpublished_bytes(tmp_path, out) <= (on_disk[-1] if on_disk else 0) and time.monotonic() < deadline:
+                time.sleep(0.01)
+            on_disk.append(_unpublished_bytes(tmp_path, out))
+        assert not out.exists()
+    assert all(b > a for a, b in itertools.pairwise(on_disk)), on_disk  # grew with every window
+    assert on_disk[-1] > 0.8 * out.stat().st_size and list(tmp_path.iterdir()) == [out]
+    rows, _, values = _read_rrd(out)
+    assert rows["/plots/x"] == 8 * 50_000 and len(values["/plots/x"][0]) == 8 * 50_000
+    rerun = Path(sys.executable).with_name("rerun")  # the real Rerun CLI checks every chunk
+    verified = subprocess.run([str(rerun), "rrd", "verify", str(out)], capture_output=True, text=True, timeout=120)
+    assert verified.returncode == 0, verified.stderr
+
+
+def test_without_named_pipes_the_rrd_is_written_at_the_end(tmp_path, monkeypatch):
+    from pendsim_bridge.rerun_view import rrd_output
+
+    monkeypatch.delattr("os.mkfifo")  # as on Windows
+    out = tmp_path / "buffered.rrd"
+    with rrd_output(out, series=None):
+        _log_windows(2)
+    rows, _, _ = _read_rrd(out)
+    assert rows["/plots/x"] == 2 * 50_000 and list(tmp_path.iterdir()) == [out]
+
+
+def test_a_failure_while_logging_leaves_no_file_and_ends_the_copy(tmp_path):
+    import threading
+
+    from pendsim_bridge.rerun_view import rrd_output
+
+    out = tmp_path / "failed.rrd"
+    with pytest.raises(RuntimeError, match="stop"), rrd_output(out, series=None):
+        _log_windows(1)
+        raise RuntimeError("stop")
+    assert list(tmp_path.iterdir()) == [] and not any(t.name == "rrd-copy" for t in threading.enumerate())
