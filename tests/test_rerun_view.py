@@ -212,3 +212,21 @@ def test_a_failure_while_logging_leaves_no_file_and_ends_the_copy(tmp_path):
         _log_windows(1)
         raise RuntimeError("stop")
     assert list(tmp_path.iterdir()) == [] and not any(t.name == "rrd-copy" for t in threading.enumerate())
+
+
+@pytest.mark.parametrize("n", [24_000, 24_004])  # the last window full, or too short and joined
+def test_the_phi1_error_in_windows_equals_one_whole_run_comparison(n):
+    from pendsim_bridge.rerun_view import error_in_windows
+    from pendsim_mj.validation import compare
+
+    rng = np.random.default_rng(1)
+    t = np.delete(np.arange(n + 40) * 0.0125, np.arange(10_000, 10_040))  # a 0.5 s gap
+    measured = 0.5 * np.cos(2 * np.pi * 0.86 * t) * np.exp(-t / 200) + 1e-3 * rng.normal(size=len(t))
+    computed = 0.5 * np.cos(2 * np.pi * 0.861 * t) * np.exp(-t / 190)
+    whole = compare(t, measured, computed, max_gap_s=0.1)
+    parts = list(error_in_windows(t, measured, computed, max_gap_s=0.1, window=1000))
+    assert len(parts) == 24 and all(len(p[0]) >= 8 for p in parts)
+    t_w, delta, iae, ise = (np.concatenate([p[k] for p in parts]) for k in range(4))
+    assert np.array_equal(t_w, whole.t_s) and np.array_equal(delta, whole.delta)  # every instant once
+    np.testing.assert_allclose(iae, whole.iae_curve, rtol=0, atol=1e-9 * whole.iae)
+    np.testing.assert_allclose(ise, whole.ise_curve, rtol=0, atol=1e-9 * whole.ise)
