@@ -445,13 +445,12 @@ def log_phase_portraits(curves: dict[str, list[tuple[np.ndarray, np.ndarray]]]) 
     ``/phase/m{k}/{series}`` (the traces), ``/phase/m{k}/axes`` (lines, ticks, labels).
     """
     for k in range(2):
-        phi = np.concatenate([c[k][0] for c in curves.values()])
-        omega = np.concatenate([c[k][1] for c in curves.values()])
-        phi, omega = phi[np.isfinite(phi)], omega[np.isfinite(omega)]
-        if not len(phi) or not len(omega):
+        phi_range = _finite_range([c[k][0] for c in curves.values()])
+        omega_range = _finite_range([c[k][1] for c in curves.values()])
+        if phi_range is None or omega_range is None:
             continue
-        p_low, p_high = min(float(phi.min()), 0.0), max(float(phi.max()), 0.0)
-        w_low, w_high = min(float(omega.min()), 0.0), max(float(omega.max()), 0.0)
+        p_low, p_high = min(phi_range[0], 0.0), max(phi_range[1], 0.0)
+        w_low, w_high = min(omega_range[0], 0.0), max(omega_range[1], 0.0)
         p_span, w_span = max(p_high - p_low, 1e-9), max(w_high - w_low, 1e-9)
         scale = p_span / w_span  # display units per rad/s
         size = p_span  # the square's side, display units
@@ -459,8 +458,12 @@ def log_phase_portraits(curves: dict[str, list[tuple[np.ndarray, np.ndarray]]]) 
         for name, pendulums in curves.items():
             _, rgba, width = SERIES_STYLE[name]
             phi_rad, omega_rad_s = pendulums[k]
-            strip = np.stack([phi_rad, -scale * omega_rad_s], axis=-1)
-            strip = strip[np.all(np.isfinite(strip), axis=1)]
+            strip = np.empty((len(phi_rad), 2), np.float32)  # Rerun's 2D positions are float32
+            strip[:, 0] = phi_rad
+            np.multiply(omega_rad_s, -scale, out=strip[:, 1], casting="unsafe")
+            finite = np.isfinite(strip).all(axis=1)
+            if not finite.all():
+                strip = strip[finite]
             rr.log(
                 f"{root}/{name}",
                 rr.LineStrips2D(
@@ -486,6 +489,17 @@ def log_phase_portraits(curves: dict[str, list[tuple[np.ndarray, np.ndarray]]]) 
             rr.Points2D(positions, radii=[0.0005 * size], colors=[grey], labels=labels, show_labels=True),
             static=True,
         )
+
+
+def _finite_range(arrays: list[np.ndarray]) -> tuple[float, float] | None:
+    """(lowest, highest) finite value over the arrays (no joined copy); None if there is none."""
+    lows, highs = [], []
+    for a in arrays:
+        finite = a[np.isfinite(a)] if not np.isfinite(a).all() else a
+        if len(finite):
+            lows.append(float(finite.min()))
+            highs.append(float(finite.max()))
+    return (min(lows), max(highs)) if lows else None
 
 
 def _warn_stderr(message: str) -> None:
