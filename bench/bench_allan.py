@@ -3,9 +3,12 @@
 Run: python bench/bench_allan.py [--hours 6]
 
 Writes the recording first (not timed), then times reading the IMU topics, the deviations with
-confidence intervals and noise terms, and the plots; and, for comparison in the same run,
-allantools.oadev on one axis with the same tau grid (the baseline the issue names).
-Target (issue 5): read + deviations + plots under 10 s on the 2-core machine.
+confidence intervals and noise terms (the numba kernel on each node's phase, as ``pendsim allan``
+computes them), and the plots; and, for comparison in the same run, allantools.oadev on one axis
+with the same tau grid (the baseline the issue names). The first run includes numba's compile of
+the kernel where its cache is cold. Targets (issue 5): read + deviations + plots under 10 s on the
+2-core machine; end to end, with the process's imports and peak memory, see bench_long.py
+(issue 16: 5 s wall, 600 MB).
 """
 
 from __future__ import annotations
@@ -21,7 +24,7 @@ import numpy as np
 
 from pendsim_bridge import allan_report
 from pendsim_bridge.recording import RunInfo, imu_topic, read_recording, write_recording
-from pendsim_mj.allan import allan_curves, noise_terms, tau_grid
+from pendsim_mj.allan import curves_of_phase, noise_terms, phase, tau_grid
 from pendsim_mj.model import exact_mjcf
 from pendsim_mj.params import DEFAULT_PARAMS
 from pendsim_mj.sensors import Bno055, ImuNoise, static_imu
@@ -52,10 +55,9 @@ def main() -> None:
             t0 = time.perf_counter()
             rec = read_recording(path, topics=[imu_topic("m1"), imu_topic("m2")])
             t1 = time.perf_counter()
-            data = np.concatenate(
-                [np.concatenate([rec.imu[n].accel_m_s2, rec.imu[n].gyro_rad_s], axis=1) for n in ("m1", "m2")], axis=1
-            )
-            curves = allan_curves(data, 80.0)
+            curves = []
+            for n in ("m1", "m2"):  # per node, from the recording's own arrays (no joined copy)
+                curves += curves_of_phase(phase(rec.imu[n].accel_m_s2, rec.imu[n].gyro_rad_s), 80.0)
             [noise_terms(c) for c in curves]
             t2 = time.perf_counter()
             report = allan_report.analyse(path)  # the command's own path, for the plots
@@ -80,9 +82,11 @@ def main() -> None:
         worst = max(sum(p[i] for p in phases.values()) for i in range(args.repeat))
         print(f"{'total (slowest run)':24} {worst:6.2f} s")
 
-        m = tau_grid(len(data))
+        rec = read_recording(path, topics=[imu_topic("m1")])
+        gyro_x = np.ascontiguousarray(rec.imu["m1"].gyro_rad_s[:, 0])
+        m = tau_grid(len(gyro_x))
         start = time.perf_counter()
-        allantools.oadev(data[:, 3], rate=80.0, data_type="freq", taus=m / 80.0)
+        allantools.oadev(gyro_x, rate=80.0, data_type="freq", taus=m / 80.0)
         one = time.perf_counter() - start
         print(
             f"baseline allantools.oadev, one axis, same grid: {one:.2f} s -> x12 = {12 * one:.1f} s; "

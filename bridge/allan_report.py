@@ -12,14 +12,18 @@ import numpy as np
 from pendsim_bridge.recording import NODES, imu_topic, read_recording
 from pendsim_mj.allan import (
     MIN_MOTION_RAD_S,
+    MOTION_MARGIN_S,
     AllanCurve,
     NoiseTerms,
     SamplingReport,
-    allan_curves,
     check_sampling,
+    curves_of_phase,
     gyro_motion,
     longest_uniform_segment,
+    motion_intervals_s,
     noise_terms,
+    phase,
+    still_samples,
 )
 from pendsim_mj.errors import RecordingError
 
@@ -65,6 +69,12 @@ def analyse(
 ) -> AllanReport:
     """Read the IMU topics of a recording and analyse every accelerometer and gyro axis.
 
+    Each node's phase (``pendsim_mj.allan.phase``) is built from the recording's own arrays (no
+    joined copy of the data) once the rest of the decoded topics (orientations, stamps) is
+    dropped, one node at a time. With ``longest_segment``, a node's samples count as static only
+    farther than ``MOTION_MARGIN_S`` from the motion of every node (``still_samples``): a stretch
+    held before a release ends before the earliest motion onset, whichever node moves first.
+
     Raises:
       RecordingError: unreadable file, no IMU topic, or (without ``longest_segment``, which
         analyses the longest static, uniformly sampled stretch) a node that turns
@@ -76,13 +86,12 @@ def analyse(
     if not rec.imu:
         raise RecordingError(f"{path}: no /imu/m1 or /imu/m2 topic to analyse")
     rate = float(rec.metadata.get("pendsim/imu", {}).get("sample_rate_hz", "0") or 0)
-    sampling, segments, views, largest = {}, {}, {}, {}
+    rates, motions = {}, {}
     for node, topic in rec.imu.items():
         if len(topic.t_ns) < 2:
             raise RecordingError(f"{path}: {imu_topic(node)} has {len(topic.t_ns)} message(s); need at least 20")
-        node_rate = rate or 1e9 / float(np.median(np.diff(topic.t_ns)))
-        motion = gyro_motion(topic.gyro_rad_s, node_rate)
-        largest[node] = motion.largest_rad_s
+        rates[node] = rate or 1e9 / float(np.median(np.diff(topic.t_ns)))
+        motions[node] = motion = gyro_motion(topic.gyro_rad_s, rates[node])
         if not motion.static and not longest_segment:
             at_s = (topic.t_ns[motion.largest_index] - topic.t_ns[0]) * 1e-9
             raise RecordingError(
@@ -91,48 +100,42 @@ def analyse(
                 "deviation needs a static recording ('pendsim record --static'), or '--longest-segment' analyses "
                 "the longest static, uniformly sampled stretch"
             )
-        report = check_sampling(topic.t_ns, node_rate)
+    # every node's motion, on the recording's clock: no node is static while another one moves
+    moving_s = np.concatenate(
+        [motion_intervals_s(rec.imu[node].t_ns * 1e-9, m.moving) for node, m in motions.items()]
+    ).reshape(-1, 2)
+    sampling, segments, columns, largest = {}, {}, {}, {}
+    for node in list(rec.imu):
+        topic = rec.imu.pop(node)  # the node's orientations and stamps go with it
+        report = check_sampling(topic.t_ns, rates[node])
         sampling[node] = report
-        part = slice(None)
+        largest[node] = motions[node].largest_rad_s
         if not report.uniform and not longest_segment:
             raise RecordingError(
                 f"{path}: {imu_topic(node)} is not uniformly sampled ({report.describe()}); Allan deviation "
                 "needs uniform sampling. '--longest-segment' analyses the longest uniform stretch"
             )
-        if not (report.uniform and motion.static):
-            part = longest_uniform_segment(topic.t_ns, node_rate, usable=~motion.moving)
+        part = slice(None)
+        if not report.uniform or len(moving_s):
+            still = still_samples(topic.t_ns * 1e-9, moving_s)
+            part = longest_uniform_segment(topic.t_ns, rates[node], usable=still)
             if part.stop - part.start < 20:
                 raise RecordingError(f"{path}: {imu_topic(node)} has no static, uniformly sampled stretch to analyse")
         t = topic.t_ns[part]
         segments[node] = (float(t[0]) * 1e-9, float(t[-1]) * 1e-9)
-        views[node] = (topic.accel_m_s2[part], topic.gyro_rad_s[part])
-        rate = node_rate
-    # Both nodes in one call when their records are equally long (one pool for 12 axes): one
-    # (n, 12) copy of the axes; the rest of the decoded topics (quaternions, stamps) is dropped
-    # before it is made, each node's axes once copied.
-    names = list(views)
-    lengths = {len(v[0]) for v in views.values()}
-    y = np.empty((lengths.pop() if len(lengths) == 1 else 0, 6 * len(views)))
-    if len(y):
-        rec.imu.clear()
-        del rec, topic
-        for i, node in enumerate(names):
-            accel, gyro = views.pop(node)
-            y[:, 6 * i : 6 * i + 3], y[:, 6 * i + 3 : 6 * i + 6] = accel, gyro
-            del accel, gyro
-        columns = {node: y[:, 6 * i : 6 * i + 6] for i, node in enumerate(names)}  # (n, 6) views
-        curves = allan_curves(y, rate)
-    else:
-        columns = {node: np.concatenate(v, axis=1) for node, v in views.items()}  # (n, 6)
-        curves = [c for data in columns.values() for c in allan_curves(data, rate)]
+        columns[node] = (topic.accel_m_s2[part], topic.gyro_rad_s[part])  # views: (n, 3) each
+        del topic, t
+    del rec
     axes = []
-    for i, (node, data) in enumerate(columns.items()):
+    for node, (accel, gyro) in columns.items():
+        x = phase(accel, gyro)  # (n + 1, 6): one node's phase at a time
+        curves = curves_of_phase(x, rates[node])
+        del x
         for j in range(6):
-            curve = curves[6 * i + j]
             sensor, unit, _ = SENSORS[j // 3]
-            column = data[:, j]
+            column = (accel, gyro)[j // 3][:, j % 3]
             mean = float(column.mean())
-            sigma = float(curve.adev[0])
+            sigma = float(curves[j].adev[0])
             axes.append(
                 AxisResult(
                     node=node,
@@ -143,27 +146,38 @@ def analyse(
                     std=float(column.std()),
                     mean=mean,
                     cv_percent=sigma / abs(mean) * 100 if mean != 0 else math.inf,
-                    curve=curve,
-                    terms=noise_terms(curve),
+                    curve=curves[j],
+                    terms=noise_terms(curves[j]),
                 )
             )
-    counts = {node: len(data) for node, data in columns.items()}
+    counts = {node: len(accel) for node, (accel, _) in columns.items()}
     duration = max(end - start for start, end in segments.values())
-    return AllanReport(path, rate, duration, counts, sampling, segments, axes, largest)
+    return AllanReport(path, rates[next(iter(rates))], duration, counts, sampling, segments, axes, largest)
+
+
+def duration_text(duration_s: float) -> str:
+    """A duration in a readable unit: "45.2 s", "12.5 min", "6.00 h"."""
+    if duration_s < 120:
+        return f"{duration_s:.1f} s"
+    if duration_s < 2 * 3600:
+        return f"{duration_s / 60:.1f} min"
+    return f"{duration_s / 3600:.2f} h"
 
 
 def table(report: AllanReport) -> str:
     """The paper's table (sigma, mean, CV per axis) and the noise terms, as text."""
     lines = [
-        f"{report.path}: {report.duration_s / 3600:.2f} h at {report.rate_hz:g} Hz "
+        f"{report.path}: {duration_text(report.duration_s)} at {report.rate_hz:g} Hz "
         f"({', '.join(f'{n}: {c} samples' for n, c in report.n_samples.items())})"
     ]
+    any_moved = any(report.moved(node) for node in report.sampling)
     for node, s in report.sampling.items():
         start, end = report.segment[node]
-        if report.moved(node):
-            turns = f"turns at up to {report.largest_motion_rad_s[node]:.3g} rad/s"
+        if any_moved:  # every node's stretch keeps clear of every node's motion
+            turns = f"turns at up to {report.largest_motion_rad_s[node]:.3g} rad/s" if report.moved(node) else "still"
             lines.append(
-                f"{node}: {s.describe()}, {turns}; analysed the longest static, uniform stretch {start:.3f}-{end:.3f} s"
+                f"{node}: {s.describe()}, {turns}; analysed the longest static, uniform stretch "
+                f"{start:.3f}-{end:.3f} s (no node turning within {MOTION_MARGIN_S:g} s)"
             )
         elif not s.uniform:
             lines.append(f"{node}: {s.describe()}; analysed the longest uniform stretch {start:.3f}-{end:.3f} s")
@@ -254,7 +268,7 @@ def plots(report: AllanReport, directory: str | Path, *, replace: bool = False) 
     from pendsim_mj.outputs import atomic_directory
 
     directory = Path(directory)
-    hours = report.duration_s / 3600
+    duration = duration_text(report.duration_s)
     names = []
     with atomic_directory(directory, replace=replace) as tmp:
         jobs = []
@@ -267,7 +281,7 @@ def plots(report: AllanReport, directory: str | Path, *, replace: bool = False) 
                         [a.curve for a in chosen],
                         [a.terms for a in chosen],
                         [a.axis for a in chosen],
-                        f"{report.path.name}: {node} {name}, {hours:.2f} h at {report.rate_hz:g} Hz",
+                        f"{report.path.name}: {node} {name}, {duration} at {report.rate_hz:g} Hz",
                         unit,
                         tmp / names[-1],
                     )

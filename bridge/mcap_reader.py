@@ -27,6 +27,7 @@ in ``unverified``.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import io
 import mmap
 import os
@@ -189,12 +190,13 @@ class McapFile:
         verified_only: bool = False,
     ) -> Iterator[ChunkMessages]:
         """Inflate, check and parse the chunks in file order, one at a time on the calling thread
-        (inflating ahead on a pool thread was measured slower: the parsing's short numpy calls
-        then wait for the GIL), each chunk's pages of the memory map released once read.
+        (inflating ahead on a pool thread was measured slower, or no faster on a loaded machine:
+        the parsing's short numpy calls then wait for the GIL), each chunk's pages of the memory
+        map released once read.
 
         Args:
-          channels: only chunks whose index names one of these channels (None: all); chunks
-            without an index are always read.
+          channels: only chunks whose index names one of these channels (None: all), and only
+            these channels' messages; chunks without an index are always read.
           progress: called with the bytes of each chunk passed.
           verified_only: skip chunks without a CRC.
         Yields:
@@ -214,7 +216,7 @@ class McapFile:
                 _release(self._buf, ref.offset, ref.offset + ref.length)
                 self.problems.append(f"chunk at byte {ref.offset}: {raw}")
                 continue
-            parsed = self._parse_chunk(ref, raw)
+            parsed = self._parse_chunk(ref, raw, wanted)
             # the chunk and its message index records (as large as the chunk's messages' data for
             # small messages) leave resident memory once parsed
             _release(self._buf, ref.offset, max([ref.offset + ref.length, *(o + n for o, n in ref.index.values())]))
@@ -222,9 +224,9 @@ class McapFile:
                 self.chunks_read += 1
                 yield parsed
 
-    def _parse_chunk(self, ref: ChunkRef, raw: bytes) -> ChunkMessages | None:
+    def _parse_chunk(self, ref: ChunkRef, raw: bytes, channels: Collection[int] | None = None) -> ChunkMessages | None:
         try:
-            records, messages = _chunk_messages(raw, _read_index(self._buf, ref))
+            records, messages = _chunk_messages(raw, _read_index(self._buf, ref), channels)
         except ValueError as exc:
             self.problems.append(f"chunk at byte {ref.offset}: {exc}")
             return None
@@ -305,17 +307,22 @@ def _read_index(buf: Any, ref: ChunkRef) -> dict[int, NDArray] | None:
     return out
 
 
-def _chunk_messages(raw: bytes, index: dict[int, NDArray] | None) -> tuple[list, dict[int, ChannelData]]:
-    """Schema/Channel records and messages (per channel) of an uncompressed chunk."""
+def _chunk_messages(
+    raw: bytes, index: dict[int, NDArray] | None, channels: Collection[int] | None = None
+) -> tuple[list, dict[int, ChannelData]]:
+    """Schema/Channel records and messages (per channel; only ``channels``' unless None) of an
+    uncompressed chunk. Every message's framing is checked, whichever channels are kept."""
     data = np.frombuffer(raw, dtype=np.uint8)
     if index is not None and any(len(e) for e in index.values()):
-        parsed = _messages_by_index(raw, data, index)
+        parsed = _messages_by_index(raw, data, index, channels)
         if parsed is not None:
             return parsed
-    return _messages_by_walking(raw)
+    return _messages_by_walking(raw, channels)
 
 
-def _messages_by_index(raw: bytes, data: NDArray[np.uint8], index: dict[int, NDArray]):
+def _messages_by_index(
+    raw: bytes, data: NDArray[np.uint8], index: dict[int, NDArray], channels: Collection[int] | None = None
+):
     """Parse with the message index, in bulk; None unless the index tiles the chunk exactly."""
     channel = np.concatenate([np.full(len(e), c, np.int64) for c, e in index.items()])
     entries = np.concatenate(list(index.values()))
@@ -326,7 +333,7 @@ def _messages_by_index(raw: bytes, data: NDArray[np.uint8], index: dict[int, NDA
     if first < 0 or int(offsets[-1]) + MESSAGE_PREFIX_SIZE > len(raw):
         return None
     try:
-        records, at = _definitions(raw, 0, first)
+        records, at = _leading_definitions(raw[:first])
     except ValueError:
         return None
     if at != first:
@@ -342,14 +349,28 @@ def _messages_by_index(raw: bytes, data: NDArray[np.uint8], index: dict[int, NDA
         and np.all(prefix["length"] >= MESSAGE_FIELDS.size)
     ):
         return None
-    return records, _group(data, offsets, prefix)
+    return list(records), _group(data, offsets, prefix, channels)
 
 
-def _group(data: NDArray[np.uint8], offsets: NDArray[np.int64], prefix: NDArray) -> dict[int, ChannelData]:
+@functools.lru_cache(maxsize=16)
+def _leading_definitions(head: bytes) -> tuple[tuple[Schema | Channel, ...], int]:
+    """``_definitions`` of a chunk's leading bytes, parsed once for chunks that repeat them (a
+    writer that defines its schemas and channels in every chunk)."""
+    records, at = _definitions(head, 0, len(head))
+    return tuple(records), at
+
+
+def _group(
+    data: NDArray[np.uint8], offsets: NDArray[np.int64], prefix: NDArray, channels: Collection[int] | None = None
+) -> dict[int, ChannelData]:
     out: dict[int, ChannelData] = {}
     sizes = prefix["length"].astype(np.int64) - MESSAGE_FIELDS.size
-    for c in np.unique(prefix["channel"]):
-        at = np.flatnonzero(prefix["channel"] == c)
+    of_message = prefix["channel"].astype(np.int64)
+    present = np.unique(of_message) if channels is None else sorted(channels)
+    for c in present:
+        at = np.flatnonzero(of_message == c)
+        if not len(at):
+            continue
         log = prefix["log_time"][at].astype(np.int64)
         pub = prefix["publish_time"][at].astype(np.int64)
         size = sizes[at]
@@ -387,7 +408,7 @@ def _definitions(raw: bytes, start: int, stop: int) -> tuple[list, int]:
     return records, at
 
 
-def _messages_by_walking(raw: bytes) -> tuple[list, dict[int, ChannelData]]:
+def _messages_by_walking(raw: bytes, channels: Collection[int] | None = None) -> tuple[list, dict[int, ChannelData]]:
     """Record by record (a chunk without a usable message index)."""
     data = np.frombuffer(raw, dtype=np.uint8)
     records: list[Schema | Channel] = []
@@ -413,7 +434,7 @@ def _messages_by_walking(raw: bytes) -> tuple[list, dict[int, ChannelData]]:
         return records, {}
     where = np.array(offsets, dtype=np.int64)
     prefix = sliding_window_view(data, MESSAGE_PREFIX_SIZE)[where].copy().view(MESSAGE_PREFIX).reshape(-1)
-    return records, _group(data, where, prefix)
+    return records, _group(data, where, prefix, channels)
 
 
 def _parse(cls: Any, body: bytes | memoryview) -> Any:

@@ -11,10 +11,13 @@ drawn from the compiled MjModel; the four springs are line strips whose colour r
 from __future__ import annotations
 
 import contextlib
-import dataclasses
 import itertools
 import math
+import os
+import shutil
 import sys
+import tempfile
+import threading
 from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -39,6 +42,7 @@ if TYPE_CHECKING:
 
 TIMELINE = "time"
 APPLICATION_ID = "pendsim"
+VIEW_BLOCK_STEPS = 6000  # model steps simulated and logged at once (60 s at 0.01 s); rows sent at once
 
 
 SERIES_STYLE: dict[str, tuple[str, tuple[int, int, int, int], float]] = {
@@ -105,12 +109,13 @@ def rrd_output(
     """Log to a new Rerun recording and publish it as the .rrd file ``path`` when the block
     completes: ``with rrd_output("run.rrd"): rr.log(...)``.
 
-    The bytes come from Rerun's in-memory stream (one read at the end: each read is a whole RRD
-    stream, and concatenated streams fail Rerun's CRC check) and are written by Python, so a full
-    disk or a permission error is an ``OutputError`` here, never a warning on a background thread
-    and a truncated file. The file is written under
-    a temporary name and published atomically (``pendsim_mj.outputs.atomic_output``): never over
-    an existing file unless ``replace``, and nothing is left behind by a failure.
+    The file is written while the block logs (``_streamed_rrd``: Rerun's file sink writes into a
+    named pipe, and a thread here copies the pipe into the file): memory stays flat however long
+    the recording is. The bytes are written by Python, so a full disk or a permission error is an
+    ``OutputError`` here, never a warning on a background thread and a truncated file. The file is
+    written under a temporary name and published atomically (``pendsim_mj.outputs.atomic_output``):
+    never over an existing file unless ``replace``, and nothing is left behind by a failure.
+    Where named pipes do not exist (Windows), Rerun's in-memory stream is written once at the end.
 
     Args:
       path: the .rrd file.
@@ -119,20 +124,92 @@ def rrd_output(
       application_id: Rerun's application id.
     """
     layout = blueprint(series) if series is not None else None
-    with atomic_output(path, replace=replace) as tmp, open(tmp, "wb") as f:
+    with atomic_output(path, replace=replace) as tmp:
         rr.init(application_id, default_blueprint=layout)
-        stream = rr.binary_stream()
-        if layout is not None:
-            rr.send_blueprint(layout, make_active=True, make_default=True)
-
         try:
-            yield
-            data = stream.read(flush=True)
-            if not data:
-                raise OutputError(f"Rerun produced no data for {str(path)!r}")
-            f.write(data)
+            with _streamed_rrd(tmp) if hasattr(os, "mkfifo") else _buffered_rrd(tmp):
+                if layout is not None:
+                    rr.send_blueprint(layout, make_active=True, make_default=True)
+                yield
         finally:
             rr.disconnect()
+
+
+@contextlib.contextmanager
+def _streamed_rrd(tmp: Path) -> Iterator[None]:
+    """Rerun's file sink writes into a named pipe (in a private temporary folder) while the block
+    logs; a thread copies the pipe into ``tmp``. A write error (full disk) is raised once the
+    block ends (the thread keeps draining the pipe, so Rerun never blocks). Raises OSError (the
+    copy failed) or OutputError (Rerun wrote nothing)."""
+    folder = Path(tempfile.mkdtemp(prefix="pendsim-rrd-"))
+    pipe = folder / "stream.rrd"
+    try:
+        os.mkfifo(pipe, 0o600)
+    except OSError:  # a temporary folder without named pipes: the in-memory stream instead
+        shutil.rmtree(folder, ignore_errors=True)
+        with _buffered_rrd(tmp):
+            yield
+        return
+    copier = _PipeCopier(pipe, tmp)
+    copier.start()
+    try:
+        rr.save(pipe)
+        yield
+    finally:
+        rr.disconnect()  # closes the file sink: the copier reads the end of the stream
+        copier.finish()
+        shutil.rmtree(folder, ignore_errors=True)
+    if copier.error is not None:
+        raise copier.error
+    if not copier.bytes_written:
+        raise OutputError(f"Rerun produced no data for {str(tmp)!r}")
+
+
+class _PipeCopier(threading.Thread):
+    """Copies a named pipe into a file until the writer closes it; keeps the first write error
+    (``error``) and from then on only drains the pipe."""
+
+    def __init__(self, pipe: Path, target: Path) -> None:
+        super().__init__(name="rrd-copy", daemon=True)
+        self.pipe, self.target = pipe, target
+        self.error: OSError | None = None
+        self.bytes_written = 0
+
+    def run(self) -> None:
+        with open(self.pipe, "rb") as src, open(self.target, "wb") as dst:  # waits for Rerun to open it
+            while block := src.read(1 << 20):
+                if self.error is None:
+                    try:
+                        dst.write(block)
+                        self.bytes_written += len(block)
+                    except OSError as exc:
+                        self.error = exc
+            if self.error is None:
+                try:
+                    dst.flush()
+                except OSError as exc:
+                    self.error = exc
+
+    def finish(self, timeout_s: float = 60.0) -> None:
+        """Wait for the copy to end; if Rerun never opened the pipe, open and close it here so
+        that the thread ends."""
+        self.join(timeout=0.5)
+        if self.is_alive():
+            with contextlib.suppress(OSError):
+                os.close(os.open(self.pipe, os.O_WRONLY | os.O_NONBLOCK))
+        self.join(timeout=timeout_s)
+
+
+@contextlib.contextmanager
+def _buffered_rrd(tmp: Path) -> Iterator[None]:
+    """Rerun's in-memory stream, written to ``tmp`` once at the end (one read: each read is a whole
+    RRD stream, and concatenated streams fail Rerun's CRC check)."""
+    stream = rr.binary_stream()
+    yield
+    data = stream.read(flush=True)
+    if not data:
+        raise OutputError(f"Rerun produced no data for {str(tmp)!r}")
+    tmp.write_bytes(data)
 
 
 def log_series_styles(series: tuple[str, ...]) -> None:
@@ -256,7 +333,7 @@ def log_springs(
     phi_rad: np.ndarray,
     tilt_rad: np.ndarray,
     support_m: np.ndarray,
-    force_n: np.ndarray,
+    force_n: np.ndarray | None,
     force_range_n: tuple[float, float],
     *,
     root: str = "/rig",
@@ -265,7 +342,8 @@ def log_springs(
     """The four springs as line strips between their anchor points, coloured from blue (the
     lowest tension of ``force_range_n``, N) to red (the highest), at n instants t_s (s) of a run
     given by its angles phi_rad and tilt_rad (n, 2), its support displacement support_m (n, 2)
-    and spring tensions force_n (n, 4). Consecutive calls append (a long run in windows)."""
+    and spring tensions force_n (n, 4); ``force_n`` None: the strips only (their colours sent
+    later, as ``_log_spring_colours`` does). Consecutive calls append (a long run in windows)."""
     times = rr.TimeColumn(TIMELINE, duration=t_s)
     n = len(t_s)
     frame = np.zeros((n, 3))
@@ -284,15 +362,11 @@ def log_springs(
         return position + matrix @ p
 
     ends = np.stack([np.stack([world(a), world(b)], axis=1) for a, b in SPRING_ENDS], axis=1)  # (n, 4, 2, 3)
-    low, high = force_range_n
-    share = (force_n - low) / (high - low) if high > low else np.zeros_like(force_n)
-    colours = np.stack([255 * share, 60 + 0 * share, 255 * (1 - share)], axis=-1).astype(np.uint8)
+    colours = None if force_n is None else _tension_colours(force_n, *force_range_n).reshape(n * 4, 3)
     rr.send_columns(
         f"{root}/springs",
         indexes=[times],
-        columns=rr.LineStrips3D.columns(strips=ends.reshape(n * 4, 2, 3), colors=colours.reshape(n * 4, 3)).partition(
-            [4] * n
-        ),
+        columns=rr.LineStrips3D.columns(strips=ends.reshape(n * 4, 2, 3), colors=colours).partition([4] * n),
     )
     rr.log(f"{root}/springs", rr.LineStrips3D.from_fields(labels=list(SPRINGS), radii=0.002), static=True)
 
@@ -302,15 +376,47 @@ def log_measured(run: MeasuredRun) -> None:
     beside the model's."""
     for q in QUANTITIES:
         t, values, _ = run.series(q)
-        times = rr.TimeColumn(TIMELINE, duration=t)
-        rr.send_columns(f"/plots/{q.name}/measured", indexes=[times], columns=rr.Scalars.columns(scalars=values))
+        for t_w, values_w in _in_windows(t, values):
+            times = rr.TimeColumn(TIMELINE, duration=t_w)
+            rr.send_columns(f"/plots/{q.name}/measured", indexes=[times], columns=rr.Scalars.columns(scalars=values_w))
 
 
 def log_error(t_s: np.ndarray, delta: np.ndarray, iae: np.ndarray, ise: np.ndarray) -> None:
     """Delta phi1 = computed - measured and its cumulative IAE and ISE."""
-    times = rr.TimeColumn(TIMELINE, duration=t_s)
     for name, values in (("delta", delta), ("iae", iae), ("ise", ise)):
-        rr.send_columns(f"/plots/error_phi1/{name}", indexes=[times], columns=rr.Scalars.columns(scalars=values))
+        for t_w, values_w in _in_windows(t_s, values):
+            times = rr.TimeColumn(TIMELINE, duration=t_w)
+            rr.send_columns(f"/plots/error_phi1/{name}", indexes=[times], columns=rr.Scalars.columns(scalars=values_w))
+
+
+def error_in_windows(
+    t_s: np.ndarray, measured: np.ndarray, computed: np.ndarray, *, max_gap_s: float, window: int = VIEW_BLOCK_STEPS
+) -> Iterator[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]]:
+    """(t_s, delta, iae, ise) of computed - measured at the instants t_s (s), window by window
+    (``validation.compare`` on ``window`` samples at a time, consecutive windows sharing their
+    boundary sample so that every interval is integrated once, each window's cumulative IAE and
+    ISE continued from the previous window's end): memory of one window, whatever the duration.
+    The curves equal one whole-run ``compare``'s to the integration rule's difference at the
+    window boundaries (Simpson's pairing restarts there; tested to 1e-6 of the total)."""
+    from pendsim_mj.validation import compare
+
+    n = len(t_s)
+    starts = list(range(0, max(n - 1, 1), window))
+    if len(starts) > 1 and n - 1 - starts[-1] < 8:  # no window of fewer than 8 samples: join the last two
+        starts.pop()
+    iae0 = ise0 = 0.0
+    for k, lo in enumerate(starts):
+        hi = starts[k + 1] + 1 if k + 1 < len(starts) else n  # shares its last sample with the next window
+        part = compare(t_s[lo:hi], measured[lo:hi], computed[lo:hi], max_gap_s=max_gap_s)
+        first = 1 if k else 0  # the shared sample was logged with the previous window
+        yield (
+            part.t_s[first:],
+            part.delta[first:],
+            part.iae_curve[first:] + iae0,
+            part.ise_curve[first:] + ise0,
+        )
+        iae0 += float(part.iae_curve[-1])
+        ise0 += float(part.ise_curve[-1])
 
 
 def nice_ticks(low: float, high: float, *, count: int = 5) -> np.ndarray:
@@ -339,13 +445,12 @@ def log_phase_portraits(curves: dict[str, list[tuple[np.ndarray, np.ndarray]]]) 
     ``/phase/m{k}/{series}`` (the traces), ``/phase/m{k}/axes`` (lines, ticks, labels).
     """
     for k in range(2):
-        phi = np.concatenate([c[k][0] for c in curves.values()])
-        omega = np.concatenate([c[k][1] for c in curves.values()])
-        phi, omega = phi[np.isfinite(phi)], omega[np.isfinite(omega)]
-        if not len(phi) or not len(omega):
+        phi_range = _finite_range([c[k][0] for c in curves.values()])
+        omega_range = _finite_range([c[k][1] for c in curves.values()])
+        if phi_range is None or omega_range is None:
             continue
-        p_low, p_high = min(float(phi.min()), 0.0), max(float(phi.max()), 0.0)
-        w_low, w_high = min(float(omega.min()), 0.0), max(float(omega.max()), 0.0)
+        p_low, p_high = min(phi_range[0], 0.0), max(phi_range[1], 0.0)
+        w_low, w_high = min(omega_range[0], 0.0), max(omega_range[1], 0.0)
         p_span, w_span = max(p_high - p_low, 1e-9), max(w_high - w_low, 1e-9)
         scale = p_span / w_span  # display units per rad/s
         size = p_span  # the square's side, display units
@@ -353,8 +458,12 @@ def log_phase_portraits(curves: dict[str, list[tuple[np.ndarray, np.ndarray]]]) 
         for name, pendulums in curves.items():
             _, rgba, width = SERIES_STYLE[name]
             phi_rad, omega_rad_s = pendulums[k]
-            strip = np.stack([phi_rad, -scale * omega_rad_s], axis=-1)
-            strip = strip[np.all(np.isfinite(strip), axis=1)]
+            strip = np.empty((len(phi_rad), 2), np.float32)  # Rerun's 2D positions are float32
+            strip[:, 0] = phi_rad
+            np.multiply(omega_rad_s, -scale, out=strip[:, 1], casting="unsafe")
+            finite = np.isfinite(strip).all(axis=1)
+            if not finite.all():
+                strip = strip[finite]
             rr.log(
                 f"{root}/{name}",
                 rr.LineStrips2D(
@@ -380,6 +489,17 @@ def log_phase_portraits(curves: dict[str, list[tuple[np.ndarray, np.ndarray]]]) 
             rr.Points2D(positions, radii=[0.0005 * size], colors=[grey], labels=labels, show_labels=True),
             static=True,
         )
+
+
+def _finite_range(arrays: list[np.ndarray]) -> tuple[float, float] | None:
+    """(lowest, highest) finite value over the arrays (no joined copy); None if there is none."""
+    lows, highs = [], []
+    for a in arrays:
+        finite = a[np.isfinite(a)] if not np.isfinite(a).all() else a
+        if len(finite):
+            lows.append(float(finite.min()))
+            highs.append(float(finite.max()))
+    return (min(lows), max(highs)) if lows else None
 
 
 def _warn_stderr(message: str) -> None:
@@ -461,39 +581,97 @@ def rig_model(mjcf_xml: str | None, traj: Trajectory, *, warn: Callable[[str], N
     return build_model(traj.single_params, drive_targets=targets)
 
 
-VIEW_BLOCK_STEPS = 6000  # model steps simulated and logged at once (60 s at 0.01 s)
+SPLINE_MARGIN_ROWS = 64
+"""Model rows each side of a block that the phi1 error's cubic spline sees (``_ModelAtInstants``):
+a not-a-knot spline's dependence on a knot falls by about 3.7x per knot, so at 64 rows the
+blocks' values equal one spline through the whole run to rounding."""
 
 
-@dataclasses.dataclass
-class _RunSummary:
-    """What the view needs of a whole model run beyond each block, gathered block by block (13
-    numbers per step): instants, angles and rates (the phase portraits, the phi1 error), and
-    tilts, support displacement and spring tensions (the springs, coloured over the whole run's
-    tension range, logged once it is known)."""
+class _ModelAtInstants:
+    """The model's phi1 (cubic spline, as ``validation.resample``) at given increasing instants,
+    gathered block by block: each block is interpolated once the next one's first rows are known,
+    from a spline over the block and SPLINE_MARGIN_ROWS rows each side."""
 
-    t_s: np.ndarray
-    phi_rad: np.ndarray  # (n, 2)
-    omega_rad_s: np.ndarray  # (n, 2)
-    tilt_rad: np.ndarray  # (n, 2)
-    support_m: np.ndarray  # (n, 2)
-    force_n: np.ndarray  # (n, 4)
+    def __init__(self, at_s: np.ndarray) -> None:
+        self.at_s = at_s
+        self.values = np.full(len(at_s), np.nan)
+        self.done = 0  # instants before this index are interpolated
+        self.t_s = np.zeros(0)
+        self.phi_rad = np.zeros(0)
+        self.pending_from = 0  # rows of (t_s, phi_rad) before this are only the left margin
 
-    @property
-    def force_range_n(self) -> tuple[float, float]:
-        return float(self.force_n.min()), float(self.force_n.max())
+    def add(self, t_s: np.ndarray, phi_rad: np.ndarray) -> None:
+        self.t_s, self.phi_rad = np.concatenate([self.t_s, t_s]), np.concatenate([self.phi_rad, phi_rad])
+        ready = len(self.t_s) - SPLINE_MARGIN_ROWS  # rows before this have their right margin
+        if ready > self.pending_from:
+            self._interpolate(until_s=float(self.t_s[ready - 1]))
+            keep = max(0, ready - SPLINE_MARGIN_ROWS)
+            self.t_s, self.phi_rad = self.t_s[keep:], self.phi_rad[keep:]
+            self.pending_from = ready - keep
+
+    def finish(self) -> np.ndarray:
+        """The values at every instant up to the run's end (NaN past it)."""
+        if len(self.t_s):
+            self._interpolate(until_s=float(self.t_s[-1]))
+        return self.values
+
+    def _interpolate(self, *, until_s: float) -> None:
+        from pendsim_mj.validation import resample
+
+        stop = int(np.searchsorted(self.at_s, until_s, side="right"))
+        if stop > self.done:
+            self.values[self.done : stop] = resample(self.t_s, self.phi_rad, self.at_s[self.done : stop])
+            self.done = stop
 
 
-def _log_blocks(blocks: Iterator[tuple[int, Trajectory]], model: mujoco.MjModel) -> _RunSummary:
-    """Log each block's poses and series (not its springs) and gather the run's summary."""
-    names = ("t_s", "phi_rad", "omega_rad_s", "tilt_rad", "support_m", "spring_force_n")
-    parts: dict[str, list[np.ndarray]] = {name: [] for name in names}
+def _log_blocks(
+    blocks: Iterator[tuple[int, Trajectory]], model: mujoco.MjModel, phi1_at: _ModelAtInstants
+) -> tuple[dict[str, np.ndarray], bool]:
+    """Log each block's poses, series and spring geometry (colours follow once the whole run's
+    tension range is known: ``_log_spring_colours``), interpolate phi1 at the measured instants,
+    and keep per step only what the end needs, in float32: the spring tensions (4) and the phase
+    portraits' angles and rates (2 + 2), 32 bytes per step. Returns those (with t_s) and whether
+    the support moves."""
+    parts: dict[str, list[np.ndarray]] = {"t_s": [], "force_n": [], "phi_rad": [], "omega_rad_s": []}
+    moving_frame = False
     for start, block in blocks:
         if start:  # consecutive blocks share their boundary row: logged with the previous one
             block = block.rows(slice(1, None))
         log_trajectory(block, model, springs=False)
-        for name in names:
-            parts[name].append(getattr(block, name))
-    return _RunSummary(*(np.concatenate(parts[name]) for name in names))
+        log_springs(model, block.t_s, block.phi_rad, block.tilt_rad, block.support_m, None, (0.0, 0.0))
+        phi1_at.add(block.t_s, block.phi_rad[:, 0])
+        moving_frame = moving_frame or bool(np.any(block.support_m))
+        parts["t_s"].append(block.t_s)
+        parts["force_n"].append(block.spring_force_n.astype(np.float32))
+        parts["phi_rad"].append(block.phi_rad.astype(np.float32))
+        parts["omega_rad_s"].append(block.omega_rad_s.astype(np.float32))
+    return {name: np.concatenate(p) for name, p in parts.items()}, moving_frame
+
+
+def _log_spring_colours(t_s: np.ndarray, force_n: np.ndarray, *, root: str = "/rig") -> None:
+    """The springs' colours (``log_springs``) over the whole run's tension range, in windows."""
+    low, high = float(force_n.min()), float(force_n.max())
+    for lo in range(0, len(t_s), VIEW_BLOCK_STEPS):
+        rows = slice(lo, lo + VIEW_BLOCK_STEPS)
+        n = len(t_s[rows])
+        colours = _tension_colours(force_n[rows], low, high).reshape(n * 4, 3)
+        rr.send_columns(
+            f"{root}/springs",
+            indexes=[rr.TimeColumn(TIMELINE, duration=t_s[rows])],
+            columns=rr.LineStrips3D.columns(colors=colours).partition([4] * n),
+        )
+
+
+def _tension_colours(force_n: np.ndarray, low: float, high: float) -> np.ndarray:
+    """(n, 4, 3) uint8 RGB of spring tensions force_n (n, 4), N: blue at ``low``, red at ``high``."""
+    share = (force_n - low) / (high - low) if high > low else np.zeros_like(force_n)
+    return np.stack([255 * share, 60 + 0 * share, 255 * (1 - share)], axis=-1).astype(np.uint8)
+
+
+def _in_windows(t_s: np.ndarray, *columns: np.ndarray) -> Iterator[tuple[np.ndarray, ...]]:
+    """(t_s, columns...) in windows of VIEW_BLOCK_STEPS rows: Rerun converts one window at a time."""
+    for lo in range(0, max(len(t_s), 1), VIEW_BLOCK_STEPS):
+        yield (t_s[lo : lo + VIEW_BLOCK_STEPS], *(c[lo : lo + VIEW_BLOCK_STEPS] for c in columns))
 
 
 def view_aligned(
@@ -506,37 +684,34 @@ def view_aligned(
     warn: Callable[[str], None] = _warn_stderr,
 ) -> Path:
     """Measured series (t = 0 at the start) beside a model run, the rig drawn by ``rig_model``,
-    published as the .rrd file ``rrd_path`` (``rrd_output``).
+    published as the .rrd file ``rrd_path`` (``rrd_output``, written while it is logged).
 
     ``blocks()`` yields the model run as (first row, block) pairs sharing their boundary rows
     (``simulation.simulate_blocks``; a whole trajectory is one block): the run is logged block by
-    block and never held whole; its springs follow in windows of ``VIEW_BLOCK_STEPS`` once the
-    whole run's tension range is known."""
+    block and never held whole (32 bytes per step are kept: ``_log_blocks``); the phi1 error is
+    interpolated block by block, and every series goes to Rerun in windows of VIEW_BLOCK_STEPS
+    rows, so that memory beyond the measured run grows by 32 bytes per model step."""
     from pendsim_mj.quantities import BY_NAME
-    from pendsim_mj.validation import compare, resample
 
     it = blocks()
     first = next(it)
     model = rig_model(mjcf_xml, first[1], warn=warn)
+    t, phi1, at = run.series(BY_NAME["phi1"])
+    phi1_at = _ModelAtInstants(np.clip(at, 0.0, None))
     with rrd_output(rrd_path, replace=replace, series=("measured", "model")):
         log_series_styles(("measured", "model"))
-        whole = _log_blocks(itertools.chain([first], it), model)
+        kept, moving_frame = _log_blocks(itertools.chain([first], it), model, phi1_at)
         del first
-        log_rig_geometry(model, moving_frame=bool(np.any(whole.support_m)))
-        for lo in range(0, len(whole.t_s), VIEW_BLOCK_STEPS):
-            rows = slice(lo, lo + VIEW_BLOCK_STEPS)
-            log_springs(
-                model, whole.t_s[rows], whole.phi_rad[rows], whole.tilt_rad[rows], whole.support_m[rows],
-                whole.force_n[rows], whole.force_range_n,
-            )  # fmt: skip
+        log_rig_geometry(model, moving_frame=moving_frame)
+        _log_spring_colours(kept["t_s"], kept["force_n"])
         log_measured(run)
-        t, phi1, at = run.series(BY_NAME["phi1"])
-        inside = at <= whole.t_s[-1]
-        computed = resample(whole.t_s, whole.phi_rad[:, 0], np.clip(at[inside], 0.0, None))
-        error = compare(t[inside], phi1[inside], computed, max_gap_s=run.max_gap_s)
-        log_error(error.t_s, error.delta, error.iae_curve, error.ise_curve)
+        inside = at <= kept["t_s"][-1]
+        computed = phi1_at.finish()[inside]
+        for window in error_in_windows(t[inside], phi1[inside], computed, max_gap_s=run.max_gap_s):
+            log_error(*window)
+        del computed
         measured = [(node.phi_rad, node.omega_rad_s) for node in run.nodes]
-        model_curves = [(whole.phi_rad[:, k], whole.omega_rad_s[:, k]) for k in range(2)]
+        model_curves = [(kept["phi_rad"][:, k], kept["omega_rad_s"][:, k]) for k in range(2)]
         log_phase_portraits({"measured": measured, "model": model_curves})
     return Path(rrd_path)
 

@@ -286,9 +286,11 @@ def served_viewer(
     ports = (port, port + 1)
     for p in ports:
         check_port_free(bind, p)
+    # The server starts empty and the file is sent into it (``_send_file``): given the file on its
+    # command line, Rerun 0.41's server keeps a thread spinning at full CPU for as long as it runs.
     command = [
         *rerun_command(), "--serve-web", "--bind", bind, "--web-viewer-port", str(port), "--port", str(port + 1),
-        str(path),
+        "--server-memory-limit", server_memory_limit(path),
     ]  # fmt: skip
     with tempfile.TemporaryFile() as log:
         proc = subprocess.Popen(
@@ -310,11 +312,47 @@ def served_viewer(
                         f"{startup_timeout_s:g} s: {_last_line(log)}"
                     )
                 time.sleep(0.1)
+            _send_file(path, f"rerun+http://{url_host(bind)}:{port + 1}/proxy", log)
+            if proc.poll() is not None:
+                raise ProcessError(f"the Rerun server stopped during startup: {_last_line(log)}")
             yield Served(viewer_url(bind, port, port + 1), proc.pid), proc
             if proc.poll() is not None:
                 raise ProcessError(f"the Rerun server stopped: {_last_line(log)}")
         finally:
             stop_group(proc)
+
+
+SEND_TIMEOUT_S = 300.0
+"""How long sending the file into the served viewer may take."""
+
+
+def server_memory_limit(rrd: Path) -> str:
+    """The served viewer's buffer (``--server-memory-limit``): it keeps everything sent to it for
+    the viewers that connect later, so it gets four times the file (decoded chunks take more
+    room than the file's), at least Rerun's default 1 GiB."""
+    return f"{max(1024, 4 * (rrd.stat().st_size >> 20))}MiB"
+
+
+def _send_file(rrd: Path, url: str, log: IO[bytes]) -> None:
+    """Send an .rrd file into the server at ``url`` (a recording stream of this process, with the
+    file's own recording and blueprint, disconnected once everything is sent).
+
+    Raises:
+      ProcessError: the file could not be sent within SEND_TIMEOUT_S.
+    """
+    import uuid
+
+    import rerun as rr
+
+    stream = rr.RecordingStream("pendsim_serve", recording_id=uuid.uuid4())
+    try:
+        stream.connect_grpc(url)
+        rr.log_file_from_path(rrd, recording=stream)
+        stream.flush(timeout_sec=SEND_TIMEOUT_S)
+    except Exception as exc:  # a timeout or a severed connection (the server's own line says why)
+        raise ProcessError(f"cannot send {str(rrd)!r} to the Rerun server: {exc}; {_last_line(log)}") from None
+    finally:
+        stream.disconnect()
 
 
 def _say(line: str) -> None:

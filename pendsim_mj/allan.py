@@ -4,10 +4,10 @@
   accelerations) on a log-spaced tau grid, 12 values per decade from 1/fs to a tenth of the
   record. Computed exactly here rather than with ``allantools.oadev``: on this project's 2-core
   machine that took 1.7 s per axis for a 6 h, 80 Hz record on a 90-tau grid (20 s for 12 axes,
-  against the 10 s budget for the whole analysis); this kernel sums the second differences of the
-  phase in cache-sized blocks over the axes, the axes split over threads (numpy releases the GIL
-  in its loops; no worker processes, no copy of the data), and
-  equals ``allantools.oadev`` to 1e-12 (tests/test_allan.py).
+  against the 10 s budget for the whole analysis); this kernel (compiled by numba) sums the second
+  differences of the phase (the running sum of the data less its mean, built once from the
+  recording's own arrays: no joined copy) row by row over all axes, the taus spread over threads
+  (one process, no workers), and equals ``allantools.oadev`` to 1e-11 (tests/test_allan.py).
 - **Confidence intervals**: ``allantools.edf_greenhall`` (equivalent degrees of freedom for the
   overlapping estimator) and ``allantools.confidence_interval`` (chi-squared), with the noise type
   of each tau identified from the local log-log slope (-1/2 white, 0 flicker, +1/2 random walk).
@@ -24,11 +24,9 @@
 from __future__ import annotations
 
 import dataclasses
-import itertools
+import functools
 import math
-from concurrent.futures import ThreadPoolExecutor
 
-import allantools
 import numpy as np
 
 from pendsim_mj.errors import ParameterError
@@ -37,7 +35,6 @@ from pendsim_mj.sensors import MIN_MOTION_RAD_S
 TAUS_PER_DECADE = 12
 ONE_SIGMA = math.erf(1 / math.sqrt(2))  # 0.6827: 1-sigma confidence
 BIAS_INSTABILITY_FACTOR = math.sqrt(2 * math.log(2) / math.pi)  # 0.664
-_BLOCK_ROWS = 8192
 
 
 def tau_grid(n_samples: int, per_decade: int = TAUS_PER_DECADE) -> np.ndarray:
@@ -49,28 +46,27 @@ def tau_grid(n_samples: int, per_decade: int = TAUS_PER_DECADE) -> np.ndarray:
     return np.unique(np.rint(np.logspace(0, math.log10(top), count)).astype(np.int64))
 
 
-def _oadev_kernel(y: np.ndarray, m: np.ndarray) -> np.ndarray:
-    """sqrt(sum d^2 / (2 m^2 (n+1-2m))) with d the phase second difference at lag m; (len(m), a).
-    Phase in units of samples: the caller's units cancel (adev of y in y's units)."""
-    n, a = y.shape
-    x = np.empty((n + 1, a))
+def phase(*columns: np.ndarray) -> np.ndarray:
+    """The phase x (n+1, a) of frequency-type data given as column blocks (each (n,) or (n, k),
+    together a columns): x[0] = 0, x[i] = sum of the first i samples less the column's mean.
+    Built straight from the blocks (no joined copy of the data). The mean only adds a straight
+    line to x, which the second differences cancel; without it, x grows to n * mean and the sums
+    lose digits."""
+    blocks = [np.asarray(c, dtype=float).reshape(len(c), -1) for c in columns]
+    n = len(blocks[0])
+    x = np.empty((n + 1, sum(b.shape[1] for b in blocks)))
     x[0] = 0.0
-    np.cumsum(y, axis=0, out=x[1:])
-    out = np.empty((len(m), a))
-    tmp = np.empty((_BLOCK_ROWS, a))
-    for i, k in enumerate(m):
-        k = int(k)
-        rows = n + 1 - 2 * k
-        total = np.zeros(a)
-        for r0 in range(0, rows, _BLOCK_ROWS):
-            r1 = min(r0 + _BLOCK_ROWS, rows)
-            t = tmp[: r1 - r0]
-            np.multiply(x[r0 + k : r1 + k], -2.0, out=t)
-            t += x[r0 + 2 * k : r1 + 2 * k]
-            t += x[r0:r1]
-            total += np.einsum("ij,ij->j", t, t)
-        out[i] = np.sqrt(total / (2.0 * k * k * rows))
-    return out
+    j = 0
+    for b in blocks:
+        if len(b) != n:
+            raise ParameterError(f"column blocks must be equally long, got {n} and {len(b)}")
+        k = b.shape[1]
+        part = x[1:, j : j + k]
+        part[...] = b
+        part -= b.mean(axis=0)
+        np.cumsum(part, axis=0, out=part)  # in place: no temporary of the data's size
+        j += k
+    return x
 
 
 def overlapping_adev(y: np.ndarray, m: np.ndarray, *, threads: int = 2) -> np.ndarray:
@@ -79,27 +75,29 @@ def overlapping_adev(y: np.ndarray, m: np.ndarray, *, threads: int = 2) -> np.nd
     Args:
       y: (n,) or (n, a) samples (a axes), uniformly sampled.
       m: averaging factors (tau = m / fs), each <= (n - 1) / 2.
-      threads: threads over the axes (1 = this thread only); one process, the data not copied.
+      threads: 1: this thread only; more: the taus spread over numba's threads (one process,
+        the data not copied; the same results bit for bit).
 
     Returns:
       (len(m),) or (len(m), a) deviations in the units of y.
     """
     y = np.asarray(y, dtype=float)
     flat = y.ndim == 1
-    y2 = y[:, None] if flat else y
-    m = np.asarray(m, dtype=np.int64)
-    if np.any(m < 1) or np.any(2 * m > len(y2)):
-        raise ParameterError(f"averaging factors must be in 1..{len(y2) // 2}, got {m.min()}..{m.max()}")
-    a = y2.shape[1]
-    nthread = min(threads, a) if len(y2) * a > 2_000_000 else 1
-    if nthread <= 1:
-        out = _oadev_kernel(y2, m)
-    else:
-        bounds = np.linspace(0, a, nthread + 1).astype(int)
-        with ThreadPoolExecutor(nthread) as pool:
-            parts = list(pool.map(lambda b: _oadev_kernel(y2[:, b[0] : b[1]], m), itertools.pairwise(bounds)))
-        out = np.concatenate(parts, axis=1)
+    out = adev_of_phase(phase(y), m, threads=threads)
     return out[:, 0] if flat else out
+
+
+def adev_of_phase(x: np.ndarray, m: np.ndarray, *, threads: int = 2) -> np.ndarray:
+    """Overlapping Allan deviation (len(m), a) from the phase x (n+1, a) (``phase``)."""
+    m = np.asarray(m, dtype=np.int64)
+    n = len(x) - 1
+    if np.any(m < 1) or np.any(2 * m > n):
+        raise ParameterError(f"averaging factors must be in 1..{n // 2}, got {m.min()}..{m.max()}")
+    from pendsim_mj import allan_kernel  # numba (and its compiled kernels) only once needed
+
+    x = np.ascontiguousarray(x, dtype=float)
+    kernel = allan_kernel.oadev_parallel if threads > 1 and x.size > 2_000_000 else allan_kernel.oadev_serial
+    return kernel(x, m)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -141,14 +139,24 @@ def _noise_alpha(slopes: np.ndarray) -> np.ndarray:
 def allan_curves(y: np.ndarray, rate_hz: float, *, confidence: float = ONE_SIGMA, threads: int = 2) -> list[AllanCurve]:
     """Allan deviation with confidence intervals for each column of y (n, a)."""
     y = np.asarray(y, dtype=float)
-    if y.ndim == 1:
-        y = y[:, None]
-    n = len(y)
+    return curves_of_phase(phase(y), rate_hz, confidence=confidence, threads=threads)
+
+
+def curves_of_phase(
+    x: np.ndarray, rate_hz: float, *, confidence: float = ONE_SIGMA, threads: int = 2
+) -> list[AllanCurve]:
+    """``allan_curves`` of the data whose phase (``phase``) is x (n+1, a): one curve per column."""
+    n = len(x) - 1
     m = tau_grid(n)
-    adev = overlapping_adev(y, m, threads=threads)
+    adev = adev_of_phase(x, m, threads=threads)
     tau = m / rate_hz
+    import allantools  # (with scipy) only once needed: not while a recording is read
+
+    edf_of = functools.cache(
+        lambda al, k: allantools.edf_greenhall(alpha=al, d=2, m=k, N=n + 1, overlapping=True)
+    )  # the axes of a record share m and N, and mostly the noise type
     curves = []
-    for j in range(y.shape[1]):
+    for j in range(adev.shape[1]):
         dev = adev[:, j]
         if np.any(dev <= 0):  # a constant axis: no noise to analyse
             alpha = np.zeros(len(m), int)
@@ -156,15 +164,22 @@ def allan_curves(y: np.ndarray, rate_hz: float, *, confidence: float = ONE_SIGMA
             curves.append(AllanCurve(tau, dev, dev.copy(), dev.copy(), edf, alpha, confidence, n, rate_hz))
             continue
         alpha = _noise_alpha(local_slopes(tau, dev))
-        edf = np.array(
-            [
-                allantools.edf_greenhall(alpha=int(al), d=2, m=int(k), N=n + 1, overlapping=True)
-                for al, k in zip(alpha, m, strict=True)
-            ]
-        )
-        bounds = np.array([allantools.confidence_interval(d, e, ci=confidence) for d, e in zip(dev, edf, strict=True)])
-        curves.append(AllanCurve(tau, dev, bounds[:, 0], bounds[:, 1], edf, alpha, confidence, n, rate_hz))
+        edf = np.array([edf_of(int(al), int(k)) for al, k in zip(alpha, m, strict=True)])
+        low, high = confidence_interval(dev, edf, confidence)
+        curves.append(AllanCurve(tau, dev, low, high, edf, alpha, confidence, n, rate_hz))
     return curves
+
+
+def confidence_interval(dev: np.ndarray, edf: np.ndarray, confidence: float) -> tuple[np.ndarray, np.ndarray]:
+    """``allantools.confidence_interval`` (chi-squared, NIST SP1065 eq. 45) for arrays: the
+    (low, high) bounds of the deviations dev (k,) with edf (k,) degrees of freedom."""
+    from scipy.stats import chi2
+
+    tail = min(abs(confidence), abs(confidence - 1)) / 2
+    edf = np.asarray(edf, dtype=float)
+    low = np.sqrt(edf * dev * dev / chi2.ppf(1 - tail, edf))
+    high = np.sqrt(edf * dev * dev / chi2.ppf(tail, edf))
+    return low, high
 
 
 @dataclasses.dataclass(frozen=True)
@@ -293,11 +308,41 @@ def gyro_motion(gyro_rad_s: np.ndarray, rate_hz: float) -> Motion:
     g = np.asarray(gyro_rad_s, dtype=float)
     if len(g) == 0:
         return Motion(np.zeros(0), 0.0, 0)
-    speed = np.linalg.norm(g - np.median(g, axis=0), axis=1)
+    speed = np.zeros(len(g))
+    for j in range(g.shape[1]):  # column by column: temporaries of one column, not of the (n, 3) data
+        d = g[:, j] - np.median(g[:, j])
+        speed += d * d
+    np.sqrt(speed, out=speed)
     k = min(len(speed), max(1, round(MOTION_WINDOW_S * rate_hz)))
     rate = np.convolve(speed, np.ones(k) / k, mode="same")
     i = int(np.argmax(rate))
     return Motion(rate, float(rate[i]), i)
+
+
+MOTION_MARGIN_S = 0.5
+"""Samples this close to any node's motion are not static (``still_samples``): the turning rate is
+averaged over MOTION_WINDOW_S and crosses MIN_MOTION_RAD_S only after the motion has begun (a
+coupled pendulum, moved through the springs, a second or more after the release)."""
+
+
+def motion_intervals_s(t_s: np.ndarray, moving: np.ndarray) -> np.ndarray:
+    """(k, 2) first and last instant (s, as t_s) of each run of moving samples (``Motion.moving``)."""
+    edges = np.diff(np.concatenate([[0], np.asarray(moving, dtype=np.int8), [0]]))
+    first, last = np.flatnonzero(edges == 1), np.flatnonzero(edges == -1) - 1
+    return np.stack([t_s[first], t_s[last]], axis=1) if len(first) else np.zeros((0, 2))
+
+
+def still_samples(t_s: np.ndarray, intervals_s: np.ndarray, margin_s: float = MOTION_MARGIN_S) -> np.ndarray:
+    """(n,) True at the instants t_s (s) farther than ``margin_s`` from every interval of
+    ``intervals_s`` (k, 2): e.g. every node's motion (``motion_intervals_s`` of each, stacked),
+    so that a static stretch ends before the earliest motion onset of any node."""
+    if not len(intervals_s):
+        return np.ones(len(t_s), bool)
+    order = np.argsort(intervals_s[:, 0], kind="stable")
+    starts = intervals_s[order, 0] - margin_s
+    reach = np.maximum.accumulate(intervals_s[order, 1]) + margin_s  # the farthest end so far
+    i = np.searchsorted(starts, t_s, side="right") - 1
+    return ~((i >= 0) & (t_s <= reach[np.maximum(i, 0)]))
 
 
 def longest_uniform_segment(t_ns: np.ndarray, rate_hz: float, usable: np.ndarray | None = None) -> slice:

@@ -10,16 +10,21 @@ import allantools
 import numpy as np
 import pytest
 
+from pendsim_bridge.allan_report import duration_text
 from pendsim_bridge.cli import main
 from pendsim_bridge.recording import RunInfo, read_recording, write_recording
 from pendsim_mj.allan import (
     MIN_MOTION_RAD_S,
+    MOTION_MARGIN_S,
     allan_curves,
     check_sampling,
+    confidence_interval,
     gyro_motion,
     longest_uniform_segment,
+    motion_intervals_s,
     noise_terms,
     overlapping_adev,
+    still_samples,
     tau_grid,
 )
 from pendsim_mj.model import exact_mjcf
@@ -247,9 +252,63 @@ def test_allan_longest_segment_analyses_only_the_static_hold_of_a_swinging_recor
         r"m1: uniform, turns at up to [\d.]+ rad/s; analysed the longest static, uniform stretch ([\d.]+)-([\d.]+) s",
         out,
     )
-    assert stretch and float(stretch[1]) == 0.0 and 19.8 < float(stretch[2]) <= 20.0  # the hold, not the swing
+    # the hold, not the swing: it ends MOTION_MARGIN_S before the release at 20 s
+    assert stretch and float(stretch[1]) == 0.0 and 19.0 < float(stretch[2]) <= 20.0 - MOTION_MARGIN_S
     rows = {
         tuple(line.split()[:3]): line.split() for line in out.split("\n\n")[1].splitlines() if line.startswith("m1")
     }
     for k, axis in enumerate("xyz"):  # the noise table of the hold: the gyro's own noise
         assert float(rows[("m1", "gyroscope", axis)][3]) == pytest.approx(ImuNoise().gyro_sigma_rad_s[k], rel=0.15)
+
+
+def test_confidence_intervals_equal_allantools_per_value():
+    dev, edf = np.array([0.1, 0.02, 3.0, 1e-4]), np.array([1.5, 200.0, 7e6, 12.0])
+    low, high = confidence_interval(dev, edf, 0.6827)
+    for k in range(len(dev)):
+        assert (low[k], high[k]) == pytest.approx(allantools.confidence_interval(dev[k], edf[k], ci=0.6827), rel=1e-15)
+
+
+def test_no_stretch_is_static_within_the_margin_of_any_nodes_motion():
+    t = np.arange(0.0, 10.0, 0.5)
+    moving = (t >= 4.0) & (t <= 5.0)  # one node moves from 4 to 5 s
+    intervals = motion_intervals_s(t, moving)
+    assert intervals.tolist() == [[4.0, 5.0]]
+    other = np.arange(0.25, 10.0, 0.5)  # another node's instants
+    still = still_samples(other, intervals, margin_s=1.0)
+    assert other[~still].tolist() == [3.25, 3.75, 4.25, 4.75, 5.25, 5.75]  # within 1 s of [4, 5]
+    assert still_samples(other, np.zeros((0, 2))).all()
+
+
+@pytest.fixture(scope="module")
+def held_then_released(tmp_path_factory):
+    """2 s held at 30 deg, then released (M1 released; M2 follows through the springs)."""
+    path = tmp_path_factory.mktemp("allan_release") / "release.mcap"
+    assert main(["record", "--hold-s", "2", "--duration-s", "10", "-o", str(path)]) == 0
+    return path
+
+
+def test_longest_segment_of_a_release_ends_before_the_earliest_motion_of_any_node(held_then_released, capsys):
+    # the release is at 2 s (the hold's end); M2 only starts turning later, through the springs
+    rec = read_recording(held_then_released)
+    onsets = {n: float(rec.imu[n].t_s[gyro_motion(rec.imu[n].gyro_rad_s, FS).moving][0]) for n in ("m1", "m2")}
+    assert onsets["m1"] < 2.05 and onsets["m2"] > onsets["m1"]
+    capsys.readouterr()
+    assert main(["allan", str(held_then_released), "--no-plots", "--longest-segment", "--json"]) == 0
+    result = json.loads(capsys.readouterr().out)
+    for node in ("m1", "m2"):  # both stretches end a margin before the earliest onset (M1's), M2's too
+        start, end = result["sampling"][node]["analysed_s"]
+        assert start == 0.0 and 2.0 - MOTION_MARGIN_S - 0.1 < end <= onsets["m1"] - MOTION_MARGIN_S + 1e-9
+
+
+@pytest.mark.parametrize(
+    ("duration_s", "text"), [(1.475, "1.5 s"), (119.0, "119.0 s"), (1800.0, "30.0 min"), (21600.0, "6.00 h")]
+)
+def test_durations_print_in_a_readable_unit(duration_s, text):
+    assert duration_text(duration_s) == text
+
+
+def test_a_short_stretch_prints_its_duration_in_seconds_not_zero_hours(held_then_released, capsys):
+    capsys.readouterr()
+    assert main(["allan", str(held_then_released), "--no-plots", "--longest-segment"]) == 0
+    first = capsys.readouterr().out.splitlines()[0]
+    assert re.search(r": 1\.\d s at 80 Hz", first) and " h at" not in first
