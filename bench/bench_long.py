@@ -128,6 +128,7 @@ def main() -> None:
         folder = args.keep or Path(tmp)
         folder.mkdir(parents=True, exist_ok=True)
         out = Path(tmp) / "out"
+        out.mkdir()  # view --save writes a file into it: it must exist whatever is skipped
         rows = []
         for d in durations:
             print(f"{label(d)}: recordings", flush=True)
