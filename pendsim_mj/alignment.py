@@ -55,6 +55,7 @@ from pendsim_mj.timing import (
     fit_clock,
     fused_value_instants,
     fusion_phase,
+    fusion_phase_stretch,
     nominal_rate_hz,
 )
 
@@ -73,6 +74,9 @@ FRAME_FIT_S = 600.0
 s. The motion is what carries the mounting; a long run's later hours at rest add only noise to the
 fit's kinematic columns, enough to flip its choice of handedness (a 6 h free decay: M2 found
 mirrored, 80 mm from its hinge), and memory that grows with the run."""
+TIMING_PROBE = 0.25  # the nodes' relative fusion timing is probed this share of its open range either side
+TIMING_FIT_S = 3.0  # the start fit's window when it chooses that timing (at least start_fit_s), s
+TIMING_MIN_RANGE_S = 1e-4  # a relative timing open by less than this is left as the nodes' own data give it, s
 
 
 @dataclasses.dataclass(frozen=True)
@@ -582,10 +586,15 @@ def _mirrored_differs(drive: Drive | None) -> bool:
 
 
 def _start_fit(
-    model: _StartModel, nodes: Sequence[_Node], instants: Sequence[Floats], start_fit_s: float
+    model: _StartModel,
+    nodes: Sequence[_Node],
+    instants: Sequence[Floats],
+    start_fit_s: float,
+    x0: Floats | None = None,
+    iterations: int = 8,
 ) -> tuple[Floats, float, float]:
     """The start parameters fitted from the nodes' series at model.t0: (x, rms, unexplained) of
-    ``_fit_start``."""
+    ``_fit_start`` (at most ``iterations`` steps), from ``x0`` (None: from the series at t0)."""
     t0, kind = model.t0, model.kind
     lo = t0 - 0.3 if kind == "release" else t0
     hi = t0 + start_fit_s
@@ -596,7 +605,72 @@ def _start_fit(
         x = np.array([t0] + [float(np.mean(h)) if len(h) else p for h, p in zip(held, phi_now, strict=True)])
     else:
         x = np.array(phi_now + omega_now + ([0.0] if model.timed else []))
-    return _fit_start(model, x, _fit_data(nodes, instants, lo, hi))
+    return _fit_start(model, x if x0 is None else x0, _fit_data(nodes, instants, lo, hi), iterations=iterations)
+
+
+def _relative_fusion_timing(
+    model: _StartModel,
+    nodes: Sequence[_Node],
+    phases: Sequence[float],
+    fusion_rate_hz: float,
+    start_fit_s: float,
+    fitted: tuple[Floats, float, float],
+) -> tuple[list[float], list[Floats], tuple[Floats, float, float]]:
+    """The nodes' fusion phases (s) within their stretches (``timing.fusion_phase_stretch``).
+
+    A node's own data leave its phase open within its stretch (2.5 ms wide at 80 Hz sampling of
+    100 Hz fusion, each estimate within 1.25 ms). A common shift of both nodes' values is absorbed
+    by the start fit (the release instant, the state in motion, a driven run's fitted shift); the
+    shift of one node's values against the other's is not, and it costs the damping fit (a ms
+    reads as dry friction). So that relative shift, anywhere both stretches allow (up to 5 ms
+    wide: node 1's phase is as open as node 2's), is chosen by the start fit over TIMING_FIT_S:
+    its cost (mean square residual in sigmas, the start re-fitted) is quadratic in a shift of a few
+    ms on swings of about a second, so three probes (one Gauss-Newton step from ``fitted`` each)
+    give the parabola whose vertex, held inside that range, is taken. Each node then keeps the
+    middle of the phases its stretch allows with that relative shift, and the start is fitted
+    there as before. Only the value instants and the start fit change: a ms does not move the
+    swing frames.
+
+    Args:
+      model, nodes, start_fit_s: as for ``_start_fit``.
+      phases: (2,) each node's phase from its own data (``timing.fusion_phase``), s.
+      fusion_rate_hz: the chips' fusion rate, Hz.
+      fitted: ``_start_fit``'s (x, rms, unexplained) at those phases.
+
+    Returns:
+      The chosen phases (2,), s in [0, 1 / fusion_rate_hz); the value instants (recorder clock,
+      s) at them; the start fit there (x, rms, unexplained).
+    """
+    period = 1.0 / fusion_rate_hz
+    # each node's phase may move by d with lo < d <= hi (its stretch about its phase); 1 us margins
+    room = []
+    for node, phase in zip(nodes, phases, strict=True):
+        lo, hi = fusion_phase_stretch(node.stamp, fusion_rate_hz, phase)
+        room.append((lo - phase + 1e-6, hi - phase - 1e-6))
+    (lo1, hi1), (lo2, hi2) = room
+    r_lo, r_hi = lo2 - hi1, hi2 - lo1  # node 2's shift against node 1's: d2 - d1
+
+    def split(r: float) -> tuple[float, float]:
+        d1 = 0.5 * (max(lo1, lo2 - r) + min(hi1, hi2 - r))  # the middle of what both stretches allow
+        return d1, d1 + r
+
+    def moved(r: float) -> list[Floats]:
+        return [n.value_instants(fusion_rate_hz, p + d) for n, p, d in zip(nodes, phases, split(r), strict=True)]
+
+    if not (r_lo < 0.0 < r_hi and r_hi - r_lo >= TIMING_MIN_RANGE_S):  # pinned by clocks sweeping the period
+        return list(phases), [n.value_instants(fusion_rate_hz, p) for n, p in zip(nodes, phases, strict=True)], fitted
+    window_s = max(start_fit_s, TIMING_FIT_S)
+    longer = dataclasses.replace(model, horizon_s=model.horizon_s + window_s - start_fit_s)
+    probe = TIMING_PROBE * (r_hi - r_lo)
+    r = np.array([max(-probe, r_lo), 0.0, min(probe, r_hi)])
+    # one Gauss-Newton step from the start fit's x: the cost with the start re-fitted, to second order
+    cost = [_start_fit(longer, nodes, moved(float(v)), window_s, x0=fitted[0], iterations=1)[1] ** 2 for v in r]
+    curvature, slope, _ = np.polyfit(r, cost, 2)
+    best = float(np.clip(-slope / (2 * curvature), r_lo, r_hi)) if curvature > 0 else float(r[np.argmin(cost)])
+    instants = moved(best)
+    chosen = _start_fit(model, nodes, instants, start_fit_s, x0=fitted[0])
+    chosen_phases = [(p + d) % period for p, d in zip(phases, split(best), strict=True)]
+    return chosen_phases, instants, chosen
 
 
 def align(
@@ -687,6 +761,12 @@ def align(
         x_f, rms_f, unexplained_f = _start_fit(model, flipped, instants, start_fit_s)
         if rms_f < rms:
             prepared, x, rms, unexplained = flipped, x_f, rms_f, unexplained_f
+    if fusion_rate_hz:  # the nodes' relative fusion timing, which their own data leave open
+        found = [p for p in phases if p is not None]
+        chosen, instants, (x, rms, unexplained) = _relative_fusion_timing(
+            model, prepared, found, fusion_rate_hz, start_fit_s, (x, rms, unexplained)
+        )
+        phases = list(chosen)
     phi0, omega0, start_time = model.states(x)
     shift = model.shift_s(x)
     if drive_input is not None and kind == "release":
