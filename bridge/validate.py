@@ -268,6 +268,7 @@ def _identify(
         moving=start.kind != "release",
         law=law,
         drive=drive,
+        timing_range_s=run.relative_timing_range_s,
     )
     return Identification(
         decrement, fit, start.phi_rad, start.time_s, start.omega_rad_s, start.kind, modal, drive is not None

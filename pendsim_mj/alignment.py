@@ -184,12 +184,18 @@ class StartState:
 
 @dataclasses.dataclass(frozen=True)
 class MeasuredRun:
-    """Both nodes' measured series from the start (t = 0) on, and how they were aligned."""
+    """Both nodes' measured series from the start (t = 0) on, and how they were aligned.
+
+    ``relative_timing_range_s``: (lo_s < 0, hi_s > 0), the shifts of M2's value instants against
+    M1's that the nodes' fusion timing still allows (their fusion phases are known only within a
+    stretch each): a fit through the whole run (``planar_fit``) refines the timing within it;
+    None where the timing is pinned or the nodes have no fusion timing."""
 
     nodes: tuple[NodeRun, NodeRun]
     start: StartState
     fusion_rate_hz: float | None
     max_gap_s: float
+    relative_timing_range_s: tuple[float, float] | None = None
 
     def series(self, quantity: Quantity | str) -> tuple[Floats, Floats, Floats]:
         """(t_s, values, value_t_s) of a quantity (see ``pendsim_mj.quantities``), each (m,)."""
@@ -615,7 +621,7 @@ def _relative_fusion_timing(
     fusion_rate_hz: float,
     start_fit_s: float,
     fitted: tuple[Floats, float, float],
-) -> tuple[list[float], list[Floats], tuple[Floats, float, float]]:
+) -> tuple[list[float], list[Floats], tuple[Floats, float, float], tuple[float, float] | None]:
     """The nodes' fusion phases (s) within their stretches (``timing.fusion_phase_stretch``).
 
     A node's own data leave its phase open within its stretch (2.5 ms wide at 80 Hz sampling of
@@ -639,7 +645,9 @@ def _relative_fusion_timing(
 
     Returns:
       The chosen phases (2,), s in [0, 1 / fusion_rate_hz); the value instants (recorder clock,
-      s) at them; the start fit there (x, rms, unexplained).
+      s) at them; the start fit there (x, rms, unexplained); the shifts of node 2's values
+      against node 1's that both stretches still allow about the choice, (lo_s < 0, hi_s > 0) s
+      (None: the timing was pinned, nothing was chosen).
     """
     period = 1.0 / fusion_rate_hz
     # each node's phase may move by d with lo < d <= hi (its stretch about its phase); 1 us margins
@@ -658,7 +666,8 @@ def _relative_fusion_timing(
         return [n.value_instants(fusion_rate_hz, p + d) for n, p, d in zip(nodes, phases, split(r), strict=True)]
 
     if not (r_lo < 0.0 < r_hi and r_hi - r_lo >= TIMING_MIN_RANGE_S):  # pinned by clocks sweeping the period
-        return list(phases), [n.value_instants(fusion_rate_hz, p) for n, p in zip(nodes, phases, strict=True)], fitted
+        given = [n.value_instants(fusion_rate_hz, p) for n, p in zip(nodes, phases, strict=True)]
+        return list(phases), given, fitted, None
     window_s = max(start_fit_s, TIMING_FIT_S)
     longer = dataclasses.replace(model, horizon_s=model.horizon_s + window_s - start_fit_s)
     probe = TIMING_PROBE * (r_hi - r_lo)
@@ -667,10 +676,11 @@ def _relative_fusion_timing(
     cost = [_start_fit(longer, nodes, moved(float(v)), window_s, x0=fitted[0], iterations=1)[1] ** 2 for v in r]
     curvature, slope, _ = np.polyfit(r, cost, 2)
     best = float(np.clip(-slope / (2 * curvature), r_lo, r_hi)) if curvature > 0 else float(r[np.argmin(cost)])
+    best = min(max(best, r_lo + 1e-6), r_hi - 1e-6)  # strictly inside: the damping fit refines it within
     instants = moved(best)
     chosen = _start_fit(model, nodes, instants, start_fit_s, x0=fitted[0])
     chosen_phases = [(p + d) % period for p, d in zip(phases, split(best), strict=True)]
-    return chosen_phases, instants, chosen
+    return chosen_phases, instants, chosen, (r_lo - best, r_hi - best)
 
 
 def align(
@@ -717,6 +727,7 @@ def align(
         if onset_s is None:  # a drive topic that never drives: a free run
             drive_input = None
     phases: list[float | None] = [None, None]
+    timing_range: tuple[float, float] | None = None
     if fusion_rate_hz:  # where each chip's fusion ticks fall: the phase that makes its gyro smoothest
         phases = [fusion_phase(n.stamp, n.gyro, fusion_rate_hz) for n in prepared]
     instants = [n.value_instants(fusion_rate_hz, p) for n, p in zip(prepared, phases, strict=True)]
@@ -763,7 +774,7 @@ def align(
             prepared, x, rms, unexplained = flipped, x_f, rms_f, unexplained_f
     if fusion_rate_hz:  # the nodes' relative fusion timing, which their own data leave open
         found = [p for p in phases if p is not None]
-        chosen, instants, (x, rms, unexplained) = _relative_fusion_timing(
+        chosen, instants, (x, rms, unexplained), timing_range = _relative_fusion_timing(
             model, prepared, found, fusion_rate_hz, start_fit_s, (x, rms, unexplained)
         )
         phases = list(chosen)
@@ -814,4 +825,10 @@ def align(
                 before_start=first,
             )
         )
-    return MeasuredRun(nodes=(runs[0], runs[1]), start=start, fusion_rate_hz=fusion_rate_hz, max_gap_s=max_gap_s)
+    return MeasuredRun(
+        nodes=(runs[0], runs[1]),
+        start=start,
+        fusion_rate_hz=fusion_rate_hz,
+        max_gap_s=max_gap_s,
+        relative_timing_range_s=timing_range,
+    )

@@ -120,13 +120,14 @@ def planar_damping(
     moving: bool | None = None,
     law: str = "auto",
     drive: Drive | None = None,
+    timing_range_s: tuple[float, float] | None = None,
 ) -> DampingFit:
     """The planar fit (``planar_fit.fit_planar``, same arguments) as a DampingFit: the law with
     the smallest BIC (or the one asked for), every law tried in ``laws``."""
     start = time.perf_counter()
     fits = fit_planar(
         params, value_t_s, gyro_z_rad_s, gyro_sigma_rad_s=gyro_sigma_rad_s, phi0_rad=phi0_rad,
-        omega0_rad_s=omega0_rad_s, moving=moving, law=law, drive=drive,
+        omega0_rad_s=omega0_rad_s, moving=moving, law=law, drive=drive, timing_range_s=timing_range_s,
     )  # fmt: skip
     best = fits[0]
     names = ("b1_n_m_s", "b2_n_m_s")
