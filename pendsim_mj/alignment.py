@@ -22,8 +22,10 @@ Works on arrays (time stamps, quaternions, gyro and accelerometer per node), fro
    recorded inputs (drive time 0 at the start); as the drive breaks the rig's mirror symmetry,
    the sign of the swing frames is the one whose start fit is better.
 5. **Fusion timing**: a BNO055 sample carries the latest 100 Hz fused value, so it is 0-10 ms
-   old in a pattern set by where the chip's fusion ticks fall; that phase is found per node by
-   the best fit of the model.
+   old in a pattern set by where the chip's fusion ticks fall; that phase is found per node from
+   its own data within a stretch (``timing.fusion_phase``), and the nodes' relative timing within
+   both stretches by the start fit (``_relative_fusion_timing``); what is left open of it
+   (``MeasuredRun.relative_timing_range_s``) the damping fit refines.
 6. **Gaps**: nothing is filled in; each node keeps its own instants, and its coverage (share of
    the run inside segments whose spacing stays below ``max_gap_s``) is reported.
 """
