@@ -56,7 +56,10 @@ def fit_run(truth: RigParams, run: MeasuredRun, tilt_start: str = "zero") -> Til
     """The tilt fit of an aligned run, started from the assumed defaults."""
     base = truth.with_mapping({n: getattr(DEFAULT_PARAMS, n) for n in NAMES})
     t, gyro, sigma = gyro_in_swing_frames(run, [None, None])
-    return fit_tilt(base, run.start.phi_rad, t, gyro, sigma, omega0_rad_s=run.start.omega_rad_s, tilt_start=tilt_start)
+    return fit_tilt(
+        base, run.start.phi_rad, t, gyro, sigma, omega0_rad_s=run.start.omega_rad_s, tilt_start=tilt_start,
+        timing_range_s=run.relative_timing_range_s,
+    )  # fmt: skip
 
 
 def main() -> None:

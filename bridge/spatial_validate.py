@@ -61,7 +61,7 @@ def spatial_case(
         t, gyro, sigma = gyro_in_swing_frames(run, covariance or [None, None])
         fit = fit_tilt(
             params, start.phi_rad, t, gyro, sigma, omega0_rad_s=start.omega_rad_s, names=NAMES[2:],
-            tilt_start=tilt_start,
+            tilt_start=tilt_start, timing_range_s=run.relative_timing_range_s,
         )  # fmt: skip
         params = params.with_mapping(fit.as_mapping())
     traj = simulate(
@@ -216,7 +216,7 @@ def identify_spatial(
     moving = run.start.kind != "release" and max(abs(w) for w in run.start.omega_rad_s) >= RELEASE_AT_START_RAD_S
     fit = fit_tilt(
         base, run.start.phi_rad, t, gyro, sigma, omega0_rad_s=run.start.omega_rad_s, moving=moving,
-        tilt_start=tilt_start or tilt_start_of(rec),
+        tilt_start=tilt_start or tilt_start_of(rec), timing_range_s=run.relative_timing_range_s,
     )  # fmt: skip
     return SpatialIdentification(fit, base, run.start.phi_rad, run.start.time_s, run.start.kind)
 
@@ -235,7 +235,7 @@ def identification_lines(path: str | Path, result: SpatialIdentification) -> lis
     ]
     units = {
         "tilt_stiffness_n_m_rad": "N m/rad", "phi1_0": "rad", "phi2_0": "rad", "omega1_0": "rad/s",
-        "omega2_0": "rad/s", "release_offset_s": "s",
+        "omega2_0": "rad/s", "release_offset_s": "s", "timing2_s": "s",
     }  # fmt: skip
     for name, value, half in zip(fit.names, fit.values, fit.ci95, strict=True):
         lines.append(f"  {name:24} {value:.6g} +- {half:.2g} {units.get(name, 'N m s/rad')}")

@@ -118,6 +118,11 @@ def identification_table(path: str | Path, result: Identification) -> str:
             lines.append(
                 f"  F{n + 1} = {fit.friction_n_m[n]:.5g} +- {fit.friction_ci95_n_m[n]:.2g} N m (95 %, dry friction)"
             )
+    if fit.timing2_s is not None:
+        lines.append(
+            f"  M2's values {1e3 * fit.timing2_s:+.3f} +- {1e3 * fit.timing2_ci95_s:.2g} ms against M1's "
+            "(the nodes' relative fusion timing, fitted within what the alignment leaves open)"
+        )
     lines.append(f"  residual rms {fit.residual_rms_sigma:.3f} gyro noise sigmas (1 = explained to the noise level)")
     if fit.laws:
         lines.append("damping law by BIC (smallest wins), residual whiteness by Ljung-Box (p > 0.05: white):")

@@ -268,6 +268,7 @@ def _identify(
         moving=start.kind != "release",
         law=law,
         drive=drive,
+        timing_range_s=run.relative_timing_range_s,
     )
     return Identification(
         decrement, fit, start.phi_rad, start.time_s, start.omega_rad_s, start.kind, modal, drive is not None
@@ -507,6 +508,8 @@ def report_json(report: ValidationReport) -> dict[str, Any]:
                 "law": i.fit.law,
                 "friction_n_m": i.fit.friction_n_m.tolist(),
                 "friction_ci95_n_m": i.fit.friction_ci95_n_m.tolist(),
+                "timing2_s": i.fit.timing2_s,
+                "timing2_ci95_s": i.fit.timing2_ci95_s,
                 "laws": [
                     {
                         "law": f.law,
@@ -545,6 +548,7 @@ def report_json(report: ValidationReport) -> dict[str, Any]:
             "nominal_angle_rad": list(NOMINAL_RELEASE_RAD) if report.has_nominal else None,
         },
         "nodes": nodes,
+        "relative_timing_range_s": None if run.relative_timing_range_s is None else list(run.relative_timing_range_s),
         "max_gap_s": run.max_gap_s,
         "damping": {
             "source": report.damping_source,

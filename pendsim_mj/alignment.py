@@ -22,8 +22,10 @@ Works on arrays (time stamps, quaternions, gyro and accelerometer per node), fro
    recorded inputs (drive time 0 at the start); as the drive breaks the rig's mirror symmetry,
    the sign of the swing frames is the one whose start fit is better.
 5. **Fusion timing**: a BNO055 sample carries the latest 100 Hz fused value, so it is 0-10 ms
-   old in a pattern set by where the chip's fusion ticks fall; that phase is found per node by
-   the best fit of the model.
+   old in a pattern set by where the chip's fusion ticks fall; that phase is found per node from
+   its own data within a stretch (``timing.fusion_phase``), and the nodes' relative timing within
+   both stretches by the start fit (``_relative_fusion_timing``); what is left open of it
+   (``MeasuredRun.relative_timing_range_s``) the damping fit refines.
 6. **Gaps**: nothing is filled in; each node keeps its own instants, and its coverage (share of
    the run inside segments whose spacing stays below ``max_gap_s``) is reported.
 """
@@ -55,6 +57,7 @@ from pendsim_mj.timing import (
     fit_clock,
     fused_value_instants,
     fusion_phase,
+    fusion_phase_stretch,
     nominal_rate_hz,
 )
 
@@ -73,6 +76,9 @@ FRAME_FIT_S = 600.0
 s. The motion is what carries the mounting; a long run's later hours at rest add only noise to the
 fit's kinematic columns, enough to flip its choice of handedness (a 6 h free decay: M2 found
 mirrored, 80 mm from its hinge), and memory that grows with the run."""
+TIMING_PROBE = 0.25  # the nodes' relative fusion timing is probed this share of its open range either side
+TIMING_FIT_S = 3.0  # the start fit's window when it chooses that timing (at least start_fit_s), s
+TIMING_MIN_RANGE_S = 1e-4  # a relative timing open by less than this is left as the nodes' own data give it, s
 
 
 @dataclasses.dataclass(frozen=True)
@@ -180,12 +186,18 @@ class StartState:
 
 @dataclasses.dataclass(frozen=True)
 class MeasuredRun:
-    """Both nodes' measured series from the start (t = 0) on, and how they were aligned."""
+    """Both nodes' measured series from the start (t = 0) on, and how they were aligned.
+
+    ``relative_timing_range_s``: (lo_s < 0, hi_s > 0), the shifts of M2's value instants against
+    M1's that the nodes' fusion timing still allows (their fusion phases are known only within a
+    stretch each): a fit through the whole run (``planar_fit``) refines the timing within it;
+    None where the timing is pinned or the nodes have no fusion timing."""
 
     nodes: tuple[NodeRun, NodeRun]
     start: StartState
     fusion_rate_hz: float | None
     max_gap_s: float
+    relative_timing_range_s: tuple[float, float] | None = None
 
     def series(self, quantity: Quantity | str) -> tuple[Floats, Floats, Floats]:
         """(t_s, values, value_t_s) of a quantity (see ``pendsim_mj.quantities``), each (m,)."""
@@ -582,10 +594,15 @@ def _mirrored_differs(drive: Drive | None) -> bool:
 
 
 def _start_fit(
-    model: _StartModel, nodes: Sequence[_Node], instants: Sequence[Floats], start_fit_s: float
+    model: _StartModel,
+    nodes: Sequence[_Node],
+    instants: Sequence[Floats],
+    start_fit_s: float,
+    x0: Floats | None = None,
+    iterations: int = 8,
 ) -> tuple[Floats, float, float]:
     """The start parameters fitted from the nodes' series at model.t0: (x, rms, unexplained) of
-    ``_fit_start``."""
+    ``_fit_start`` (at most ``iterations`` steps), from ``x0`` (None: from the series at t0)."""
     t0, kind = model.t0, model.kind
     lo = t0 - 0.3 if kind == "release" else t0
     hi = t0 + start_fit_s
@@ -596,7 +613,76 @@ def _start_fit(
         x = np.array([t0] + [float(np.mean(h)) if len(h) else p for h, p in zip(held, phi_now, strict=True)])
     else:
         x = np.array(phi_now + omega_now + ([0.0] if model.timed else []))
-    return _fit_start(model, x, _fit_data(nodes, instants, lo, hi))
+    return _fit_start(model, x if x0 is None else x0, _fit_data(nodes, instants, lo, hi), iterations=iterations)
+
+
+def _relative_fusion_timing(
+    model: _StartModel,
+    nodes: Sequence[_Node],
+    phases: Sequence[float],
+    fusion_rate_hz: float,
+    start_fit_s: float,
+    fitted: tuple[Floats, float, float],
+) -> tuple[list[float], list[Floats], tuple[Floats, float, float], tuple[float, float] | None]:
+    """The nodes' fusion phases (s) within their stretches (``timing.fusion_phase_stretch``).
+
+    A node's own data leave its phase open within its stretch (2.5 ms wide at 80 Hz sampling of
+    100 Hz fusion, each estimate within 1.25 ms). A common shift of both nodes' values is absorbed
+    by the start fit (the release instant, the state in motion, a driven run's fitted shift); the
+    shift of one node's values against the other's is not, and it costs the damping fit (a ms
+    reads as dry friction). So that relative shift, anywhere both stretches allow (up to 5 ms
+    wide: node 1's phase is as open as node 2's), is chosen by the start fit over TIMING_FIT_S:
+    its cost (mean square residual in sigmas, the start re-fitted) is quadratic in a shift of a few
+    ms on swings of about a second, so three probes (one Gauss-Newton step from ``fitted`` each)
+    give the parabola whose vertex, held inside that range, is taken. Each node then keeps the
+    middle of the phases its stretch allows with that relative shift, and the start is fitted
+    there as before. Only the value instants and the start fit change: a ms does not move the
+    swing frames.
+
+    Args:
+      model, nodes, start_fit_s: as for ``_start_fit``.
+      phases: (2,) each node's phase from its own data (``timing.fusion_phase``), s.
+      fusion_rate_hz: the chips' fusion rate, Hz.
+      fitted: ``_start_fit``'s (x, rms, unexplained) at those phases.
+
+    Returns:
+      The chosen phases (2,), s in [0, 1 / fusion_rate_hz); the value instants (recorder clock,
+      s) at them; the start fit there (x, rms, unexplained); the shifts of node 2's values
+      against node 1's that both stretches still allow about the choice, (lo_s < 0, hi_s > 0) s
+      (None: the timing was pinned, nothing was chosen).
+    """
+    period = 1.0 / fusion_rate_hz
+    # each node's phase may move by d with lo < d <= hi (its stretch about its phase); 1 us margins
+    room = []
+    for node, phase in zip(nodes, phases, strict=True):
+        lo, hi = fusion_phase_stretch(node.stamp, fusion_rate_hz, phase)
+        room.append((lo - phase + 1e-6, hi - phase - 1e-6))
+    (lo1, hi1), (lo2, hi2) = room
+    r_lo, r_hi = lo2 - hi1, hi2 - lo1  # node 2's shift against node 1's: d2 - d1
+
+    def split(r: float) -> tuple[float, float]:
+        d1 = 0.5 * (max(lo1, lo2 - r) + min(hi1, hi2 - r))  # the middle of what both stretches allow
+        return d1, d1 + r
+
+    def moved(r: float) -> list[Floats]:
+        return [n.value_instants(fusion_rate_hz, p + d) for n, p, d in zip(nodes, phases, split(r), strict=True)]
+
+    if not (r_lo < 0.0 < r_hi and r_hi - r_lo >= TIMING_MIN_RANGE_S):  # pinned by clocks sweeping the period
+        given = [n.value_instants(fusion_rate_hz, p) for n, p in zip(nodes, phases, strict=True)]
+        return list(phases), given, fitted, None
+    window_s = max(start_fit_s, TIMING_FIT_S)
+    longer = dataclasses.replace(model, horizon_s=model.horizon_s + window_s - start_fit_s)
+    probe = TIMING_PROBE * (r_hi - r_lo)
+    r = np.array([max(-probe, r_lo), 0.0, min(probe, r_hi)])
+    # one Gauss-Newton step from the start fit's x: the cost with the start re-fitted, to second order
+    cost = [_start_fit(longer, nodes, moved(float(v)), window_s, x0=fitted[0], iterations=1)[1] ** 2 for v in r]
+    curvature, slope, _ = np.polyfit(r, cost, 2)
+    best = float(np.clip(-slope / (2 * curvature), r_lo, r_hi)) if curvature > 0 else float(r[np.argmin(cost)])
+    best = min(max(best, r_lo + 1e-6), r_hi - 1e-6)  # strictly inside: the damping fit refines it within
+    instants = moved(best)
+    chosen = _start_fit(model, nodes, instants, start_fit_s, x0=fitted[0])
+    chosen_phases = [(p + d) % period for p, d in zip(phases, split(best), strict=True)]
+    return chosen_phases, instants, chosen, (r_lo - best, r_hi - best)
 
 
 def align(
@@ -643,6 +729,7 @@ def align(
         if onset_s is None:  # a drive topic that never drives: a free run
             drive_input = None
     phases: list[float | None] = [None, None]
+    timing_range: tuple[float, float] | None = None
     if fusion_rate_hz:  # where each chip's fusion ticks fall: the phase that makes its gyro smoothest
         phases = [fusion_phase(n.stamp, n.gyro, fusion_rate_hz) for n in prepared]
     instants = [n.value_instants(fusion_rate_hz, p) for n, p in zip(prepared, phases, strict=True)]
@@ -687,6 +774,12 @@ def align(
         x_f, rms_f, unexplained_f = _start_fit(model, flipped, instants, start_fit_s)
         if rms_f < rms:
             prepared, x, rms, unexplained = flipped, x_f, rms_f, unexplained_f
+    if fusion_rate_hz:  # the nodes' relative fusion timing, which their own data leave open
+        found = [p for p in phases if p is not None]
+        chosen, instants, (x, rms, unexplained), timing_range = _relative_fusion_timing(
+            model, prepared, found, fusion_rate_hz, start_fit_s, (x, rms, unexplained)
+        )
+        phases = list(chosen)
     phi0, omega0, start_time = model.states(x)
     shift = model.shift_s(x)
     if drive_input is not None and kind == "release":
@@ -734,4 +827,10 @@ def align(
                 before_start=first,
             )
         )
-    return MeasuredRun(nodes=(runs[0], runs[1]), start=start, fusion_rate_hz=fusion_rate_hz, max_gap_s=max_gap_s)
+    return MeasuredRun(
+        nodes=(runs[0], runs[1]),
+        start=start,
+        fusion_rate_hz=fusion_rate_hz,
+        max_gap_s=max_gap_s,
+        relative_timing_range_s=timing_range,
+    )

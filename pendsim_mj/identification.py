@@ -87,6 +87,9 @@ class DampingFit:
       law: the damping law of the estimates ("viscous", "coulomb", "both").
       friction_n_m, friction_ci95_n_m: (2,) dry friction F1, F2 and half-widths (0 without it).
       laws: every law's fit (planar), the chosen one first.
+      timing2_s, timing2_ci95_s: the fitted shift of M2's value instants against M1's (the nodes'
+        relative fusion timing, ``planar_fit``) and its 95 % half-width, s; None where it was not
+        fitted.
     """
 
     b_n_m_s: np.ndarray
@@ -100,6 +103,8 @@ class DampingFit:
     friction_n_m: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(2))
     friction_ci95_n_m: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(2))
     laws: tuple[LawFit, ...] = ()
+    timing2_s: float | None = None
+    timing2_ci95_s: float = 0.0
 
     def overrides(self) -> dict[str, float]:
         """The fitted hinge losses as RigParams fields (b and friction of both hinges); a value
@@ -120,13 +125,14 @@ def planar_damping(
     moving: bool | None = None,
     law: str = "auto",
     drive: Drive | None = None,
+    timing_range_s: tuple[float, float] | None = None,
 ) -> DampingFit:
     """The planar fit (``planar_fit.fit_planar``, same arguments) as a DampingFit: the law with
     the smallest BIC (or the one asked for), every law tried in ``laws``."""
     start = time.perf_counter()
     fits = fit_planar(
         params, value_t_s, gyro_z_rad_s, gyro_sigma_rad_s=gyro_sigma_rad_s, phi0_rad=phi0_rad,
-        omega0_rad_s=omega0_rad_s, moving=moving, law=law, drive=drive,
+        omega0_rad_s=omega0_rad_s, moving=moving, law=law, drive=drive, timing_range_s=timing_range_s,
     )  # fmt: skip
     best = fits[0]
     names = ("b1_n_m_s", "b2_n_m_s")
@@ -146,6 +152,8 @@ def planar_damping(
         friction_n_m=np.array([best.value(f"friction{n}_n_m") for n in (1, 2)]),
         friction_ci95_n_m=np.array([best.half_width(f"friction{n}_n_m") for n in (1, 2)]),
         laws=tuple(fits),
+        timing2_s=best.value("timing2_s") if "timing2_s" in best.names else None,
+        timing2_ci95_s=best.half_width("timing2_s"),
     )
 
 

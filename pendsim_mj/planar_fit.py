@@ -7,7 +7,11 @@ integrated by its compiled RK4 at ``FIT_DT_S``. Unknowns, fitted together:
 - the hinge losses of the chosen law: "viscous" (b1, b2), "coulomb" (F1, F2) or "both";
 - the start angles phi1_0, phi2_0; for a start in motion also omega1_0, omega2_0;
 - for a release from rest, a small offset tau of the release instant (the model rests at phi_0
-  until tau, then swings).
+  until tau, then swings);
+- where the alignment leaves the nodes' relative fusion timing open (``MeasuredRun``'s
+  ``relative_timing_range_s``), the shift of M2's value instants against M1's, within that
+  range: a 0.2 ms error of it biases b2 by a few per cent and reads as dry friction, and only
+  the whole run pins it (to microseconds), the damping fitted with it.
 
 Residuals: each node's gyro about its hinge minus the model's rate, in units of that node's noise
 sigma, at the instants the chip's fused values belong to (``MeasuredRun``'s ``value_t_s``: a
@@ -66,7 +70,7 @@ _DAMPING = {
 }
 _ROW = {name: fast_planar.COEFFICIENTS.index(name) for name in _DAMPING["both"]}
 # the optimiser's scale of each kind of unknown
-_SCALE = {"damping": 1e-3, "phi": 1e-2, "omega": 1e-2, "tau": 1e-3}
+_SCALE = {"damping": 1e-3, "phi": 1e-2, "omega": 1e-2, "tau": 1e-3, "timing": 1e-4}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -76,7 +80,7 @@ class LawFit:
     Attributes:
       law: "viscous", "coulomb" or "both".
       names: the P unknowns: damping fields of RigParams, then "phi1_0", "phi2_0", ("omega1_0",
-        "omega2_0"), ("release_offset_s").
+        "omega2_0"), ("release_offset_s"), ("timing2_s": the shift of M2's value instants).
       values: (P,) estimates (SI units: N m s/rad, N m, rad, rad/s, s).
       ci95: (P,) half-widths of the 95 % intervals.
       covariance: (P, P).
@@ -113,6 +117,7 @@ class _Data:
     gyro: tuple[Floats, Floats]  # its measured rate, rad/s
     sigma: Floats  # (2,)
     inputs: Floats | None = None  # (H, NINPUT) held over the steps from the release on, or None
+    timing_range_s: tuple[float, float] | None = None  # M2's instants may shift within it, s (None: fixed)
 
 
 class _Model:
@@ -130,6 +135,10 @@ class _Model:
         else:
             names.append("release_offset_s")
             kinds.append("tau")
+        self.timed = data.timing_range_s is not None
+        if self.timed:
+            names.append("timing2_s")
+            kinds.append("timing")
         self.names, self.kinds = tuple(names), tuple(kinds)
         base = fast_planar.coefficients([params])
         for name in _DAMPING["both"]:  # a law's absent terms are zero
@@ -146,24 +155,28 @@ class _Model:
         for j, name in enumerate(self.damping):
             coef[_ROW[name]] = x[j]
         omega0 = x[p + 2 : p + 4] if self.moving else (0.0, 0.0)
-        release = 0.0 if self.moving else float(x[-1])
+        release = 0.0 if self.moving else float(x[p + 2])
+        at = (self.data.at[0], self.data.at[1] + x[-1]) if self.timed else self.data.at
         return fast_planar.rates_at(
-            coef, x[p : p + 2], omega0, self.data.at, FIT_DT_S, release_s=release, wrt=wrt, sensitivities_out=sens,
+            coef, x[p : p + 2], omega0, at, FIT_DT_S, release_s=release, wrt=wrt, sensitivities_out=sens,
             inputs=self.data.inputs,
         )  # fmt: skip
 
     def full(self, x: Floats) -> tuple[Floats, Floats]:
         """Normalised residuals (n,) and Jacobian (n, P) at x, from one kernel pass (the kernel
         writes the sensitivities straight into the Jacobian's columns)."""
-        rolled = tuple(name for name in self.names if name != "release_offset_s")
+        rolled = tuple(name for name in self.names if name not in ("release_offset_s", "timing2_s"))
         d = self.data
         m0 = len(d.at[0])
         jac = np.empty((m0 + len(d.at[1]), len(x)))
         sens = (jac[:m0, : len(rolled)], jac[m0:, : len(rolled)])
         (r0, r1), _, (t0, t1) = self._evaluate(x, rolled, sens)
         if not self.moving:
-            jac[:m0, -1] = t0
-            jac[m0:, -1] = t1
+            jac[:m0, len(rolled)] = t0
+            jac[m0:, len(rolled)] = t1
+        if self.timed:  # M2's values belong a little later: its rate moves by alpha = -d rate / d release
+            jac[:m0, -1] = 0.0
+            jac[m0:, -1] = -t1
         jac[:m0] /= d.sigma[0]
         jac[m0:] /= d.sigma[1]
         return np.concatenate([(r0 - d.gyro[0]) / d.sigma[0], (r1 - d.gyro[1]) / d.sigma[1]]), jac
@@ -239,6 +252,10 @@ def fit_law(
         x0.append(guess.get("release_offset_s", 0.0))
     low = [0.0] * len(model.damping) + [-math.inf] * 2 + ([-math.inf] * 2 if moving else [-MAX_RELEASE_OFFSET_S])
     high = [math.inf] * (len(x0) - (0 if moving else 1)) + ([] if moving else [MAX_RELEASE_OFFSET_S])
+    if data.timing_range_s is not None:
+        x0.append(guess.get("timing2_s", 0.0))
+        low.append(data.timing_range_s[0])
+        high.append(data.timing_range_s[1])
     scale = np.array([_SCALE[k] for k in model.kinds])
     n_res = len(data.at[0]) + len(data.at[1])
     result = optimize.least_squares(
@@ -289,6 +306,7 @@ def fit_planar(
     moving: bool | None = None,
     law: str = "auto",
     drive: Drive | None = None,
+    timing_range_s: tuple[float, float] | None = None,
 ) -> list[LawFit]:
     """Fit the hinge losses and the start state of a free decay (or of a driven run) on the
     planar model.
@@ -304,6 +322,8 @@ def fit_planar(
       law: "viscous", "coulomb", "both", or "auto" (all three).
       drive: the run's drive, its time 0 at the start (for a release: at the fitted release
         instant, the drive starting with the swing), or None for a free decay.
+      timing_range_s: (lo_s <= 0, hi_s >= 0): fit the shift of M2's value instants against M1's
+        within it, s (``MeasuredRun.relative_timing_range_s``); None: the instants as given.
 
     Returns:
       The fit of each law tried, the one with the smallest BIC first.
@@ -324,9 +344,12 @@ def fit_planar(
             raise ParameterError(f"node {k + 1} has {len(at[-1])} usable gyro samples; the fit needs at least 10")
     inputs = None
     if drive:  # the steps the latest release offset needs (``fast_planar.rates_at``), and one more
-        end_s = max(float(at[0][-1]), float(at[1][-1])) + MAX_RELEASE_OFFSET_S
+        end_s = max(float(at[0][-1]), float(at[1][-1])) + MAX_RELEASE_OFFSET_S + max(0.0, *(timing_range_s or ()))
         inputs = held_inputs(drive, math.ceil(end_s / FIT_DT_S) + 2, FIT_DT_S)
-    data = _Data((at[0], at[1]), (gyro[0], gyro[1]), np.asarray(gyro_sigma_rad_s, dtype=float), inputs)
+    if timing_range_s is not None and not timing_range_s[0] <= 0.0 <= timing_range_s[1]:
+        raise ParameterError(f"timing_range_s must hold 0 (the instants as given), got {timing_range_s!r}")
+    sigma = np.asarray(gyro_sigma_rad_s, dtype=float)
+    data = _Data((at[0], at[1]), (gyro[0], gyro[1]), sigma, inputs, timing_range_s)
     if moving is None:
         moving = bool(np.any(np.abs(np.asarray(omega0_rad_s, dtype=float)) > 0))
     if law != "auto":
@@ -342,6 +365,7 @@ def fit_planar(
         f"friction{k + 1}_n_m": b[k] * float(np.mean(gyro[k] ** 2)) / max(float(np.mean(np.abs(gyro[k]))), 1e-12)
         for k in range(2)
     }
+    equivalent["timing2_s"] = viscous.value("timing2_s")
     dry = fit_law(params, "coulomb", data, phi_v, omega_v, moving, guess=equivalent)
     # "both" nests the two: it starts from the better of them, the other law's terms at ~0 (its
     # cost can then only fall below both: RSS_both <= min(RSS_viscous, RSS_coulomb))

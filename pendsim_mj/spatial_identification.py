@@ -59,6 +59,7 @@ from pendsim_mj.params import PARAMETER_LIMITS, RigParams
 NAMES = ("tilt_stiffness_n_m_rad", "tilt_damping_n_m_s_rad", "b1_n_m_s", "b2_n_m_s")
 START_RELEASE = ("phi1_0", "phi2_0", "release_offset_s")  # a release from rest
 START_MOVING = ("phi1_0", "phi2_0", "omega1_0", "omega2_0")  # a start in motion
+TIMING = "timing2_s"  # M2's value instants shifted against M1's (the nodes' relative fusion timing)
 TILT_STARTS = ("zero", "static")
 GYROS = ("imu_m1_gyro", "imu_m2_gyro")
 WINDOWS_S = (4.0, 12.0, math.inf)  # continuation: each fit starts from the previous one's values
@@ -157,6 +158,7 @@ def fit_tilt(
     names: tuple[str, ...] = NAMES,
     moving: bool | None = None,
     tilt_start: str = "zero",
+    timing_range_s: tuple[float, float] | None = None,
 ) -> TiltFit:
     """Fit ``names`` and the start state to both nodes' gyros in their swing frames.
 
@@ -173,6 +175,9 @@ def fit_tilt(
       moving: the run starts in motion (fit the start rates, no release offset); default: any
         |omega_0| above 0.
       tilt_start: the support's tilt at the start, "zero" or "static" (``TILT_STARTS``).
+      timing_range_s: (lo_s <= 0, hi_s >= 0): fit the shift of M2's value instants against M1's
+        within it, s (``MeasuredRun.relative_timing_range_s``, as the planar fit does: the
+        alignment leaves the nodes' relative fusion timing open within it); None: as given.
     """
     if not names or any(n not in NAMES for n in names):
         raise ParameterError(f"names must be a non-empty subset of {NAMES}, got {names!r}")
@@ -204,10 +209,14 @@ def fit_tilt(
         moving = any(abs(w) > 0 for w in omega0_rad_s)
     start_names = START_MOVING if moving else START_RELEASE
     start_values = [*phi0_rad, *omega0_rad_s] if moving else [*phi0_rad, 0.0]
+    if timing_range_s is not None:
+        start_names, start_values = (*start_names, TIMING), [*start_values, 0.0]
     start = time.perf_counter()
     values = np.array([getattr(params, n) for n in names] + start_values, dtype=float)
     all_names = (*names, *start_names)
     bounds = _bounds(all_names, values)
+    if timing_range_s is not None:
+        bounds[TIMING] = (float(timing_range_s[0]), float(timing_range_s[1]))
     iterations = 0
     end_s = max(float(c[0][-1]) for c in columns)
     for window in WINDOWS_S:
@@ -290,13 +299,14 @@ def _fit_window(sysid, params, columns, sigma, start_values, names, bounds, tilt
     def residual(p, pred, meas, _model, _return_all, state=None):
         stamps = pred.times - dt  # sysid stamps each prediction one step late (see identification.py)
         tau = value(p, "release_offset_s")
+        shift = (0.0, value(p, TIMING))  # M2's values may belong a little later than the alignment put them
         spline = (
             CubicSpline(stamps, pred.data[:, adr[0] : adr[0] + 3]),
             CubicSpline(stamps, pred.data[:, adr[1] : adr[1] + 3]),
         )
         per_node = []
         for k, (at, measured) in enumerate(columns):
-            since = at - tau  # the model rests until the release at tau
+            since = at + shift[k] - tau  # the model rests until the release at tau
             predicted = np.where((since >= 0)[:, None], spline[k](np.maximum(since, 0.0)), 0.0)
             predicted = predicted @ best_rotation(predicted, measured).T
             per_node.append([(predicted[:, j] - measured[:, j]) / sigma[k, j] for j in range(3)])

@@ -32,6 +32,7 @@ def _fit(traj, config, law="viscous", hold_s=1.0):
     return fit_planar(
         DEFAULT_PARAMS, at, omega, gyro_sigma_rad_s=run.gyro_sigma_rad_s, phi0_rad=run.start.phi_rad,
         omega0_rad_s=run.start.omega_rad_s, moving=run.start.kind != "release", law=law,
+        timing_range_s=run.relative_timing_range_s,
     )  # fmt: skip
 
 

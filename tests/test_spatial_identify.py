@@ -113,7 +113,10 @@ def _tilt_fit(truth, run, tilt_start="zero"):
     """The tilt fit from the assumed defaults, as identify --model spatial starts it."""
     base = truth.with_mapping({n: getattr(DEFAULT_PARAMS, n) for n in NAMES})
     t, gyro, sigma = gyro_in_swing_frames(run, [None, None])
-    return fit_tilt(base, run.start.phi_rad, t, gyro, sigma, omega0_rad_s=run.start.omega_rad_s, tilt_start=tilt_start)
+    return fit_tilt(
+        base, run.start.phi_rad, t, gyro, sigma, omega0_rad_s=run.start.omega_rad_s, tilt_start=tilt_start,
+        timing_range_s=run.relative_timing_range_s,
+    )  # fmt: skip
 
 
 def test_tilt_intervals_cover_the_true_tilt_values_over_seeded_spatial_records():
