@@ -59,6 +59,7 @@ from pendsim_mj.timing import (
     fusion_phase,
     fusion_phase_stretch,
     nominal_rate_hz,
+    roughness,
 )
 
 Floats = NDArray[np.float64]
@@ -263,6 +264,25 @@ def _floating(values: Floats) -> Floats:
     is computed from them is float64), anything else as float64."""
     a = np.asarray(values)
     return a if a.dtype in (np.float32, np.float64) else a.astype(float)
+
+
+HOLD_TEST_S = 30.0  # how much of the fastest swing tells held fused values from stamped ones, s
+
+
+def _shows_fusion_hold(node: _Node, fusion_rate_hz: float, phase_s: float) -> bool:
+    """Whether a node's values are a fused chip's held values: its gyro is smoother on the fused
+    value instants (the latest fusion tick before each stamp) than on the stamps themselves.
+    A BNO055 in NDOF mode shows it clearly (the roughness drops 5-70x on its own data); values
+    sampled at their stamps (a simulation, another sensor, resampled logs) get 4-30x rougher on
+    held instants, and pretending they were held misplaces them by up to one fusion period."""
+    max_step = 2.5 / node.rate_hz
+    # judged around the fastest swing (30 s): at rest, noise alone is rougher on held instants
+    half = int(HOLD_TEST_S * node.rate_hz / 2)
+    fastest = int(np.argmax(np.einsum("ij,ij->i", node.gyro, node.gyro)))
+    near = slice(max(fastest - half, 0), fastest + half)
+    stamp, gyro = node.stamp[near], node.gyro[near]
+    held = roughness(fused_value_instants(stamp, fusion_rate_hz, phase_s), gyro, max_step)
+    return held < roughness(stamp, gyro, max_step)
 
 
 def _prepare(samples: NodeSamples, index: int) -> _Node:
@@ -731,7 +751,11 @@ def align(
     phases: list[float | None] = [None, None]
     timing_range: tuple[float, float] | None = None
     if fusion_rate_hz:  # where each chip's fusion ticks fall: the phase that makes its gyro smoothest
-        phases = [fusion_phase(n.stamp, n.gyro, fusion_rate_hz) for n in prepared]
+        estimated = [fusion_phase(n.stamp, n.gyro, fusion_rate_hz) for n in prepared]
+        if any(_shows_fusion_hold(n, fusion_rate_hz, p) for n, p in zip(prepared, estimated, strict=True)):
+            phases = list(estimated)
+        else:  # values taken at their stamps, not a chip's held fused values
+            fusion_rate_hz = None
     instants = [n.value_instants(fusion_rate_hz, p) for n, p in zip(prepared, phases, strict=True)]
     first = max(float(n.t[0]) for n in prepared)
     last = min(float(n.t[-1]) for n in prepared)
