@@ -17,7 +17,9 @@ is left out with ``--node m1`` for a file of one node). A time column may belong
 (``m1.t_s``). Without a time column, the file's own waveform timing is used (LVM X0/Delta_X, TDMS
 wf_increment), else a uniform ``rate_hz``. Units as for acquisition (``accel=m/s2,gyro=dps``).
 Every value must be a finite number, times must increase, quaternions must be unit length and
-calibration levels 0-3: anything else is an error naming the row and column.
+calibration levels 0-3: anything else is an error naming the file line (or TDMS sample) and column.
+A file without orientation, or whose median acceleration is far from g (a unit mix-up), is noted.
+The sample rate in the metadata is ``timing.nominal_rate_hz`` of the first node's times.
 
 Log times are the file's times, taken as UTC when they are Unix times; with ``start_utc_ns`` the
 first sample is at that instant (for times counted from a node's boot). /tf_static is at the
@@ -39,6 +41,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from pendsim_bridge.acquire.packets import (
+    ACCEL_UNITS,
     COLUMN_NAMES,
     GROUP_SLICES,
     QUAT_NORM_RANGE,
@@ -54,6 +57,8 @@ from pendsim_mj import __version__
 from pendsim_mj.errors import ParameterError, RecordingError
 from pendsim_mj.outputs import atomic_output
 from pendsim_mj.params import DEFAULT_PARAMS, RigParams
+from pendsim_mj.sensors import STANDARD_GRAVITY_M_S2
+from pendsim_mj.timing import nominal_rate_hz
 
 IMPORT_FORMATS = ("csv", "lvm", "tdms")
 UNIX_2000_S = 946_684_800.0  # 2000-01-01T00:00:00Z: file times from here on are taken as Unix (UTC) times
@@ -71,6 +76,14 @@ class Table:
     timing: tuple[float, float] | None = None  # (delta_s, x0_s)
     notes: tuple[tuple[str, str], ...] = ()
     skipped: tuple[str, ...] = ()  # what reading left out, for the user (lines before the header, ...)
+    lines: tuple[int, ...] | None = None  # the file line (1-based, all lines counted) of each row; None: no lines
+
+    def where(self, row: int) -> str:
+        """Where row ``row`` (0-based) is in the file, for messages: "line 12" (text files: the
+        file's own line number, header and skipped lines counted) or "sample 12" (TDMS)."""
+        if self.lines is not None and 0 <= row < len(self.lines):
+            return f"line {self.lines[row]}"
+        return f"sample {row + 1}"
 
 
 @dataclasses.dataclass(frozen=True)
@@ -213,7 +226,7 @@ def read_csv(path: Path) -> Table:
     try:  # numpy's conversion; the loop below finds the line to blame when it fails
         values = np.array([parts for _, parts in data], dtype=float)
         if values.shape == (len(data), len(names)):
-            return Table(names, values, skipped=tuple(notes))
+            return Table(names, values, skipped=tuple(notes), lines=tuple(number for number, _ in data))
     except ValueError:
         pass
     values = np.empty((len(data), len(names)))
@@ -227,7 +240,22 @@ def read_csv(path: Path) -> Table:
             k = next(i for i, p in enumerate(parts) if not _is_number(p))
             what = f"column {k + 1} ({names[k]!r})" if header else f"column {k + 1}"
             raise RecordingError(f"{path}: line {number}, {what}: {parts[k]!r} is not a number") from None
-    return Table(names, values, skipped=tuple(notes))
+    return Table(names, values, skipped=tuple(notes), lines=tuple(number for number, _ in data))
+
+
+def _lvm_data_lines(path: Path, rows: int) -> tuple[int, ...] | None:
+    """The file lines (1-based) of the first segment's ``rows`` data rows: the non-empty lines
+    after the channel-name line that follows the second ``***End_of_Header***``; None if the file
+    does not have that layout."""
+    try:
+        text = path.read_text(encoding="utf-8", errors="replace").splitlines()
+    except OSError:
+        return None
+    ends = [i for i, line in enumerate(text) if line.startswith("***End_of_Header***")]
+    if len(ends) < 2:
+        return None
+    found = [i + 1 for i in range(ends[1] + 2, len(text)) if text[i].strip()][:rows]
+    return tuple(found) if len(found) == rows else None
 
 
 def read_lvm(path: Path) -> Table:
@@ -238,7 +266,11 @@ def read_lvm(path: Path) -> Table:
         # Never the pickle cache beside the user's file: read the text, write nothing.
         lvm = lvm_read.read(str(path), read_from_pickle=False, dump_file=False)
     except (ValueError, IndexError, KeyError, SyntaxError) as exc:
-        raise RecordingError(f"{path}: not a LabVIEW measurement file ({exc})") from None
+        why = re.sub(r"\s*If the header has no .*", "", str(exc), flags=re.S).rstrip(". ")  # advice for lvm-read's API
+        raise RecordingError(
+            f"{path}: not a LabVIEW measurement file ({why}); import reads .lvm files as LabVIEW writes them: a "
+            "'LabVIEW Measurement' header whose Separator (Tab or Comma) splits the data; a plain table is --format csv"
+        ) from None
     except OSError as exc:
         raise RecordingError(f"{path}: cannot read: {exc.strerror}") from None
     segment = lvm.get(0)
@@ -258,7 +290,7 @@ def read_lvm(path: Path) -> Table:
         if deltas and deltas[0] > 0:
             timing = (float(deltas[0]), float(x0[0]) if x0 else 0.0)
     notes = tuple((f"lvm_{key.lower()}", str(lvm[key])) for key in ("Date", "Time", "Operator") if key in lvm)
-    return Table(tuple(names), data, timing, notes)
+    return Table(tuple(names), data, timing, notes, lines=_lvm_data_lines(path, len(data)))
 
 
 def read_tdms(path: Path) -> Table:
@@ -407,7 +439,7 @@ def node_samples(
         column = table.values[:, index]
         bad = np.flatnonzero(~np.isfinite(column))
         if len(bad):
-            raise RecordingError(f"{path}: row {bad[0] + 1}, column {table.names[index]!r}: not a finite number")
+            raise RecordingError(f"{path}: {table.where(bad[0])}, column {table.names[index]!r}: not a finite number")
         if name == "calib":
             if np.any((column != np.rint(column)) | (column < 0) | (column > 255)):
                 raise RecordingError(f"{path}: column {table.names[index]!r}: CALIB_STAT must be an integer 0-255")
@@ -415,23 +447,61 @@ def node_samples(
             rows[:, GROUP_SLICES["calib"]] = levels
         else:
             rows[:, ROW_INDEX[name]] = column * scales[ROW_INDEX[name]]
-    if not np.all(np.isfinite(t)):
-        raise RecordingError(f"{path}: the time column holds a value that is not a finite number")
+    bad_t = np.flatnonzero(~np.isfinite(t))
+    if len(bad_t):
+        raise RecordingError(f"{path}: {table.where(bad_t[0])}: the time is not a finite number")
     back = np.flatnonzero(np.diff(t) <= 0)
     if len(back):
         raise RecordingError(
-            f"{path}: time does not increase at row {back[0] + 2} ({t[back[0]]:g} s, then {t[back[0] + 1]:g} s)"
+            f"{path}: time does not increase at {table.where(back[0] + 1)} ({t[back[0]]:g} s, then "
+            f"{t[back[0] + 1]:g} s)"
         )
     if "quat" in columns.groups:
         norm = np.linalg.norm(rows[:, GROUP_SLICES["quat"]], axis=1)
         off = np.flatnonzero((norm < QUAT_NORM_RANGE[0]) | (norm > QUAT_NORM_RANGE[1]))
         if len(off):
-            raise RecordingError(f"{path}: row {off[0] + 1}: the quaternion has norm {norm[off[0]]:.3g}, not 1")
+            raise RecordingError(f"{path}: {table.where(off[0])}: the quaternion has norm {norm[off[0]]:.3g}, not 1")
     if "calib" in columns.groups:
         levels = rows[:, GROUP_SLICES["calib"]]
         if np.any(~np.isin(levels, (0.0, 1.0, 2.0, 3.0))):
             raise RecordingError(f"{path}: calibration levels must be 0-3")
     return t, rows, timing
+
+
+ACCEL_G_RANGE = (0.5, 2.0)
+"""A file's median acceleration magnitude outside this range of g is noted as a likely unit mix-up
+(a node at rest reads 1 g; a swinging pendulum stays within it over most of a run)."""
+
+
+def data_notes(groups: tuple[str, ...], rows: list[NDArray[np.float64]], units: Units) -> list[str]:
+    """Notes on what the imported values cannot serve or look wrong: no orientation (validate,
+    identify and view need it), or a median acceleration far from g (the --units wrong).
+
+    Args:
+      groups: the quantities the file carries (``packets.GROUPS`` names).
+      rows: per node (n, len(ROW_FIELDS)) values in SI units.
+      units: the units the values were read in.
+    """
+    notes = []
+    if "quat" not in groups:
+        notes.append(
+            "no orientation (quaternion columns qw,qx,qy,qz): validate, identify and view need it; "
+            "inspect and allan read the recording"
+        )
+    group = "accel" if "accel" in groups else "gravity" if "gravity" in groups else None
+    if group is not None:
+        magnitude = np.concatenate([np.linalg.norm(r[:, GROUP_SLICES[group]], axis=1) for r in rows])
+        median = float(np.median(magnitude))
+        low, high = (f * STANDARD_GRAVITY_M_S2 for f in ACCEL_G_RANGE)
+        if not low <= median <= high:
+            raw = median / ACCEL_UNITS[units.accel]  # in the file's own numbers
+            fits = [u for u, scale in ACCEL_UNITS.items() if low <= raw * scale <= high and u != units.accel]
+            hint = f"are the values in {fits[0]}? give --units accel={fits[0]}" if fits else "check --units accel"
+            notes.append(
+                f"the median {'acceleration' if group == 'accel' else 'gravity'} magnitude is {median:.3g} m/s2 "
+                f"(read as accel={units.accel}), far from g = {STANDARD_GRAVITY_M_S2:.2f} m/s2 as at rest: {hint}"
+            )
+    return notes
 
 
 def _sha256(path: Path) -> str:
@@ -479,7 +549,9 @@ def import_file(
             f"one node ({next(iter(per_node))}): inspect and allan read the recording; validate, identify and view "
             "need both nodes"
         )
-    rate = float(np.median(np.diff(next(iter(per_node.values()))[0]))) if len(table.values) > 1 else 0.0
+    notes += data_notes(mapped[0].groups, [rows for _, rows, _ in per_node.values()], spec.units)
+    first_t = next(iter(per_node.values()))[0]
+    rate = round(nominal_rate_hz(first_t), 6) if len(first_t) > 1 else 0.0
     metadata = {
         "pendsim/import": {
             "source_file": str(source.resolve()),
@@ -497,7 +569,7 @@ def import_file(
             "mjcf": spec.mjcf_source,
             **dict(table.notes),
         },
-        "pendsim/imu": {"sample_rate_hz": repr(1.0 / rate) if rate > 0 else "0", **BNO055_NDOF},
+        "pendsim/imu": {"sample_rate_hz": repr(rate), **BNO055_NDOF},
     }
     mjcf = spec.mjcf_xml if spec.mjcf_xml is not None else exact_mjcf(spec.params)
     log_ns = {node: base_ns + np.rint((t + shift_s) * 1e9).astype(np.int64) for node, (t, _, _) in per_node.items()}

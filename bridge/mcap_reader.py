@@ -70,6 +70,7 @@ from pendsim_bridge.mcap_records import (
     DecompressionError,
     check_inflation,
     decompress,
+    import_hint,
 )
 from pendsim_bridge.mcap_writer import METADATA_CRC_KEY, metadata_crc
 from pendsim_mj.errors import RecordingError
@@ -465,7 +466,9 @@ def open_map(path: Path) -> tuple[Any, int]:
             raise RecordingError(f"{path}: not a regular file (a FIFO, device or folder); pendsim reads .mcap files")
         size = info.st_size
         if size < len(MCAP_MAGIC):
-            raise RecordingError(f"{path}: not an MCAP file ({size} bytes, shorter than the MCAP magic)")
+            raise RecordingError(
+                f"{path}: not an MCAP file ({size} bytes, shorter than the MCAP magic){import_hint(path)}"
+            )
         return mmap.mmap(fd, 0, access=mmap.ACCESS_READ), size
     except OSError as exc:
         raise RecordingError(f"{path}: cannot read: {exc.strerror}") from None
@@ -488,7 +491,7 @@ def scan_mcap(path: str | Path, *, recover: bool = True) -> McapFile:
     buf, size = open_map(path)
     if buf[: len(MCAP_MAGIC)] != MCAP_MAGIC:
         buf.close()
-        raise RecordingError(f"{path}: not an MCAP file (no MCAP magic at the start; {size} bytes)")
+        raise RecordingError(f"{path}: not an MCAP file (no MCAP magic at the start; {size} bytes){import_hint(path)}")
     return _Scanner(path, buf, size, recover).run()
 
 

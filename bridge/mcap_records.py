@@ -11,12 +11,26 @@ from __future__ import annotations
 
 import io
 import struct
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 from mcap.opcode import Opcode
 
 MCAP_MAGIC = b"\x89MCAP0\r\n"
+
+LAB_FILE_SUFFIXES = (".csv", ".lvm", ".tdms")  # what ``pendsim import`` turns into a recording
+
+
+def import_hint(path: Path) -> str:
+    """For a lab file (CSV, LabVIEW .lvm, TDMS by its extension) given where a recording is read:
+    the command that converts it, to end a "not an MCAP file" message; else ""."""
+    if path.suffix.lower() not in LAB_FILE_SUFFIXES:
+        return ""
+    kind = path.suffix.lower()[1:].upper()
+    return f"; a {kind} lab file becomes a recording with 'pendsim import {path} -o run.mcap'"
+
+
 RECORD_HEAD = struct.Struct("<BQ")  # opcode, body length
 # A Message record: opcode, length, channel id, sequence, log time, publish time, then the data.
 MESSAGE_PREFIX = np.dtype(

@@ -179,7 +179,7 @@ def input_file(text: str) -> Path:
 def mcap_file(text: str) -> Path:
     """An existing regular file (``input_file``) that starts with the MCAP magic: checked while
     parsing, so that a wrong input is named before anything else (e.g. an output that exists)."""
-    from pendsim_bridge.mcap_records import MCAP_MAGIC
+    from pendsim_bridge.mcap_records import MCAP_MAGIC, import_hint
 
     path = input_file(text)
     try:
@@ -188,7 +188,7 @@ def mcap_file(text: str) -> Path:
     except OSError as exc:
         raise argparse.ArgumentTypeError(f"{text}: cannot read: {exc.strerror}") from None
     if head != MCAP_MAGIC:
-        raise argparse.ArgumentTypeError(f"{text}: not an MCAP file (no MCAP magic at the start)")
+        raise argparse.ArgumentTypeError(f"{text}: not an MCAP file (no MCAP magic at the start){import_hint(path)}")
     return path
 
 

@@ -224,13 +224,36 @@ def coverage(t_s: Floats, max_gap_s: float, nominal_rate_hz: float) -> Coverage:
     )
 
 
+GAP_PERIODS = 1.5
+"""A spacing longer than this many nominal periods is a gap (samples lost), not a sampling step."""
+
+
 def nominal_rate_hz(t_s: Floats) -> float:
-    """The sending rate of a node that may lose samples: one over the median spacing, Hz."""
-    step = np.diff(np.asarray(t_s, dtype=float))
-    step = step[step > 0]
+    """The sending rate of a node that may lose samples, Hz: one over the slope of the instants
+    against their sample numbers (least squares), a gap counting the periods it spans.
+
+    The period is first the mean of the regular steps (repeated instants and gaps, steps longer
+    than ``GAP_PERIODS`` median steps, left out); each step then counts rint(step / period)
+    sample numbers, and the fit is done twice. Right for quantised stamps: an 80 Hz node
+    stamping with millis() has steps of 12 and 13 ms whose median is either (83.3 or 76.9 Hz),
+    while the fit averages the 1 ms ticks out over the whole run.
+
+    Args:
+      t_s: (n,) sample instants, increasing, s.
+    """
+    t = np.asarray(t_s, dtype=float)
+    all_steps = np.diff(t)
+    step = all_steps[all_steps > 0]
     if not len(step):
         raise RecordingError("no two samples at different instants: no sampling rate")
-    return 1.0 / float(np.median(step))
+    regular = step[step <= GAP_PERIODS * float(np.median(step))]
+    period = float(regular.sum()) / len(regular)
+    centred = t - t.mean()
+    for _ in range(2):
+        k = np.concatenate([[0.0], np.cumsum(np.rint(np.maximum(all_steps, 0.0) / period))])
+        k -= k.mean()
+        period = float(np.dot(k, centred) / np.dot(k, k))
+    return 1.0 / period
 
 
 def check_max_gap(max_gap_s: float) -> None:

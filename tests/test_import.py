@@ -166,11 +166,16 @@ def _error(capsys) -> str:
         ("boot ok\nt_s,m1.gx,m1.gy,m1.gz\n1,2,3\n", [], "no complete data line"),
         ("t_s,m1.gx,m1.gy,m1.gz\n0,1,2,3\n", ["--start-utc", "2026-11-25T10:00"], "has no time zone: end it in Z"),
         ("t_s,m1.gx,m1.gy,m1.gz\n0,1,2,3\n", ["--start-utc", "noon"], "is not an ISO 8601 time"),
-        ("t_s,m1.gx,m1.gy,m1.gz\n1,1,2,3\n0,1,2,3\n", [], "time does not increase at row 2"),
-        ("t_s,m1.gx,m1.gy,m1.gz\n0,nan,2,3\n1,1,2,3\n", [], "row 1, column 'm1.gx': not a finite number"),
+        ("t_s,m1.gx,m1.gy,m1.gz\n1,1,2,3\n0,1,2,3\n", [], "time does not increase at line 3 (1 s, then 0 s)"),
+        ("t_s,m1.gx,m1.gy,m1.gz\n0,nan,2,3\n1,1,2,3\n", [], "line 2, column 'm1.gx': not a finite number"),
         ("m1.gx,m1.gy,m1.gz\n0,1,2\n", [], "no time column"),
         ("t_s,m1.gx,m1.gy,m1.gz\n0,1,2,3\n", ["--units", "gyro=rpm"], "unknown gyro unit 'rpm'"),
-        ("t_s,m1.qw,m1.qx,m1.qy,m1.qz\n0,0,0,0,0\n", [], "the quaternion has norm 0, not 1"),
+        ("t_s,m1.qw,m1.qx,m1.qy,m1.qz\n0,0,0,0,0\n", [], "line 2: the quaternion has norm 0, not 1"),
+        (  # file lines, not data rows: the comment, the blank line and the header count
+            "# lab run\n\nt_s,m1.gx,m1.gy,m1.gz\n0,1,2,3\n1,1,2,3\n1,1,2,3\n",
+            [],
+            "time does not increase at line 6 (1 s, then 1 s)",
+        ),
     ],
 )
 def test_bad_lab_files_are_one_line_exit_2_and_write_nothing(tmp_path, capsys, content, args, message):
@@ -184,6 +189,7 @@ def test_bad_lab_files_are_one_line_exit_2_and_write_nothing(tmp_path, capsys, c
     ("name", "content", "message"),
     [
         ("junk.lvm", "not a labview file\n", "not a LabVIEW measurement file"),
+        ("table.lvm", "t,a,b\n1,2,3\n", "as LabVIEW writes them: a 'LabVIEW Measurement' header whose Separator"),
         ("junk.tdms", "TDSm garbage" * 10, "not a TDMS file"),
         ("junk.dat", "1,2,3\n", "cannot tell the format from the extension '.dat'"),
         ("empty.csv", "", "no data lines"),
@@ -259,3 +265,114 @@ def test_boot_lines_trailing_commas_and_a_cut_last_line_are_left_out_with_a_note
     assert len(imu.t_ns) == 50
     np.testing.assert_allclose(imu.gyro_rad_s[:, 0], np.radians(gyro_dps), rtol=1e-15)
     np.testing.assert_array_equal(imu.t_ns - imu.t_ns[0], np.rint((t_ms - t_ms[0]) * 1e6).astype(np.int64))
+
+
+def test_lvm_errors_name_no_option_import_lacks(tmp_path, capsys):
+    (tmp_path / "table.csv").write_text("t,a,b\n1,2,3\n")
+    assert main(["import", str(tmp_path / "table.csv"), "--format", "lvm", "-o", str(tmp_path / "out.mcap")]) == 2
+    line = _error(capsys)
+    assert "not a LabVIEW measurement file" in line and "a plain table is --format csv" in line
+    assert "pass the separator" not in line
+
+
+def test_a_bad_value_in_an_lvm_file_is_named_by_its_file_line(tmp_path, capsys):
+    values = np.array([[0.0, 1.0, 2.0, 3.0], [0.0125, 1.0, 2.0, 3.0], [0.025, 1.0, math.nan, 3.0]])
+    write_lvm(tmp_path / "run.lvm", ["Ch0", "Ch1", "Ch2"], values)
+    lines = (tmp_path / "run.lvm").read_text().splitlines()
+    expected = next(i for i, line in enumerate(lines, start=1) if line.startswith("0.025000"))
+    args = ["import", str(tmp_path / "run.lvm"), "-o", str(tmp_path / "out.mcap"), "--columns", "t_s,m1.gx,m1.gy,m1.gz"]
+    assert main(args) == 2
+    assert f"line {expected}, column 'Ch1': not a finite number" in _error(capsys)
+
+
+def _arduino_csv(path, rows: int, *, accel_m_s2=(0.0, 0.0, 9.81), drop=()) -> np.ndarray:
+    """One node at rest logged at 80 Hz by a sketch stamping millis(): t_ms = floor(12.5 k), steps
+    of 12 and 13 ms; ``drop`` lists lost samples (numbers k)."""
+    rng = np.random.default_rng(7)
+    k = np.setdiff1d(np.arange(rows), np.asarray(drop, dtype=int))
+    t_ms = np.floor(123_456 + 12.5 * k).astype(np.int64)
+    gyro = rng.normal(0.0, 0.05, (len(k), 3))
+    accel = np.asarray(accel_m_s2) + rng.normal(0.0, 0.01, (len(k), 3))
+    body = "".join(
+        f"{t},{g[0]:.5f},{g[1]:.5f},{g[2]:.5f},{a[0]:.5f},{a[1]:.5f},{a[2]:.5f}\n"
+        for t, g, a in zip(t_ms, gyro, accel, strict=True)
+    )
+    path.write_text("t_ms,gx,gy,gz,ax,ay,az\n" + body)
+    return t_ms
+
+
+def test_millis_stamps_at_80_hz_give_80_hz_not_the_median_step(tmp_path, capsys):
+    from pendsim_mj.timing import DEFAULT_MAX_GAP_S, coverage, nominal_rate_hz
+
+    t_ms = _arduino_csv(tmp_path / "node.csv", 2000)  # an even count: 1000 steps of 12 ms, 999 of 13 ms
+    steps = np.diff(t_ms)
+    assert np.count_nonzero(steps == 12) == np.count_nonzero(steps == 13) + 1  # the median is 12 ms: 83.3 Hz
+    out = tmp_path / "node.mcap"
+    assert main(["import", str(tmp_path / "node.csv"), "-o", str(out), "--node", "m1"]) == 0
+    capsys.readouterr()
+    rec = read_recording(out)
+    written = rec.metadata["pendsim/imu"]["sample_rate_hz"]
+    assert float(written) == pytest.approx(80.0, abs=1e-3) and len(written) <= len("80.000001")
+    t_s = rec.imu["m1"].t_ns * 1e-9
+    assert nominal_rate_hz(t_s) == pytest.approx(80.0, abs=1e-3)
+    assert coverage(t_s, DEFAULT_MAX_GAP_S, nominal_rate_hz(t_s)).lost_fraction == 0.0  # validate's share lost
+    assert main(["allan", str(out), "--json"]) == 0
+    import json
+
+    assert json.loads(capsys.readouterr().out)["rate_hz"] == pytest.approx(80.0, abs=1e-3)
+
+
+def test_lost_samples_are_gaps_not_a_slower_rate(tmp_path):
+    from pendsim_mj.timing import DEFAULT_MAX_GAP_S, coverage, nominal_rate_hz
+
+    t_ms = _arduino_csv(tmp_path / "node.csv", 2000, drop=range(500, 540))  # 40 samples lost in one burst
+    t_s = t_ms * 1e-3
+    assert nominal_rate_hz(t_s) == pytest.approx(80.0, abs=1e-3)
+    assert coverage(t_s, DEFAULT_MAX_GAP_S, nominal_rate_hz(t_s)).lost_fraction == pytest.approx(40 / 2000, abs=1e-3)
+
+
+def test_a_file_without_quaternions_is_noted_as_unfit_for_validate(tmp_path, capsys):
+    _arduino_csv(tmp_path / "node.csv", 200)
+    assert main(["import", str(tmp_path / "node.csv"), "-o", str(tmp_path / "n.mcap"), "--node", "m1"]) == 0
+    notes = [line for line in capsys.readouterr().err.splitlines() if line.startswith("note: ")]
+    assert (
+        "note: no orientation (quaternion columns qw,qx,qy,qz): validate, identify and view need it; "
+        "inspect and allan read the recording"
+    ) in notes
+    assert not any("far from g" in n for n in notes)  # m/s2 read as m/s2: no unit note
+
+
+@pytest.mark.parametrize(
+    ("accel_m_s2", "units", "median", "hint"),
+    [
+        ((0.0, 0.0, 9.81), "accel=g", "96.2 m/s2 (read as accel=g)", "are the values in m/s2? give --units accel=m/s2"),
+        ((0.0, 0.0, 1.0), "accel=m/s2", "1 m/s2 (read as accel=m/s2)", "are the values in g? give --units accel=g"),
+        ((0.0, 0.0, 1000.0), "accel=m/s2", "1e+03 m/s2 (read as accel=m/s2)", "give --units accel=mg"),
+    ],
+)
+def test_an_acceleration_far_from_g_is_noted_as_a_unit_mix_up(tmp_path, capsys, accel_m_s2, units, median, hint):
+    _arduino_csv(tmp_path / "node.csv", 200, accel_m_s2=accel_m_s2)
+    args = ["import", str(tmp_path / "node.csv"), "-o", str(tmp_path / "n.mcap"), "--node", "m1", "--units", units]
+    assert main(args) == 0
+    notes = [line for line in capsys.readouterr().err.splitlines() if "far from g" in line]
+    assert len(notes) == 1 and f"magnitude is {median}, far from g = 9.81 m/s2" in notes[0] and hint in notes[0]
+
+
+@pytest.mark.parametrize("name", ["lab.csv", "run.LVM", "run.tdms"])
+def test_a_lab_file_given_as_a_recording_points_to_import(tmp_path, capsys, name):
+    (tmp_path / name).write_text("t_s,m1.gx,m1.gy,m1.gz\n0,1,2,3\n")
+    assert main(["validate", str(tmp_path / name)]) == 2
+    assert f"not an MCAP file (no MCAP magic at the start); a {name.split('.')[1].upper()} lab file becomes" in (
+        line := _error(capsys)
+    )
+    assert f"'pendsim import {tmp_path / name} -o run.mcap'" in line
+    from pendsim_bridge.recording import read_recording as read
+
+    with pytest.raises(Exception, match="pendsim import"):
+        read(tmp_path / name)
+
+
+def test_other_non_mcap_inputs_get_no_import_hint(tmp_path, capsys):
+    (tmp_path / "notes.mcap").write_text("hello, not a recording\n")
+    assert main(["inspect", str(tmp_path / "notes.mcap")]) == 2
+    assert "pendsim import" not in _error(capsys)
