@@ -82,7 +82,9 @@ def analyse(
         cannot take.
     """
     path = Path(path)
-    rec = read_recording(path, topics=[imu_topic(n) for n in NODES], progress=progress)
+    # only what the analysis uses: the log times, gyros and accelerometers (no orientations, stamps)
+    topics = [imu_topic(n) for n in NODES]
+    rec = read_recording(path, topics=topics, progress=progress, imu_fields=("gyro_rad_s", "accel_m_s2"))
     if not rec.imu:
         raise RecordingError(f"{path}: no /imu/m1 or /imu/m2 topic to analyse")
     rate = float(rec.metadata.get("pendsim/imu", {}).get("sample_rate_hz", "0") or 0)

@@ -338,6 +338,7 @@ def read_recording(
     topics: Collection[str] | None = None,
     progress: Callable[[int], None] | None = None,
     sensor_float32: bool = False,
+    imu_fields: Collection[str] | None = None,
 ) -> Recording:
     """Read a recording into numpy arrays per topic, chunk by chunk: each chunk's messages are
     decoded straight into per-field arrays (payloads are never all held at once).
@@ -352,6 +353,9 @@ def read_recording(
       sensor_float32: keep the IMU's orientation, angular velocity and acceleration as float32
         (half the memory of a long recording; the BNO055 outputs 16-bit integers, which float32
         holds to 1e-7 of their value, far below one LSB); stamps and log times stay int64.
+      imu_fields: decode only these ``ImuTopic`` fields of the IMU topics (e.g. ``("gyro_rad_s",
+        "accel_m_s2")`` for an Allan analysis; log times always); the others come back with no
+        rows. None: all of them. Every message is still checked as before.
 
     Raises:
       RecordingError: a damaged file (strict), or a known topic with an unexpected schema.
@@ -362,7 +366,7 @@ def read_recording(
         if strict and mcap.problems:
             raise RecordingError(mcap.error_text())
         wanted_topics = set(EXPECTED_SCHEMAS) - {"/tf_static"} if topics is None else set(topics)
-        decoders = _topic_decoders(path, mcap, wanted_topics, sensor_float32)
+        decoders = _topic_decoders(path, mcap, wanted_topics, sensor_float32, imu_fields)
         for chunk in mcap.chunks(channels=set(decoders), progress=progress):
             for cid, data in chunk.channels.items():
                 if cid in decoders:
@@ -402,7 +406,11 @@ def _start_time_ns(path: Path, mcap: McapFile) -> int:
 
 
 def _topic_decoders(
-    path: Path, mcap: McapFile, topics: set[str], sensor_float32: bool = False
+    path: Path,
+    mcap: McapFile,
+    topics: set[str],
+    sensor_float32: bool = False,
+    imu_fields: Collection[str] | None = None,
 ) -> dict[int, _TopicDecoder]:
     """A decoder per channel of the wanted known topics, after checking its schema."""
     out: dict[int, _TopicDecoder] = {}
@@ -425,6 +433,11 @@ def _topic_decoders(
             )
         count = sum(r.index_count(cid) for r in mcap.chunk_refs)
         out[cid] = _TopicDecoder(path, channel.topic, schema, count, sensor_float32)
+        if imu_fields is not None and schema.name == "sensor_msgs/msg/Imu":
+            unknown = set(imu_fields) - set(_TopicDecoder.IMU_FIELDS)
+            if unknown:
+                raise ValueError(f"imu_fields: no ImuTopic field {sorted(unknown)}; {sorted(_TopicDecoder.IMU_FIELDS)}")
+            out[cid].keep = {_TopicDecoder.IMU_FIELDS[f] for f in imu_fields}
     return out
 
 
@@ -486,6 +499,16 @@ class _TopicDecoder:
     CONSTANT = frozenset({"orientation_covariance", "angular_velocity_covariance", "linear_acceleration_covariance"})
 
     SENSOR = frozenset({"orientation", "angular_velocity", "linear_acceleration"})
+    IMU_FIELDS: ClassVar[dict[str, str]] = {
+        "stamp_ns": "sec",
+        "quat_wxyz": "orientation",
+        "gyro_rad_s": "angular_velocity",
+        "accel_m_s2": "linear_acceleration",
+        "orientation_covariance": "orientation_covariance",
+        "gyro_covariance": "angular_velocity_covariance",
+        "accel_covariance": "linear_acceleration_covariance",
+    }
+    """``ImuTopic`` fields by the message field they come from (``read_recording``'s imu_fields)."""
 
     def __init__(self, path: Path, topic: str, schema: Any, count: int, sensor_float32: bool = False) -> None:
         self.path, self.topic, self.schema = path, topic, schema
@@ -497,6 +520,7 @@ class _TopicDecoder:
         self.layout: ros2.FixedCdr | None = None
         self.frame_id = ""
         self._decoder: Callable[[bytes], Any] | None = None
+        self.keep: set[str] | None = None  # the fields decoded into columns (None: all)
 
     def add(self, data: ChannelData) -> None:
         if not len(data):
@@ -505,6 +529,8 @@ class _TopicDecoder:
         if fields is None:
             fields = self._one_by_one(data.payloads)
         self.columns["log"].add(data.log_time_ns)
+        if self.keep is not None:
+            fields = {k: v for k, v in fields.items() if k in self.keep or (k == "nanosec" and "sec" in self.keep)}
         if "sec" in fields:  # the header stamp in ns, chunk by chunk (no whole-run temporaries)
             fields["stamp"] = fields.pop("sec").astype(np.int64) * 1_000_000_000 + fields.pop("nanosec")
         if "orientation" in fields:

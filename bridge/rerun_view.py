@@ -24,6 +24,7 @@ from typing import TYPE_CHECKING
 
 import mujoco
 import numpy as np
+import pyarrow as pa
 import rerun as rr
 import rerun.blueprint as rrb
 
@@ -327,6 +328,18 @@ def log_trajectory(
         rr.send_columns(f"/plots/{q.name}/{series}", indexes=[times], columns=values)
 
 
+def _segments_arrow(ends: np.ndarray) -> pa.Array:
+    """Line strips of two points each, ends (m, 2, 3) m, as the Arrow array Rerun makes of them
+    (``LineStrip3DBatch``: the same offsets and float32 points), without its offset loop in
+    Python (one call per strip: about 0.7 s per hour of springs)."""
+    from rerun.components import LineStrip3DBatch
+    from rerun.encodings import Vec3DBatch
+
+    offsets = np.arange(0, 2 * len(ends) + 1, 2, dtype=np.int32)
+    points = Vec3DBatch(ends.reshape(-1)).as_arrow_array()
+    return pa.ListArray.from_arrays(offsets, points, type=LineStrip3DBatch._ARROW_DATATYPE)
+
+
 def log_springs(
     model: mujoco.MjModel,
     t_s: np.ndarray,
@@ -366,7 +379,9 @@ def log_springs(
     rr.send_columns(
         f"{root}/springs",
         indexes=[times],
-        columns=rr.LineStrips3D.columns(strips=ends.reshape(n * 4, 2, 3), colors=colours).partition([4] * n),
+        columns=rr.LineStrips3D.columns(strips=_segments_arrow(ends.reshape(n * 4, 2, 3)), colors=colours).partition(
+            [4] * n
+        ),
     )
     rr.log(f"{root}/springs", rr.LineStrips3D.from_fields(labels=list(SPRINGS), radii=0.002), static=True)
 

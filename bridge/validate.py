@@ -23,7 +23,7 @@ import json
 import math
 from collections.abc import Mapping
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -34,20 +34,15 @@ from pendsim_mj.checks import check_step
 from pendsim_mj.drives import Drive
 from pendsim_mj.engines import whole_steps_s
 from pendsim_mj.errors import ParameterError, RecordingError
-from pendsim_mj.identification import (
-    DampingFit,
-    LogDecrement,
-    ModalDecrement,
-    log_decrement,
-    modal_decrement,
-    planar_damping,
-)
 from pendsim_mj.outputs import atomic_directory
 from pendsim_mj.params import DEFAULT_PARAMS, RigParams
 from pendsim_mj.quantities import VALIDATED, Quantity
 from pendsim_mj.timing import DEFAULT_MAX_GAP_S
 from pendsim_mj.trajectory import Trajectory
 from pendsim_mj.validation import Comparison, compare, resample
+
+if TYPE_CHECKING:  # the identification (and scipy) is imported where it runs: the view needs none of it
+    from pendsim_mj.identification import DampingFit, LogDecrement, ModalDecrement
 
 NOMINAL_RELEASE_RAD = (math.pi / 6, 0.0)  # paper: the simulation releases M1 from 30 deg
 AT_REST_RAD_S = 0.1
@@ -243,6 +238,8 @@ def _identify(
     losses and start state together; the one call into ``pendsim_mj.identification``). A driven
     run (``drive``, time 0 at the start): the fit with the drive, no decrements (they assume a
     free decay)."""
+    from pendsim_mj.identification import log_decrement, modal_decrement, planar_damping
+
     decrement: list[LogDecrement] = []
     modal: ModalDecrement | None = None
     if drive is None:

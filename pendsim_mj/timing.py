@@ -263,19 +263,27 @@ def check_max_gap(max_gap_s: float) -> None:
         raise ParameterError(f"max_gap_s must be a finite number in (0, 10] s, got {max_gap_s!r}")
 
 
-def _second_difference_sums(t: Floats, v: Floats, max_step_s: float) -> tuple[float, int]:
+def _second_difference_sums(t: Floats, v: Floats, max_step_s: float, dv: Floats | None = None) -> tuple[float, int]:
     """(sum of squares, count) of the second divided differences of v (n, k) over t (n,), over
-    triples whose spacing stays within ``max_step_s``."""
+    triples whose spacing stays within ``max_step_s``; ``dv``: ``np.diff(v, axis=0)`` if the
+    caller has it (the same v at many t: ``fusion_phase``)."""
     h = np.diff(t)
     h1, h2 = h[:-1], h[1:]
     ok = (h1 > 0) & (h2 > 0) & (h1 <= max_step_s) & (h2 <= max_step_s)
     if not ok.any():
         return 0.0, 0
-    h1, h2 = h1[ok, None], h2[ok, None]
-    d1 = (v[1:-1][ok] - v[:-2][ok]) / h1
-    d2 = (v[2:][ok] - v[1:-1][ok]) / h2
-    second = 2.0 * (d2 - d1) / (h1 + h2)
-    return float(np.sum(second * second)), int(second.size)
+    if dv is None:
+        dv = np.diff(v, axis=0)
+    if ok.all():  # the usual case: slices, no gathered copies (the same values)
+        h1, h2, d1, d2 = h1[:, None], h2[:, None], dv[:-1], dv[1:]
+    else:
+        h1, h2, d1, d2 = h1[ok, None], h2[ok, None], dv[:-1][ok], dv[1:][ok]
+    second = np.divide(d2, h2)  # (v[2:] - v[1:-1]) / h2 - (v[1:-1] - v[:-2]) / h1, in place
+    second -= np.divide(d1, h1)
+    second *= 2.0
+    second /= h1 + h2
+    second *= second
+    return float(np.sum(second)), int(second.size)
 
 
 def _blocks(n: int):
@@ -324,9 +332,10 @@ def fusion_phase(stamp_s: Floats, values: Floats, fusion_rate_hz: float, *, step
     sums, counts = np.zeros(len(phases)), np.zeros(len(phases))
     for lo, hi in _blocks(len(stamp)):  # block by block, every phase: memory flat with the run
         block = v[lo:hi].astype(float)
+        dv = np.diff(block, axis=0)  # the same at every phase
         for j, p in enumerate(phases):
             instants = fused_value_instants(stamp[lo:hi], fusion_rate_hz, float(p))
-            s, c = _second_difference_sums(instants, block, max_step)
+            s, c = _second_difference_sums(instants, block, max_step, dv)
             sums[j] += s
             counts[j] += c
     costs = np.divide(sums, counts, out=np.zeros(len(phases)), where=counts > 0)

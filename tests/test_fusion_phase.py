@@ -101,3 +101,39 @@ def test_the_stretch_is_where_every_sample_keeps_its_tick():
             assert np.ptp(fused_value_instants(stamp_s, FUSION_HZ, inside) - at) < 1e-9
         for outside in (lo - 1e-7, hi + 1e-7):
             assert np.ptp(fused_value_instants(stamp_s, FUSION_HZ, outside) - at) > PERIOD_S / 2
+
+
+def _plain_second_difference_sums(t, v, max_step_s):
+    """The roughness sums written out directly: gathered triples, no shared differences."""
+    h = np.diff(t)
+    h1, h2 = h[:-1], h[1:]
+    ok = (h1 > 0) & (h2 > 0) & (h1 <= max_step_s) & (h2 <= max_step_s)
+    if not ok.any():
+        return 0.0, 0
+    h1, h2 = h1[ok, None], h2[ok, None]
+    d1 = (v[1:-1][ok] - v[:-2][ok]) / h1
+    d2 = (v[2:][ok] - v[1:-1][ok]) / h2
+    second = 2.0 * (d2 - d1) / (h1 + h2)
+    return float(np.sum(second * second)), int(second.size)
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_the_roughness_sums_equal_the_plain_computation_bit_for_bit_with_gaps_and_repeats(seed):
+    from pendsim_mj.timing import _second_difference_sums
+
+    rng = np.random.default_rng(seed)
+    n = 5000
+    step = rng.uniform(0.010, 0.015, n - 1)
+    step[rng.integers(0, n - 1, 8 * seed)] = rng.choice([0.0, 0.5], 8 * seed)  # repeats and gaps (none at seed 0)
+    t = np.concatenate([[0.0], np.cumsum(step)])
+    v = rng.normal(size=(n, 3))
+    for max_step_s in (0.03, 0.0125):
+        for phase_s in (0.0, 0.0031):
+            instants = fused_value_instants(t, FUSION_HZ, phase_s)
+            assert _second_difference_sums(instants, v, max_step_s) == _plain_second_difference_sums(
+                instants, v, max_step_s
+            )
+            dv = np.diff(v, axis=0)
+            assert _second_difference_sums(instants, v, max_step_s, dv) == _plain_second_difference_sums(
+                instants, v, max_step_s
+            )

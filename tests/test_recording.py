@@ -55,6 +55,24 @@ def test_every_topic_reads_back_exactly(recorded):
     np.testing.assert_array_equal(rec.joint_states.effort_n_m, traj.spring_moment_n_m)
 
 
+@pytest.mark.parametrize("fields", [("gyro_rad_s", "accel_m_s2"), ("stamp_ns", "quat_wxyz", "gyro_covariance")])
+def test_chosen_imu_fields_read_the_same_values_and_leave_the_others_empty(recorded, fields):
+    path, _, imu, _ = recorded
+    full = read_recording(path)
+    part = read_recording(path, imu_fields=fields)
+    names = ("stamp_ns", "quat_wxyz", "gyro_rad_s", "accel_m_s2", "orientation_covariance", "gyro_covariance")
+    for node in ("m1", "m2"):
+        np.testing.assert_array_equal(part.imu[node].t_ns, full.imu[node].t_ns)  # log times always
+        assert len(part.imu[node].t_ns) == len(imu.t_s)
+        for name in names:
+            got, want = getattr(part.imu[node], name), getattr(full.imu[node], name)
+            if name in fields:
+                np.testing.assert_array_equal(got, want)
+            else:
+                assert got.shape == (0, *want.shape[1:])
+    np.testing.assert_array_equal(part.joint_states.position_rad, full.joint_states.position_rad)  # other topics whole
+
+
 def test_timestamps_are_integer_nanoseconds_on_the_sample_grid(recorded):
     path, traj, imu, _ = recorded
     rec = read_recording(path)
