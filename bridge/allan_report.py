@@ -26,6 +26,7 @@ from pendsim_mj.allan import (
     still_samples,
 )
 from pendsim_mj.errors import RecordingError
+from pendsim_mj.timing import nominal_rate_hz
 
 SENSORS = (("accel", "m/s^2", "accelerometer"), ("gyro", "rad/s", "gyroscope"))
 # Units of the noise terms per sensor: N, B, K.
@@ -92,7 +93,7 @@ def analyse(
     for node, topic in rec.imu.items():
         if len(topic.t_ns) < 2:
             raise RecordingError(f"{path}: {imu_topic(node)} has {len(topic.t_ns)} message(s); need at least 20")
-        rates[node] = rate or 1e9 / float(np.median(np.diff(topic.t_ns)))
+        rates[node] = rate or nominal_rate_hz(topic.t_ns * 1e-9)
         motions[node] = motion = gyro_motion(topic.gyro_rad_s, rates[node])
         if not motion.static and not longest_segment:
             at_s = (topic.t_ns[motion.largest_index] - topic.t_ns[0]) * 1e-9
