@@ -118,6 +118,7 @@ class NodeResult:
     jitter_p50_ms: float  # residual delay beyond the fitted minimum: median
     jitter_p99_ms: float  # and 99th percentile
     host_dropped: int = 0  # datagrams this host's socket buffer dropped (counted in lost as well)
+    stamp_clock: ClockRelation | None = None  # the final fit from header stamp to log time (s since the start)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -160,6 +161,7 @@ class _Node:
         self.last_log_ns = -1  # latest log time released
         self.stamp_anchor: tuple[int, int] | None = None  # (device time us, header stamp ns) of the stamps' origin
         self.last_stamp_ns = -1  # latest header stamp released
+        self.stamp_origins = 0  # how many origins the stamps had (more than one: the node restarted)
         self.sock: socket.socket | None = None
         self.previous = NodeCounters()
         self.host_dropped = 0  # datagrams this host's socket dropped (its buffer was full)
@@ -420,7 +422,7 @@ def _run(
             _release(nodes, now, sink, live, utc_ns, start_ns, final=True)
             status_line.end()
             sink.add_diagnostics(now + utc_ns, _diagnostics(nodes, diag_marks, now))
-            results = tuple(_node_result(n) for n in nodes)
+            results = tuple(_node_result(n, start_utc_ns) for n in nodes)
             sink.add_metadata(
                 "pendsim/acquisition_result", _result_metadata(results, (now - start_ns) * 1e-9, stop_reason)
             )
@@ -527,6 +529,7 @@ def _device_stamps(node: _Node, device_us: NDArray[np.int64], t_ns: NDArray[np.i
         fresh = node.stamp_anchor is None
         if node.stamp_anchor is None:
             node.stamp_anchor = (int(device_us[i]), max(int(t_ns[i]), node.last_stamp_ns + 1))
+            node.stamp_origins += 1
         origin_us, origin_ns = node.stamp_anchor
         run = origin_ns + (device_us[i:] - origin_us) * 1000
         # The log times may part from rate-1 stamps by the fitted drift (at most MAX_DRIFT_PPM).
@@ -609,11 +612,26 @@ def _status_text(nodes: list[_Node], elapsed_s: float) -> str:
     return " | ".join(parts)
 
 
-def _node_result(node: _Node) -> NodeResult:
+def _node_result(node: _Node, start_utc_ns: int) -> NodeResult:
     line = node.line()
     p50, p99 = node.jitter_ms()
     drift = line.drift_ppm if line is not None and node.clock.span_s > 0 else math.nan
-    return NodeResult(node.spec.name, node.spec.port, node.stream.counters(), drift, p50, p99, node.host_dropped)
+    counters = node.stream.counters()
+    return NodeResult(
+        node.spec.name, node.spec.port, counters, drift, p50, p99, node.host_dropped, _stamp_clock(node, start_utc_ns)
+    )
+
+
+def _stamp_clock(node: _Node, start_utc_ns: int) -> ClockRelation | None:
+    """The node's final clock fit (over every packet's arrival) as a relation from its header
+    stamps to its log times, both s since ``start_utc_ns`` (the metadata's start_time_ns); None
+    unless its stamps had one origin and the fit spans ``WARMUP_S``."""
+    line = node.line()
+    if line is None or node.stamp_origins != 1 or node.stamp_anchor is None or node.clock.span_s < WARMUP_S:
+        return None
+    origin_us, origin_ns = node.stamp_anchor  # stamp (s since start) = device_s - origin_us 1e-6 + origin_rel_s
+    origin_rel_s = (origin_ns - start_utc_ns) * 1e-9
+    return ClockRelation(line.offset_s, line.rate, line.stamp0_s - origin_us * 1e-6 + origin_rel_s)
 
 
 def _nothing_arrived(results: tuple[NodeResult, ...], spec: AcquireSpec, duration_s: float) -> str:
@@ -640,6 +658,9 @@ def _result_metadata(results: tuple[NodeResult, ...], duration_s: float, stop_re
         out[f"{r.name}.jitter_p50_ms"] = f"{r.jitter_p50_ms:.3f}"
         out[f"{r.name}.jitter_p99_ms"] = f"{r.jitter_p99_ms:.3f}"
         out[f"{r.name}.host_dropped"] = str(r.host_dropped)
+        if r.stamp_clock is not None:
+            c = r.stamp_clock
+            out[f"{r.name}.stamp_clock"] = json.dumps({"offset_s": c.offset_s, "rate": c.rate, "stamp0_s": c.stamp0_s})
     return out
 
 
