@@ -497,7 +497,7 @@ def _release(
         line = node.line()
         assert line is not None
         device_us = np.array([a.packet.device_time_us for a in released], dtype=np.int64)
-        host_s = np.asarray(line.to_recorder(device_us * 1e-6))
+        host_s = np.asarray(line.to_recorder(device_us.astype(np.float64) * 1e-6))
         t_ns = start_ns + utc_ns + np.rint(host_s * 1e9).astype(np.int64)
         # One time base, monotonic per node: the fit moves a little as it learns.
         # t'_i = max(t_i, t'_(i-1) + 1): strictly increasing, with t'_(-1) the last one released.
