@@ -27,6 +27,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from pendsim_bridge.acquire.clock import recorded_stamp_clock
 from pendsim_bridge.recording import DRIVE_TOPIC, NODES, Recording, imu_topic, read_recording
 from pendsim_mj import engines
 from pendsim_mj.alignment import MeasuredRun, NodeSamples, align
@@ -74,9 +75,10 @@ def node_samples(rec: Recording) -> tuple[NodeSamples, NodeSamples]:
     for n in NODES:
         topic = rec.imu[n]
         stamps = topic.stamp_ns
+        clock = recorded_stamp_clock(rec.metadata, n, rec.start_time_ns)  # acquire's fit over the arrivals
         out.append(
             NodeSamples(
-                log_t_s=topic.t_ns * 1e-9,
+                log_t_s=topic.t_ns * 1e-9 if clock is None else clock.to_recorder(stamps * 1e-9),
                 quat_wxyz=topic.quat_wxyz,
                 gyro_rad_s=topic.gyro_rad_s,
                 accel_m_s2=topic.accel_m_s2,

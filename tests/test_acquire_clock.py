@@ -72,3 +72,41 @@ def test_slope_stays_within_the_drift_bound_early_in_a_run():
     single = ClockFit()
     single.add(5.0, 7.0)
     assert single.relation().rate == 1.0 and single.relation().to_recorder(6.0) == pytest.approx(8.0)
+
+
+def _stamping_node():
+    from pendsim_bridge.acquire.packets import StreamFormat
+    from pendsim_bridge.acquire.ports import DEFAULT_NODES
+    from pendsim_bridge.acquire.receiver import _Node
+
+    return _Node(DEFAULT_NODES[0], StreamFormat(), 80.0, 200_000_000)
+
+
+def test_header_stamps_keep_device_time_while_log_times_follow_the_learning_fit():
+    """The log times of successive batches come from a fit that still moves (here +250 ppm, then a
+    step back of 70 us, as early in a real run); the header stamps stay the device times at rate 1
+    from the first sample's log time, whatever the fit does."""
+    from pendsim_bridge.acquire.receiver import _device_stamps
+
+    node = _stamping_node()
+    device_us = 300_000_000 + 12_500 * np.arange(120, dtype=np.int64)
+    log_ns = 5_000_000_000 + np.rint(12_500_000 * (1 + 250e-6) * np.arange(120)).astype(np.int64)
+    log_ns[60:] -= 70_000
+    stamps = np.concatenate(
+        [_device_stamps(node, device_us[:60], log_ns[:60]), _device_stamps(node, device_us[60:], log_ns[60:])]
+    )
+    np.testing.assert_array_equal(stamps, log_ns[0] + (device_us - device_us[0]) * 1000)
+
+
+def test_header_stamps_increase_across_a_node_restart():
+    """A node that reboots (its device time starts again near zero) gets a new stamp origin at its
+    first sample after the restart: stamps strictly increase and stay on its log times."""
+    from pendsim_bridge.acquire.receiver import _device_stamps
+
+    node = _stamping_node()
+    device_us = np.concatenate([900_000_000 + 12_500 * np.arange(50), 1_000 + 12_500 * np.arange(50)]).astype(np.int64)
+    log_ns = 5_000_000_000 + 12_500_000 * np.arange(100, dtype=np.int64)
+    stamps = _device_stamps(node, device_us, log_ns)
+    assert np.all(np.diff(stamps) > 0)
+    np.testing.assert_array_equal(stamps[50:] - stamps[50], (device_us[50:] - device_us[50]) * 1000)
+    assert stamps[50] == log_ns[50]

@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 from acquire_helpers import Pendsim, free_udp_ports
 
+from pendsim_bridge.acquire.clock import recorded_stamp_clock
 from pendsim_bridge.cli import build_parser, main
 from pendsim_bridge.commands.nodes import spec_from
 from pendsim_bridge.mcap_reader import read_mcap
@@ -154,8 +155,16 @@ def test_counters_in_the_file_equal_what_the_emulator_did(tmp_path):
         # Each sample once, in order, with the values the node sent.
         imu = rec.imu[node]
         assert len(imu.t_ns) == len(written) and np.all(np.diff(imu.t_ns) > 0)
-        assert np.array_equal(imu.stamp_ns, imu.t_ns)
         stream = the_plan.streams[k]
+        # The header stamps keep the node's own clock exactly (its device times at rate 1), for the
+        # whole-run clock fit afterwards; the log times follow the online fit as it learns.
+        device_ns = stream.device_time_us[written] * 1000
+        assert np.array_equal(np.diff(imu.stamp_ns), np.diff(device_ns))
+        assert np.max(np.abs(imu.stamp_ns - imu.t_ns)) < 3e6
+        # acquire's final clock fit, kept in the metadata, maps the stamps onto the log times' axis
+        clock = recorded_stamp_clock(rec.metadata, node, rec.start_time_ns)
+        assert clock is not None and clock.drift_ppm == pytest.approx(float(final[node]["drift_ppm"]), abs=2e-3)
+        assert np.max(np.abs(clock.to_recorder(imu.stamp_ns * 1e-9) - imu.t_s)) < 1e-3
         np.testing.assert_allclose(imu.gyro_rad_s, stream.rows[written, 4:7], atol=1e-12)
         np.testing.assert_allclose(imu.quat_wxyz, stream.rows[written, 0:4], atol=1e-12)
         # The log times follow the node's sample instants (its clock mapped to the host's).

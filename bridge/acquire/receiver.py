@@ -43,7 +43,7 @@ from numpy.typing import NDArray
 
 from pendsim_bridge import ros2
 from pendsim_bridge.acquire.accounting import NodeCounters, NodeStream
-from pendsim_bridge.acquire.clock import ClockFit, ClockRelation, jitter_summary_ms, residuals_s
+from pendsim_bridge.acquire.clock import MAX_DRIFT_PPM, ClockFit, ClockRelation, jitter_summary_ms, residuals_s
 from pendsim_bridge.acquire.packets import PacketError, StreamFormat
 from pendsim_bridge.acquire.ports import BNO055_NDOF, DEFAULT_NODES, NodeSpec, check_nodes
 from pendsim_bridge.acquire.sink import RecordingSink
@@ -56,6 +56,7 @@ TICK_S = 0.05  # release and live-view cadence
 FLUSH_S = 0.5  # write to the file at least this often
 DIAGNOSTICS_S = 1.0  # /diagnostics and the status line
 WARMUP_S = 0.5  # device time a node's clock fit spans before its first samples are released
+STAMP_REANCHOR_S = 1.0  # a header stamp further than this from its log time starts a new stamp origin
 STALE_S = 2.0  # a node silent this long no longer holds back the writing of the others
 RECEIVE_BUFFER_BYTES = 8 << 20
 MAX_DATAGRAM = 65535
@@ -117,6 +118,7 @@ class NodeResult:
     jitter_p50_ms: float  # residual delay beyond the fitted minimum: median
     jitter_p99_ms: float  # and 99th percentile
     host_dropped: int = 0  # datagrams this host's socket buffer dropped (counted in lost as well)
+    stamp_clock: ClockRelation | None = None  # the final fit from header stamp to log time (s since the start)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -157,6 +159,9 @@ class _Node:
         self.last_read_ns = 0  # when the loop last read one (a loop behind its sockets reads old datagrams)
         self.last_sample_ns = 0  # when it last read a packet that was accepted (malformed ones hold nothing back)
         self.last_log_ns = -1  # latest log time released
+        self.stamp_anchor: tuple[int, int] | None = None  # (device time us, header stamp ns) of the stamps' origin
+        self.last_stamp_ns = -1  # latest header stamp released
+        self.stamp_origins = 0  # how many origins the stamps had (more than one: the node restarted)
         self.sock: socket.socket | None = None
         self.previous = NodeCounters()
         self.host_dropped = 0  # datagrams this host's socket dropped (its buffer was full)
@@ -417,7 +422,7 @@ def _run(
             _release(nodes, now, sink, live, utc_ns, start_ns, final=True)
             status_line.end()
             sink.add_diagnostics(now + utc_ns, _diagnostics(nodes, diag_marks, now))
-            results = tuple(_node_result(n) for n in nodes)
+            results = tuple(_node_result(n, start_utc_ns) for n in nodes)
             sink.add_metadata(
                 "pendsim/acquisition_result", _result_metadata(results, (now - start_ns) * 1e-9, stop_reason)
             )
@@ -491,20 +496,54 @@ def _release(
             continue
         line = node.line()
         assert line is not None
-        device_s = np.array([a.packet.device_time_us for a in released], dtype=np.float64) * 1e-6
-        host_s = np.asarray(line.to_recorder(device_s))
+        device_us = np.array([a.packet.device_time_us for a in released], dtype=np.int64)
+        host_s = np.asarray(line.to_recorder(device_us.astype(np.float64) * 1e-6))
         t_ns = start_ns + utc_ns + np.rint(host_s * 1e9).astype(np.int64)
         # One time base, monotonic per node: the fit moves a little as it learns.
         # t'_i = max(t_i, t'_(i-1) + 1): strictly increasing, with t'_(-1) the last one released.
         steps = np.arange(len(t_ns), dtype=np.int64)
         t_ns = np.maximum.accumulate(np.maximum(t_ns - steps, node.last_log_ns + 1)) + steps
         node.last_log_ns = int(t_ns[-1])
+        stamp_ns = _device_stamps(node, device_us, t_ns)
         rows = np.array([a.packet.row for a in released], dtype=np.float64)
-        taken = sink.add_samples(node.spec.name, t_ns, rows)
+        taken = sink.add_samples(node.spec.name, t_ns, rows, stamp_ns)
         if not np.all(taken):  # older than the file: a node back from a long silence
             node.stream.count_written_late(int(np.count_nonzero(~taken)))
         if live is not None and np.any(taken):
             live.add(node.spec.name, t_ns[taken], rows[taken])
+
+
+def _device_stamps(node: _Node, device_us: NDArray[np.int64], t_ns: NDArray[np.int64]) -> NDArray[np.int64]:
+    """The header stamps (n,) ns of released samples: their device times at rate 1 from an origin
+    on the log-time base (the first sample's log time), so that they keep the node's own clock
+    exactly. The log times follow the fit as it learns (steps of tens of microseconds early in a
+    run, where the fit spans seconds); the stamps do not, and the whole run's clock relation is
+    fitted afterwards from (stamp, log time) (``pendsim_mj.timing.fit_clock``). A device time that
+    goes back (a node rebooted) or strays from the log time by more than ``STAMP_REANCHOR_S`` (plus
+    twice the largest drift over the time since the origin) starts a new origin there, so stamps
+    always increase and stay near the log times."""
+    n = len(device_us)
+    stamps = np.empty(n, dtype=np.int64)
+    i = 0
+    while i < n:
+        fresh = node.stamp_anchor is None
+        if node.stamp_anchor is None:
+            node.stamp_anchor = (int(device_us[i]), max(int(t_ns[i]), node.last_stamp_ns + 1))
+            node.stamp_origins += 1
+        origin_us, origin_ns = node.stamp_anchor
+        run = origin_ns + (device_us[i:] - origin_us) * 1000
+        # The log times may part from rate-1 stamps by the fitted drift (at most MAX_DRIFT_PPM).
+        tolerance_ns = STAMP_REANCHOR_S * 1e9 + 2e-6 * MAX_DRIFT_PPM * np.abs(t_ns[i:] - origin_ns)
+        bad = (np.diff(run, prepend=node.last_stamp_ns) <= 0) | (np.abs(run - t_ns[i:]) > tolerance_ns)
+        good = int(np.argmax(bad)) if bad.any() else len(run)
+        good = max(good, 1) if fresh else good  # a new origin always takes its own sample
+        stamps[i : i + good] = run[:good]
+        if good:
+            node.last_stamp_ns = int(run[good - 1])
+        i += good
+        if i < n:
+            node.stamp_anchor = None
+    return stamps
 
 
 def _settled_ns(nodes: list[_Node], now_ns: int, start_ns: int) -> int | None:
@@ -573,11 +612,26 @@ def _status_text(nodes: list[_Node], elapsed_s: float) -> str:
     return " | ".join(parts)
 
 
-def _node_result(node: _Node) -> NodeResult:
+def _node_result(node: _Node, start_utc_ns: int) -> NodeResult:
     line = node.line()
     p50, p99 = node.jitter_ms()
     drift = line.drift_ppm if line is not None and node.clock.span_s > 0 else math.nan
-    return NodeResult(node.spec.name, node.spec.port, node.stream.counters(), drift, p50, p99, node.host_dropped)
+    counters = node.stream.counters()
+    return NodeResult(
+        node.spec.name, node.spec.port, counters, drift, p50, p99, node.host_dropped, _stamp_clock(node, start_utc_ns)
+    )
+
+
+def _stamp_clock(node: _Node, start_utc_ns: int) -> ClockRelation | None:
+    """The node's final clock fit (over every packet's arrival) as a relation from its header
+    stamps to its log times, both s since ``start_utc_ns`` (the metadata's start_time_ns); None
+    unless its stamps had one origin and the fit spans ``WARMUP_S``."""
+    line = node.line()
+    if line is None or node.stamp_origins != 1 or node.stamp_anchor is None or node.clock.span_s < WARMUP_S:
+        return None
+    origin_us, origin_ns = node.stamp_anchor  # stamp (s since start) = device_s - origin_us 1e-6 + origin_rel_s
+    origin_rel_s = (origin_ns - start_utc_ns) * 1e-9
+    return ClockRelation(line.offset_s, line.rate, line.stamp0_s - origin_us * 1e-6 + origin_rel_s)
 
 
 def _nothing_arrived(results: tuple[NodeResult, ...], spec: AcquireSpec, duration_s: float) -> str:
@@ -604,6 +658,9 @@ def _result_metadata(results: tuple[NodeResult, ...], duration_s: float, stop_re
         out[f"{r.name}.jitter_p50_ms"] = f"{r.jitter_p50_ms:.3f}"
         out[f"{r.name}.jitter_p99_ms"] = f"{r.jitter_p99_ms:.3f}"
         out[f"{r.name}.host_dropped"] = str(r.host_dropped)
+        if r.stamp_clock is not None:
+            c = r.stamp_clock
+            out[f"{r.name}.stamp_clock"] = json.dumps({"offset_s": c.offset_s, "rate": c.rate, "stamp0_s": c.stamp0_s})
     return out
 
 

@@ -117,20 +117,24 @@ class RecordingSink:
         if len(t_ns):
             self._buffer.setdefault(channel, []).append((t_ns, payloads))
 
-    def add_samples(self, node: str, t_ns: NDArray[np.int64], rows: NDArray[np.float64]) -> NDArray[np.bool_]:
-        """n samples of one node: log times (n,) ns, non-decreasing, and (n, len(ROW_FIELDS)) rows.
+    def add_samples(
+        self, node: str, t_ns: NDArray[np.int64], rows: NDArray[np.float64], stamp_ns: NDArray[np.int64] | None = None
+    ) -> NDArray[np.bool_]:
+        """n samples of one node: log times (n,) ns, non-decreasing, (n, len(ROW_FIELDS)) rows and
+        the header stamps (n,) ns (None: the log times).
 
         Returns (n,) which were taken: those older than what the file already holds
         (``written_upto_ns``) are dropped, since an MCAP file's chunks are written in log-time
         order (the caller counts them late)."""
         t_ns = np.asarray(t_ns, dtype=np.int64)
+        stamp_ns = t_ns if stamp_ns is None else np.asarray(stamp_ns, dtype=np.int64)
         taken = t_ns >= self.written_upto_ns
         if not np.all(taken):
-            t_ns, rows = t_ns[taken], rows[taken]
+            t_ns, rows, stamp_ns = t_ns[taken], rows[taken], stamp_ns[taken]
         n = len(t_ns)
         if not n:
             return taken
-        sec, nanosec = ros2.split_time(t_ns)
+        sec, nanosec = ros2.split_time(stamp_ns)
         groups = self.groups
         quat = rows[:, GROUP_SLICES["quat"]] if "quat" in groups else np.tile([1.0, 0.0, 0.0, 0.0], (n, 1))
         zeros = np.zeros((n, 3))
