@@ -32,7 +32,9 @@ def noise_level(x: np.ndarray) -> float:
     d2 = np.diff(np.asarray(x, dtype=float), 2)
     if len(d2) == 0:
         return 0.0
-    return float(1.4826 * np.median(np.abs(d2 - np.median(d2))) / np.sqrt(6.0))
+    # in place: one (n,) array (medians need no order, so they may reorder it)
+    d2 -= np.median(d2, overwrite_input=True)
+    return float(1.4826 * np.median(np.abs(d2, out=d2), overwrite_input=True) / np.sqrt(6.0))
 
 
 def spectral_peak_hz(t_s: np.ndarray, x: np.ndarray, max_hz: float = np.inf, min_hz: float = 0.0) -> float:
