@@ -424,8 +424,8 @@ def validate(
                         cmp = dataclasses.replace(cmp, computed=cmp.computed.astype(np.float32))
                     by_window[window_name][q.name] = cmp
                 del computed
+                heap.trim()  # the comparison's transients go back to the system (not kept as heap)
             del t_model, values
-            heap.trim()  # what this case freed goes back to the system
             cases += [CaseResult(engine, release_name, name, by_window[name]) for name, _ in windows]
     choice = None
     if model == "spatial":

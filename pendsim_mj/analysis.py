@@ -132,7 +132,8 @@ def _peak_in_parts(y: np.ndarray, nfft: int, bottom: int, top: int) -> float:
         return float("nan")
     if not np.any(y != 0):
         return 0.0
-    w = (y - y.mean()) * np.hanning(len(y))
+    w = y - y.mean()
+    w *= np.hanning(len(y))  # in place: no third (n,) array
     length = nfft // SPECTRUM_PARTS
     buffer = np.zeros(length, dtype=complex)
     best, k = -1.0, bottom
@@ -164,12 +165,16 @@ _TURN_BLOCK = 1 << 16
 def _hysteresis_sign(y: np.ndarray, band: float) -> np.ndarray | None:
     """+1 / -1 per sample: the side of +-band the signal was last on (the first known side
     before that); None if it never leaves the band twice."""
-    state = np.where(y > band, 1, np.where(y < -band, -1, 0))
+    state = np.zeros(len(y), dtype=np.int8)  # one byte a sample (a long run: no int64 temporaries)
+    state[y > band] = 1
+    state[y < -band] = -1
     known = np.flatnonzero(state)
     if len(known) < 2:
         return None
-    filled = state[known][np.searchsorted(known, np.arange(len(y)), side="right") - 1]
+    # each known side held up to the next one; before the first, the first
+    filled = np.empty(len(y), dtype=np.int8)
     filled[: known[0]] = state[known[0]]
+    filled[known[0] :] = np.repeat(state[known], np.diff(known, append=len(y)))
     return filled
 
 
