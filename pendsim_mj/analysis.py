@@ -147,11 +147,12 @@ def _peak_in_parts(y: np.ndarray, nfft: int, bottom: int, top: int) -> float:
             buffer[j] = w[j] * np.exp(-2j * np.pi * ((r * j) % nfft) / nfft)
         buffer[len(w) :] = 0.0
         spectrum = fft.fft(buffer, overwrite_x=True)
-        magnitude = np.abs(spectrum[first:last])
+        for lo in range(first, last, _TURN_BLOCK):  # the magnitudes block by block (no (length,) copy)
+            magnitude = np.abs(spectrum[lo : min(lo + _TURN_BLOCK, last)])
+            i = int(np.argmax(magnitude))
+            if magnitude[i] > best:  # the first of equal peaks, as one argmax over the part
+                best, k = float(magnitude[i]), SPECTRUM_PARTS * (lo + i) + r
         del spectrum
-        i = int(np.argmax(magnitude))
-        if magnitude[i] > best:
-            best, k = float(magnitude[i]), SPECTRUM_PARTS * (first + i) + r
     if k >= nfft // 2:  # the last bin: no neighbour above it
         return float(k)
     a, b, c = (math.log(_dft_magnitude(w, kk, nfft) + 1e-300) for kk in (k - 1, k, k + 1))
