@@ -303,7 +303,10 @@ def compare(
         raise ParameterError("the instants must increase")
     segs = segments(t, max_gap_s)
     dx = float(np.median(step))
-    uniform = len(segs) == 1 and np.max(np.abs(step - step.mean())) <= 1e-6 * step.mean() + 1e-12
+    mean_step = step.mean()
+    # the largest |step - mean| without (n,) temporaries (subtraction is monotonic: the same value)
+    spread = max(float(step.max() - mean_step), float(mean_step - step.min()))
+    uniform = len(segs) == 1 and spread <= 1e-6 * mean_step + 1e-12
     if uniform:
         dx = float(step.mean())
     empty = np.empty(0)
@@ -323,7 +326,8 @@ def compare(
         del abs_delta, squared
     else:
         iae, ise, sum_sq, max_abs = _windowed_errors(t, m, c, segs, uniform, dx)
-    covered = float(step[step <= max_gap_s].sum())
+    short = step <= max_gap_s
+    covered = float(step.sum() if short.all() else step[short].sum())  # no copy without gaps
     del step  # (n,): not held while the frequencies are measured
     # zero crossings with hysteresis at 4 noise sigmas of the measured series (noise near zero
     # would add crossings and raise the measured frequency)
