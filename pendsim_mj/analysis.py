@@ -29,9 +29,12 @@ def noise_level(x: np.ndarray) -> float:
     """A robust estimate of the white-noise sigma of a smooth signal plus noise: the median
     absolute deviation of its second differences / sqrt(6) (the signal's own curvature adds to
     it, so this errs high for coarse sampling)."""
-    d2 = np.diff(np.asarray(x, dtype=float), 2)
-    if len(d2) == 0:
+    y = np.asarray(x, dtype=float)
+    if len(y) < 3:
         return 0.0
+    d2 = np.empty(len(y) - 2)  # second differences block by block: one (n,) array, no first differences
+    for lo in range(0, len(d2), _TURN_BLOCK):
+        d2[lo : lo + _TURN_BLOCK] = np.diff(y[lo : lo + _TURN_BLOCK + 2], 2)
     # in place: one (n,) array (medians need no order, so they may reorder it)
     d2 -= np.median(d2, overwrite_input=True)
     return float(1.4826 * np.median(np.abs(d2, out=d2), overwrite_input=True) / np.sqrt(6.0))

@@ -298,17 +298,22 @@ def compare(
         raise ParameterError(f"expected three (n,) series, got {t.shape}, {m.shape}, {c.shape}")
     if len(t) < 8:
         raise ParameterError(f"need at least 8 common samples, got {len(t)}")
-    step = np.diff(t)
-    if np.any(step <= 0):
+    if np.any(t[1:] <= t[:-1]):
         raise ParameterError("the instants must increase")
     segs = segments(t, max_gap_s)
-    dx = float(np.median(step))
+    # the steps' statistics with one (n,) array at a time: a long run's compare starts lean
+    step = np.diff(t)
     mean_step = step.mean()
     # the largest |step - mean| without (n,) temporaries (subtraction is monotonic: the same value)
     spread = max(float(step.max() - mean_step), float(mean_step - step.min()))
+    short = step <= max_gap_s
+    covered = float(step.sum() if short.all() else step[short].sum())  # no copy without gaps
+    del short
+    dx = float(np.median(step, overwrite_input=True))  # the steps' last use: the median may reorder them
+    del step
     uniform = len(segs) == 1 and spread <= 1e-6 * mean_step + 1e-12
     if uniform:
-        dx = float(step.mean())
+        dx = float(mean_step)
     empty = np.empty(0)
     delta = iae_curve = ise_curve = empty
     if keep & {"delta", "iae_curve", "ise_curve"}:
@@ -326,9 +331,6 @@ def compare(
         del abs_delta, squared
     else:
         iae, ise, sum_sq, max_abs = _windowed_errors(t, m, c, segs, uniform, dx)
-    short = step <= max_gap_s
-    covered = float(step.sum() if short.all() else step[short].sum())  # no copy without gaps
-    del step  # (n,): not held while the frequencies are measured
     # zero crossings with hysteresis at 4 noise sigmas of the measured series (noise near zero
     # would add crossings and raise the measured frequency)
     sigma = noise_level(m)
