@@ -26,7 +26,9 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
+from numpy.typing import DTypeLike
 
+from pendsim_bridge import heap
 from pendsim_bridge.acquire.clock import recorded_stamp_clock
 from pendsim_bridge.recording import DRIVE_TOPIC, NODES, Recording, imu_topic, read_recording
 from pendsim_mj import engines
@@ -106,10 +108,12 @@ def align_recording(
     max_gap_s: float = DEFAULT_MAX_GAP_S,
     samples: tuple[NodeSamples, NodeSamples] | None = None,
     off_hinge: bool = True,
+    float32_values: bool = False,
 ) -> MeasuredRun:
     """The measured run of a recording (``pendsim_mj.alignment.align`` on its IMU topics, and on
     its /drive topic for a driven run); ``samples``: its ``node_samples`` if the caller has them;
-    ``off_hinge``: keep the gyros off the hinge axes (for a spatial fit)."""
+    ``off_hinge``: keep the gyros off the hinge axes (for a spatial fit); ``float32_values``: the
+    run's values as float32 (``align``)."""
     if samples is None:
         samples = node_samples(rec)  # its errors name the file already
     try:
@@ -121,6 +125,7 @@ def align_recording(
             max_gap_s=max_gap_s,
             drive_input=rec.drive_input_s,
             off_hinge=off_hinge,
+            float32_values=float32_values,
         )
     except RecordingError as exc:
         raise RecordingError(f"{rec.path}: {exc}") from None
@@ -159,17 +164,19 @@ def model_series(
     *,
     block_steps: int = MODEL_BLOCK_STEPS,
     drive: Drive | None = None,
+    dtype: DTypeLike = np.float64,
 ) -> tuple[np.ndarray, dict[str, np.ndarray]]:
     """One model run from a start state (angles, rates), simulated block by block and reduced to
     what is compared: its instants (n,) s and each ``VALIDATED`` quantity there (n,). Memory is
     these arrays and one block, never the whole run's Trajectory (a driven run: see
     ``engines.run_blocks``); the rows equal one run's. The planar reference runs on its compiled
-    kernel (``engines.FAST_PATH``). ``drive``: the run's inputs, time 0 at the start."""
+    kernel (``engines.FAST_PATH``). ``drive``: the run's inputs, time 0 at the start; ``dtype``:
+    of the quantities (float32: half the memory of a long run; the instants stay float64)."""
     engine = engines.FAST_PATH.get(engine, engine)
     total_s = whole_steps_s(duration_s, dt_s)
     n = check_step(total_s, dt_s) + 1
     t = np.empty(n)
-    values = {q.name: np.empty(n) for q in VALIDATED}
+    values = {q.name: np.empty(n, dtype=dtype) for q in VALIDATED}
     blocks = engines.run_blocks(engine, params, start[0], start[1], total_s, dt_s, block_steps=block_steps, drive=drive)
     for first, block in blocks:
         rows = slice(first, first + len(block.t_s))
@@ -357,8 +364,15 @@ def validate(
         )
     base = (params or recorded_params(rec)).with_mapping(overrides or {})
     samples = node_samples(rec)  # the measured series, decoded once
+    rec = rec.without_imu()  # the samples hold what alignment needs of the IMU topics
     run = align_recording(
-        rec, base, release_s=release_s, max_gap_s=max_gap_s, samples=samples, off_hinge=model == "spatial"
+        rec,
+        base,
+        release_s=release_s,
+        max_gap_s=max_gap_s,
+        samples=samples,
+        off_hinge=model == "spatial",
+        float32_values=True,
     )
     drive = recording_drive(rec, run)
     mjcf_xml = rec.mjcf_xml
@@ -370,6 +384,7 @@ def validate(
 
         tilt_start = tilt_start_of(rec)
     del rec  # the decoded topics: the aligned run holds what is compared
+    heap.trim()
     identification = None
     if damping == "identified":
         identification = _identify(run, base, 120.0, drive=drive)
@@ -393,19 +408,32 @@ def validate(
     windows = ((f"{short_window_s:g} s", short_window_s), ("whole", math.inf))
     for engine in ("mujoco", "reference"):
         for release_name, state in starts.items():
-            t_model, values = model_series(engine, model_params, state, duration + 0.02, drive=drive)
+            # the model's quantities in float32 (its errors against the IMUs are 1e4 times larger)
+            t_model, values = model_series(engine, model_params, state, duration + 0.02, drive=drive, dtype=np.float32)
             by_window: dict[str, dict[str, Comparison]] = {name: {} for name, _ in windows}
-            for q in VALIDATED:
+            # phi1 last: its swing stays resolved longest (the angle's noise is the smallest), so
+            # its comparison's whole-run transients meet no model series but its own
+            for q in reversed(VALIDATED):
                 t, measured, at = run.series(q)
-                computed = resample(t_model, values[q.name], np.clip(at, 0.0, t_model[-1]))
+                computed = resample(t_model, values.pop(q.name), np.clip(at, 0.0, t_model[-1]))
+                if not values:  # the last quantity: the model's grid goes before its comparison
+                    t_model = np.empty(0)
                 for window_name, limit in windows:
                     # a long run's series: only those plotted stay, and its errors go window by window
                     drawn = q.name in plotted and (engine, release_name) != ("reference", "nominal")
                     kept = None if window_name != "whole" else FIGURE_SERIES if drawn else ()
                     inside = _window(t <= limit + 1e-9, t, measured, computed)
-                    by_window[window_name][q.name] = compare(*inside, max_gap_s=max_gap_s, series=kept)
+                    cmp = compare(*inside, max_gap_s=max_gap_s, series=kept)
+                    if kept:  # a figure's line: float32 (the metrics are float64's)
+                        cmp = dataclasses.replace(cmp, computed=cmp.computed.astype(np.float32))
+                    by_window[window_name][q.name] = cmp
+                del computed
+                heap.trim()  # the comparison's transients go back to the system (not kept as heap)
             del t_model, values
-            cases += [CaseResult(engine, release_name, name, by_window[name]) for name, _ in windows]
+            cases += [
+                CaseResult(engine, release_name, name, {q.name: by_window[name][q.name] for q in VALIDATED})
+                for name, _ in windows
+            ]
     choice = None
     if model == "spatial":
         from pendsim_bridge import spatial_validate

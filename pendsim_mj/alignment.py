@@ -33,7 +33,6 @@ Works on arrays (time stamps, quaternions, gyro and accelerometer per node), fro
 from __future__ import annotations
 
 import dataclasses
-import functools
 import math
 from collections.abc import Sequence
 from typing import Literal
@@ -237,19 +236,37 @@ class _Node:
     sigma: float
     rate_hz: float
     frame: SwingFrame | None = None
+    series: dict[str, Floats] = dataclasses.field(default_factory=dict, repr=False, compare=False)
+    """phi and omega in ``frame`` once computed: shared by the copies ``dataclasses.replace``
+    makes with the same frame (a long run's whole-run series computed and held once)."""
 
     def with_frame(self, frame: SwingFrame) -> _Node:
-        return dataclasses.replace(self, frame=frame)
+        return dataclasses.replace(self, frame=frame, series={})
 
-    @functools.cached_property
+    def flipped(self) -> _Node:
+        """This node in its frame's other sense (``SwingFrame.flipped``). The series it computed
+        move to the copy, negated in place (phi and omega change sign with the frame; the
+        whole run is not computed and held twice); this node computes them again if asked."""
+        assert self.frame is not None
+        series = {name: np.negative(values, out=values) for name, values in self.series.items()}
+        self.series.clear()
+        return dataclasses.replace(self, frame=self.frame.flipped(), series=series)
+
+    @property
     def phi(self) -> Floats:
-        assert self.frame is not None
-        return self.frame.angle(self.quat)
+        """The angle (n,) in the swing frame, rad."""
+        if "phi" not in self.series:
+            assert self.frame is not None
+            self.series["phi"] = self.frame.angle(self.quat)
+        return self.series["phi"]
 
-    @functools.cached_property
+    @property
     def omega(self) -> Floats:
-        assert self.frame is not None
-        return self.frame.rate(self.gyro)
+        """The rate (n,) about the hinge axis, rad/s."""
+        if "omega" not in self.series:
+            assert self.frame is not None
+            self.series["omega"] = self.frame.rate(self.gyro)
+        return self.series["omega"]
 
     def value_instants(self, fusion_rate_hz: float | None, phase_s: float | None) -> Floats:
         """Recorder-clock instants of the values (fused, with the given phase on the node clock)."""
@@ -410,8 +427,8 @@ def _orient(nodes: list[_Node], t0: float, kind: StartKind) -> list[_Node]:
     if kind == "release" and len(held) and abs(float(np.median(held))) >= 0.5 * abs(largest):
         largest = float(np.median(held))
     if largest < 0:
-        m1 = m1.with_frame(m1.frame.flipped())
-        phi1 = -phi1
+        m1 = m1.flipped()
+        phi1 = m1.phi
     # M2's sign from the first FRAME_FIT_S after the start (as its frame: the hours at rest of a
     # long run would add only noise to the regression, and memory)
     lo, hi = np.searchsorted(m2.t, [t0, t0 + FRAME_FIT_S])
@@ -425,7 +442,7 @@ def _orient(nodes: list[_Node], t0: float, kind: StartKind) -> list[_Node]:
     if len(design) > 10:
         coef, *_ = np.linalg.lstsq(design, alpha2[ok], rcond=None)
         if coef[1] < 0:
-            m2 = m2.with_frame(m2.frame.flipped())
+            m2 = m2.flipped()
     return [m1, m2]
 
 
@@ -705,6 +722,65 @@ def _relative_fusion_timing(
     return chosen_phases, instants, chosen, (r_lo - best, r_hi - best)
 
 
+def _owned(a: Floats, samples: NodeSamples) -> bool:
+    """``a`` is an array alignment made itself (no view of the caller's sample times)."""
+    theirs = [samples.log_t_s] + ([] if samples.stamp_s is None else [samples.stamp_s])
+    return not any(np.may_share_memory(a, b) for b in theirs)
+
+
+def _node_run(
+    node: _Node,
+    at: Floats,
+    phase: float | None,
+    samples: NodeSamples,
+    kind: StartKind,
+    start_time: float,
+    max_gap_s: float,
+    off_hinge: bool,
+    float32_values: bool,
+) -> NodeRun:
+    """One node's series from the start on: from the release on (values just before it are the
+    model's rest); from the first values after a start in motion. ``at``: its values' instants,
+    s on the recorder's clock. The instants increase, so what is kept is a suffix: the kept
+    angles and rates are views (float64) or float32 copies; the times are shifted to the start
+    in place where alignment made the arrays (``node`` and ``at`` are not used after this)."""
+    first = int(np.searchsorted(node.t if kind == "release" else at, start_time - 1e-9, side="left"))
+    keep = slice(first, None)
+    frame = node.frame
+    assert frame is not None
+    same = np.may_share_memory(at, node.t)  # values at their sample instants: one array for both
+    t = node.t[keep]
+    if _owned(node.t, samples):
+        t -= start_time
+    else:
+        t = t - start_time
+    value_t = t
+    if not same:
+        value_t = at[keep]
+        if _owned(at, samples):
+            value_t -= start_time
+        else:
+            value_t = value_t - start_time
+    dtype = np.float32 if float32_values else np.float64
+    off_axes = np.stack([frame.tangential, frame.toward_pivot], axis=1)
+    accel = node.accel[keep]
+    return NodeRun(
+        t_s=t,
+        value_t_s=value_t,
+        phi_rad=node.phi[keep].astype(dtype, copy=False),
+        omega_rad_s=node.omega[keep].astype(dtype, copy=False),
+        tangential_m_s2=frame.tangential_of(accel, dtype=dtype),
+        normal_m_s2=frame.normal_of(accel, dtype=dtype),
+        frame=frame,
+        clock=node.clock,
+        fusion_phase_s=phase,
+        coverage=coverage(t, max_gap_s, node.rate_hz),
+        gyro_sigma_rad_s=node.sigma,
+        off_hinge_gyro_rad_s=(node.gyro[keep] @ off_axes).astype(dtype, copy=False) if off_hinge else None,
+        before_start=first,
+    )
+
+
 def align(
     nodes: Sequence[NodeSamples],
     params: RigParams,
@@ -716,6 +792,7 @@ def align(
     engine: str = "mujoco",
     drive_input: tuple[Floats, Floats] | None = None,
     off_hinge: bool = True,
+    float32_values: bool = False,
 ) -> MeasuredRun:
     """The measured run of two nodes (M1's, M2's) against which ``params`` will be compared.
 
@@ -733,6 +810,9 @@ def align(
         a free run. The model is driven by them from the start on (``drives.recorded_drive``).
       off_hinge: keep each node's gyro off its hinge axis (``NodeRun.off_hinge_gyro_rad_s``,
         what a spatial fit needs; False: None, 16 bytes a sample less).
+      float32_values: the run's values (angles, rates, accelerations, off-hinge gyros) as
+        float32, its instants float64: 32 instead of 48 bytes a sample (a long run; float32
+        rounds an angle of 0.5 rad by 3e-8 rad, far below the sensors' resolution).
 
     Raises:
       RecordingError: too few samples, no motion, no swing to find a frame in.
@@ -824,33 +904,12 @@ def align(
     if kind != "given":
         _check_found_start(start, t0, prepared, instants, start_fit_s, driven=drive_input is not None)
 
+    frames.clear()  # the nodes before their signs were set (and the series they computed)
     runs = []
-    for node, at, phase in zip(prepared, instants, phases, strict=True):
-        # from the release on (values just before it are the model's rest); from the first values
-        # after a start in motion
-        # the instants increase: what is kept is a suffix, taken as views (no copies of the run)
-        first = int(np.searchsorted(node.t if kind == "release" else at, start_time - 1e-9, side="left"))
-        keep = slice(first, None)
-        assert node.frame is not None
-        t = node.t[keep] - start_time
-        off_axes = np.stack([node.frame.tangential, node.frame.toward_pivot], axis=1)
-        runs.append(
-            NodeRun(
-                t_s=t,
-                value_t_s=at[keep] - start_time,
-                phi_rad=node.phi[keep],
-                omega_rad_s=node.omega[keep],
-                tangential_m_s2=node.frame.tangential_of(node.accel[keep]),
-                normal_m_s2=node.frame.normal_of(node.accel[keep]),
-                frame=node.frame,
-                clock=node.clock,
-                fusion_phase_s=phase,
-                coverage=coverage(t, max_gap_s, node.rate_hz),
-                gyro_sigma_rad_s=node.sigma,
-                off_hinge_gyro_rad_s=node.gyro[keep] @ off_axes if off_hinge else None,
-                before_start=first,
-            )
-        )
+    for k, phase in enumerate(phases):  # node by node, each node's whole-run arrays let go once used
+        node, at = prepared.pop(0), instants.pop(0)
+        runs.append(_node_run(node, at, phase, nodes[k], kind, start_time, max_gap_s, off_hinge, float32_values))
+        del node, at
     return MeasuredRun(
         nodes=(runs[0], runs[1]),
         start=start,

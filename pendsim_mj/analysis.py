@@ -29,10 +29,15 @@ def noise_level(x: np.ndarray) -> float:
     """A robust estimate of the white-noise sigma of a smooth signal plus noise: the median
     absolute deviation of its second differences / sqrt(6) (the signal's own curvature adds to
     it, so this errs high for coarse sampling)."""
-    d2 = np.diff(np.asarray(x, dtype=float), 2)
-    if len(d2) == 0:
+    y = np.asarray(x, dtype=float)
+    if len(y) < 3:
         return 0.0
-    return float(1.4826 * np.median(np.abs(d2 - np.median(d2))) / np.sqrt(6.0))
+    d2 = np.empty(len(y) - 2)  # second differences block by block: one (n,) array, no first differences
+    for lo in range(0, len(d2), _TURN_BLOCK):
+        d2[lo : lo + _TURN_BLOCK] = np.diff(y[lo : lo + _TURN_BLOCK + 2], 2)
+    # in place: one (n,) array (medians need no order, so they may reorder it)
+    d2 -= np.median(d2, overwrite_input=True)
+    return float(1.4826 * np.median(np.abs(d2, out=d2), overwrite_input=True) / np.sqrt(6.0))
 
 
 def spectral_peak_hz(t_s: np.ndarray, x: np.ndarray, max_hz: float = np.inf, min_hz: float = 0.0) -> float:
@@ -130,7 +135,8 @@ def _peak_in_parts(y: np.ndarray, nfft: int, bottom: int, top: int) -> float:
         return float("nan")
     if not np.any(y != 0):
         return 0.0
-    w = (y - y.mean()) * np.hanning(len(y))
+    w = y - y.mean()
+    w *= np.hanning(len(y))  # in place: no third (n,) array
     length = nfft // SPECTRUM_PARTS
     buffer = np.zeros(length, dtype=complex)
     best, k = -1.0, bottom
@@ -144,11 +150,12 @@ def _peak_in_parts(y: np.ndarray, nfft: int, bottom: int, top: int) -> float:
             buffer[j] = w[j] * np.exp(-2j * np.pi * ((r * j) % nfft) / nfft)
         buffer[len(w) :] = 0.0
         spectrum = fft.fft(buffer, overwrite_x=True)
-        magnitude = np.abs(spectrum[first:last])
+        for lo in range(first, last, _TURN_BLOCK):  # the magnitudes block by block (no (length,) copy)
+            magnitude = np.abs(spectrum[lo : min(lo + _TURN_BLOCK, last)])
+            i = int(np.argmax(magnitude))
+            if magnitude[i] > best:  # the first of equal peaks, as one argmax over the part
+                best, k = float(magnitude[i]), SPECTRUM_PARTS * (lo + i) + r
         del spectrum
-        i = int(np.argmax(magnitude))
-        if magnitude[i] > best:
-            best, k = float(magnitude[i]), SPECTRUM_PARTS * (first + i) + r
     if k >= nfft // 2:  # the last bin: no neighbour above it
         return float(k)
     a, b, c = (math.log(_dft_magnitude(w, kk, nfft) + 1e-300) for kk in (k - 1, k, k + 1))
@@ -162,12 +169,16 @@ _TURN_BLOCK = 1 << 16
 def _hysteresis_sign(y: np.ndarray, band: float) -> np.ndarray | None:
     """+1 / -1 per sample: the side of +-band the signal was last on (the first known side
     before that); None if it never leaves the band twice."""
-    state = np.where(y > band, 1, np.where(y < -band, -1, 0))
+    state = np.zeros(len(y), dtype=np.int8)  # one byte a sample (a long run: no int64 temporaries)
+    state[y > band] = 1
+    state[y < -band] = -1
     known = np.flatnonzero(state)
     if len(known) < 2:
         return None
-    filled = state[known][np.searchsorted(known, np.arange(len(y)), side="right") - 1]
+    # each known side held up to the next one; before the first, the first
+    filled = np.empty(len(y), dtype=np.int8)
     filled[: known[0]] = state[known[0]]
+    filled[known[0] :] = np.repeat(state[known], np.diff(known, append=len(y)))
     return filled
 
 

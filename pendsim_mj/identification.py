@@ -27,6 +27,7 @@ import dataclasses
 import io
 import math
 import time
+from typing import TYPE_CHECKING
 
 import mujoco
 import numpy as np
@@ -36,8 +37,10 @@ from pendsim_mj.drives import Drive
 from pendsim_mj.errors import ParameterError
 from pendsim_mj.model import HINGES, build_spec
 from pendsim_mj.params import PARAMETER_LIMITS, RigParams
-from pendsim_mj.planar_fit import LawFit, fit_planar
 from pendsim_mj.sensors import fused_instants
+
+if TYPE_CHECKING:
+    from pendsim_mj.planar_fit import LawFit
 
 
 @dataclasses.dataclass(frozen=True)
@@ -129,6 +132,8 @@ def planar_damping(
 ) -> DampingFit:
     """The planar fit (``planar_fit.fit_planar``, same arguments) as a DampingFit: the law with
     the smallest BIC (or the one asked for), every law tried in ``laws``."""
+    from pendsim_mj.planar_fit import fit_planar  # numba's compiled kernel: imported when a fit runs
+
     start = time.perf_counter()
     fits = fit_planar(
         params, value_t_s, gyro_z_rad_s, gyro_sigma_rad_s=gyro_sigma_rad_s, phi0_rad=phi0_rad,

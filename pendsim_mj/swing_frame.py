@@ -30,7 +30,7 @@ import dataclasses
 import math
 
 import numpy as np
-from numpy.typing import NDArray
+from numpy.typing import DTypeLike, NDArray
 
 from pendsim_mj import rotations
 from pendsim_mj.errors import RecordingError
@@ -94,18 +94,21 @@ class SwingFrame:
         """omega (n,) from gyro readings (n, 3), rad/s."""
         return _along(gyro_rad_s, self.hinge_axis)
 
-    def tangential_of(self, accel_m_s2: Floats) -> Floats:
-        return _along(accel_m_s2, self.tangential)
+    def tangential_of(self, accel_m_s2: Floats, *, dtype: DTypeLike = np.float64) -> Floats:
+        """Accelerations (n, 3) along the tangential direction (n,), m/s^2, as ``dtype``."""
+        return _along(accel_m_s2, self.tangential, dtype)
 
-    def normal_of(self, accel_m_s2: Floats) -> Floats:
-        return _along(accel_m_s2, self.toward_pivot)
+    def normal_of(self, accel_m_s2: Floats, *, dtype: DTypeLike = np.float64) -> Floats:
+        """Accelerations (n, 3) toward the pivot (n,), m/s^2, as ``dtype``."""
+        return _along(accel_m_s2, self.toward_pivot, dtype)
 
 
-def _along(vectors: Floats, direction: Floats) -> Floats:
+def _along(vectors: Floats, direction: Floats, dtype: DTypeLike = np.float64) -> Floats:
     """vectors (n, 3) (float64, or float32 sensor values) along a unit direction (3,): (n,)
-    float64, ``ANGLE_BLOCK`` rows at a time (no float64 copy of a long run's float32 values)."""
+    computed in float64 and stored as ``dtype``, ``ANGLE_BLOCK`` rows at a time (no float64
+    copy of a long run's float32 values)."""
     v = np.asarray(vectors)
-    out = np.empty(len(v))
+    out = np.empty(len(v), dtype=dtype)
     for lo in range(0, len(v), ANGLE_BLOCK):
         out[lo : lo + ANGLE_BLOCK] = v[lo : lo + ANGLE_BLOCK] @ direction
     return out

@@ -34,7 +34,8 @@ class Comparison:
 
     Attributes:
       t_s: (n,) common instants (increasing; gaps allowed), s.
-      measured, computed, delta: (n,) the series and Delta = computed - measured.
+      measured, computed, delta: (n,) the series and Delta = computed - measured (the series
+        as given to ``compare``: float32 ones stay float32; the metrics are computed in float64).
       iae, ise: integral of |Delta| and Delta^2 over the window (Simpson).
       iae_curve, ise_curve: (n,) the same integrals from the window's start to each instant.
       rms, max_abs: of Delta.
@@ -138,8 +139,11 @@ def _detrend(x: np.ndarray, window: int) -> np.ndarray:
     kernel = np.ones(window) / window
     mean = np.convolve(x, kernel, mode="valid")
     pad_left = (len(x) - len(mean)) // 2
-    mean = np.concatenate([np.full(pad_left, mean[0]), mean, np.full(len(x) - len(mean) - pad_left, mean[-1])])
-    return x - mean
+    out = np.array(x, dtype=float)  # x minus the mean, each part in place (no padded copy of the mean)
+    out[:pad_left] -= mean[0]
+    out[pad_left : pad_left + len(mean)] -= mean
+    out[pad_left + len(mean) :] -= mean[-1]
+    return out
 
 
 def _detrend_in_time(t: np.ndarray, x: np.ndarray, window_s: float) -> np.ndarray:
@@ -166,7 +170,8 @@ def _resolved_end(t: np.ndarray, m: np.ndarray, sigma: float) -> int:
     ``RESOLVED_MARGIN_S`` after the last one that leaves the series' mean by more than
     ``RESOLVED_SIGMAS`` noise sigmas; all n when none does (a series without a swing) or the
     swing lasts to the end (the usual case)."""
-    beyond = np.flatnonzero(np.abs(m - m.mean()) > RESOLVED_SIGMAS * sigma)
+    deviation = m - m.mean()
+    beyond = np.flatnonzero(np.abs(deviation, out=deviation) > RESOLVED_SIGMAS * sigma)
     if len(beyond) == 0:
         return len(t)
     return max(int(np.searchsorted(t, t[beyond[-1]] + RESOLVED_MARGIN_S, side="right")), min(len(t), 8))
@@ -287,20 +292,28 @@ def compare(
     """
     keep = set(SERIES) if series is None else set(series)
     t = np.asarray(t_s, dtype=float)
-    m = np.asarray(measured, dtype=float)
+    m = np.asarray(measured, dtype=float)  # float32 series: a float64 copy while the metrics are computed
     c = np.asarray(computed, dtype=float)
     if t.ndim != 1 or m.shape != t.shape or c.shape != t.shape:
         raise ParameterError(f"expected three (n,) series, got {t.shape}, {m.shape}, {c.shape}")
     if len(t) < 8:
         raise ParameterError(f"need at least 8 common samples, got {len(t)}")
-    step = np.diff(t)
-    if np.any(step <= 0):
+    if np.any(t[1:] <= t[:-1]):
         raise ParameterError("the instants must increase")
     segs = segments(t, max_gap_s)
-    dx = float(np.median(step))
-    uniform = len(segs) == 1 and np.max(np.abs(step - step.mean())) <= 1e-6 * step.mean() + 1e-12
+    # the steps' statistics with one (n,) array at a time: a long run's compare starts lean
+    step = np.diff(t)
+    mean_step = step.mean()
+    # the largest |step - mean| without (n,) temporaries (subtraction is monotonic: the same value)
+    spread = max(float(step.max() - mean_step), float(mean_step - step.min()))
+    short = step <= max_gap_s
+    covered = float(step.sum() if short.all() else step[short].sum())  # no copy without gaps
+    del short
+    dx = float(np.median(step, overwrite_input=True))  # the steps' last use: the median may reorder them
+    del step
+    uniform = len(segs) == 1 and spread <= 1e-6 * mean_step + 1e-12
     if uniform:
-        dx = float(step.mean())
+        dx = float(mean_step)
     empty = np.empty(0)
     delta = iae_curve = ise_curve = empty
     if keep & {"delta", "iae_curve", "ise_curve"}:
@@ -318,7 +331,6 @@ def compare(
         del abs_delta, squared
     else:
         iae, ise, sum_sq, max_abs = _windowed_errors(t, m, c, segs, uniform, dx)
-    covered = float(step[step <= max_gap_s].sum())
     # zero crossings with hysteresis at 4 noise sigmas of the measured series (noise near zero
     # would add crossings and raise the measured frequency)
     sigma = noise_level(m)
@@ -336,8 +348,8 @@ def compare(
     f_c = _frequency(_covered_zero_crossing_hz, t_f, c_f, band, segs_f, period, dx, uniform)
     return Comparison(
         t_s=t if "t_s" in keep else empty,
-        measured=m if "measured" in keep else empty,
-        computed=c if "computed" in keep else empty,
+        measured=_as_given(measured, m) if "measured" in keep else empty,
+        computed=_as_given(computed, c) if "computed" in keep else empty,
         delta=delta if "delta" in keep else empty,
         iae=iae,
         ise=ise,
@@ -354,6 +366,13 @@ def compare(
         covered_s=covered,
         measured_std=_std(m),
     )
+
+
+def _as_given(given: np.ndarray, as_float: np.ndarray) -> np.ndarray:
+    """A series to keep: the caller's float32 array as it is (half the memory of its float64
+    copy), else its float64 version."""
+    a = np.asarray(given)
+    return a if a.dtype == np.float32 else as_float
 
 
 def _std(x: np.ndarray) -> float:

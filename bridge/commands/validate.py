@@ -81,7 +81,10 @@ def register(sub: argparse._SubParsersAction[options.Parser]) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from pendsim_bridge import heap
     from pendsim_bridge.validate import Gates, gate_failures, table, validate, write_outputs
+
+    heap.map_large_blocks()  # a long run's whole-run temporaries go back to the system when freed
 
     out_dir = args.out_dir or args.path.with_name(f"{args.path.stem}_validation")
     options.check_output_dir(out_dir, ("report.json",), force=args.force)
