@@ -228,18 +228,6 @@ def identify(
     return _identify(run, params, window_s, law, drive)
 
 
-def _per_node(run: MeasuredRun, names: tuple[str, str]) -> tuple[np.ndarray, np.ndarray]:
-    """Two quantities of the two nodes as (m, 2) arrays of their own instants and values, NaN
-    where one node has fewer samples."""
-    m = max(len(n.t_s) for n in run.nodes)
-    t = np.full((m, 2), np.nan)
-    values = np.full((m, 2), np.nan)
-    for k, name in enumerate(names):
-        tk, vk, _ = run.series(name)
-        t[: len(tk), k], values[: len(tk), k] = tk, vk
-    return t, values
-
-
 def _identify(
     run: MeasuredRun, params: RigParams, window_s: float, law: str = "auto", drive: Drive | None = None
 ) -> Identification:
@@ -252,22 +240,17 @@ def _identify(
     decrement: list[LogDecrement] = []
     modal: ModalDecrement | None = None
     if drive is None:
-        t_phi, phi = _per_node(run, ("phi1", "phi2"))
+        t_phi, phi = run.both_nodes("t_s"), run.both_nodes("phi_rad")
         decrement = log_decrement(t_phi, phi, params, min(window_s, run.duration_s))
         try:
             modal = modal_decrement(t_phi, phi, params, min(window_s, run.duration_s))
         except ParameterError:
             modal = None
-    t_omega, omega = _per_node(run, ("omega1", "omega2"))
-    # the model is evaluated where each value belongs (the sample instants moved by the fusion age)
-    values_t = np.full_like(t_omega, np.nan)
-    for k, node in enumerate(run.nodes):
-        values_t[: len(node.value_t_s), k] = node.value_t_s
     start = run.start
     fit = planar_damping(
         params,
-        values_t,
-        omega,
+        run.both_nodes("value_t_s"),  # where each value belongs (the sample instants moved by the fusion age)
+        run.both_nodes("omega_rad_s"),
         gyro_sigma_rad_s=run.gyro_sigma_rad_s,
         phi0_rad=start.phi_rad,
         omega0_rad_s=start.omega_rad_s,

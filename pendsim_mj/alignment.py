@@ -205,6 +205,16 @@ class MeasuredRun:
         node = self.nodes[q.node]
         return node.t_s, getattr(node, q.attribute), node.value_t_s
 
+    def both_nodes(self, field: str) -> Floats:
+        """One per-node field (a ``NodeRun`` attribute of shape (m_k,), e.g. ``value_t_s``,
+        ``omega_rad_s``) of both nodes as (m, 2) float64, NaN where a node has fewer samples."""
+        m = max(len(n.t_s) for n in self.nodes)
+        out = np.full((m, 2), np.nan)
+        for k, node in enumerate(self.nodes):
+            values = getattr(node, field)
+            out[: len(values), k] = values
+        return out
+
     @property
     def duration_s(self) -> float:
         """From the start to the later node's last sample, s."""

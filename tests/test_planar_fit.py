@@ -25,10 +25,7 @@ def _fit(traj, config, law="viscous", hold_s=1.0):
         values = (imu.quat_wxyz[received, k], imu.gyro_rad_s[received, k], imu.accel_m_s2[received, k])
         nodes.append(NodeSamples(log[received], *values, stamp_s=stamp[received]))
     run = align(nodes, DEFAULT_PARAMS, fusion_rate_hz=config.fusion_rate_hz)
-    m = max(len(n.t_s) for n in run.nodes)
-    at, omega = np.full((m, 2), np.nan), np.full((m, 2), np.nan)
-    for k, node in enumerate(run.nodes):
-        at[: len(node.t_s), k], omega[: len(node.t_s), k] = node.value_t_s, node.omega_rad_s
+    at, omega = run.both_nodes("value_t_s"), run.both_nodes("omega_rad_s")
     return fit_planar(
         DEFAULT_PARAMS, at, omega, gyro_sigma_rad_s=run.gyro_sigma_rad_s, phi0_rad=run.start.phi_rad,
         omega0_rad_s=run.start.omega_rad_s, moving=run.start.kind != "release", law=law,

@@ -19,6 +19,7 @@ import numpy as np
 import pytest
 from acquire_helpers import Pendsim, free_udp_ports
 
+from pendsim_bridge.acquire.clock import recorded_stamp_clock
 from pendsim_bridge.acquire.packets import GROUP_SLICES
 from pendsim_bridge.cli import build_parser
 from pendsim_bridge.commands.nodes import spec_from
@@ -83,10 +84,7 @@ def _emulated(seed: int, *, hold_s: float = 2.0, loss: float = 0.0, jitter_ms: f
 
 def _damping(run):
     """The planar damping fit of an aligned run, as ``identify`` makes it (every law; the chosen first)."""
-    m = max(len(n.t_s) for n in run.nodes)
-    at, omega = np.full((m, 2), np.nan), np.full((m, 2), np.nan)
-    for k, node in enumerate(run.nodes):
-        at[: len(node.t_s), k], omega[: len(node.t_s), k] = node.value_t_s, node.omega_rad_s
+    at, omega = run.both_nodes("value_t_s"), run.both_nodes("omega_rad_s")
     return fit_planar(
         DEFAULT_PARAMS, at, omega, gyro_sigma_rad_s=run.gyro_sigma_rad_s, phi0_rad=run.start.phi_rad,
         omega0_rad_s=run.start.omega_rad_s, moving=run.start.kind != "release",
@@ -197,9 +195,9 @@ def test_a_nodes_and_acquire_recording_over_udp_identifies_viscous_damping(tmp_p
     """The issue's case, end to end: ``pendsim acquire`` (a subprocess) records the emulator's
     packets over loopback UDP (its library in a thread, as tests/test_acquire_e2e.py does), 2 s
     held and 10 s of swing; ``identify`` then finds viscous damping (it chose viscous plus dry
-    friction before, 1.45 sigma). The emulator's two chips fuse at the same true instants, and
-    acquire logs (and stamps) each sample at its device time mapped to the host's clock, so on the
-    recording's clock the true relative timing is 0 (to the mapping's microseconds on loopback)."""
+    friction before, 1.45 sigma). The emulator's two chips fuse at the same true instants on the
+    host's clock; acquire stamps each sample with its node's device time and keeps its fit of
+    those stamps to the host's clock, which gives each node's true phase on its stamps."""
     p1, p2 = free_udp_ports(2)
     ports = ["--node", f"m1={p1}", "--node", f"m2={p2}"]
     spec = spec_from(build_parser().parse_args(["nodes", "--duration-s", "12", "--seed", "5", *ports]))
@@ -215,13 +213,21 @@ def test_a_nodes_and_acquire_recording_over_udp_identifies_viscous_damping(tmp_p
     finally:
         acquire.kill()
     rec = read_recording(tmp_path / "run.mcap")
-    own = _own_data_error_s(
-        [rec.imu[n].stamp_ns * 1e-9 for n in ("m1", "m2")], [rec.imu[n].gyro_rad_s for n in ("m1", "m2")], (0.0, 0.0)
-    )
+    # each node's stamps are its device time (from its first sample's arrival on); acquire's fit of
+    # them to the host's clock (host = stamp + delta) puts the chips' common fusion instants at
+    # -delta on each node's stamps: the truth, to the fit's microseconds
+    stamps = [rec.imu[n].stamp_ns * 1e-9 for n in ("m1", "m2")]
+    truth = []
+    for n, s in zip(("m1", "m2"), stamps, strict=True):
+        clock = recorded_stamp_clock(rec.metadata, n, rec.start_time_ns)
+        assert clock is not None
+        middle = float(np.median(s))
+        truth.append(middle - float(clock.to_recorder(middle)))
+    own = _own_data_error_s(stamps, [rec.imu[n].gyro_rad_s for n in ("m1", "m2")], truth)
     assert abs(own) > 0.5e-3
     run = align_recording(rec, DEFAULT_PARAMS)
     assert run.start.kind == "release"
-    error_s = _relative_error_s(run, (0.0, 0.0))
+    error_s = _relative_error_s(run, truth)
     assert abs(error_s) <= ALIGN_TOLERANCE_S
     fit = identify(tmp_path / "run.mcap").fit
     assert fit.timing2_s is not None and abs(error_s + fit.timing2_s) <= FIT_TOLERANCE_S["release"]
