@@ -5,6 +5,7 @@ from __future__ import annotations
 import dataclasses
 import math
 from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import numpy as np
@@ -16,14 +17,17 @@ from pendsim_mj.allan import (
     AllanCurve,
     NoiseTerms,
     SamplingReport,
+    adev_of_phase,
     check_sampling,
-    curves_of_phase,
+    curves_of_deviations,
     gyro_motion,
+    load_kernels,
     longest_uniform_segment,
     motion_intervals_s,
     noise_terms,
     phase,
     still_samples,
+    tau_grid,
 )
 from pendsim_mj.errors import RecordingError
 from pendsim_mj.timing import nominal_rate_hz
@@ -66,7 +70,11 @@ class AllanReport:
 
 
 def analyse(
-    path: str | Path, *, longest_segment: bool = False, progress: Callable[[int], None] | None = None
+    path: str | Path,
+    *,
+    longest_segment: bool = False,
+    progress: Callable[[int], None] | None = None,
+    while_computing: Callable[[], object] | None = None,
 ) -> AllanReport:
     """Read the IMU topics of a recording and analyse every accelerometer and gyro axis.
 
@@ -76,16 +84,66 @@ def analyse(
     farther than ``MOTION_MARGIN_S`` from the motion of every node (``still_samples``): a stretch
     held before a release ends before the earliest motion onset, whichever node moves first.
 
+    Time on a 2-core machine (a 6 h recording): numba is loaded first (0.5 s) and the chunks'
+    message indexes are checked compiled (``McapFile.chunks``); the deviation kernels and
+    allantools load on a pool thread while the file is read; a node's deviations are computed
+    on other threads (compiled, without the GIL) while this one calls ``while_computing`` for the
+    first node (the caller's own imports, e.g. the plotting modules).
+
     Raises:
       RecordingError: unreadable file, no IMU topic, or (without ``longest_segment``, which
         analyses the longest static, uniformly sampled stretch) a node that turns
         (``pendsim_mj.allan.gyro_motion``), gaps or irregular timestamps, which Allan deviation
         cannot take.
     """
+    from pendsim_bridge import chunk_kernel  # numba, for the analysis only
+
     path = Path(path)
+    chunk_kernel.warm_up()  # numba's first call in this process: the chunks are then parsed compiled
+    with ThreadPoolExecutor(max_workers=1, thread_name_prefix="allan") as pool:
+        preparing = pool.submit(_prepare_curves)  # while the file is read
+        stretches = _static_stretches(path, longest_segment, progress)
+        preparing.result()
+        axes = []
+        for i, (node, (accel, gyro)) in enumerate(stretches.columns.items()):
+            x = phase(accel, gyro)  # (n + 1, 6): one node's phase at a time
+            deviations = pool.submit(adev_of_phase, x, tau_grid(len(accel)))  # compiled, without the GIL
+            if i == 0 and while_computing is not None:  # this thread's work meanwhile
+                while_computing()
+            moments = [(float(c.mean()), float(c.std())) for block in (accel, gyro) for c in block.T]
+            curves = curves_of_deviations(deviations.result(), len(accel), stretches.rates[node])
+            del x, deviations
+            axes += _axis_results(node, moments, curves)
+    s = stretches
+    counts = {node: len(accel) for node, (accel, _) in s.columns.items()}
+    duration = max(end - start for start, end in s.segments.values())
+    return AllanReport(path, s.rates[next(iter(s.rates))], duration, counts, s.sampling, s.segments, axes, s.largest)
+
+
+def _prepare_curves() -> None:
+    """Load what the curves need: the compiled deviations and allantools (with scipy)."""
+    load_kernels()
+    import allantools  # noqa: F401  (the confidence intervals' degrees of freedom)
+
+
+@dataclasses.dataclass
+class _Stretches:
+    """What ``_static_stretches`` found per node: the rate (Hz), the sampling report, the analysed
+    stretch's (start, end) s and its (accelerometer, gyro) samples ((n, 3) views each), and the
+    largest turning rate (rad/s)."""
+
+    rates: dict[str, float]
+    sampling: dict[str, SamplingReport]
+    segments: dict[str, tuple[float, float]]
+    columns: dict[str, tuple[np.ndarray, np.ndarray]]
+    largest: dict[str, float]
+
+
+def _static_stretches(path: Path, longest_segment: bool, progress: Callable[[int], None] | None) -> _Stretches:
+    """Read the IMU topics and choose each node's static, uniformly sampled stretch (``analyse``)."""
     # only what the analysis uses: the log times, gyros and accelerometers (no orientations, stamps)
     topics = [imu_topic(n) for n in NODES]
-    rec = read_recording(path, topics=topics, progress=progress, imu_fields=("gyro_rad_s", "accel_m_s2"))
+    rec = read_recording(path, topics=topics, progress=progress, imu_fields=("gyro_rad_s", "accel_m_s2"), compiled=True)
     if not rec.imu:
         raise RecordingError(f"{path}: no /imu/m1 or /imu/m2 topic to analyse")
     rate = float(rec.metadata.get("pendsim/imu", {}).get("sample_rate_hz", "0") or 0)
@@ -129,33 +187,31 @@ def analyse(
         columns[node] = (topic.accel_m_s2[part], topic.gyro_rad_s[part])  # views: (n, 3) each
         del topic, t
     del rec
+    return _Stretches(rates, sampling, segments, columns, largest)
+
+
+def _axis_results(node: str, moments: list[tuple[float, float]], curves: list[AllanCurve]) -> list[AxisResult]:
+    """The six rows of one node (accelerometer x, y, z, then gyro x, y, z) from each column's
+    (mean, standard deviation) and its curve."""
     axes = []
-    for node, (accel, gyro) in columns.items():
-        x = phase(accel, gyro)  # (n + 1, 6): one node's phase at a time
-        curves = curves_of_phase(x, rates[node])
-        del x
-        for j in range(6):
-            sensor, unit, _ = SENSORS[j // 3]
-            column = (accel, gyro)[j // 3][:, j % 3]
-            mean = float(column.mean())
-            sigma = float(curves[j].adev[0])
-            axes.append(
-                AxisResult(
-                    node=node,
-                    sensor=sensor,
-                    axis="xyz"[j % 3],
-                    unit=unit,
-                    sigma=sigma,
-                    std=float(column.std()),
-                    mean=mean,
-                    cv_percent=sigma / abs(mean) * 100 if mean != 0 else math.inf,
-                    curve=curves[j],
-                    terms=noise_terms(curves[j]),
-                )
+    for j, ((mean, std), curve) in enumerate(zip(moments, curves, strict=True)):
+        sensor, unit, _ = SENSORS[j // 3]
+        sigma = float(curve.adev[0])
+        axes.append(
+            AxisResult(
+                node=node,
+                sensor=sensor,
+                axis="xyz"[j % 3],
+                unit=unit,
+                sigma=sigma,
+                std=std,
+                mean=mean,
+                cv_percent=sigma / abs(mean) * 100 if mean != 0 else math.inf,
+                curve=curve,
+                terms=noise_terms(curve),
             )
-    counts = {node: len(accel) for node, (accel, _) in columns.items()}
-    duration = max(end - start for start, end in segments.values())
-    return AllanReport(path, rates[next(iter(rates))], duration, counts, sampling, segments, axes, largest)
+        )
+    return axes
 
 
 def duration_text(duration_s: float) -> str:

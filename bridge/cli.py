@@ -93,6 +93,7 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 def _run() -> None:  # pragma: no cover - console script wrapper
     heap.keep_small_blocks()
+    heap.collect_rarely()
     for stream in (sys.stdout, sys.stderr):  # a file name that is not UTF-8 prints escaped, never fails
         with contextlib.suppress(AttributeError, ValueError):
             stream.reconfigure(errors="backslashreplace")  # type: ignore[union-attr]
@@ -108,6 +109,7 @@ def _run() -> None:  # pragma: no cover - console script wrapper
         os.dup2(devnull, sys.stdout.fileno())
         print(f"pendsim: error: cannot write to standard output: {exc.strerror}", file=sys.stderr)
         code = EXIT_USAGE
+    heap.skip_exit_collection()  # everything is written and published: nothing left to collect for
     sys.exit(code)
 
 

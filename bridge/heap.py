@@ -4,13 +4,15 @@
 would otherwise fault in fresh pages again and again); the long-run arrays freed between stages
 (a 6 h recording's decoded samples, one model run's series) then stay resident, in pieces the
 next stage cannot always reuse. ``trim`` returns every free page of the heap to the system, and
-``map_large_blocks`` gives a command's large arrays pages of their own.
+``map_large_blocks`` gives a command's large arrays pages of their own. Python's own garbage
+collector (``collect_rarely``, ``skip_exit_collection``) is tuned here too.
 """
 
 from __future__ import annotations
 
 import contextlib
 import ctypes
+import gc
 
 KEEP_BYTES = 32 << 20
 """Freed blocks below this stay in the process's heap instead of going back to the system."""
@@ -52,3 +54,25 @@ def map_large_blocks(min_bytes: int = MAPPED_BYTES) -> None:
     alive instead of the heap's high-water mark; blocks smaller than that (chunks, model blocks)
     stay in the heap. Elsewhere (or if the call fails): nothing."""
     _mallopt(M_MMAP_THRESHOLD, min_bytes)
+
+
+YOUNG_OBJECTS = 50_000
+"""Python's cyclic garbage collector looks at the youngest objects after this many allocations
+(Python's default: 700). Importing scipy, matplotlib and numba makes hundreds of thousands of
+objects that live as long as the process; with the default, an Allan analysis ran 553
+collections (4 over everything), 0.26 s of a 5 s run."""
+
+
+def collect_rarely() -> None:
+    """Run the cyclic garbage collector less often (``YOUNG_OBJECTS``; a full collection after
+    20 of the middle generation's). Cycles are still collected; arrays are freed by reference
+    counting as ever."""
+    gc.set_threshold(YOUNG_OBJECTS, 20, 20)
+
+
+def skip_exit_collection() -> None:
+    """Before the process exits: move every object to the collector's permanent generation, so
+    that Python's exit does not walk all of them once more (0.3-0.5 s after an Allan analysis
+    with its libraries loaded). Only for a process whose outputs are all written and closed:
+    an object left in a reference cycle is then not finalized."""
+    gc.freeze()

@@ -345,6 +345,7 @@ def read_recording(
     progress: Callable[[int], None] | None = None,
     sensor_float32: bool = False,
     imu_fields: Collection[str] | None = None,
+    compiled: bool = False,
 ) -> Recording:
     """Read a recording into numpy arrays per topic, chunk by chunk: each chunk's messages are
     decoded straight into per-field arrays (payloads are never all held at once).
@@ -362,6 +363,8 @@ def read_recording(
       imu_fields: decode only these ``ImuTopic`` fields of the IMU topics (e.g. ``("gyro_rad_s",
         "accel_m_s2")`` for an Allan analysis; log times always); the others come back with no
         rows. None: all of them. Every message is still checked as before.
+      compiled: check the chunks' message indexes with the compiled kernel (``McapFile.chunks``:
+        the same result, the chunks parsed 10x faster, after numba's 0.4-0.5 s first call).
 
     Raises:
       RecordingError: a damaged file (strict), or a known topic with an unexpected schema.
@@ -373,7 +376,7 @@ def read_recording(
             raise RecordingError(mcap.error_text())
         wanted_topics = set(EXPECTED_SCHEMAS) - {"/tf_static"} if topics is None else set(topics)
         decoders = _topic_decoders(path, mcap, wanted_topics, sensor_float32, imu_fields)
-        for chunk in mcap.chunks(channels=set(decoders), progress=progress):
+        for chunk in mcap.chunks(channels=set(decoders), progress=progress, compiled=compiled):
             for cid, data in chunk.channels.items():
                 if cid in decoders:
                     decoders[cid].add(data)

@@ -48,11 +48,14 @@ def tau_grid(n_samples: int, per_decade: int = TAUS_PER_DECADE) -> np.ndarray:
 
 def phase(*columns: np.ndarray) -> np.ndarray:
     """The phase x (n+1, a) of frequency-type data given as column blocks (each (n,) or (n, k),
-    together a columns): x[0] = 0, x[i] = sum of the first i samples less the column's mean.
-    Built straight from the blocks (no joined copy of the data). The mean only adds a straight
-    line to x, which the second differences cancel; without it, x grows to n * mean and the sums
-    lose digits."""
-    blocks = [np.asarray(c, dtype=float).reshape(len(c), -1) for c in columns]
+    together a columns; float32 data is summed in float64): x[0] = 0, x[i] = sum of the first
+    i samples less the column's mean. Built straight from the blocks in one compiled pass
+    (``allan_kernel.running_sum_into``: no copy of the data). The mean only adds a straight line
+    to x, which the second differences cancel; without it, x grows to n * mean and the sums lose
+    digits."""
+    from pendsim_mj import allan_kernel  # numba only once needed
+
+    blocks = [np.asarray(c).reshape(len(c), -1) for c in columns]
     n = len(blocks[0])
     x = np.empty((n + 1, sum(b.shape[1] for b in blocks)))
     x[0] = 0.0
@@ -60,12 +63,10 @@ def phase(*columns: np.ndarray) -> np.ndarray:
     for b in blocks:
         if len(b) != n:
             raise ParameterError(f"column blocks must be equally long, got {n} and {len(b)}")
-        k = b.shape[1]
-        part = x[1:, j : j + k]
-        part[...] = b
-        part -= b.mean(axis=0)
-        np.cumsum(part, axis=0, out=part)  # in place: no temporary of the data's size
-        j += k
+        if b.dtype not in (np.float32, np.float64):
+            b = b.astype(float)
+        allan_kernel.running_sum_into(x, j, b, b.mean(axis=0, dtype=np.float64))
+        j += b.shape[1]
     return x
 
 
@@ -98,6 +99,15 @@ def adev_of_phase(x: np.ndarray, m: np.ndarray, *, threads: int = 2) -> np.ndarr
     x = np.ascontiguousarray(x, dtype=float)
     kernel = allan_kernel.oadev_parallel if threads > 1 and x.size > 2_000_000 else allan_kernel.oadev_serial
     return kernel(x, m)
+
+
+def load_kernels() -> None:
+    """Load the compiled kernels (``allan_kernel``) into this process: numba's first call in a
+    process costs 0.4-0.5 s, which a caller can spend on a thread while it does other work (the
+    Allan report: while the recording is read)."""
+    from pendsim_mj import allan_kernel
+
+    allan_kernel.warm_up()
 
 
 @dataclasses.dataclass(frozen=True)
@@ -147,8 +157,16 @@ def curves_of_phase(
 ) -> list[AllanCurve]:
     """``allan_curves`` of the data whose phase (``phase``) is x (n+1, a): one curve per column."""
     n = len(x) - 1
+    return curves_of_deviations(adev_of_phase(x, tau_grid(n), threads=threads), n, rate_hz, confidence=confidence)
+
+
+def curves_of_deviations(
+    adev: np.ndarray, n_samples: int, rate_hz: float, *, confidence: float = ONE_SIGMA
+) -> list[AllanCurve]:
+    """The curves (with confidence intervals) of the deviations adev (k, a) that ``adev_of_phase``
+    gave on ``tau_grid(n_samples)`` for a record of n_samples at rate_hz: one curve per column."""
+    n = n_samples
     m = tau_grid(n)
-    adev = adev_of_phase(x, m, threads=threads)
     tau = m / rate_hz
     import allantools  # (with scipy) only once needed: not while a recording is read
 

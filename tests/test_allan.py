@@ -24,6 +24,7 @@ from pendsim_mj.allan import (
     motion_intervals_s,
     noise_terms,
     overlapping_adev,
+    phase,
     still_samples,
     tau_grid,
 )
@@ -44,6 +45,31 @@ def test_kernel_equals_allantools_oadev_on_one_and_two_threads():
     for j in range(3):
         _, reference, _, _ = allantools.oadev(y[:, j], rate=FS, data_type="freq", taus=m / FS)
         np.testing.assert_allclose(serial[:, j], reference, rtol=1e-11)
+
+
+def test_six_columns_together_give_each_columns_deviations_bit_for_bit():
+    """A node's six columns take the kernel's scalar-sum path; one column alone the general loop."""
+    rng = np.random.default_rng(3)
+    y = (rng.normal(size=(60_000, 6)) * [1, 2, 3, 1e-3, 2e-3, 3e-3] + 9.81).astype(np.float32)
+    m = tau_grid(len(y))
+    together = overlapping_adev(y, m, threads=1)
+    alone = np.column_stack([overlapping_adev(y[:, j], m, threads=1) for j in range(6)])
+    np.testing.assert_array_equal(together, alone)
+    _, reference, _, _ = allantools.oadev(y[:, 4].astype(float), rate=FS, data_type="freq", taus=m / FS)
+    np.testing.assert_allclose(together[:, 4], reference, rtol=1e-9)
+
+
+def test_phase_is_the_running_sum_of_each_column_less_its_mean():
+    rng = np.random.default_rng(4)
+    accel = (rng.normal(size=(5000, 3)) + np.array([0.1, 9.8, -0.2])).astype(np.float32)
+    gyro = rng.normal(size=(5000, 3)) * 1e-3
+    x = phase(accel, gyro)
+    assert x.shape == (5001, 6) and np.all(x[0] == 0)
+    for j, column in enumerate([*accel.T, *gyro.T]):
+        values = column.astype(float)
+        mean = math.fsum(values) / len(values)
+        exact = np.array([0.0, *np.cumsum(values - mean)])
+        np.testing.assert_allclose(x[:, j], exact, rtol=0, atol=1e-9 * np.abs(values).max() * len(values))
 
 
 def test_white_noise_follows_sigma_over_sqrt_tau_fs_inside_its_confidence_band():

@@ -44,7 +44,12 @@ def run(args: argparse.Namespace) -> int:
     with tqdm(
         total=args.path.stat().st_size, unit="B", unit_scale=True, desc="reading", disable=None, leave=False
     ) as bar:
-        report = analyse(args.path, longest_segment=args.longest_segment, progress=bar.update)
+        report = analyse(
+            args.path,
+            longest_segment=args.longest_segment,
+            progress=bar.update,
+            while_computing=None if args.no_plots else _import_plotting,
+        )
     written = [] if args.no_plots else plots(report, plot_dir, replace=args.force)
     if args.json:
         print(json.dumps({**as_json(report), "plots": [str(p) for p in written]}))
@@ -53,3 +58,8 @@ def run(args: argparse.Namespace) -> int:
     if written:
         print(f"plots: {', '.join(str(p) for p in written)}")
     return 0
+
+
+def _import_plotting() -> None:
+    """matplotlib, imported while the deviations are computed (``analyse``'s while_computing)."""
+    import pendsim_bridge.plots  # noqa: F401
