@@ -23,7 +23,7 @@ MESSAGE_FIELDS_SIZE = 22  # channel (2), sequence (4), log time (8), publish tim
 
 
 @numba.njit(cache=True, nogil=True)
-def _u64(data: np.ndarray, at: int) -> int:  # pragma: no cover - compiled
+def _u64(data: np.ndarray, at: int) -> np.int64:  # pragma: no cover - compiled
     """The little-endian 64-bit integer at data[at:at + 8] (as int64: wraps above 2**63 - 1, as
     numpy's astype(np.int64) of the uint64 does)."""
     value = np.int64(0)

@@ -453,7 +453,9 @@ def _messages_compiled(
     data = np.frombuffer(raw, np.uint8)
     compiled.slot[wanted] = np.arange(len(wanted))
     try:
-        first = chunk_kernel.index_messages(data, index_bytes, spans, compiled.slot, *found, counts)
+        offsets, log, publish, sizes = found
+        slot = compiled.slot
+        first = chunk_kernel.index_messages(data, index_bytes, spans, slot, offsets, log, publish, sizes, counts)
     finally:
         compiled.slot[wanted] = -1
         del index_bytes  # no view of the memory map outlives the call
