@@ -35,6 +35,8 @@ import tempfile
 import time
 from pathlib import Path
 
+import numpy as np
+
 CLI = "import sys; from pendsim_bridge.cli import _run; _run()"
 
 ROLLOUT = """
@@ -91,6 +93,13 @@ def measure(args: list[str]) -> tuple[float, float, float, int]:
     return usage.ru_utime + usage.ru_stime, wall, usage.ru_maxrss / 1024, proc.returncode
 
 
+def repeated(args: list[str], times: int) -> tuple[float, float, float, int]:
+    """``measure`` run ``times`` times: median CPU and wall time, highest peak, first failure."""
+    runs = [measure(args) for _ in range(max(1, times))]
+    cpu, wall = (float(np.median([r[k] for r in runs])) for k in (0, 1))
+    return cpu, wall, max(r[2] for r in runs), next((r[3] for r in runs if r[3]), 0)
+
+
 def make_recordings(folder: Path, duration_s: int) -> tuple[Path, Path]:
     """The planar and static recordings of one duration (reused if present)."""
     from pendsim_bridge.record import RecordSpec, record
@@ -120,6 +129,13 @@ def main() -> None:
     parser.add_argument(
         "--fit-6h", action="store_true", help="also run the default validate (with the damping fit) on 6 h (slow)"
     )
+    parser.add_argument(
+        "--repeat",
+        type=int,
+        default=1,
+        help="run each measurement this many times: the median CPU and wall time, the highest peak (a 2-core "
+        "machine's wall times spread by 20 %% from run to run)",
+    )
     args = parser.parse_args()
     durations = [int(float(d)) for d in args.durations.split(",") if d]
     skip = {s.strip() for s in args.skip.split(",") if s.strip()}
@@ -147,7 +163,7 @@ def main() -> None:
                 if name in skip or (name == "validate" and d > 3600 and not args.fit_6h):
                     continue
                 load = os.getloadavg()[0]
-                cpu, wall, peak, code = measure(cmd)
+                cpu, wall, peak, code = repeated(cmd, args.repeat)
                 if name.startswith("anchor"):
                     anchor_cpu[name] = (cpu, wall)
                 rows.append((name, d, cpu, wall, peak, load, code))

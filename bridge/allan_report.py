@@ -84,11 +84,10 @@ def analyse(
     farther than ``MOTION_MARGIN_S`` from the motion of every node (``still_samples``): a stretch
     held before a release ends before the earliest motion onset, whichever node moves first.
 
-    Time on a 2-core machine (a 6 h recording): numba is loaded first (0.5 s) and the chunks'
-    message indexes are checked compiled (``McapFile.chunks``); the deviation kernels and
-    allantools load on a pool thread while the file is read; a node's deviations are computed
-    on other threads (compiled, without the GIL) while this one calls ``while_computing`` for the
-    first node (the caller's own imports, e.g. the plotting modules).
+    Time on a 2-core machine (a 6 h recording): numba is loaded first (0.3-0.5 s) and the chunks'
+    message indexes are checked compiled (``McapFile.chunks``); the deviations are computed on
+    other threads (compiled, without the GIL) while this one imports allantools and calls
+    ``while_computing`` (the caller's own imports, e.g. the plotting modules).
 
     Raises:
       RecordingError: unreadable file, no IMU topic, or (without ``longest_segment``, which
@@ -100,30 +99,38 @@ def analyse(
 
     path = Path(path)
     chunk_kernel.warm_up()  # numba's first call in this process: the chunks are then parsed compiled
+    stretches = _static_stretches(path, longest_segment, progress)
+    load_kernels()
     with ThreadPoolExecutor(max_workers=1, thread_name_prefix="allan") as pool:
-        preparing = pool.submit(_prepare_curves)  # while the file is read
-        stretches = _static_stretches(path, longest_segment, progress)
-        preparing.result()
-        axes = []
-        for i, (node, (accel, gyro)) in enumerate(stretches.columns.items()):
-            x = phase(accel, gyro)  # (n + 1, 6): one node's phase at a time
-            deviations = pool.submit(adev_of_phase, x, tau_grid(len(accel)))  # compiled, without the GIL
-            if i == 0 and while_computing is not None:  # this thread's work meanwhile
-                while_computing()
-            moments = [(float(c.mean()), float(c.std())) for block in (accel, gyro) for c in block.T]
-            curves = curves_of_deviations(deviations.result(), len(accel), stretches.rates[node])
-            del x, deviations
-            axes += _axis_results(node, moments, curves)
+        computing = pool.submit(_deviations, stretches.columns)  # compiled, without the GIL
+        import allantools  # noqa: F401  (meanwhile: the confidence intervals' degrees of freedom)
+
+        if while_computing is not None:
+            while_computing()
+        moments = {
+            node: [(float(c.mean()), float(c.std())) for block in columns for c in block.T]
+            for node, columns in stretches.columns.items()
+        }
+        deviations = computing.result()
+    axes = []
+    for node, (accel, _) in stretches.columns.items():
+        curves = curves_of_deviations(deviations[node], len(accel), stretches.rates[node])
+        axes += _axis_results(node, moments[node], curves)
     s = stretches
     counts = {node: len(accel) for node, (accel, _) in s.columns.items()}
     duration = max(end - start for start, end in s.segments.values())
     return AllanReport(path, s.rates[next(iter(s.rates))], duration, counts, s.sampling, s.segments, axes, s.largest)
 
 
-def _prepare_curves() -> None:
-    """Load what the curves need: the compiled deviations and allantools (with scipy)."""
-    load_kernels()
-    import allantools  # noqa: F401  (the confidence intervals' degrees of freedom)
+def _deviations(columns: dict[str, tuple[np.ndarray, np.ndarray]]) -> dict[str, np.ndarray]:
+    """Each node's overlapping Allan deviations (k, 6) on ``tau_grid`` of its (accelerometer,
+    gyro) samples: one node's phase (``phase``, (n + 1, 6)) in memory at a time."""
+    out = {}
+    for node, (accel, gyro) in columns.items():
+        x = phase(accel, gyro)
+        out[node] = adev_of_phase(x, tau_grid(len(accel)))
+        del x
+    return out
 
 
 @dataclasses.dataclass

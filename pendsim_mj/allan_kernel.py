@@ -67,7 +67,7 @@ def oadev_serial(x: np.ndarray, m: np.ndarray) -> np.ndarray:  # pragma: no cove
     return out
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def running_sum_into(x: np.ndarray, first: int, block: np.ndarray, mean: np.ndarray) -> None:  # pragma: no cover
     """x[i + 1, first + j] = x[i, first + j] + (block[i, j] - mean[j]) for the columns of block
     (n, k) (any float dtype, summed in float64), x[0] left as it is: ``pendsim_mj.allan.phase``
