@@ -364,7 +364,8 @@ def read_recording(
         "accel_m_s2")`` for an Allan analysis; log times always); the others come back with no
         rows. None: all of them. Every message is still checked as before.
       compiled: check the chunks' message indexes with the compiled kernel (``McapFile.chunks``:
-        the same result, the chunks parsed 10x faster, after numba's 0.4-0.5 s first call).
+        the same result, each chunk parsed in a quarter of the time, after numba's 0.3-0.5 s
+        first call).
 
     Raises:
       RecordingError: a damaged file (strict), or a known topic with an unexpected schema.
