@@ -8,10 +8,10 @@ import numpy as np
 import pytest
 from scipy.interpolate import CubicSpline
 
-from pendsim_bridge import plots
+from pendsim_bridge import figure_lines
 from pendsim_bridge.record import RecordSpec, record
 from pendsim_bridge.recording import NODES, imu_topic, read_recording
-from pendsim_bridge.validate import align_recording, validate
+from pendsim_bridge.validate import align_recording, model_series, validate
 from pendsim_mj import rotations
 from pendsim_mj.analysis import hann_magnitude, padded_length, spectral_peak_hz
 from pendsim_mj.imperfections import random_mount
@@ -19,6 +19,7 @@ from pendsim_mj.nonlinear.linear import linear_modes
 from pendsim_mj.params import DEFAULT_PARAMS
 from pendsim_mj.sensors import Bno055
 from pendsim_mj.swing_frame import ANGLE_BLOCK, SwingFrame, relative_axis, twist_angle
+from pendsim_mj.quantities import BY_NAME
 from pendsim_mj.validation import SERIES, WINDOW_SAMPLES, compare, resample
 
 DAMPING_FACTOR = 10.0  # the paper's hinge damping x10: the swing is lost in the noise within 2 minutes
@@ -151,18 +152,49 @@ def test_a_long_whole_run_line_is_drawn_as_its_envelope_broken_at_gaps():
     t = np.arange(288_000) / 80.0
     t = t[(t < 1000.0) | (t > 1005.0)]
     y = np.sin(2 * math.pi * 0.87 * t) * np.exp(-t / 900.0)
-    drawn_t, drawn_y = plots._envelope(t, y, 0.1)
+    drawn_t, drawn_y = figure_lines.envelope(t, y, 0.1)
     real = np.isfinite(drawn_y)
-    assert real.sum() <= 2 * plots.ENVELOPE_BUCKETS + 4 and np.count_nonzero(~real) == 1
+    assert real.sum() <= 2 * figure_lines.ENVELOPE_BUCKETS + 4 and np.count_nonzero(~real) == 1
     i = np.searchsorted(t, drawn_t[real])
     np.testing.assert_array_equal(t[i], drawn_t[real])
     np.testing.assert_array_equal(y[i], drawn_y[real])
     assert drawn_y[real].max() == y.max() and drawn_y[real].min() == y.min()
     gap = np.flatnonzero(~real)[0]
     assert drawn_t[gap - 1] < 1000.0 < 1005.0 < drawn_t[gap + 1]
-    short_t, short_y = plots._envelope(t[:9600], y[:9600], 0.1)  # a short run's line: all of it
+    short_t, short_y = figure_lines.envelope(t[:9600], y[:9600], 0.1)  # a short run's line: all of it
     np.testing.assert_array_equal(short_t, t[:9600])
     np.testing.assert_array_equal(short_y, y[:9600])
+
+
+def test_whole_run_figure_lines_kept_when_compared_are_the_envelopes_of_the_whole_series(mostly_at_rest):
+    # validate keeps no whole-run series, only what Figures 12 and 15 draw, reduced when each
+    # comparison is made; the truth is the envelope of the whole series, taken afterwards from
+    # the run aligned again and each model run resampled whole (as the figures drew them before)
+    report = validate(mostly_at_rest, damping="recorded")
+    topics = [imu_topic(n) for n in NODES]
+    run = align_recording(read_recording(mostly_at_rest, topics=topics, sensor_float32=True), PARAMS, float32_values=True)
+    gap = run.max_gap_s
+    starts = {"estimated": (run.start.phi_rad, run.start.omega_rad_s), "nominal": ((math.pi / 6, 0.0), (0.0, 0.0))}
+    drawn = {("mujoco", "estimated"), ("reference", "estimated"), ("mujoco", "nominal")}
+    assert set(report.lines) == {(e, r, q) for e, r in drawn for q in ("phi1", "omega2")}
+    for (engine, release, quantity), lines in report.lines.items():
+        assert all(len(getattr(report.case(engine, release).comparisons[quantity], n)) == 0 for n in SERIES)
+        t_model, values = model_series(engine, report.params, starts[release], run.duration_s + 0.02, dtype=np.float32)
+        t, measured, at = run.series(quantity)
+        assert len(t) > figure_lines.ENVELOPE_ABOVE  # 20 minutes at 80 Hz: drawn as envelopes
+        computed = resample(t_model, values[BY_NAME[quantity].name], np.clip(at, 0.0, t_model[-1])).astype(np.float32)
+        for got, series in (
+            (lines.computed, computed),
+            (lines.measured, measured if (engine, release) == ("mujoco", "estimated") else None),
+            (lines.difference, computed - measured if release == "estimated" else None),
+        ):
+            if series is None:
+                assert got is None
+                continue
+            assert got is not None and len(got[0]) <= 2 * figure_lines.ENVELOPE_BUCKETS + 4
+            expected = figure_lines.envelope(t, series.astype(float), gap)
+            np.testing.assert_array_equal(got[0], expected[0])
+            np.testing.assert_array_equal(got[1], expected[1])
 
 
 def test_angles_block_by_block_equal_the_whole_run_unwrapped_twist():
