@@ -410,7 +410,8 @@ def validate(
                     inside = _window(t <= limit + 1e-9, t, measured, computed)
                     cmp = compare(*inside, max_gap_s=max_gap_s, series=None if window_name != "whole" else ())
                     by_window[window_name][q.name] = cmp
-                    if window_name == "whole" and q.name in plotted and (engine, release_name) != ("reference", "nominal"):
+                    drawn = q.name in plotted and (engine, release_name) != ("reference", "nominal")
+                    if window_name == "whole" and drawn:
                         # the lines a whole-run figure draws: their envelopes (the computed line float32)
                         main = (engine, release_name) == ("mujoco", "estimated")
                         lines[(engine, release_name, q.name)] = drawn_lines(

@@ -19,7 +19,6 @@ from pendsim_mj.nonlinear.linear import linear_modes
 from pendsim_mj.params import DEFAULT_PARAMS
 from pendsim_mj.sensors import Bno055
 from pendsim_mj.swing_frame import ANGLE_BLOCK, SwingFrame, relative_axis, twist_angle
-from pendsim_mj.quantities import BY_NAME
 from pendsim_mj.validation import SERIES, WINDOW_SAMPLES, compare, resample
 
 DAMPING_FACTOR = 10.0  # the paper's hinge damping x10: the swing is lost in the noise within 2 minutes
@@ -172,7 +171,8 @@ def test_whole_run_figure_lines_kept_when_compared_are_the_envelopes_of_the_whol
     # the run aligned again and each model run resampled whole (as the figures drew them before)
     report = validate(mostly_at_rest, damping="recorded")
     topics = [imu_topic(n) for n in NODES]
-    run = align_recording(read_recording(mostly_at_rest, topics=topics, sensor_float32=True), PARAMS, float32_values=True)
+    rec = read_recording(mostly_at_rest, topics=topics, sensor_float32=True)
+    run = align_recording(rec, PARAMS, float32_values=True)
     gap = run.max_gap_s
     starts = {"estimated": (run.start.phi_rad, run.start.omega_rad_s), "nominal": ((math.pi / 6, 0.0), (0.0, 0.0))}
     drawn = {("mujoco", "estimated"), ("reference", "estimated"), ("mujoco", "nominal")}
@@ -182,7 +182,7 @@ def test_whole_run_figure_lines_kept_when_compared_are_the_envelopes_of_the_whol
         t_model, values = model_series(engine, report.params, starts[release], run.duration_s + 0.02, dtype=np.float32)
         t, measured, at = run.series(quantity)
         assert len(t) > figure_lines.ENVELOPE_ABOVE  # 20 minutes at 80 Hz: drawn as envelopes
-        computed = resample(t_model, values[BY_NAME[quantity].name], np.clip(at, 0.0, t_model[-1])).astype(np.float32)
+        computed = resample(t_model, values[quantity], np.clip(at, 0.0, t_model[-1])).astype(np.float32)
         for got, series in (
             (lines.computed, computed),
             (lines.measured, measured if (engine, release) == ("mujoco", "estimated") else None),
