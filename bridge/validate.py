@@ -402,7 +402,7 @@ def validate(
             # its comparison's whole-run transients meet no model series but its own
             for q in reversed(VALIDATED):
                 t, measured, at = run.series(q)
-                computed = resample(t_model, values.pop(q.name), np.clip(at, 0.0, t_model[-1]))
+                computed = resample(t_model, values.pop(q.name), at, clip_s=(0.0, t_model[-1]))
                 if not values:  # the last quantity: the model's grid goes before its comparison
                     t_model = np.empty(0)
                 for window_name, limit in windows:

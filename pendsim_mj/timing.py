@@ -213,11 +213,14 @@ def coverage(t_s: Floats, max_gap_s: float, nominal_rate_hz: float) -> Coverage:
         raise RecordingError(f"{len(t)} samples: too few to cover any time")
     step = np.diff(t)
     span = float(t[-1] - t[0])
+    short = step <= max_gap_s
+    covered = float(step.sum() if short.all() else step[short].sum())  # no gaps: no copy of the steps
+    del short
     return Coverage(
         span_s=span,
         samples=len(t),
         expected_samples=round(span * nominal_rate_hz) + 1,
-        covered_s=float(step[step <= max_gap_s].sum()),
+        covered_s=covered,
         gaps=int(np.count_nonzero(step > max_gap_s)),
         longest_gap_s=float(step.max()),
         max_gap_s=max_gap_s,
