@@ -12,7 +12,7 @@ from pendsim_bridge import figure_lines
 from pendsim_bridge.record import RecordSpec, record
 from pendsim_bridge.recording import NODES, imu_topic, read_recording
 from pendsim_bridge.validate import align_recording, model_series, validate
-from pendsim_mj import rotations
+from pendsim_mj import analysis, rotations
 from pendsim_mj.analysis import hann_magnitude, padded_length, spectral_peak_hz
 from pendsim_mj.imperfections import random_mount
 from pendsim_mj.nonlinear.linear import linear_modes
@@ -143,6 +143,24 @@ def test_the_spectral_peak_of_a_long_series_in_parts_is_the_whole_spectrum_s():
     del spectrum
     assert spectral_peak_hz(t, x) == pytest.approx(truth, rel=1e-9)
     assert spectral_peak_hz(t, x, min_hz=1.0) == pytest.approx(1.4745, rel=1e-4)  # the band still applies
+
+
+@pytest.mark.parametrize("n", [40_000, 65_536, 100_003, 131_072])
+def test_spectrum_parts_folded_onto_their_length_find_the_whole_spectrum_s_peak(n):
+    # each part's transform is of nfft / SPECTRUM_PARTS points, shorter than the series from n >
+    # 65 536 on (its samples folded onto that length); the truth is the argmax of the whole
+    # zero-padded spectrum and its parabola, over all bins and over a band
+    rng = np.random.default_rng(n)
+    t = np.arange(n) / 80.0
+    x = np.sin(2 * math.pi * 0.8771 * t) * np.exp(-t / 900.0) + 0.5 * np.sin(2 * math.pi * 7.31 * t)
+    x += rng.normal(0.0, 0.3, n)
+    nfft = 1 << 20  # at least 8 n: one part is 65 536 points (analysis._TURN_BLOCK)
+    spectrum = hann_magnitude(x, nfft)
+    for bottom, top in ((1, nfft // 2 + 1), (nfft // 20, nfft // 4)):  # all bins; about 4-20 Hz
+        k = bottom + int(np.argmax(spectrum[bottom:top]))
+        a, b, c = np.log(spectrum[k - 1 : k + 2])
+        truth = k + 0.5 * (a - c) / (a - 2 * b + c)
+        assert analysis._peak_in_parts(x, nfft, bottom, top) == pytest.approx(truth, rel=1e-12, abs=1e-9)
 
 
 def test_a_long_whole_run_line_is_drawn_as_its_envelope_broken_at_gaps():
