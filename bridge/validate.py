@@ -81,7 +81,7 @@ def node_samples(rec: Recording) -> tuple[NodeSamples, NodeSamples]:
         clock = recorded_stamp_clock(rec.metadata, n, rec.start_time_ns)  # acquire's fit over the arrivals
         out.append(
             NodeSamples(
-                log_t_s=topic.t_ns * 1e-9 if clock is None else clock.to_recorder(stamps * 1e-9),
+                log_t_s=topic.t_ns * 1e-9 if clock is None else clock.to_recorder_in_place(stamps * 1e-9),
                 quat_wxyz=topic.quat_wxyz,
                 gyro_rad_s=topic.gyro_rad_s,
                 accel_m_s2=topic.accel_m_s2,
