@@ -11,6 +11,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 from matplotlib import ticker
 
+from pendsim_bridge.figure_lines import broken, drawn_lines
 from pendsim_mj.allan import AllanCurve, NoiseTerms
 
 AXIS_COLOURS = ("tab:red", "tab:green", "tab:blue")
@@ -85,55 +86,12 @@ def allan_plot(
     return save_figure(fig, path)  # cropped to what is drawn: no tight_layout pass needed
 
 
-def _broken(t, *series, max_gap_s: float):
-    """The instants and series with a NaN inserted in every gap longer than ``max_gap_s``, so
-    that lines break there instead of bridging it."""
-    import numpy as np
-
-    t = np.asarray(t, dtype=float)
-    cuts = np.flatnonzero(np.diff(t) > max_gap_s) + 1
-    if not len(cuts):
-        return (t, *series)
-    return tuple(np.insert(np.asarray(x, dtype=float), cuts, np.nan) for x in (t, *series))
-
-
-ENVELOPE_BUCKETS = 4000
-"""A whole-run line longer than ENVELOPE_ABOVE points is drawn as its envelope: the lowest and the
-highest point of each of this many runs of samples (in time order), far more than a figure's
-pixel columns, so the picture is the same; memory and drawing time no longer grow with the run."""
-ENVELOPE_ABOVE = 50_000
-
-
-def _envelope(t, y, max_gap_s: float):
-    """(t, y) of a line to draw: itself (NaN-broken at gaps, ``_broken``) up to ENVELOPE_ABOVE
-    points, else each covered segment's min-max envelope over ENVELOPE_BUCKETS runs of samples,
-    segments broken by NaN."""
-    import numpy as np
-
-    t = np.asarray(t, dtype=float)
-    y = np.asarray(y, dtype=float)
-    if len(t) <= ENVELOPE_ABOVE:
-        return _broken(t, y, max_gap_s=max_gap_s)
-    size = -(-len(t) // ENVELOPE_BUCKETS)
-    cuts = np.flatnonzero(np.diff(t) > max_gap_s) + 1
-    parts_t, parts_y = [], []
-    for lo, hi in zip(np.concatenate([[0], cuts]), np.concatenate([cuts, [len(t)]]), strict=True):
-        rows = -(-(hi - lo) // size)
-        padded = np.full(rows * size, np.nan)
-        padded[: hi - lo] = y[lo:hi]
-        padded = padded.reshape(rows, size)
-        first = lo + size * np.arange(rows)
-        keep = np.unique(np.concatenate([first + np.nanargmin(padded, axis=1), first + np.nanargmax(padded, axis=1)]))
-        parts_t += [t[keep], [np.nan]]
-        parts_y += [y[keep], [np.nan]]
-    return np.concatenate(parts_t[:-1]), np.concatenate(parts_y[:-1])
-
-
 def validation_figures(report, directory: str | Path) -> list[Path]:
     """The paper's Figures 9-15 for a ValidationReport: measured against computed (MuJoCo and
     the planar reference, from the estimated start; MuJoCo from the nominal 30 deg dashed when
     the run starts from rest). Lines break at gaps in the samples; a long run's lines are drawn as
-    their envelopes (``_envelope``)."""
+    their envelopes (``figure_lines.envelope``; the whole run's as ``validate`` kept them:
+    ``ValidationReport.lines``)."""
     from pendsim_bridge.validate import FIGURES
     from pendsim_mj.quantities import BY_NAME
 
@@ -154,24 +112,35 @@ def validation_figures(report, directory: str | Path) -> list[Path]:
             )
         else:
             fig, ax = plt.subplots(figsize=(9, 4.2), dpi=100)
-        ax.plot(*_envelope(m.t_s, m.measured, gap), color="black", linewidth=1.0, label="measured (IMU)")
+        if window == "whole":  # the whole run's lines, reduced when compared (ValidationReport.lines)
+            m_lines = report.lines[("mujoco", "estimated", quantity)]
+            r_lines = report.lines[("reference", "estimated", quantity)]
+        else:
+            m_lines = drawn_lines(m.t_s, m.measured, m.computed, gap, with_measured=True)
+            r_lines = drawn_lines(r.t_s, r.measured, r.computed, gap)
+        assert m_lines.measured is not None
+        ax.plot(*m_lines.measured, color="black", linewidth=1.0, label="measured (IMU)")
         label = "computed: MuJoCo, estimated start"
-        ax.plot(*_envelope(m.t_s, m.computed, gap), color="tab:orange", linewidth=1.0, label=label)
+        ax.plot(*m_lines.computed, color="tab:orange", linewidth=1.0, label=label)
         label = "computed: planar reference"
-        ax.plot(*_envelope(r.t_s, r.computed, gap), color="tab:blue", linewidth=0.8, linestyle=":", label=label)
+        ax.plot(*r_lines.computed, color="tab:blue", linewidth=0.8, linestyle=":", label=label)
         if report.has_nominal:
-            n = report.case("mujoco", "nominal", window).comparisons[quantity]
+            if window == "whole":
+                n_line = report.lines[("mujoco", "nominal", quantity)].computed
+            else:
+                n = report.case("mujoco", "nominal", window).comparisons[quantity]
+                n_line = drawn_lines(n.t_s, n.measured, n.computed, gap).computed
             label = "computed: MuJoCo, nominal 30 deg"
-            ax.plot(*_envelope(n.t_s, n.computed, gap), color="tab:green", linewidth=0.8, linestyle="--", label=label)
+            ax.plot(*n_line, color="tab:green", linewidth=0.8, linestyle="--", label=label)
         ax.set_ylabel(f"{q.label} ({q.unit})")
         ax.set_title(f"{q.description}, {'first ' + window if window != 'whole' else 'whole run'}")
         ax.grid(True, alpha=0.3)
         legend_outside(ax)
         if window == "whole":
+            assert m_lines.difference is not None and r_lines.difference is not None
             label = "MuJoCo, estimated start"
-            low.plot(*_envelope(m.t_s, m.computed - m.measured, gap), color="tab:orange", linewidth=0.8, label=label)
-            difference = _envelope(r.t_s, r.computed - m.measured, gap)
-            low.plot(*difference, color="tab:blue", linewidth=0.6, linestyle=":", label="planar reference")
+            low.plot(*m_lines.difference, color="tab:orange", linewidth=0.8, label=label)
+            low.plot(*r_lines.difference, color="tab:blue", linewidth=0.6, linestyle=":", label="planar reference")
             low.axhline(0.0, color="black", linewidth=0.6)
             low.set_ylabel(f"computed - measured ({q.unit})", fontsize=8)
             low.grid(True, alpha=0.3)
@@ -185,7 +154,7 @@ def validation_figures(report, directory: str | Path) -> list[Path]:
     # Figure 14: Delta, IAE and ISE of phi1 over the short window.
     m = report.case("mujoco", "estimated", short).comparisons["phi1"]
     fig, axes = plt.subplots(3, 1, figsize=(9, 7), dpi=100, sharex=True)
-    t, delta, iae, ise = _broken(m.t_s, m.delta, m.iae_curve, m.ise_curve, max_gap_s=gap)
+    t, delta, iae, ise = broken(m.t_s, m.delta, m.iae_curve, m.ise_curve, max_gap_s=gap)
     for ax, values, ylabel in (
         (axes[0], delta, "Delta phi1 = computed - measured (rad)"),
         (axes[1], iae, "IAE (rad s)"),

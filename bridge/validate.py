@@ -30,6 +30,7 @@ from numpy.typing import DTypeLike
 
 from pendsim_bridge import heap
 from pendsim_bridge.acquire.clock import recorded_stamp_clock
+from pendsim_bridge.figure_lines import DrawnLines, drawn_lines
 from pendsim_bridge.recording import DRIVE_TOPIC, NODES, Recording, imu_topic, read_recording
 from pendsim_mj import engines
 from pendsim_mj.alignment import MeasuredRun, NodeSamples, align
@@ -59,10 +60,10 @@ FIGURES = (
     ("fig15_omega2", "omega2", "whole"),
 )
 """The paper's Figures 9-13 and 15 (``plots.validation_figures``): (file stem, quantity, window).
-Of the whole-run comparisons, only these quantities keep their series (for the plots:
-``FIGURE_SERIES``; not of the planar reference from the nominal start, which no figure draws); the
-others keep their metrics, so a long run's memory does not hold them all."""
-FIGURE_SERIES = ("t_s", "measured", "computed")
+The whole-run comparisons keep their metrics only; of the quantities a whole-run figure draws,
+the lines it draws are kept, reduced to their envelopes when compared (``figure_lines``, in
+``ValidationReport.lines``; not of the planar reference from the nominal start, which no figure
+draws), so a long run's memory holds none of its whole-run series."""
 
 
 def node_samples(rec: Recording) -> tuple[NodeSamples, NodeSamples]:
@@ -80,7 +81,7 @@ def node_samples(rec: Recording) -> tuple[NodeSamples, NodeSamples]:
         clock = recorded_stamp_clock(rec.metadata, n, rec.start_time_ns)  # acquire's fit over the arrivals
         out.append(
             NodeSamples(
-                log_t_s=topic.t_ns * 1e-9 if clock is None else clock.to_recorder(stamps * 1e-9),
+                log_t_s=topic.t_ns * 1e-9 if clock is None else clock.to_recorder_in_place(stamps * 1e-9),
                 quat_wxyz=topic.quat_wxyz,
                 gyro_rad_s=topic.gyro_rad_s,
                 accel_m_s2=topic.accel_m_s2,
@@ -290,6 +291,8 @@ class ValidationReport:
     mjcf_xml: str | None  # the recording's MJCF attachment, if any
     model_choice: dict[str, Any] | None = None  # --model spatial: planar vs spatial (spatial_validate)
     drive: Drive | None = None  # a driven recording's drive from the start on (every model run has it)
+    lines: dict[tuple[str, str, str], DrawnLines] = dataclasses.field(default_factory=dict)
+    """What the whole-run figures draw: (engine, release, quantity) -> its lines (``FIGURES``)."""
 
     @functools.cached_property
     def model_run(self) -> Trajectory:
@@ -388,6 +391,7 @@ def validate(
     if max(abs(w) for w in start.omega_rad_s) < AT_REST_RAD_S:
         starts["nominal"] = (NOMINAL_RELEASE_RAD, (0.0, 0.0))
     plotted = {q for _, q, window in FIGURES if window == "whole"}
+    lines: dict[tuple[str, str, str], DrawnLines] = {}
     windows = ((f"{short_window_s:g} s", short_window_s), ("whole", math.inf))
     for engine in ("mujoco", "reference"):
         for release_name, state in starts.items():
@@ -398,19 +402,27 @@ def validate(
             # its comparison's whole-run transients meet no model series but its own
             for q in reversed(VALIDATED):
                 t, measured, at = run.series(q)
-                computed = resample(t_model, values.pop(q.name), np.clip(at, 0.0, t_model[-1]))
+                computed = resample(t_model, values.pop(q.name), at, clip_s=(0.0, t_model[-1]))
                 if not values:  # the last quantity: the model's grid goes before its comparison
                     t_model = np.empty(0)
                 for window_name, limit in windows:
-                    # a long run's series: only those plotted stay, and its errors go window by window
-                    drawn = q.name in plotted and (engine, release_name) != ("reference", "nominal")
-                    kept = None if window_name != "whole" else FIGURE_SERIES if drawn else ()
+                    # a long run's series: none stay, and its errors go window by window
                     inside = _window(t <= limit + 1e-9, t, measured, computed)
-                    cmp = compare(*inside, max_gap_s=max_gap_s, series=kept)
-                    if kept:  # a figure's line: float32 (the metrics are float64's)
-                        cmp = dataclasses.replace(cmp, computed=cmp.computed.astype(np.float32))
+                    cmp = compare(*inside, max_gap_s=max_gap_s, series=None if window_name != "whole" else ())
                     by_window[window_name][q.name] = cmp
-                del computed
+                    drawn = q.name in plotted and (engine, release_name) != ("reference", "nominal")
+                    if window_name == "whole" and drawn:
+                        # the lines a whole-run figure draws: their envelopes (the computed line float32)
+                        main = (engine, release_name) == ("mujoco", "estimated")
+                        lines[(engine, release_name, q.name)] = drawn_lines(
+                            t,
+                            measured,
+                            computed.astype(np.float32),
+                            run.max_gap_s,
+                            with_measured=main,
+                            with_difference=release_name == "estimated",
+                        )
+                del computed, inside  # (the whole window's are the arrays themselves)
                 heap.trim()  # the comparison's transients go back to the system (not kept as heap)
             del t_model, values
             cases += [
@@ -434,7 +446,9 @@ def validate(
         choice = spatial_validate.model_choice(planar, case)
         choice["plane_offset_m"] = spatial.plane_offset_m
         choice["spatial_params"] = {n: getattr(spatial, n) for n in spatial_validate.NAMES}
-    return ValidationReport(Path(path), model_params, source, identification, run, cases, mjcf_xml, choice, drive)
+    return ValidationReport(
+        Path(path), model_params, source, identification, run, cases, mjcf_xml, choice, drive, lines
+    )
 
 
 @dataclasses.dataclass(frozen=True)

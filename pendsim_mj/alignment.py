@@ -282,8 +282,8 @@ class _Node:
         """Recorder-clock instants of the values (fused, with the given phase on the node clock)."""
         if not fusion_rate_hz or phase_s is None:
             return self.t
-        fused = fused_value_instants(self.stamp, fusion_rate_hz, phase_s)
-        return self.clock.to_recorder(fused) if self.clock is not None else fused
+        fused = fused_value_instants(self.stamp, fusion_rate_hz, phase_s)  # a new array: mapped in place
+        return self.clock.to_recorder_in_place(fused) if self.clock is not None else fused
 
 
 def _floating(values: Floats) -> Floats:
@@ -771,6 +771,7 @@ def _node_run(
             value_t -= start_time
         else:
             value_t = value_t - start_time
+    covered = coverage(t, max_gap_s, node.rate_hz)  # before the values: its steps meet none of them
     dtype = np.float32 if float32_values else np.float64
     off_axes = np.stack([frame.tangential, frame.toward_pivot], axis=1)
     accel = node.accel[keep]
@@ -784,7 +785,7 @@ def _node_run(
         frame=frame,
         clock=node.clock,
         fusion_phase_s=phase,
-        coverage=coverage(t, max_gap_s, node.rate_hz),
+        coverage=covered,
         gyro_sigma_rad_s=node.sigma,
         off_hinge_gyro_rad_s=(node.gyro[keep] @ off_axes).astype(dtype, copy=False) if off_hinge else None,
         before_start=first,

@@ -107,10 +107,11 @@ def spectral_peak_hz_batch(t_s: np.ndarray, x: np.ndarray, max_hz: float = np.in
     return out
 
 
-SPECTRUM_PARTS = 8
-"""A long series' zero-padded spectrum is computed in this many interleaved parts (bins r, r + 8,
-r + 16, ...; ``_peak_in_parts``): an eighth of its memory. padded_length is at least 8 n, so each
-part's transform still holds the whole series."""
+SPECTRUM_PARTS = 16
+"""A long series' zero-padded spectrum is computed in this many interleaved parts (bins r, r + 16,
+r + 32, ...; ``_peak_in_parts``): a sixteenth of its memory. Each part is the transform of length
+nfft / SPECTRUM_PARTS of the windowed series turned by exp(-2 pi i r j / nfft) and folded onto
+that length (sample j added at j mod the length: the part's bins are periodic in j with it)."""
 
 
 def _dft_magnitude(w: np.ndarray, k: int, nfft: int) -> float:
@@ -127,10 +128,11 @@ def _peak_in_parts(y: np.ndarray, nfft: int, bottom: int, top: int) -> float:
     """The peak bin of ``hann_magnitude(y, nfft)`` in [bottom, top), refined as in
     ``spectral_peak_hz_batch`` (in bins; NaN for a non-finite y, 0 for a constant one), without
     holding the whole spectrum: bins k = SPECTRUM_PARTS m + r are the transform of length
-    nfft / SPECTRUM_PARTS of y's windowed samples turned by exp(-2 pi i r j / nfft), made in one
-    reused buffer; the three bins around the peak are summed directly."""
-    from scipy import fft
-
+    nfft / SPECTRUM_PARTS of y's windowed samples turned by exp(-2 pi i r j / nfft) and folded
+    onto that length, made in one reused buffer (transformed in place by numpy's FFT, which keeps
+    no plan: scipy.fft would keep the part's plan for the rest of the process); the three bins
+    around the peak are summed directly (``_dft_magnitude``), so only the peak's bin comes from
+    the parts."""
     if not np.all(np.isfinite(y)):
         return float("nan")
     if not np.any(y != 0):
@@ -138,18 +140,31 @@ def _peak_in_parts(y: np.ndarray, nfft: int, bottom: int, top: int) -> float:
     w = y - y.mean()
     w *= np.hanning(len(y))  # in place: no third (n,) array
     length = nfft // SPECTRUM_PARTS
+    assert length % _TURN_BLOCK == 0, "parts are for long series: nfft / SPECTRUM_PARTS is a power of 2 >= 2^19"
     buffer = np.zeros(length, dtype=complex)
+    turned = np.empty(_TURN_BLOCK, dtype=complex)
+    offsets = np.arange(_TURN_BLOCK, dtype=np.int64)
     best, k = -1.0, bottom
     for r in range(SPECTRUM_PARTS):
-        first = max(0, -(-(bottom - r) // SPECTRUM_PARTS))  # the part's bins m with bottom <= 8 m + r < top
+        first = max(0, -(-(bottom - r) // SPECTRUM_PARTS))  # the part's bins m with bottom <= P m + r < top
         last = min(length, -(-(top - r) // SPECTRUM_PARTS))
         if last <= first:
             continue
-        for lo in range(0, len(w), _TURN_BLOCK):  # w turned by exp(-2 pi i r j / nfft), block by block
-            j = np.arange(lo, min(lo + _TURN_BLOCK, len(w)), dtype=np.int64)
-            buffer[j] = w[j] * np.exp(-2j * np.pi * ((r * j) % nfft) / nfft)
+        # w turned by exp(-2 pi i r j / nfft), block by block: the turn within a block (one table
+        # per part) times the turn at the block's start (phases from exact integers r j mod nfft)
+        within = np.exp(-2j * np.pi * ((r * offsets) % nfft) / nfft)
+        for lo in range(0, len(w), _TURN_BLOCK):
+            hi = min(lo + _TURN_BLOCK, len(w))
+            block = turned[: hi - lo]
+            np.multiply(within[: hi - lo], np.exp(-2j * np.pi * ((r * lo) % nfft) / nfft), out=block)
+            block *= w[lo:hi]
+            at = lo % length  # a block lies inside one period of the part (length: whole blocks)
+            if lo < length:
+                buffer[at : at + hi - lo] = block
+            else:  # folded: sample j adds to bin-periodic position j mod length
+                buffer[at : at + hi - lo] += block
         buffer[len(w) :] = 0.0
-        spectrum = fft.fft(buffer, overwrite_x=True)
+        spectrum = np.fft.fft(buffer, out=buffer) if _FFT_IN_PLACE else np.fft.fft(buffer)
         for lo in range(first, last, _TURN_BLOCK):  # the magnitudes block by block (no (length,) copy)
             magnitude = np.abs(spectrum[lo : min(lo + _TURN_BLOCK, last)])
             i = int(np.argmax(magnitude))
@@ -164,6 +179,7 @@ def _peak_in_parts(y: np.ndarray, nfft: int, bottom: int, top: int) -> float:
 
 
 _TURN_BLOCK = 1 << 16
+_FFT_IN_PLACE = int(np.__version__.split(".")[0]) >= 2  # numpy.fft's ``out`` (numpy 2)
 
 
 def _hysteresis_sign(y: np.ndarray, band: float) -> np.ndarray | None:

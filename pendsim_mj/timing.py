@@ -45,6 +45,14 @@ class ClockRelation:
     def to_recorder(self, stamp_s: float | Floats) -> Floats:
         return self.offset_s + self.rate * (np.asarray(stamp_s, dtype=float) - self.stamp0_s)
 
+    def to_recorder_in_place(self, stamp_s: np.ndarray) -> np.ndarray:
+        """``to_recorder`` of float64 stamps (n,) computed in their own array, which it returns
+        (the same operations, so the same values; a long run: no second (n,) array)."""
+        stamp_s -= self.stamp0_s
+        stamp_s *= self.rate
+        stamp_s += self.offset_s
+        return stamp_s
+
 
 MAX_DRIFT_PPM = 1000.0
 
@@ -146,7 +154,14 @@ def fused_value_instants(stamp_s: Floats, fusion_rate_hz: float | None, phase_s:
     t = np.asarray(stamp_s, dtype=float)
     if not fusion_rate_hz:
         return t
-    return phase_s + np.floor((t - phase_s) * fusion_rate_hz + 1e-9) / fusion_rate_hz
+    # phase_s + floor((t - phase_s) rate + 1e-9) / rate, each step in one new array (a long run)
+    ticks = t - phase_s
+    ticks *= fusion_rate_hz
+    ticks += 1e-9
+    np.floor(ticks, out=ticks)
+    ticks /= fusion_rate_hz
+    ticks += phase_s
+    return ticks
 
 
 def segments(t_s: Floats, max_gap_s: float) -> list[tuple[int, int]]:
@@ -213,11 +228,14 @@ def coverage(t_s: Floats, max_gap_s: float, nominal_rate_hz: float) -> Coverage:
         raise RecordingError(f"{len(t)} samples: too few to cover any time")
     step = np.diff(t)
     span = float(t[-1] - t[0])
+    short = step <= max_gap_s
+    covered = float(step.sum() if short.all() else step[short].sum())  # no gaps: no copy of the steps
+    del short
     return Coverage(
         span_s=span,
         samples=len(t),
         expected_samples=round(span * nominal_rate_hz) + 1,
-        covered_s=float(step[step <= max_gap_s].sum()),
+        covered_s=covered,
         gaps=int(np.count_nonzero(step > max_gap_s)),
         longest_gap_s=float(step.max()),
         max_gap_s=max_gap_s,

@@ -101,24 +101,35 @@ SPLINE_MARGIN = 64
 so 64 knots away it is below 1e-36 of it, far below rounding."""
 
 
-def resample(t_source_s: np.ndarray, values: np.ndarray, t_target_s: np.ndarray) -> np.ndarray:
+def resample(
+    t_source_s: np.ndarray,
+    values: np.ndarray,
+    t_target_s: np.ndarray,
+    *,
+    clip_s: tuple[float, float] | None = None,
+) -> np.ndarray:
     """Values of a smooth series at other instants (cubic spline, not-a-knot ends), along axis 0.
     Targets are taken ``WINDOW_SAMPLES`` at a time, each window from a spline through its part of
     the source and ``SPLINE_MARGIN`` samples either side: the whole-run spline's values to
-    rounding, in memory flat with the run."""
+    rounding, in memory flat with the run. ``clip_s``: (low, high) s, targets outside taken at
+    them (``np.clip``, window by window: no clipped copy of the targets)."""
     t_source_s = np.asarray(t_source_s, dtype=float)
     t_target_s = np.asarray(t_target_s, dtype=float)
-    if t_target_s.min() < t_source_s[0] - 1e-9 or t_target_s.max() > t_source_s[-1] + 1e-9:
+
+    def clipped(t: np.ndarray) -> np.ndarray:
+        return t if clip_s is None else np.clip(t, *clip_s)
+
+    first, last = clipped(np.array([t_target_s.min(), t_target_s.max()]))
+    if first < t_source_s[0] - 1e-9 or last > t_source_s[-1] + 1e-9:
         raise ParameterError(
-            f"cannot resample to {t_target_s.min():.3f}-{t_target_s.max():.3f} s from a series over "
-            f"{t_source_s[0]:.3f}-{t_source_s[-1]:.3f} s"
+            f"cannot resample to {first:.3f}-{last:.3f} s from a series over {t_source_s[0]:.3f}-{t_source_s[-1]:.3f} s"
         )
     n = len(t_target_s)
     if n <= WINDOW_SAMPLES:
-        return CubicSpline(t_source_s, values, axis=0)(t_target_s)
+        return CubicSpline(t_source_s, values, axis=0)(clipped(t_target_s))
     out = np.empty((n, *np.shape(values)[1:]))
     for a in range(0, n, WINDOW_SAMPLES):
-        targets = t_target_s[a : a + WINDOW_SAMPLES]
+        targets = clipped(t_target_s[a : a + WINDOW_SAMPLES])
         lo, hi = np.searchsorted(t_source_s, [targets.min(), targets.max()])
         lo, hi = max(int(lo) - SPLINE_MARGIN, 0), min(int(hi) + SPLINE_MARGIN, len(t_source_s))
         out[a : a + WINDOW_SAMPLES] = CubicSpline(t_source_s[lo:hi], values[lo:hi], axis=0)(targets)

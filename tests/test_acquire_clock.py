@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from pendsim_bridge.acquire.clock import MAX_DRIFT_PPM, ClockFit, residuals_s
+from pendsim_mj.timing import ClockRelation
 
 
 def _arrivals(seed: int, drift_ppm: float, *, duration_s=60.0, rate_hz=80.0, jitter_s=5e-3, bursts=0.1):
@@ -110,3 +111,15 @@ def test_header_stamps_increase_across_a_node_restart():
     assert np.all(np.diff(stamps) > 0)
     np.testing.assert_array_equal(stamps[50:] - stamps[50], (device_us[50:] - device_us[50]) * 1000)
     assert stamps[50] == log_ns[50]
+
+
+def test_a_clock_map_done_in_place_gives_the_same_instants_in_the_stamps_own_array():
+    # the truth: the map written out, recorder = offset + rate (stamp - stamp0), on a new array
+    relation = ClockRelation(offset_s=1.7e9 + 0.123456789, rate=1.0 + 37e-6, stamp0_s=12.345)
+    stamps = 12.345 + np.cumsum(np.random.default_rng(4).uniform(0.011, 0.014, 100_000))
+    expected = 1.7e9 + 0.123456789 + (1.0 + 37e-6) * (stamps - 12.345)
+    own = stamps.copy()
+    mapped = relation.to_recorder_in_place(own)
+    assert mapped is own
+    np.testing.assert_array_equal(mapped, expected)
+    np.testing.assert_array_equal(relation.to_recorder(stamps), expected)

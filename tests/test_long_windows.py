@@ -8,11 +8,11 @@ import numpy as np
 import pytest
 from scipy.interpolate import CubicSpline
 
-from pendsim_bridge import plots
+from pendsim_bridge import figure_lines
 from pendsim_bridge.record import RecordSpec, record
 from pendsim_bridge.recording import NODES, imu_topic, read_recording
-from pendsim_bridge.validate import align_recording, validate
-from pendsim_mj import rotations
+from pendsim_bridge.validate import align_recording, model_series, validate
+from pendsim_mj import analysis, rotations
 from pendsim_mj.analysis import hann_magnitude, padded_length, spectral_peak_hz
 from pendsim_mj.imperfections import random_mount
 from pendsim_mj.nonlinear.linear import linear_modes
@@ -145,24 +145,74 @@ def test_the_spectral_peak_of_a_long_series_in_parts_is_the_whole_spectrum_s():
     assert spectral_peak_hz(t, x, min_hz=1.0) == pytest.approx(1.4745, rel=1e-4)  # the band still applies
 
 
+@pytest.mark.parametrize("n", [40_000, 65_536, 100_003, 131_072])
+def test_spectrum_parts_folded_onto_their_length_find_the_whole_spectrum_s_peak(n):
+    # each part's transform is of nfft / SPECTRUM_PARTS points, shorter than the series from n >
+    # 65 536 on (its samples folded onto that length); the truth is the argmax of the whole
+    # zero-padded spectrum and its parabola, over all bins and over a band
+    rng = np.random.default_rng(n)
+    t = np.arange(n) / 80.0
+    x = np.sin(2 * math.pi * 0.8771 * t) * np.exp(-t / 900.0) + 0.5 * np.sin(2 * math.pi * 7.31 * t)
+    x += rng.normal(0.0, 0.3, n)
+    nfft = 1 << 20  # at least 8 n: one part is 65 536 points (analysis._TURN_BLOCK)
+    spectrum = hann_magnitude(x, nfft)
+    for bottom, top in ((1, nfft // 2 + 1), (nfft // 20, nfft // 4)):  # all bins; about 4-20 Hz
+        k = bottom + int(np.argmax(spectrum[bottom:top]))
+        a, b, c = np.log(spectrum[k - 1 : k + 2])
+        truth = k + 0.5 * (a - c) / (a - 2 * b + c)
+        assert analysis._peak_in_parts(x, nfft, bottom, top) == pytest.approx(truth, rel=1e-12, abs=1e-9)
+
+
 def test_a_long_whole_run_line_is_drawn_as_its_envelope_broken_at_gaps():
     # 1 h at 80 Hz with a 5 s gap: every drawn point is a sample, each run of samples keeps its
     # lowest and highest, and no drawn segment bridges the gap
     t = np.arange(288_000) / 80.0
     t = t[(t < 1000.0) | (t > 1005.0)]
     y = np.sin(2 * math.pi * 0.87 * t) * np.exp(-t / 900.0)
-    drawn_t, drawn_y = plots._envelope(t, y, 0.1)
+    drawn_t, drawn_y = figure_lines.envelope(t, y, 0.1)
     real = np.isfinite(drawn_y)
-    assert real.sum() <= 2 * plots.ENVELOPE_BUCKETS + 4 and np.count_nonzero(~real) == 1
+    assert real.sum() <= 2 * figure_lines.ENVELOPE_BUCKETS + 4 and np.count_nonzero(~real) == 1
     i = np.searchsorted(t, drawn_t[real])
     np.testing.assert_array_equal(t[i], drawn_t[real])
     np.testing.assert_array_equal(y[i], drawn_y[real])
     assert drawn_y[real].max() == y.max() and drawn_y[real].min() == y.min()
     gap = np.flatnonzero(~real)[0]
     assert drawn_t[gap - 1] < 1000.0 < 1005.0 < drawn_t[gap + 1]
-    short_t, short_y = plots._envelope(t[:9600], y[:9600], 0.1)  # a short run's line: all of it
+    short_t, short_y = figure_lines.envelope(t[:9600], y[:9600], 0.1)  # a short run's line: all of it
     np.testing.assert_array_equal(short_t, t[:9600])
     np.testing.assert_array_equal(short_y, y[:9600])
+
+
+def test_whole_run_figure_lines_kept_when_compared_are_the_envelopes_of_the_whole_series(mostly_at_rest):
+    # validate keeps no whole-run series, only what Figures 12 and 15 draw, reduced when each
+    # comparison is made; the truth is the envelope of the whole series, taken afterwards from
+    # the run aligned again and each model run resampled whole (as the figures drew them before)
+    report = validate(mostly_at_rest, damping="recorded")
+    topics = [imu_topic(n) for n in NODES]
+    rec = read_recording(mostly_at_rest, topics=topics, sensor_float32=True)
+    run = align_recording(rec, PARAMS, float32_values=True)
+    gap = run.max_gap_s
+    starts = {"estimated": (run.start.phi_rad, run.start.omega_rad_s), "nominal": ((math.pi / 6, 0.0), (0.0, 0.0))}
+    drawn = {("mujoco", "estimated"), ("reference", "estimated"), ("mujoco", "nominal")}
+    assert set(report.lines) == {(e, r, q) for e, r in drawn for q in ("phi1", "omega2")}
+    for (engine, release, quantity), lines in report.lines.items():
+        assert all(len(getattr(report.case(engine, release).comparisons[quantity], n)) == 0 for n in SERIES)
+        t_model, values = model_series(engine, report.params, starts[release], run.duration_s + 0.02, dtype=np.float32)
+        t, measured, at = run.series(quantity)
+        assert len(t) > figure_lines.ENVELOPE_ABOVE  # 20 minutes at 80 Hz: drawn as envelopes
+        computed = resample(t_model, values[quantity], np.clip(at, 0.0, t_model[-1])).astype(np.float32)
+        for got, series in (
+            (lines.computed, computed),
+            (lines.measured, measured if (engine, release) == ("mujoco", "estimated") else None),
+            (lines.difference, computed - measured if release == "estimated" else None),
+        ):
+            if series is None:
+                assert got is None
+                continue
+            assert got is not None and len(got[0]) <= 2 * figure_lines.ENVELOPE_BUCKETS + 4
+            expected = figure_lines.envelope(t, series.astype(float), gap)
+            np.testing.assert_array_equal(got[0], expected[0])
+            np.testing.assert_array_equal(got[1], expected[1])
 
 
 def test_angles_block_by_block_equal_the_whole_run_unwrapped_twist():
