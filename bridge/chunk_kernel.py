@@ -54,8 +54,7 @@ def index_messages(
       spans: (c, 3) int64, one row per MessageIndex record of the chunk: channel id, the byte
         offset of its entries in ``file``, their count.
       slot: (65536,) int64, the output row of each wanted channel id, -1 for the others.
-      row_of: (65536,) int64, -1 everywhere: the spans' row of each channel id while the kernel
-        runs (set and reset here: no table allocated per chunk).
+      row_of: (65536,) int64: the spans' row of each of their channel ids, -1 for the others.
       offsets, log_ns, publish_ns, sizes: (w, capacity) int64 outputs: per wanted channel, its
         messages' offsets in the chunk, log and publish times, and data sizes, in chunk order.
       counts: (w,) int64 outputs: messages written per wanted channel.
@@ -66,33 +65,6 @@ def index_messages(
       channel's in chunk order (then nothing is to be trusted of the outputs).
     """
     counts[:] = 0
-    rows = spans.shape[0]
-    for r in range(rows):
-        if row_of[spans[r, 0]] >= 0:  # two index records for one channel
-            for q in range(r):
-                row_of[spans[q, 0]] = -1
-            return -1
-        row_of[spans[r, 0]] = r
-    first = _check(raw, file, spans, slot, row_of, offsets, log_ns, publish_ns, sizes, counts)
-    for r in range(rows):
-        row_of[spans[r, 0]] = -1
-    return first
-
-
-@numba.njit(cache=True, nogil=True)
-def _check(
-    raw: np.ndarray,
-    file: np.ndarray,
-    spans: np.ndarray,
-    slot: np.ndarray,
-    row_of: np.ndarray,
-    offsets: np.ndarray,
-    log_ns: np.ndarray,
-    publish_ns: np.ndarray,
-    sizes: np.ndarray,
-    counts: np.ndarray,
-) -> int:  # pragma: no cover - compiled
-    """``index_messages`` once ``row_of`` is set."""
     rows = spans.shape[0]
     used = np.zeros(rows, np.int64)  # entries matched so far, per index record
     first = raw.shape[0]
@@ -143,4 +115,5 @@ def warm_up() -> None:
     file = np.zeros(16, np.uint8)
     out = np.zeros((1, 1), np.int64)
     slot, row_of = np.full((2, 1 << 16), -1, np.int64)
+    row_of[0] = 0
     index_messages(raw, file, np.array([[0, 0, 1]], np.int64), slot, row_of, out, out, out, out, np.zeros(1, np.int64))

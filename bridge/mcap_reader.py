@@ -364,11 +364,8 @@ def _messages_by_index(
     first = int(offsets[0])
     if first < 0 or int(offsets[-1]) + MESSAGE_PREFIX_SIZE > len(raw):
         return None
-    try:
-        records, at = _leading_definitions(raw[:first])
-    except ValueError:
-        return None
-    if at != first:
+    records = _definitions_up_to(raw, first)
+    if records is None:
         return None
     prefix = sliding_window_view(data, MESSAGE_PREFIX_SIZE)[offsets].copy().view(MESSAGE_PREFIX).reshape(-1)
     ends = offsets + RECORD_HEAD.size + prefix["length"].astype(np.int64)
@@ -382,6 +379,16 @@ def _messages_by_index(
     ):
         return None
     return list(records), _group(data, offsets, prefix, channels)
+
+
+def _definitions_up_to(raw: bytes, first: int) -> tuple[Schema | Channel, ...] | None:
+    """The Schema and Channel records before a chunk's first message at ``first``; None unless
+    they end exactly there."""
+    try:
+        records, at = _leading_definitions(raw[:first])
+    except ValueError:
+        return None
+    return records if at == first else None
 
 
 @functools.lru_cache(maxsize=16)
@@ -452,6 +459,7 @@ def _messages_compiled(
     counts = np.zeros(len(wanted), np.int64)
     data = np.frombuffer(raw, np.uint8)
     compiled.slot[wanted] = np.arange(len(wanted))
+    compiled.row_of[spans[:, 0]] = np.arange(len(spans))  # ref.index: one record per channel
     try:
         offsets, log, publish, sizes = found
         slot, row_of = compiled.slot, compiled.row_of
@@ -460,14 +468,10 @@ def _messages_compiled(
         )
     finally:
         compiled.slot[wanted] = -1
+        compiled.row_of[spans[:, 0]] = -1
         del index_bytes  # no view of the memory map outlives the call
-    if first < 0:
-        return None
-    try:
-        records, at = _leading_definitions(raw[:first])
-    except ValueError:
-        return None
-    if at != first:
+    records = _definitions_up_to(raw, first) if first >= 0 else None
+    if records is None:
         return None
     messages = {}
     for row, c in enumerate(wanted):
@@ -479,9 +483,9 @@ def _messages_compiled(
 
 @dataclasses.dataclass(frozen=True)
 class _CompiledIndex:
-    """``_messages_compiled``'s tables by channel id, (65536,) each, -1 between chunks: the output
-    row of each wanted channel (set and reset for each chunk), and the kernel's own table
-    (``chunk_kernel.index_messages``' row_of)."""
+    """``_messages_compiled``'s tables by channel id, (65536,) each, -1 between chunks (set and
+    reset for each chunk): the output row of each wanted channel, and the row of each channel's
+    MessageIndex record (``chunk_kernel.index_messages``' slot and row_of)."""
 
     slot: NDArray[np.int64]
     row_of: NDArray[np.int64]
