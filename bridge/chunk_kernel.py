@@ -18,6 +18,8 @@ from __future__ import annotations
 import numba
 import numpy as np
 
+from pendsim_mj.signals import interrupts_deferred
+
 MESSAGE_OPCODE = 0x05
 RECORD_HEAD_SIZE = 9  # opcode (1), length (8)
 MESSAGE_FIELDS_SIZE = 22  # channel (2), sequence (4), log time (8), publish time (8)
@@ -108,11 +110,20 @@ def index_messages(
 
 def warm_up() -> None:
     """Call the kernel once on a one-message chunk: numba's first call in a process loads its
-    compiled code (0.4-0.5 s, the first of any numba function)."""
-    raw = np.zeros(RECORD_HEAD_SIZE + MESSAGE_FIELDS_SIZE, np.uint8)
-    raw[0] = MESSAGE_OPCODE
-    raw[1] = MESSAGE_FIELDS_SIZE
-    file = np.zeros(16, np.uint8)
+    compiled code (0.3-0.5 s, the first of any numba function), with Ctrl-C held back until it
+    is done (``interrupts_deferred``: numba's callbacks would swallow it)."""
+    with interrupts_deferred():
+        _call_once()
+
+
+def _call_once() -> None:
+    """The kernel on a chunk of one message, its index listing it; the chunk and the file as
+    read-only arrays, as the reader passes them (numba compiles each kind apart)."""
+    chunk = np.zeros(RECORD_HEAD_SIZE + MESSAGE_FIELDS_SIZE, np.uint8)
+    chunk[0] = MESSAGE_OPCODE
+    chunk[1] = MESSAGE_FIELDS_SIZE
+    raw = np.frombuffer(chunk.tobytes(), np.uint8)
+    file = np.frombuffer(bytes(16), np.uint8)
     out = np.zeros((1, 1), np.int64)
     slot, row_of = np.full((2, 1 << 16), -1, np.int64)
     row_of[0] = 0

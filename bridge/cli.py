@@ -11,10 +11,10 @@ import threading
 from collections.abc import Iterator, Sequence
 
 from pendsim_bridge import heap
-from pendsim_bridge.commands import COMMANDS
 from pendsim_bridge.options import Parser, UsageError
 from pendsim_mj import __version__
 from pendsim_mj.errors import PendsimError
+from pendsim_mj.signals import interrupts_deferred
 
 EXIT_USAGE = 2
 EXIT_INTERRUPTED = 130  # 128 + SIGINT
@@ -27,7 +27,9 @@ class Terminated(BaseException):
 
 
 def build_parser() -> Parser:
-    """The ``pendsim`` parser with every command's subparser."""
+    """The ``pendsim`` parser with every command's subparser (importing the commands' modules)."""
+    from pendsim_bridge.commands import COMMANDS
+
     parser = Parser(
         prog="pendsim",
         description="Digital twin of the spring-coupled two-pendulum rig of Ganev et al., Machines 2025, 13(8), 660.",
@@ -71,9 +73,10 @@ def _termination_unwinds() -> Iterator[None]:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``pendsim`` console script; returns the exit code."""
-    parser = build_parser()
     try:
         with _termination_unwinds():
+            with interrupts_deferred():  # Ctrl-C while the commands' modules import: acted on after
+                parser = build_parser()
             args = parser.parse_args(argv)
             if args.command is None:
                 parser.print_help()

@@ -27,6 +27,7 @@ in ``unverified``.
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import functools
 import io
@@ -291,9 +292,12 @@ class McapFile:
         return {cid for cid, ch in known.items() if ch.topic in topics}
 
     def close(self) -> None:
-        """Release the memory map."""
+        """Release the memory map. While an array still views it (an exception, e.g. Ctrl-C,
+        unwinding through a frame that holds one), the map is left to close itself when the
+        last view goes."""
         if self._buf is not None:
-            self._buf.close()
+            with contextlib.suppress(BufferError):
+                self._buf.close()
             self._buf = None
 
     def error_text(self, readable: str | None = None) -> str:

@@ -106,8 +106,10 @@ def load_kernels() -> None:
     process costs 0.4-0.5 s, which a caller can spend on a thread while it does other work (the
     Allan report: while the recording is read)."""
     from pendsim_mj import allan_kernel
+    from pendsim_mj.signals import interrupts_deferred
 
-    allan_kernel.warm_up()
+    with interrupts_deferred():  # numba's callbacks would swallow a Ctrl-C
+        allan_kernel.warm_up()
 
 
 @dataclasses.dataclass(frozen=True)
