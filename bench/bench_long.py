@@ -121,11 +121,54 @@ def label(duration_s: int) -> str:
     return f"{duration_s // 3600} h" if duration_s >= 3600 else f"{duration_s} s"
 
 
+MEASUREMENTS = (
+    "anchor: MuJoCo rollout",
+    "validate --damping recorded",
+    "validate",
+    "view --save",
+    "anchor: read once + allantools",
+    "allan (plots)",
+)
+"""What the bench measures, by the names ``--skip`` takes, in the order it runs them."""
+
+
+def durations_s(text: str) -> list[int]:
+    """``--durations``: positive whole seconds, comma-separated."""
+    try:
+        values = [int(float(d)) for d in text.split(",") if d.strip()]
+    except ValueError:
+        values = []
+    if not values or min(values) <= 0:
+        raise argparse.ArgumentTypeError(
+            f"durations must be positive seconds separated by commas (e.g. 120,3600), got {text!r}"
+        )
+    return values
+
+
+def measurement_names(text: str) -> set[str]:
+    """``--skip``: names from MEASUREMENTS, comma-separated."""
+    names = {s.strip() for s in text.split(",") if s.strip()}
+    unknown = sorted(names - set(MEASUREMENTS))
+    if unknown:
+        raise argparse.ArgumentTypeError(f"unknown measurement {unknown[0]!r}; allowed: {', '.join(MEASUREMENTS)}")
+    return names
+
+
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--durations", default="120,3600,21600", help="recording durations, s, comma-separated")
+    parser = argparse.ArgumentParser(
+        description=" ".join(__doc__.split("\n\n")[0].split()),
+        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+    )
+    parser.add_argument(
+        "--durations", type=durations_s, default="120,3600,21600", help="recording durations, s, comma-separated"
+    )
     parser.add_argument("--keep", type=Path, help="folder for the recordings (kept, reused); default a temporary one")
-    parser.add_argument("--skip", default="", help="comma-separated measurements to skip, by name (e.g. 'view --save')")
+    parser.add_argument(
+        "--skip",
+        type=measurement_names,
+        default="",
+        help=f"comma-separated measurements to skip, by name: {', '.join(MEASUREMENTS)}",
+    )
     parser.add_argument(
         "--fit-6h", action="store_true", help="also run the default validate (with the damping fit) on 6 h (slow)"
     )
@@ -137,8 +180,7 @@ def main() -> None:
         "machine's wall times spread by 20 %% from run to run)",
     )
     args = parser.parse_args()
-    durations = [int(float(d)) for d in args.durations.split(",") if d]
-    skip = {s.strip() for s in args.skip.split(",") if s.strip()}
+    durations, skip = args.durations, args.skip
     py = sys.executable
     with tempfile.TemporaryDirectory() as tmp:
         folder = args.keep or Path(tmp)
@@ -158,6 +200,7 @@ def main() -> None:
                 "anchor: read once + allantools": [py, "-c", ALLANTOOLS, str(static)],
                 "allan (plots)": [py, "-c", CLI, "allan", str(static), "--plot-dir", str(out / f"a{d}"), "--force"],
             }  # fmt: skip
+            assert tuple(runs) == MEASUREMENTS
             anchor_cpu = {}
             for name, cmd in runs.items():
                 if name in skip or (name == "validate" and d > 3600 and not args.fit_6h):
