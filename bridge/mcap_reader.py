@@ -311,12 +311,20 @@ class McapFile:
         )
 
     def readable_line(self) -> str:
-        """How much of the file is readable, from its chunk indexes (nothing inflated)."""
-        n = sum(r.index_count(c) for r in self.chunk_refs for c in r.index)
-        t0 = min((r.start_ns for r in self.chunk_refs), default=0)
-        t_end = max((r.end_ns for r in self.chunk_refs), default=0)
+        """How much of the file is readable: the chunks that inflate and pass their CRC (each
+        inflated once more here, on the way to an error: a damaged chunk is not counted even when
+        only the data section's CRC found the damage), their messages as their indexes list them."""
+        intact = []
+        for ref in self.chunk_refs:
+            if self._buf is None or not isinstance(_inflate(self._buf, ref), Exception):
+                intact.append(ref)
+            if self._buf is not None:
+                _release(self._buf, ref.offset, ref.offset + ref.length)
+        n = sum(r.index_count(c) for r in intact for c in r.index)
+        t0 = min((r.start_ns for r in intact), default=0)
+        t_end = max((r.end_ns for r in intact), default=0)
         return (
-            f"{n} messages in {len(self.chunk_refs)} chunks intact, {(t_end - t0) / 1e9:.3f} s of log time "
+            f"{n} messages in {len(intact)} chunks intact, {(t_end - t0) / 1e9:.3f} s of log time "
             f"({self.bytes_read} of {self.file_size} bytes)"
         )
 

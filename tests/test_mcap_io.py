@@ -13,7 +13,7 @@ from mcap.reader import make_reader
 from mcap_ros2.writer import Writer as Ros2Writer
 
 from pendsim_bridge import ros2
-from pendsim_bridge.mcap_reader import read_mcap
+from pendsim_bridge.mcap_reader import read_mcap, scan_mcap
 from pendsim_bridge.mcap_tools import recover
 from pendsim_bridge.mcap_writer import BulkMcapWriter
 from pendsim_mj.errors import RecordingError
@@ -122,6 +122,24 @@ def test_a_corrupted_chunk_is_reported_and_the_others_are_kept(tmp_path):
     assert any(p.startswith(f"chunk at byte {third.chunk_start_offset}: ") for p in contents.problems)
     with pytest.raises(RecordingError, match=r"bad\.mcap: .*900 messages in 9 chunks intact"):
         read_mcap(path, strict=True)
+
+
+def test_a_chunk_only_the_data_section_crc_finds_damaged_is_not_counted_as_intact(tmp_path):
+    """The DataEnd CRC fails first (no chunk is inflated to find it); the readable part the error
+    names leaves the damaged chunk out, as ``recover`` does."""
+    path = tmp_path / "a.mcap"
+    _write(path)
+    mcap = scan_mcap(path)
+    ref = mcap.chunk_refs[2]
+    mcap.close()
+    data = bytearray(path.read_bytes())
+    data[ref.data_start + ref.data_size // 2] ^= 0xFF
+    path.write_bytes(bytes(data))
+    with pytest.raises(RecordingError) as caught:
+        read_mcap(path, strict=True)
+    message = str(caught.value)
+    assert "fails the DataEnd CRC" in message
+    assert "900 messages in 9 chunks intact" in message
 
 
 @pytest.mark.parametrize("content", [b"", b"PK\x03\x04 not an mcap at all" * 20, os.urandom(4096)])
