@@ -63,6 +63,7 @@ class AllanReport:
     segment: dict[str, tuple[float, float]]  # node -> analysed (start, end) s
     axes: list[AxisResult]
     largest_motion_rad_s: dict[str, float] = dataclasses.field(default_factory=dict)  # node -> turning rate
+    clocks: dict[str, SampleClock] = dataclasses.field(default_factory=dict)  # node -> its sampling's clock
 
     def moved(self, node: str) -> bool:
         """The node turned (somewhere outside the analysed stretch: ``pendsim_mj.allan.gyro_motion``)."""
@@ -119,7 +120,8 @@ def analyse(
     s = stretches
     counts = {node: len(accel) for node, (accel, _) in s.columns.items()}
     duration = max(end - start for start, end in s.segments.values())
-    return AllanReport(path, s.rates[next(iter(s.rates))], duration, counts, s.sampling, s.segments, axes, s.largest)
+    rate = s.rates[next(iter(s.rates))]
+    return AllanReport(path, rate, duration, counts, s.sampling, s.segments, axes, s.largest, s.clocks)
 
 
 def _deviations(columns: dict[str, tuple[np.ndarray, np.ndarray]]) -> dict[str, np.ndarray]:
@@ -144,21 +146,53 @@ class _Stretches:
     segments: dict[str, tuple[float, float]]
     columns: dict[str, tuple[np.ndarray, np.ndarray]]
     largest: dict[str, float]
+    clocks: dict[str, SampleClock]
+
+
+@dataclasses.dataclass(frozen=True)
+class SampleClock:
+    """The instants a node's sampling was checked on.
+
+    name: "log times" (when the writer logged each message) or "header stamps" (the sensor's own
+      time of each sample, ``header.stamp``).
+    other: the other clock's sampling, in words, where it was not uniform and the chosen one is
+      (e.g. a ROS bag's log times, the instants the messages arrived, with the transport's
+      jitter); "" otherwise.
+    """
+
+    name: str
+    other: str = ""
+
+
+def sample_instants(t_ns: np.ndarray, stamp_ns: np.ndarray, rate_hz: float) -> tuple[np.ndarray, float, SampleClock]:
+    """The instants (ns, (n,)) to check a node's sampling on, the rate (Hz: ``rate_hz`` if given,
+    else estimated from them) and which clock they are: the header stamps where they increase
+    throughout and break uniform sampling less often (gaps and irregular intervals) than the log
+    times, which keep the choice otherwise (pendsim's own recordings: both are uniform)."""
+    log_rate = rate_hz or nominal_rate_hz(t_ns * 1e-9)
+    if len(stamp_ns) != len(t_ns) or not np.all(np.diff(stamp_ns) > 0):
+        return t_ns, log_rate, SampleClock("log times")
+    stamp_rate = rate_hz or nominal_rate_hz(stamp_ns * 1e-9)
+    by_log, by_stamp = check_sampling(t_ns, log_rate), check_sampling(stamp_ns, stamp_rate)
+    if len(by_stamp.gaps) + by_stamp.irregular < len(by_log.gaps) + by_log.irregular:
+        return stamp_ns, stamp_rate, SampleClock("header stamps", by_log.describe())
+    return t_ns, log_rate, SampleClock("log times")
 
 
 def _static_stretches(path: Path, longest_segment: bool, progress: Callable[[int], None] | None) -> _Stretches:
     """Read the IMU topics and choose each node's static, uniformly sampled stretch (``analyse``)."""
-    # only what the analysis uses: the log times, gyros and accelerometers (no orientations, stamps)
+    # only what the analysis uses: the log times, header stamps, gyros and accelerometers
     topics = [imu_topic(n) for n in NODES]
-    rec = read_recording(path, topics=topics, progress=progress, imu_fields=("gyro_rad_s", "accel_m_s2"), compiled=True)
+    fields = ("gyro_rad_s", "accel_m_s2", "stamp_ns")
+    rec = read_recording(path, topics=topics, progress=progress, imu_fields=fields, compiled=True)
     if not rec.imu:
         raise RecordingError(f"{path}: no /imu/m1 or /imu/m2 topic to analyse")
     rate = float(rec.metadata.get("pendsim/imu", {}).get("sample_rate_hz", "0") or 0)
-    rates, motions = {}, {}
+    rates, motions, instants, clocks = {}, {}, {}, {}
     for node, topic in rec.imu.items():
         if len(topic.t_ns) < 2:
             raise RecordingError(f"{path}: {imu_topic(node)} has {len(topic.t_ns)} message(s); need at least 20")
-        rates[node] = rate or nominal_rate_hz(topic.t_ns * 1e-9)
+        instants[node], rates[node], clocks[node] = sample_instants(topic.t_ns, topic.stamp_ns, rate)
         motions[node] = motion = gyro_motion(topic.gyro_rad_s, rates[node])
         if not motion.static and not longest_segment:
             at_s = (topic.t_ns[motion.largest_index] - topic.t_ns[0]) * 1e-9
@@ -174,27 +208,29 @@ def _static_stretches(path: Path, longest_segment: bool, progress: Callable[[int
     ).reshape(-1, 2)
     sampling, segments, columns, largest = {}, {}, {}, {}
     for node in list(rec.imu):
-        topic = rec.imu.pop(node)  # the node's orientations and stamps go with it
-        report = check_sampling(topic.t_ns, rates[node])
+        topic = rec.imu.pop(node)  # the node's orientations go with it
+        report = check_sampling(instants[node], rates[node])
         sampling[node] = report
         largest[node] = motions[node].largest_rad_s
         if not report.uniform and not longest_segment:
             raise RecordingError(
-                f"{path}: {imu_topic(node)} is not uniformly sampled ({report.describe()}); Allan deviation "
-                "needs uniform sampling. '--longest-segment' analyses the longest uniform stretch"
+                f"{path}: {imu_topic(node)} is not uniformly sampled ({report.describe()}, by its "
+                f"{clocks[node].name}); Allan deviation needs uniform sampling. '--longest-segment' analyses the "
+                "longest uniform stretch"
             )
         part = slice(None)
         if not report.uniform or len(moving_s):
             still = still_samples(topic.t_ns * 1e-9, moving_s)
-            part = longest_uniform_segment(topic.t_ns, rates[node], usable=still)
+            part = longest_uniform_segment(instants[node], rates[node], usable=still)
             if part.stop - part.start < 20:
                 raise RecordingError(f"{path}: {imu_topic(node)} has no static, uniformly sampled stretch to analyse")
         t = topic.t_ns[part]
         segments[node] = (float(t[0]) * 1e-9, float(t[-1]) * 1e-9)
         columns[node] = (topic.accel_m_s2[part], topic.gyro_rad_s[part])  # views: (n, 3) each
         del topic, t
+        del instants[node]
     del rec
-    return _Stretches(rates, sampling, segments, columns, largest)
+    return _Stretches(rates, sampling, segments, columns, largest, clocks)
 
 
 def _axis_results(node: str, moments: list[tuple[float, float]], curves: list[AllanCurve]) -> list[AxisResult]:
@@ -236,6 +272,9 @@ def table(report: AllanReport) -> str:
         f"{report.path}: {duration_text(report.duration_s)} at {report.rate_hz:g} Hz "
         f"({', '.join(f'{n}: {c} samples' for n, c in report.n_samples.items())})"
     ]
+    for node, clock in report.clocks.items():
+        if clock.name != "log times":
+            lines.append(f"{node}: sampled by its {clock.name} (by its log times: {clock.other})")
     any_moved = any(report.moved(node) for node in report.sampling)
     for node, s in report.sampling.items():
         start, end = report.segment[node]
@@ -295,6 +334,7 @@ def as_json(report: AllanReport) -> dict:
                 "irregular": s.irregular,
                 "analysed_s": list(report.segment[n]),
                 "largest_motion_rad_s": report.largest_motion_rad_s.get(n),
+                "clock": report.clocks[n].name if n in report.clocks else "log times",
             }
             for n, s in report.sampling.items()
         },
