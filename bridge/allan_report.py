@@ -170,10 +170,11 @@ def sample_instants(t_ns: np.ndarray, stamp_ns: np.ndarray, rate_hz: float) -> t
     throughout and break uniform sampling less often (gaps and irregular intervals) than the log
     times, which keep the choice otherwise (pendsim's own recordings: both are uniform)."""
     log_rate = rate_hz or nominal_rate_hz(t_ns * 1e-9)
-    if len(stamp_ns) != len(t_ns) or not np.all(np.diff(stamp_ns) > 0):
+    by_log = check_sampling(t_ns, log_rate)
+    if by_log.uniform or len(stamp_ns) != len(t_ns) or not np.all(np.diff(stamp_ns) > 0):
         return t_ns, log_rate, SampleClock("log times")
     stamp_rate = rate_hz or nominal_rate_hz(stamp_ns * 1e-9)
-    by_log, by_stamp = check_sampling(t_ns, log_rate), check_sampling(stamp_ns, stamp_rate)
+    by_stamp = check_sampling(stamp_ns, stamp_rate)
     if len(by_stamp.gaps) + by_stamp.irregular < len(by_log.gaps) + by_log.irregular:
         return stamp_ns, stamp_rate, SampleClock("header stamps", by_log.describe())
     return t_ns, log_rate, SampleClock("log times")
