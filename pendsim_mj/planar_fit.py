@@ -19,12 +19,15 @@ node reports the latest 100 Hz fused value, 0-10 ms old; taking the sample insta
 b1 1.1 % off), lost samples (NaN) left out. The model's rate between steps is cubic Hermite
 through omega and its exact derivative (the closed-form accelerations).
 
-Jacobian: exact, from the compiled kernel (``fast_planar.rates_at``): RK4 applied to the
-variational equations alongside the state, i.e. the derivative of the discrete solution the
+Jacobian: exact, from the compiled kernel (``fast_planar.normal_equations_at``): RK4 applied to
+the variational equations alongside the state, i.e. the derivative of the discrete solution the
 residuals use (central differences of it agree to O(step^2); the previous central-difference
 Jacobian was off by up to 2e-4 relative in the friction columns); the release offset's column is
--alpha at the instants. One pass of one member per Jacobian, nothing stored but the predictions
-and their sensitivities (a 1 h record: tens of MB).
+-alpha at the instants. One pass of one member per iteration, which sums each instant's row into
+J^T J (P x P), J^T r and r.r as it goes: nothing n x P is kept (before: the whole Jacobian, about
+250 MB at 6 h), so the fit's memory is that of the data and one residual vector (n) at the
+optimum (BIC, Ljung-Box, rms: the rates alone, ``fast_planar.rates_at``). The sums run in the
+instants' order, not BLAS's: equal to the explicit J^T J to rounding (tests: 1e-12 relative).
 
 Drives: a driven run's inputs (``pendsim_mj.drives``, its time 0 at the release: a shifted release
 shifts the drive with it) are held over the kernel's steps as in every engine; the Jacobian stays
@@ -145,11 +148,8 @@ class _Model:
             base[_ROW[name]] = 0.0
         self.coef = base
 
-    def _evaluate(
-        self, x: Floats, wrt: tuple[str, ...], sens: tuple[Floats, Floats] | None = None
-    ) -> tuple[tuple[Floats, Floats], ...]:
-        """Model rates of each node at its instants, their sensitivities to ``wrt`` and to the
-        release offset (``fast_planar.rates_at``)."""
+    def _start(self, x: Floats) -> tuple[Floats, Floats | tuple[float, float], float, tuple[Floats, Floats]]:
+        """The kernel's arguments at x: coefficients, start rates, release instant, instants."""
         p = len(self.damping)
         coef = self.coef.copy()
         for j, name in enumerate(self.damping):
@@ -157,47 +157,51 @@ class _Model:
         omega0 = x[p + 2 : p + 4] if self.moving else (0.0, 0.0)
         release = 0.0 if self.moving else float(x[p + 2])
         at = (self.data.at[0], self.data.at[1] + x[-1]) if self.timed else self.data.at
-        return fast_planar.rates_at(
-            coef, x[p : p + 2], omega0, at, FIT_DT_S, release_s=release, wrt=wrt, sensitivities_out=sens,
-            inputs=self.data.inputs,
-        )  # fmt: skip
+        return coef, omega0, release, at
 
-    def full(self, x: Floats) -> tuple[Floats, Floats]:
-        """Normalised residuals (n,) and Jacobian (n, P) at x, from one kernel pass (the kernel
-        writes the sensitivities straight into the Jacobian's columns)."""
-        rolled = tuple(name for name in self.names if name not in ("release_offset_s", "timing2_s"))
+    def residuals(self, x: Floats) -> Floats:
+        """The n normalised residuals (rate - gyro) / sigma at x, node 1's then node 2's (the
+        rates alone: no sensitivities)."""
+        coef, omega0, release, at = self._start(x)
+        p = len(self.damping)
         d = self.data
-        m0 = len(d.at[0])
-        jac = np.empty((m0 + len(d.at[1]), len(x)))
-        sens = (jac[:m0, : len(rolled)], jac[m0:, : len(rolled)])
-        (r0, r1), _, (t0, t1) = self._evaluate(x, rolled, sens)
-        if not self.moving:
-            jac[:m0, len(rolled)] = t0
-            jac[m0:, len(rolled)] = t1
-        if self.timed:  # M2's values belong a little later: its rate moves by alpha = -d rate / d release
-            jac[:m0, -1] = 0.0
-            jac[m0:, -1] = -t1
-        jac[:m0] /= d.sigma[0]
-        jac[m0:] /= d.sigma[1]
-        return np.concatenate([(r0 - d.gyro[0]) / d.sigma[0], (r1 - d.gyro[1]) / d.sigma[1]]), jac
+        (r0, r1), _, _ = fast_planar.rates_at(
+            coef, x[p : p + 2], omega0, at, FIT_DT_S, release_s=release, inputs=d.inputs
+        )
+        return np.concatenate([(r0 - d.gyro[0]) / d.sigma[0], (r1 - d.gyro[1]) / d.sigma[1]])
+
+    def normal_equations(self, x: Floats) -> tuple[Floats, Floats, float]:
+        """J^T J (P, P), J^T r (P,) and r.r of the normalised residuals at x, summed in one kernel
+        pass (``fast_planar.normal_equations_at``: no n x P Jacobian). J's columns: the unknowns
+        the kernel rolls (damping, phi_0, omega_0), then the release offset (d rate / d tau), then
+        M2's timing (0 for M1, alpha = -d rate / d tau for M2)."""
+        rolled = tuple(name for name in self.names if name not in ("release_offset_s", "timing2_s"))
+        coef, omega0, release, at = self._start(x)
+        p = len(self.damping)
+        d = self.data
+        return fast_planar.normal_equations_at(
+            coef, x[p : p + 2], omega0, at, d.gyro, d.sigma, FIT_DT_S, release_s=release, wrt=rolled,
+            release_column=not self.moving, timing_column=self.timed, inputs=d.inputs,
+        )  # fmt: skip
 
     def reduced(self, x: Floats) -> Floats:
         """The problem as scipy sees it, P + 1 residuals with the same cost, gradient and
-        Gauss-Newton matrix as the n of ``full``: R with R^T R = J^T J (from the eigenvectors of
+        Gauss-Newton matrix as the n residuals: R with R^T R = J^T J (from the eigenvectors of
         J^T J, columns scaled to unit norm first), f~ = (R^-T J^T r, sqrt(r.r - |R^-T J^T r|^2)),
-        J~ = (R; 0). The optimiser then never copies or decomposes an n x P matrix (a 1 h
-        record: n = 576 000). J~ is kept for ``reduced_jacobian`` at the same x."""
-        r, jac = self.full(x)
-        norm = np.sqrt(np.einsum("ij,ij->j", jac, jac))
-        norm[norm == 0] = 1.0
-        if not np.all(np.isfinite(jac)):
+        J~ = (R; 0). J^T J, J^T r and r.r come summed from the kernel (``normal_equations``):
+        neither the optimiser nor the model holds an n x P matrix (a 6 h record: n = 3.5 M).
+        J~ is kept for ``reduced_jacobian`` at the same x."""
+        jtj, jtr, rr = self.normal_equations(x)
+        if not (np.all(np.isfinite(jtj)) and np.all(np.isfinite(jtr)) and math.isfinite(rr)):
             raise ParameterError("the planar model diverged during the damping fit (non-finite rates)")
-        w, v = np.linalg.eigh((jac.T @ jac) / np.outer(norm, norm))
+        norm = np.sqrt(np.diag(jtj).copy())
+        norm[norm == 0] = 1.0
+        w, v = np.linalg.eigh(jtj / np.outer(norm, norm))
         root = np.sqrt(np.clip(w, 0.0, None))
         upper = (root[:, None] * v.T) * norm[None, :]  # upper^T upper = J^T J
         inverse = np.divide(1.0, root, out=np.zeros_like(root), where=root > 1e-12 * root.max())
-        projected = inverse * (v.T @ ((jac.T @ r) / norm))
-        rest = math.sqrt(max(float(r @ r) - float(projected @ projected), 0.0))
+        projected = inverse * (v.T @ (jtr / norm))
+        rest = math.sqrt(max(rr - float(projected @ projected), 0.0))
         self._cached = (x.copy(), np.vstack([upper, np.zeros((1, len(x)))]))
         return np.append(projected, rest)
 
@@ -270,7 +274,7 @@ def fit_law(
         gtol=1e-10,
         max_nfev=50,
     )
-    r, _ = model.full(np.asarray(result.x, dtype=float))  # the n residuals at the optimum
+    r = model.residuals(np.asarray(result.x, dtype=float))  # the n residuals at the optimum
     n, p = len(r), len(x0)
     rss = float(r @ r)
     jac = result.jac
