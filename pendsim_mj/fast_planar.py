@@ -924,7 +924,7 @@ def normal_equations_at(
     nq = len(codes) + int(release_column) + int(timing_column)
     jtj, jtr, rr = np.zeros((nq, nq)), np.zeros(nq), np.zeros(1)
     if nq == 0:  # the kernel's accumulate mode needs a column; r.r alone from the rates
-        (r1, r2), _, _ = rates_at(coef, phi0_rad, omega0_rad_s, at, dt_s, release_s=release_s, inputs=inputs)
+        (r1, r2), _, _ = rates_at(coef, phi0_rad, omega0_rad_s, at_s, dt_s, release_s=release_s, inputs=inputs)
         res = np.concatenate([(r1 - observed[0]) / sigma[0], (r2 - observed[1]) / sigma[1]])
         return jtj, jtr, float(res @ res)
     none, no_sens = _NOTHING, np.zeros((0, len(codes)))

@@ -347,3 +347,5 @@ def test_normal_equations_at_equal_the_explicit_jacobians_products(start):
     bound = np.sqrt(np.diag(ref_jtj) * ref_rr)  # |J^T r| per column (Cauchy-Schwarz)
     assert np.all(np.abs(jtr - ref_jtr) <= 1e-12 * bound), (jtr - ref_jtr) / bound
     assert rr == pytest.approx(ref_rr, rel=1e-12)
+    no_columns = fast_planar.normal_equations_at(*args, 0.01, release_s=release_s, inputs=inputs)
+    assert no_columns[0].shape == (0, 0) and no_columns[2] == pytest.approx(ref_rr, rel=1e-12)
