@@ -51,7 +51,7 @@ from collections.abc import Sequence
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy import fft, optimize, stats
+from scipy import optimize, stats
 
 from pendsim_mj import fast_planar
 from pendsim_mj.drives import Drive, held_inputs
@@ -159,16 +159,17 @@ class _Model:
         at = (self.data.at[0], self.data.at[1] + x[-1]) if self.timed else self.data.at
         return coef, omega0, release, at
 
-    def residuals(self, x: Floats) -> Floats:
-        """The n normalised residuals (rate - gyro) / sigma at x, node 1's then node 2's (the
-        rates alone: no sensitivities)."""
+    def residuals(self, x: Floats) -> tuple[Floats, Floats]:
+        """Each node's normalised residuals (rate - gyro) / sigma at x, (m1,), (m2,): the rates
+        alone (no sensitivities), turned into residuals in place."""
         coef, omega0, release, at = self._start(x)
         p = len(self.damping)
         d = self.data
-        (r0, r1), _, _ = fast_planar.rates_at(
-            coef, x[p : p + 2], omega0, at, FIT_DT_S, release_s=release, inputs=d.inputs
-        )
-        return np.concatenate([(r0 - d.gyro[0]) / d.sigma[0], (r1 - d.gyro[1]) / d.sigma[1]])
+        rates, _, _ = fast_planar.rates_at(coef, x[p : p + 2], omega0, at, FIT_DT_S, release_s=release, inputs=d.inputs)
+        for rate, gyro, sigma in zip(rates, d.gyro, d.sigma, strict=True):
+            np.subtract(rate, gyro, out=rate)
+            np.divide(rate, sigma, out=rate)
+        return rates
 
     def normal_equations(self, x: Floats) -> tuple[Floats, Floats, float]:
         """J^T J (P, P), J^T r (P,) and r.r of the normalised residuals at x, summed in one kernel
@@ -214,14 +215,14 @@ class _Model:
 
 
 def ljung_box_p(residuals: Floats, lags: int = LJUNG_BOX_LAGS) -> float:
-    """p-value of the Ljung-Box test that a series is white (over ``lags`` lags)."""
+    """p-value of the Ljung-Box test that a series (n,) is white (over ``lags`` lags): the
+    autocorrelations at lags 1..lags as direct sums (one centred copy of the series, no FFT:
+    lags * n operations, memory n)."""
     r = np.asarray(residuals, dtype=float) - float(np.mean(residuals))
     n = len(r)
     if n <= lags + 1:
         return math.nan
-    nfft = fft.next_fast_len(2 * n, real=True)  # zero padding >= n: no wrap-around
-    spectrum = fft.rfft(r, nfft)
-    acov = fft.irfft(spectrum * np.conj(spectrum), nfft)[: lags + 1]
+    acov = np.array([float(r[: n - k] @ r[k:]) for k in range(lags + 1)])
     rho = acov[1:] / acov[0]
     q = n * (n + 2) * float(np.sum(rho * rho / (n - np.arange(1, lags + 1))))
     return float(stats.chi2.sf(q, lags))
@@ -275,15 +276,14 @@ def fit_law(
         max_nfev=50,
     )
     r = model.residuals(np.asarray(result.x, dtype=float))  # the n residuals at the optimum
-    n, p = len(r), len(x0)
-    rss = float(r @ r)
+    n, p = len(r[0]) + len(r[1]), len(x0)
+    rss = float(r[0] @ r[0]) + float(r[1] @ r[1])
     jac = result.jac
     try:
         covariance = (rss / max(1, n - p)) * np.linalg.inv(jac.T @ jac)
     except np.linalg.LinAlgError:
         covariance = np.full((p, p), math.nan)
     ci = 1.959964 * np.sqrt(np.clip(np.diag(covariance), 0.0, None))
-    m0 = len(data.at[0])
     return LawFit(
         law=law,
         names=model.names,
@@ -292,7 +292,7 @@ def fit_law(
         covariance=covariance,
         residual_rms_sigma=math.sqrt(rss / n),
         bic=n * math.log(rss / n) + p * math.log(n),
-        ljung_box_p=(ljung_box_p(r[:m0]), ljung_box_p(r[m0:])),
+        ljung_box_p=(ljung_box_p(r[0]), ljung_box_p(r[1])),
         n_residuals=n,
         iterations=int(result.njev or 0),
         seconds=time.perf_counter() - start,

@@ -152,3 +152,25 @@ def test_the_fit_from_summed_normal_equations_equals_the_fit_from_the_explicit_j
     assert np.all(np.abs(summed.values - explicit.values) <= 1e-9 * size), (summed.values - explicit.values) / size
     np.testing.assert_allclose(summed.ci95, explicit.ci95, rtol=1e-9, atol=0)
     assert summed.bic == pytest.approx(explicit.bic, rel=1e-9)
+
+
+def test_ljung_box_p_equals_the_fft_autocorrelations_and_tells_white_from_correlated_noise():
+    """The direct lag sums give the statistic of the zero-padded FFT autocorrelation (the previous
+    computation) to 1e-12; white noise passes, AR(1) noise with coefficient 0.1 fails."""
+    from scipy import fft, stats
+
+    rng = np.random.default_rng(5)
+    white = rng.normal(size=20_000)
+    ar = white.copy()
+    for i in range(1, len(ar)):
+        ar[i] += 0.1 * ar[i - 1]
+    for series in (white, ar):
+        r = series - series.mean()
+        n, lags = len(r), planar_fit.LJUNG_BOX_LAGS
+        spectrum = fft.rfft(r, 2 * n)
+        acov = fft.irfft(spectrum * np.conj(spectrum), 2 * n)[: lags + 1]
+        rho = acov[1:] / acov[0]
+        q = n * (n + 2) * np.sum(rho * rho / (n - np.arange(1, lags + 1)))
+        assert planar_fit.ljung_box_p(series) == pytest.approx(stats.chi2.sf(q, lags), rel=1e-9, abs=1e-12)
+    assert planar_fit.ljung_box_p(white) > 0.01
+    assert planar_fit.ljung_box_p(ar) < 1e-10
