@@ -708,7 +708,7 @@ def _rates_kernel(
     cubic Hermite through omega and alpha at the step ends (alpha of the step's own inputs), its
     sensitivities (m_n, P) to the ``wrt`` unknowns (RK4 on the variational equations: the exact
     derivative of the discrete solution), and d rate / d tau (m_n,). Instants before tau: rate 0
-    (at rest), no sensitivity.
+    (at rest), no sensitivity. An empty slope_n (0,): node n's slopes are not written.
 
     Accumulate mode (jtj of shape (Q, Q), Q > 0): nothing is written to rate/sens/slope (pass
     empty arrays); instead each instant's Jacobian row J_i = (sensitivities, [d rate / d tau if
@@ -828,7 +828,8 @@ def _rates_kernel(
                             jtj[a, b] += row[a] * row[b]
                 else:
                     rate[idx] = rate_i
-                    slope[idx] = slope_i
+                    if len(slope) == m:  # (an empty slope: not asked for)
+                        slope[idx] = slope_i
                     for col in range(npar):
                         sens[idx, col] = (
                             h00 * ends[node, 0, col]
@@ -946,6 +947,7 @@ def rates_at(
     wrt: Sequence[str] = (),
     sensitivities_out: tuple[FloatArray, FloatArray] | None = None,
     inputs: FloatArray | None = None,
+    slopes: bool = True,
 ) -> tuple[tuple[FloatArray, FloatArray], tuple[FloatArray, FloatArray], tuple[FloatArray, FloatArray]]:
     """One run's omega1, omega2 at given instants, with exact sensitivities: what a least-squares
     fit needs, without storing the trajectory.
@@ -966,10 +968,11 @@ def rates_at(
       inputs: (H, NINPUT) the inputs held over the steps from the release on (``drives.held_inputs``
         with the drive's time 0 at ``release_s``; H at least the steps the instants need), or
         None (undriven).
+      slopes: compute d rate / d release_s (False: empty slopes, no (m_n,) arrays for them).
 
     Returns:
       (rates, sensitivities, slopes): each a pair over the nodes: rate (m_n,) rad/s (0 before the
-      release); d rate / d wrt (m_n, P); d rate / d release_s (m_n,).
+      release); d rate / d wrt (m_n, P); d rate / d release_s (m_n,) (or (0,): ``slopes`` False).
     """
     k, y0, nstep, held, codes, at = _rates_setup(coef, phi0_rad, omega0_rad_s, at_s, dt_s, release_s, wrt, inputs)
     rate = tuple(np.zeros(len(a)) for a in at)
@@ -981,7 +984,7 @@ def rates_at(
             raise ParameterError(f"rates_at: sensitivities_out must be float64 arrays of shape (m_n, {len(codes)})")
         for o in sens:
             o[...] = 0.0
-    slope = tuple(np.zeros(len(a)) for a in at)
+    slope = tuple(np.zeros(len(a) if slopes else 0) for a in at)
     none = _NOTHING
     _rates_kernel(k, y0, float(release_s), float(dt_s), nstep, held, codes, at[0], at[1], rate[0], rate[1], sens[0],
                   sens[1], slope[0], slope[1], none, none, none, False, False, _NOTHING_2D, none, none)  # fmt: skip

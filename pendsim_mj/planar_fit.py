@@ -165,7 +165,9 @@ class _Model:
         coef, omega0, release, at = self._start(x)
         p = len(self.damping)
         d = self.data
-        rates, _, _ = fast_planar.rates_at(coef, x[p : p + 2], omega0, at, FIT_DT_S, release_s=release, inputs=d.inputs)
+        rates, _, _ = fast_planar.rates_at(
+            coef, x[p : p + 2], omega0, at, FIT_DT_S, release_s=release, inputs=d.inputs, slopes=False
+        )
         for rate, gyro, sigma in zip(rates, d.gyro, d.sigma, strict=True):
             np.subtract(rate, gyro, out=rate)
             np.divide(rate, sigma, out=rate)
@@ -299,10 +301,21 @@ def fit_law(
     )
 
 
+def _per_node(values: Floats | Sequence[NDArray[np.floating]]) -> list[NDArray[np.floating]]:
+    """Each node's (m_k,) column of an (m, 2) array, or the pair of per-node arrays given."""
+    if isinstance(values, np.ndarray) and values.ndim == 2 and values.shape[1] == 2:
+        return [values[:, 0], values[:, 1]]
+    columns = [np.asarray(v) for v in values] if isinstance(values, (tuple, list)) else []
+    if len(columns) != 2 or any(c.ndim != 1 for c in columns):
+        shape = np.shape(values) if isinstance(values, np.ndarray) else type(values).__name__
+        raise ParameterError(f"expected an (m, 2) array or two per-node (m_k,) arrays, got {shape}")
+    return columns
+
+
 def fit_planar(
     params: RigParams,
-    value_t_s: Floats,
-    gyro_z_rad_s: Floats,
+    value_t_s: Floats | Sequence[NDArray[np.floating]],
+    gyro_z_rad_s: Floats | Sequence[NDArray[np.floating]],
     *,
     gyro_sigma_rad_s: Sequence[float],
     phi0_rad: Sequence[float],
@@ -317,8 +330,11 @@ def fit_planar(
 
     Args:
       params: the rig (its damping fields are only the first guess).
-      value_t_s: (m, 2) each node's value instants since the start, s (NaN: no sample).
-      gyro_z_rad_s: (m, 2) the measured rates about the hinges, rad/s (NaN: lost).
+      value_t_s: (m, 2) each node's value instants since the start, s (NaN: no sample), or the
+        pair of each node's (m_k,) instants (used without a copy when float64, contiguous,
+        finite and ascending: what a long record's fit needs).
+      gyro_z_rad_s: (m, 2) the measured rates about the hinges, rad/s (NaN: lost), or the pair
+        of each node's (m_k,).
       gyro_sigma_rad_s: each node's gyro noise sigma, rad/s.
       phi0_rad, omega0_rad_s: the start state estimated by the alignment (first guess).
       moving: the run starts in motion (fit omega_0, no release offset); default: any |omega_0|
@@ -334,16 +350,22 @@ def fit_planar(
     """
     if law not in LAW_CHOICES:
         raise ParameterError(f"law must be one of {', '.join(LAW_CHOICES)}, got {law!r}")
-    t = np.asarray(value_t_s, dtype=float)
-    y = np.asarray(gyro_z_rad_s, dtype=float)
-    if t.shape != y.shape or t.ndim != 2 or t.shape[1] != 2:
-        raise ParameterError(f"expected value_t_s and gyro_z_rad_s of shape (m, 2), got {t.shape}, {y.shape}")
+    t, y = _per_node(value_t_s), _per_node(gyro_z_rad_s)
+    if any(a.shape != b.shape for a, b in zip(t, y, strict=True)):
+        raise ParameterError(
+            f"expected value_t_s and gyro_z_rad_s of the same shape per node, got {[a.shape for a in t]}, "
+            f"{[b.shape for b in y]}"
+        )
     at, gyro = [], []
-    for k in range(2):
-        ok = np.isfinite(t[:, k]) & np.isfinite(y[:, k])
-        order = np.argsort(t[ok, k], kind="stable")
-        at.append(t[ok, k][order])
-        gyro.append(y[ok, k][order])
+    for k in range(2):  # finite and ascending, each node's own contiguous arrays (no copy if they are)
+        ok = np.isfinite(t[k]) & np.isfinite(y[k])
+        tk, yk = (t[k], y[k]) if ok.all() else (t[k][ok], y[k][ok])
+        del ok
+        if np.any(tk[1:] < tk[:-1]):
+            order = np.argsort(tk, kind="stable")
+            tk, yk = tk[order], yk[order]
+        at.append(np.ascontiguousarray(tk, dtype=np.float64))
+        gyro.append(np.ascontiguousarray(yk, dtype=np.float64))
         if len(at[-1]) < 10:
             raise ParameterError(f"node {k + 1} has {len(at[-1])} usable gyro samples; the fit needs at least 10")
     inputs = None
