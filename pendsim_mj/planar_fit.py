@@ -31,7 +31,7 @@ instants' order, not BLAS's: equal to the explicit J^T J to rounding (tests: 1e-
 
 Drives: a driven run's inputs (``pendsim_mj.drives``, its time 0 at the release: a shifted release
 shifts the drive with it) are held over the kernel's steps as in every engine; the Jacobian stays
-exact (``fast_planar.rates_at`` with ``inputs``).
+exact (the kernel with ``inputs``).
 
 Intervals: covariance s^2 (J^T J)^-1 of the normalised residuals with s^2 = RSS/(n - P) (the
 residual variance, so a misjudged noise sigma does not narrow them), 95 % half-widths

@@ -9,6 +9,7 @@ import pytest
 
 from pendsim_mj import fast_planar, planar_fit
 from pendsim_mj.alignment import NodeSamples, align
+from pendsim_mj.errors import ParameterError
 from pendsim_mj.imperfections import Imperfections
 from pendsim_mj.params import DEFAULT_PARAMS
 from pendsim_mj.planar_fit import fit_planar
@@ -174,3 +175,23 @@ def test_ljung_box_p_equals_the_fft_autocorrelations_and_tells_white_from_correl
         assert planar_fit.ljung_box_p(series) == pytest.approx(stats.chi2.sf(q, lags), rel=1e-9, abs=1e-12)
     assert planar_fit.ljung_box_p(white) > 0.01
     assert planar_fit.ljung_box_p(ar) < 1e-10
+
+
+def test_the_fit_takes_each_nodes_own_arrays_as_it_takes_the_m_by_2_columns():
+    """fit_planar on the pair of per-node arrays (what validate passes, no (m, 2) copies) gives the
+    fit of the (m, 2) arrays with NaN padding, bit for bit; a wrong shape is a ParameterError."""
+    truth = DEFAULT_PARAMS.with_overrides(b1_n_m_s=8e-4, b2_n_m_s=4e-4)
+    imperfect = Imperfections(packet_loss=0.05, fusion_phase_s=(0.002, 0.006))
+    (params, at, omega), keywords = _record(
+        simulate(truth, (math.radians(30), 0.0), (0.0, 0.0), 8.0), Bno055(seed=3, imperfections=imperfect)
+    )
+    ok = [np.isfinite(at[:, k]) & np.isfinite(omega[:, k]) for k in range(2)]
+    at_pair = tuple(np.ascontiguousarray(at[ok[k], k]) for k in range(2))
+    omega_pair = tuple(omega[ok[k], k] for k in range(2))
+    assert len(at_pair[0]) != len(at_pair[1])  # the losses differ: the (m, 2) arrays hold NaN
+    by_columns = fit_planar(params, at, omega, **keywords, law="viscous")[0]
+    by_node = fit_planar(params, at_pair, omega_pair, **keywords, law="viscous")[0]
+    np.testing.assert_array_equal(by_node.values, by_columns.values)
+    np.testing.assert_array_equal(by_node.ci95, by_columns.ci95)
+    with pytest.raises(ParameterError, match="per-node"):
+        fit_planar(params, at[:, 0], omega[:, 0], **keywords)
