@@ -250,8 +250,10 @@ def _identify(
     start = run.start
     fit = planar_damping(
         params,
-        run.both_nodes("value_t_s"),  # where each value belongs (the sample instants moved by the fusion age)
-        run.both_nodes("omega_rad_s"),
+        # each node's own arrays, not both_nodes' (m, 2) copies: where each value belongs (the
+        # sample instants moved by the fusion age) and its rate
+        tuple(node.value_t_s for node in run.nodes),
+        tuple(node.omega_rad_s for node in run.nodes),
         gyro_sigma_rad_s=run.gyro_sigma_rad_s,
         phi0_rad=start.phi_rad,
         omega0_rad_s=start.omega_rad_s,

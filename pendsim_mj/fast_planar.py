@@ -65,8 +65,10 @@ never raises for it, ``solve_batch`` does (as the reference).
 
 Public entry points: ``solve`` / ``solve_batch`` (the reference's arguments, drives included, and
 its Trajectory), ``integrate`` (states only, optionally every k-th step: what a sweep needs),
-``lyapunov`` (largest Lyapunov exponent, Benettin's two-trajectory method), ``diverged``, and
-the closed forms ``spring_moments``, ``accelerations``, ``spring_lengths``, ``potential_energy``.
+``lyapunov`` (largest Lyapunov exponent, Benettin's two-trajectory method), ``diverged``,
+``rates_at`` (one run's rates at given instants with exact sensitivities) and
+``normal_equations_at`` (the same pass summing a fit's J^T J, J^T r, r.r), and the closed
+forms ``spring_moments``, ``accelerations``, ``spring_lengths``, ``potential_energy``.
 
 To extend the force law (e.g. hinge friction): add its constants to ``COEFFICIENTS`` and
 ``coefficients``, load them in ``_chunk_coefficients`` / ``_member``, use them in ``_accel``
@@ -691,6 +693,14 @@ def _rates_kernel(
     sens2: FloatArray,
     slope1: FloatArray,
     slope2: FloatArray,
+    observed1: FloatArray,
+    observed2: FloatArray,
+    sigma: FloatArray,
+    release_column: bool,
+    timing_column: bool,
+    jtj: FloatArray,
+    jtr: FloatArray,
+    rr: FloatArray,
 ) -> None:
     """One member (k: (NCOEF, 1)) from y0 = (phi1, phi2, omega1, omega2) at rest until ``tau``,
     then RK4 steps of h, step j holding the inputs held[j] (held: (H >= nstep, NINPUT), or H = 0:
@@ -698,7 +708,17 @@ def _rates_kernel(
     cubic Hermite through omega and alpha at the step ends (alpha of the step's own inputs), its
     sensitivities (m_n, P) to the ``wrt`` unknowns (RK4 on the variational equations: the exact
     derivative of the discrete solution), and d rate / d tau (m_n,). Instants before tau: rate 0
-    (at rest), no sensitivity."""
+    (at rest), no sensitivity. An empty slope_n (0,): node n's slopes are not written.
+
+    Accumulate mode (jtj of shape (Q, Q), Q > 0): nothing is written to rate/sens/slope (pass
+    empty arrays); instead each instant's Jacobian row J_i = (sensitivities, [d rate / d tau if
+    release_column], [0 for node 1, -d rate / d tau for node 2 if timing_column]) / sigma_n and
+    residual r_i = (rate - observed_n) / sigma_n (observed_n: (m_n,), sigma: (2,)) are added into
+    the upper triangle of jtj (Q, Q), jtr (Q,) and rr (1,): J^T J, J^T r and r.r, summed in the
+    instants' order."""
+    accumulate = jtj.shape[0] > 0
+    nq = jtj.shape[0]
+    row = np.zeros(nq)
     c = _member(_chunk_coefficients(k, 0, 1), 0)
     zero = (0.0, 0.0, 0.0, 0.0)
     inp = zero
@@ -716,6 +736,13 @@ def _rates_kernel(
     n1 = np.searchsorted(at1, tau)
     n2 = np.searchsorted(at2, tau)
     m1, m2 = len(at1), len(at2)
+    if accumulate:  # at rest before tau: rate 0, a zero row
+        for i in range(n1):
+            res = -observed1[i] / sigma[0]
+            rr[0] += res * res
+        for i in range(n2):
+            res = -observed2[i] / sigma[1]
+            rr[0] += res * res
     hh = 0.5 * h
     h6 = h / 6.0
     ends = np.zeros((2, 2, npar))  # at the step's start: each node's s of omega and of alpha
@@ -776,21 +803,137 @@ def _rates_kernel(
                 f2 = f * f
                 f3 = f2 * f
                 h00, h10, h01, h11 = 2 * f3 - 3 * f2 + 1, f3 - 2 * f2 + f, -2 * f3 + 3 * f2, f3 - f2
-                rate[idx] = h00 * w0 + h10 * h * a0 + h01 * wn + h11 * h * an
-                slope[idx] = -((1 - f) * a0 + f * an)
-                for col in range(npar):
-                    sens[idx, col] = (
-                        h00 * ends[node, 0, col]
-                        + h10 * h * ends[node, 1, col]
-                        + h01 * s[2 + node, col]
-                        + h11 * h * ks[0, 2 + node, col]
-                    )
+                rate_i = h00 * w0 + h10 * h * a0 + h01 * wn + h11 * h * an
+                slope_i = -((1 - f) * a0 + f * an)
+                if accumulate:
+                    sg = sigma[node]
+                    for col in range(npar):
+                        row[col] = (
+                            h00 * ends[node, 0, col]
+                            + h10 * h * ends[node, 1, col]
+                            + h01 * s[2 + node, col]
+                            + h11 * h * ks[0, 2 + node, col]
+                        ) / sg
+                    q = npar
+                    if release_column:
+                        row[q] = slope_i / sg
+                        q += 1
+                    if timing_column:  # M2's instants shift: its rate moves by -slope per second
+                        row[q] = 0.0 if node == 0 else -slope_i / sg
+                    res = (rate_i - (observed1[idx] if node == 0 else observed2[idx])) / sg
+                    rr[0] += res * res
+                    for a in range(nq):
+                        jtr[a] += row[a] * res
+                        for b in range(a, nq):
+                            jtj[a, b] += row[a] * row[b]
+                else:
+                    rate[idx] = rate_i
+                    if len(slope) == m:  # (an empty slope: not asked for)
+                        slope[idx] = slope_i
+                    for col in range(npar):
+                        sens[idx, col] = (
+                            h00 * ends[node, 0, col]
+                            + h10 * h * ends[node, 1, col]
+                            + h01 * s[2 + node, col]
+                            + h11 * h * ks[0, 2 + node, col]
+                        )
                 idx += 1
             if node == 0:
                 n1 = idx
             else:
                 n2 = idx
         p1, p2, w1, w2, a1, a2 = np1, np2, nw1, nw2, na1, na2
+
+
+_NOTHING = np.zeros(0)  # the kernel's arrays a mode does not use
+_NOTHING_2D = np.zeros((0, 0))
+
+
+def _rates_setup(
+    coef: FloatArray,
+    phi0_rad: Sequence[float] | FloatArray,
+    omega0_rad_s: Sequence[float] | FloatArray,
+    at_s: tuple[FloatArray, FloatArray],
+    dt_s: float,
+    release_s: float,
+    wrt: Sequence[str],
+    inputs: FloatArray | None,
+) -> tuple[FloatArray, FloatArray, int, FloatArray, NDArray[np.int64], tuple[FloatArray, ...]]:
+    """The checked arguments of ``_rates_kernel`` shared by ``rates_at`` and
+    ``normal_equations_at``: (k, y0, nstep, held, wrt codes, instants)."""
+    k = _check_coef(coef, 1)
+    unknown = [name for name in wrt if name not in SENSITIVITY_NAMES]
+    if unknown:
+        raise ParameterError(f"rates_at: unknown sensitivity {unknown[0]!r}; allowed: {', '.join(SENSITIVITY_NAMES)}")
+    codes = np.array([SENSITIVITY_NAMES.index(name) for name in wrt], dtype=np.int64)
+    at = tuple(np.ascontiguousarray(a, dtype=np.float64) for a in at_s)
+    end = max((float(a[-1]) for a in at if len(a)), default=0.0) - release_s
+    nstep = max(1, math.ceil(end / dt_s) + 1)
+    y0 = np.array([*np.asarray(phi0_rad, dtype=float), *np.asarray(omega0_rad_s, dtype=float)])
+    held = _UNDRIVEN_STEPS
+    if inputs is not None:
+        held = np.ascontiguousarray(inputs, dtype=np.float64)
+        if held.ndim != 2 or held.shape[1] != NINPUT or held.shape[0] < nstep:
+            raise ParameterError(f"rates_at: inputs must have shape (>= {nstep}, {NINPUT}), got {held.shape}")
+    return k, y0, nstep, held, codes, at
+
+
+def normal_equations_at(
+    coef: FloatArray,
+    phi0_rad: Sequence[float] | FloatArray,
+    omega0_rad_s: Sequence[float] | FloatArray,
+    at_s: tuple[FloatArray, FloatArray],
+    observed_rad_s: tuple[FloatArray, FloatArray],
+    sigma_rad_s: Sequence[float] | FloatArray,
+    dt_s: float,
+    *,
+    release_s: float = 0.0,
+    wrt: Sequence[str] = (),
+    release_column: bool = False,
+    timing_column: bool = False,
+    inputs: FloatArray | None = None,
+) -> tuple[FloatArray, FloatArray, float]:
+    """The normal equations of a least-squares fit of the rates of ``rates_at`` to observed rates,
+    summed over the instants in one kernel pass: memory independent of the number of instants
+    (nothing of size m_n is stored; the same integration as ``rates_at``, its accumulate mode).
+
+    Each instant i of node n contributes the normalised residual r_i = (rate - observed) / sigma_n
+    and the Jacobian row J_i = (d rate / d wrt, [d rate / d release_s], [0 for node 1,
+    -d rate / d release_s for node 2]) / sigma_n: the sensitivities of ``rates_at``, then the
+    release offset's column where ``release_column``, then, where ``timing_column``, that of a
+    shift of node 2's instants (a later instant: d rate / d t = -d rate / d release_s). Instants
+    before the release: rate 0, a zero row.
+
+    Args:
+      coef, phi0_rad, omega0_rad_s, at_s, dt_s, release_s, wrt, inputs: as ``rates_at``.
+      observed_rad_s: each node's observed rate at its instants, rad/s: (m1,), (m2,).
+      sigma_rad_s: (2,) each node's noise sigma, rad/s.
+      release_column, timing_column: add those columns (above).
+
+    Returns:
+      (J^T J (Q, Q), J^T r (Q,), r.r) with Q = len(wrt) + release_column + timing_column
+      (J in 1/sigma per unit of each unknown, r dimensionless). Summed in the instants' order
+      (not BLAS's blocked order: equal to it to rounding, ~1e-13 relative).
+    """
+    k, y0, nstep, held, codes, at = _rates_setup(coef, phi0_rad, omega0_rad_s, at_s, dt_s, release_s, wrt, inputs)
+    observed = tuple(np.ascontiguousarray(o, dtype=np.float64) for o in observed_rad_s)
+    if any(o.shape != a.shape for o, a in zip(observed, at, strict=True)):
+        raise ParameterError("normal_equations_at: each node's observed rates must match its instants' shape")
+    sigma = np.ascontiguousarray(sigma_rad_s, dtype=np.float64)
+    if sigma.shape != (2,) or not np.all(sigma > 0):
+        raise ParameterError(f"normal_equations_at: sigma_rad_s must be two positive values, got {sigma_rad_s!r}")
+    nq = len(codes) + int(release_column) + int(timing_column)
+    jtj, jtr, rr = np.zeros((nq, nq)), np.zeros(nq), np.zeros(1)
+    if nq == 0:  # the kernel's accumulate mode needs a column; r.r alone from the rates
+        (r1, r2), _, _ = rates_at(coef, phi0_rad, omega0_rad_s, at_s, dt_s, release_s=release_s, inputs=inputs)
+        res = np.concatenate([(r1 - observed[0]) / sigma[0], (r2 - observed[1]) / sigma[1]])
+        return jtj, jtr, float(res @ res)
+    none, no_sens = _NOTHING, np.zeros((0, len(codes)))
+    _rates_kernel(k, y0, float(release_s), float(dt_s), nstep, held, codes, at[0], at[1], none, none, no_sens,
+                  no_sens, none, none, observed[0], observed[1], sigma, bool(release_column), bool(timing_column),
+                  jtj, jtr, rr)  # fmt: skip
+    upper = np.triu(jtj)
+    return upper + np.triu(upper, 1).T, jtr, float(rr[0])
 
 
 def rates_at(
@@ -804,6 +947,7 @@ def rates_at(
     wrt: Sequence[str] = (),
     sensitivities_out: tuple[FloatArray, FloatArray] | None = None,
     inputs: FloatArray | None = None,
+    slopes: bool = True,
 ) -> tuple[tuple[FloatArray, FloatArray], tuple[FloatArray, FloatArray], tuple[FloatArray, FloatArray]]:
     """One run's omega1, omega2 at given instants, with exact sensitivities: what a least-squares
     fit needs, without storing the trajectory.
@@ -824,20 +968,13 @@ def rates_at(
       inputs: (H, NINPUT) the inputs held over the steps from the release on (``drives.held_inputs``
         with the drive's time 0 at ``release_s``; H at least the steps the instants need), or
         None (undriven).
+      slopes: compute d rate / d release_s (False: empty slopes, no (m_n,) arrays for them).
 
     Returns:
       (rates, sensitivities, slopes): each a pair over the nodes: rate (m_n,) rad/s (0 before the
-      release); d rate / d wrt (m_n, P); d rate / d release_s (m_n,).
+      release); d rate / d wrt (m_n, P); d rate / d release_s (m_n,) (or (0,): ``slopes`` False).
     """
-    k = _check_coef(coef, 1)
-    unknown = [name for name in wrt if name not in SENSITIVITY_NAMES]
-    if unknown:
-        raise ParameterError(f"rates_at: unknown sensitivity {unknown[0]!r}; allowed: {', '.join(SENSITIVITY_NAMES)}")
-    codes = np.array([SENSITIVITY_NAMES.index(name) for name in wrt], dtype=np.int64)
-    at = tuple(np.ascontiguousarray(a, dtype=np.float64) for a in at_s)
-    end = max((float(a[-1]) for a in at if len(a)), default=0.0) - release_s
-    nstep = max(1, math.ceil(end / dt_s) + 1)
-    y0 = np.array([*np.asarray(phi0_rad, dtype=float), *np.asarray(omega0_rad_s, dtype=float)])
+    k, y0, nstep, held, codes, at = _rates_setup(coef, phi0_rad, omega0_rad_s, at_s, dt_s, release_s, wrt, inputs)
     rate = tuple(np.zeros(len(a)) for a in at)
     if sensitivities_out is None:
         sens = tuple(np.zeros((len(a), len(codes))) for a in at)
@@ -847,14 +984,10 @@ def rates_at(
             raise ParameterError(f"rates_at: sensitivities_out must be float64 arrays of shape (m_n, {len(codes)})")
         for o in sens:
             o[...] = 0.0
-    held = _UNDRIVEN_STEPS
-    if inputs is not None:
-        held = np.ascontiguousarray(inputs, dtype=np.float64)
-        if held.ndim != 2 or held.shape[1] != NINPUT or held.shape[0] < nstep:
-            raise ParameterError(f"rates_at: inputs must have shape (>= {nstep}, {NINPUT}), got {held.shape}")
-    slope = tuple(np.zeros(len(a)) for a in at)
+    slope = tuple(np.zeros(len(a) if slopes else 0) for a in at)
+    none = _NOTHING
     _rates_kernel(k, y0, float(release_s), float(dt_s), nstep, held, codes, at[0], at[1], rate[0], rate[1], sens[0],
-                  sens[1], slope[0], slope[1])  # fmt: skip
+                  sens[1], slope[0], slope[1], none, none, none, False, False, _NOTHING_2D, none, none)  # fmt: skip
     return (rate[0], rate[1]), (sens[0], sens[1]), (slope[0], slope[1])
 
 

@@ -27,6 +27,7 @@ import dataclasses
 import io
 import math
 import time
+from collections.abc import Sequence
 from typing import TYPE_CHECKING
 
 import mujoco
@@ -119,8 +120,8 @@ class DampingFit:
 
 def planar_damping(
     params: RigParams,
-    value_t_s: np.ndarray,
-    gyro_z_rad_s: np.ndarray,
+    value_t_s: np.ndarray | Sequence[np.ndarray],
+    gyro_z_rad_s: np.ndarray | Sequence[np.ndarray],
     *,
     gyro_sigma_rad_s: tuple[float, float],
     phi0_rad: tuple[float, float],

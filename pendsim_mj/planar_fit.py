@@ -19,16 +19,19 @@ node reports the latest 100 Hz fused value, 0-10 ms old; taking the sample insta
 b1 1.1 % off), lost samples (NaN) left out. The model's rate between steps is cubic Hermite
 through omega and its exact derivative (the closed-form accelerations).
 
-Jacobian: exact, from the compiled kernel (``fast_planar.rates_at``): RK4 applied to the
-variational equations alongside the state, i.e. the derivative of the discrete solution the
+Jacobian: exact, from the compiled kernel (``fast_planar.normal_equations_at``): RK4 applied to
+the variational equations alongside the state, i.e. the derivative of the discrete solution the
 residuals use (central differences of it agree to O(step^2); the previous central-difference
 Jacobian was off by up to 2e-4 relative in the friction columns); the release offset's column is
--alpha at the instants. One pass of one member per Jacobian, nothing stored but the predictions
-and their sensitivities (a 1 h record: tens of MB).
+-alpha at the instants. One pass of one member per iteration, which sums each instant's row into
+J^T J (P x P), J^T r and r.r as it goes: nothing n x P is kept (before: the whole Jacobian, about
+250 MB at 6 h), so the fit's memory is that of the data and one residual vector (n) at the
+optimum (BIC, Ljung-Box, rms: the rates alone, ``fast_planar.rates_at``). The sums run in the
+instants' order, not BLAS's: equal to the explicit J^T J to rounding (tests: 1e-12 relative).
 
 Drives: a driven run's inputs (``pendsim_mj.drives``, its time 0 at the release: a shifted release
 shifts the drive with it) are held over the kernel's steps as in every engine; the Jacobian stays
-exact (``fast_planar.rates_at`` with ``inputs``).
+exact (the kernel with ``inputs``).
 
 Intervals: covariance s^2 (J^T J)^-1 of the normalised residuals with s^2 = RSS/(n - P) (the
 residual variance, so a misjudged noise sigma does not narrow them), 95 % half-widths
@@ -48,7 +51,7 @@ from collections.abc import Sequence
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy import fft, optimize, stats
+from scipy import optimize, stats
 
 from pendsim_mj import fast_planar
 from pendsim_mj.drives import Drive, held_inputs
@@ -145,11 +148,8 @@ class _Model:
             base[_ROW[name]] = 0.0
         self.coef = base
 
-    def _evaluate(
-        self, x: Floats, wrt: tuple[str, ...], sens: tuple[Floats, Floats] | None = None
-    ) -> tuple[tuple[Floats, Floats], ...]:
-        """Model rates of each node at its instants, their sensitivities to ``wrt`` and to the
-        release offset (``fast_planar.rates_at``)."""
+    def _start(self, x: Floats) -> tuple[Floats, Floats | tuple[float, float], float, tuple[Floats, Floats]]:
+        """The kernel's arguments at x: coefficients, start rates, release instant, instants."""
         p = len(self.damping)
         coef = self.coef.copy()
         for j, name in enumerate(self.damping):
@@ -157,47 +157,54 @@ class _Model:
         omega0 = x[p + 2 : p + 4] if self.moving else (0.0, 0.0)
         release = 0.0 if self.moving else float(x[p + 2])
         at = (self.data.at[0], self.data.at[1] + x[-1]) if self.timed else self.data.at
-        return fast_planar.rates_at(
-            coef, x[p : p + 2], omega0, at, FIT_DT_S, release_s=release, wrt=wrt, sensitivities_out=sens,
-            inputs=self.data.inputs,
-        )  # fmt: skip
+        return coef, omega0, release, at
 
-    def full(self, x: Floats) -> tuple[Floats, Floats]:
-        """Normalised residuals (n,) and Jacobian (n, P) at x, from one kernel pass (the kernel
-        writes the sensitivities straight into the Jacobian's columns)."""
-        rolled = tuple(name for name in self.names if name not in ("release_offset_s", "timing2_s"))
+    def residuals(self, x: Floats) -> tuple[Floats, Floats]:
+        """Each node's normalised residuals (rate - gyro) / sigma at x, (m1,), (m2,): the rates
+        alone (no sensitivities), turned into residuals in place."""
+        coef, omega0, release, at = self._start(x)
+        p = len(self.damping)
         d = self.data
-        m0 = len(d.at[0])
-        jac = np.empty((m0 + len(d.at[1]), len(x)))
-        sens = (jac[:m0, : len(rolled)], jac[m0:, : len(rolled)])
-        (r0, r1), _, (t0, t1) = self._evaluate(x, rolled, sens)
-        if not self.moving:
-            jac[:m0, len(rolled)] = t0
-            jac[m0:, len(rolled)] = t1
-        if self.timed:  # M2's values belong a little later: its rate moves by alpha = -d rate / d release
-            jac[:m0, -1] = 0.0
-            jac[m0:, -1] = -t1
-        jac[:m0] /= d.sigma[0]
-        jac[m0:] /= d.sigma[1]
-        return np.concatenate([(r0 - d.gyro[0]) / d.sigma[0], (r1 - d.gyro[1]) / d.sigma[1]]), jac
+        rates, _, _ = fast_planar.rates_at(
+            coef, x[p : p + 2], omega0, at, FIT_DT_S, release_s=release, inputs=d.inputs, slopes=False
+        )
+        for rate, gyro, sigma in zip(rates, d.gyro, d.sigma, strict=True):
+            np.subtract(rate, gyro, out=rate)
+            np.divide(rate, sigma, out=rate)
+        return rates
+
+    def normal_equations(self, x: Floats) -> tuple[Floats, Floats, float]:
+        """J^T J (P, P), J^T r (P,) and r.r of the normalised residuals at x, summed in one kernel
+        pass (``fast_planar.normal_equations_at``: no n x P Jacobian). J's columns: the unknowns
+        the kernel rolls (damping, phi_0, omega_0), then the release offset (d rate / d tau), then
+        M2's timing (0 for M1, alpha = -d rate / d tau for M2)."""
+        rolled = tuple(name for name in self.names if name not in ("release_offset_s", "timing2_s"))
+        coef, omega0, release, at = self._start(x)
+        p = len(self.damping)
+        d = self.data
+        return fast_planar.normal_equations_at(
+            coef, x[p : p + 2], omega0, at, d.gyro, d.sigma, FIT_DT_S, release_s=release, wrt=rolled,
+            release_column=not self.moving, timing_column=self.timed, inputs=d.inputs,
+        )  # fmt: skip
 
     def reduced(self, x: Floats) -> Floats:
         """The problem as scipy sees it, P + 1 residuals with the same cost, gradient and
-        Gauss-Newton matrix as the n of ``full``: R with R^T R = J^T J (from the eigenvectors of
+        Gauss-Newton matrix as the n residuals: R with R^T R = J^T J (from the eigenvectors of
         J^T J, columns scaled to unit norm first), f~ = (R^-T J^T r, sqrt(r.r - |R^-T J^T r|^2)),
-        J~ = (R; 0). The optimiser then never copies or decomposes an n x P matrix (a 1 h
-        record: n = 576 000). J~ is kept for ``reduced_jacobian`` at the same x."""
-        r, jac = self.full(x)
-        norm = np.sqrt(np.einsum("ij,ij->j", jac, jac))
-        norm[norm == 0] = 1.0
-        if not np.all(np.isfinite(jac)):
+        J~ = (R; 0). J^T J, J^T r and r.r come summed from the kernel (``normal_equations``):
+        neither the optimiser nor the model holds an n x P matrix (a 6 h record: n = 3.5 M).
+        J~ is kept for ``reduced_jacobian`` at the same x."""
+        jtj, jtr, rr = self.normal_equations(x)
+        if not (np.all(np.isfinite(jtj)) and np.all(np.isfinite(jtr)) and math.isfinite(rr)):
             raise ParameterError("the planar model diverged during the damping fit (non-finite rates)")
-        w, v = np.linalg.eigh((jac.T @ jac) / np.outer(norm, norm))
+        norm = np.sqrt(np.diag(jtj).copy())
+        norm[norm == 0] = 1.0
+        w, v = np.linalg.eigh(jtj / np.outer(norm, norm))
         root = np.sqrt(np.clip(w, 0.0, None))
         upper = (root[:, None] * v.T) * norm[None, :]  # upper^T upper = J^T J
         inverse = np.divide(1.0, root, out=np.zeros_like(root), where=root > 1e-12 * root.max())
-        projected = inverse * (v.T @ ((jac.T @ r) / norm))
-        rest = math.sqrt(max(float(r @ r) - float(projected @ projected), 0.0))
+        projected = inverse * (v.T @ (jtr / norm))
+        rest = math.sqrt(max(rr - float(projected @ projected), 0.0))
         self._cached = (x.copy(), np.vstack([upper, np.zeros((1, len(x)))]))
         return np.append(projected, rest)
 
@@ -210,14 +217,14 @@ class _Model:
 
 
 def ljung_box_p(residuals: Floats, lags: int = LJUNG_BOX_LAGS) -> float:
-    """p-value of the Ljung-Box test that a series is white (over ``lags`` lags)."""
+    """p-value of the Ljung-Box test that a series (n,) is white (over ``lags`` lags): the
+    autocorrelations at lags 1..lags as direct sums (one centred copy of the series, no FFT:
+    lags * n operations, memory n)."""
     r = np.asarray(residuals, dtype=float) - float(np.mean(residuals))
     n = len(r)
     if n <= lags + 1:
         return math.nan
-    nfft = fft.next_fast_len(2 * n, real=True)  # zero padding >= n: no wrap-around
-    spectrum = fft.rfft(r, nfft)
-    acov = fft.irfft(spectrum * np.conj(spectrum), nfft)[: lags + 1]
+    acov = np.array([float(r[: n - k] @ r[k:]) for k in range(lags + 1)])
     rho = acov[1:] / acov[0]
     q = n * (n + 2) * float(np.sum(rho * rho / (n - np.arange(1, lags + 1))))
     return float(stats.chi2.sf(q, lags))
@@ -270,16 +277,15 @@ def fit_law(
         gtol=1e-10,
         max_nfev=50,
     )
-    r, _ = model.full(np.asarray(result.x, dtype=float))  # the n residuals at the optimum
-    n, p = len(r), len(x0)
-    rss = float(r @ r)
+    r = model.residuals(np.asarray(result.x, dtype=float))  # the n residuals at the optimum
+    n, p = len(r[0]) + len(r[1]), len(x0)
+    rss = float(r[0] @ r[0]) + float(r[1] @ r[1])
     jac = result.jac
     try:
         covariance = (rss / max(1, n - p)) * np.linalg.inv(jac.T @ jac)
     except np.linalg.LinAlgError:
         covariance = np.full((p, p), math.nan)
     ci = 1.959964 * np.sqrt(np.clip(np.diag(covariance), 0.0, None))
-    m0 = len(data.at[0])
     return LawFit(
         law=law,
         names=model.names,
@@ -288,17 +294,28 @@ def fit_law(
         covariance=covariance,
         residual_rms_sigma=math.sqrt(rss / n),
         bic=n * math.log(rss / n) + p * math.log(n),
-        ljung_box_p=(ljung_box_p(r[:m0]), ljung_box_p(r[m0:])),
+        ljung_box_p=(ljung_box_p(r[0]), ljung_box_p(r[1])),
         n_residuals=n,
         iterations=int(result.njev or 0),
         seconds=time.perf_counter() - start,
     )
 
 
+def _per_node(values: Floats | Sequence[NDArray[np.floating]]) -> list[NDArray[np.floating]]:
+    """Each node's (m_k,) column of an (m, 2) array, or the pair of per-node arrays given."""
+    if isinstance(values, np.ndarray) and values.ndim == 2 and values.shape[1] == 2:
+        return [values[:, 0], values[:, 1]]
+    columns = [np.asarray(v) for v in values] if isinstance(values, (tuple, list)) else []
+    if len(columns) != 2 or any(c.ndim != 1 for c in columns):
+        shape = np.shape(values) if isinstance(values, np.ndarray) else type(values).__name__
+        raise ParameterError(f"expected an (m, 2) array or two per-node (m_k,) arrays, got {shape}")
+    return columns
+
+
 def fit_planar(
     params: RigParams,
-    value_t_s: Floats,
-    gyro_z_rad_s: Floats,
+    value_t_s: Floats | Sequence[NDArray[np.floating]],
+    gyro_z_rad_s: Floats | Sequence[NDArray[np.floating]],
     *,
     gyro_sigma_rad_s: Sequence[float],
     phi0_rad: Sequence[float],
@@ -313,8 +330,11 @@ def fit_planar(
 
     Args:
       params: the rig (its damping fields are only the first guess).
-      value_t_s: (m, 2) each node's value instants since the start, s (NaN: no sample).
-      gyro_z_rad_s: (m, 2) the measured rates about the hinges, rad/s (NaN: lost).
+      value_t_s: (m, 2) each node's value instants since the start, s (NaN: no sample), or the
+        pair of each node's (m_k,) instants (used without a copy when float64, contiguous,
+        finite and ascending: what a long record's fit needs).
+      gyro_z_rad_s: (m, 2) the measured rates about the hinges, rad/s (NaN: lost), or the pair
+        of each node's (m_k,).
       gyro_sigma_rad_s: each node's gyro noise sigma, rad/s.
       phi0_rad, omega0_rad_s: the start state estimated by the alignment (first guess).
       moving: the run starts in motion (fit omega_0, no release offset); default: any |omega_0|
@@ -330,16 +350,22 @@ def fit_planar(
     """
     if law not in LAW_CHOICES:
         raise ParameterError(f"law must be one of {', '.join(LAW_CHOICES)}, got {law!r}")
-    t = np.asarray(value_t_s, dtype=float)
-    y = np.asarray(gyro_z_rad_s, dtype=float)
-    if t.shape != y.shape or t.ndim != 2 or t.shape[1] != 2:
-        raise ParameterError(f"expected value_t_s and gyro_z_rad_s of shape (m, 2), got {t.shape}, {y.shape}")
+    t, y = _per_node(value_t_s), _per_node(gyro_z_rad_s)
+    if any(a.shape != b.shape for a, b in zip(t, y, strict=True)):
+        raise ParameterError(
+            f"expected value_t_s and gyro_z_rad_s of the same shape per node, got {[a.shape for a in t]}, "
+            f"{[b.shape for b in y]}"
+        )
     at, gyro = [], []
-    for k in range(2):
-        ok = np.isfinite(t[:, k]) & np.isfinite(y[:, k])
-        order = np.argsort(t[ok, k], kind="stable")
-        at.append(t[ok, k][order])
-        gyro.append(y[ok, k][order])
+    for k in range(2):  # finite and ascending, each node's own contiguous arrays (no copy if they are)
+        ok = np.isfinite(t[k]) & np.isfinite(y[k])
+        tk, yk = (t[k], y[k]) if ok.all() else (t[k][ok], y[k][ok])
+        del ok
+        if np.any(tk[1:] < tk[:-1]):
+            order = np.argsort(tk, kind="stable")
+            tk, yk = tk[order], yk[order]
+        at.append(np.ascontiguousarray(tk, dtype=np.float64))
+        gyro.append(np.ascontiguousarray(yk, dtype=np.float64))
         if len(at[-1]) < 10:
             raise ParameterError(f"node {k + 1} has {len(at[-1])} usable gyro samples; the fit needs at least 10")
     inputs = None

@@ -295,3 +295,57 @@ def test_rates_at_the_steps_equal_integrate_and_their_sensitivities_equal_centra
         # the release's column is -alpha interpolated linearly (not the Hermite's exact slope): O(h)
         tolerance = 1e-2 if name == "release" else 2e-5
         np.testing.assert_allclose(exact, numeric, rtol=0, atol=tolerance * np.abs(exact).max(), err_msg=name)
+
+
+def _explicit_normal_equations(coef, phi0, omega0, at, observed, sigma, release_s, wrt, release_column,
+                               timing_column, inputs):  # fmt: skip
+    """The reference: the whole Jacobian from rates_at's sensitivities and slopes, then BLAS."""
+    (r1, r2), (s1, s2), (t1, t2) = fast_planar.rates_at(
+        coef, phi0, omega0, at, 0.01, release_s=release_s, wrt=wrt, inputs=inputs
+    )
+    blocks = []
+    for node, (s, t) in enumerate(((s1, t1), (s2, t2))):
+        cols = (
+            [s]
+            + ([t[:, None]] if release_column else [])
+            + ([(-t if node else 0.0 * t)[:, None]] if timing_column else [])
+        )
+        blocks.append(np.hstack(cols) / sigma[node])
+    jac = np.vstack(blocks)
+    r = np.concatenate([(r1 - observed[0]) / sigma[0], (r2 - observed[1]) / sigma[1]])
+    return jac.T @ jac, jac.T @ r, float(r @ r)
+
+
+@pytest.mark.parametrize("start", ["release with timing", "moving", "driven release"])
+def test_normal_equations_at_equal_the_explicit_jacobians_products(start):
+    """normal_equations_at sums J^T J, J^T r and r.r in one pass; they equal the products of the
+    n x P Jacobian assembled from rates_at (sensitivities, release slope, M2's timing column) to
+    1e-12 relative, instants before the release included (rate 0, a zero row)."""
+    rng = np.random.default_rng(21)
+    coef = fast_planar.coefficients([FRICTION])
+    at = (np.sort(rng.uniform(0.0, 6.0, 500)), np.sort(rng.uniform(0.0, 6.0, 450)))
+    sigma = np.array([0.004, 0.007])
+    phi0, omega0, release_s, inputs = (0.5, 0.1), (0.0, 0.0), 0.037, None
+    wrt = ("b1_n_m_s", "b2_n_m_s", "friction1_n_m", "friction2_n_m", "phi1_0", "phi2_0")
+    release_column = timing_column = True
+    if start == "moving":
+        omega0, release_s, release_column, timing_column = (0.8, -0.3), 0.0, False, False
+        wrt = (*wrt, "omega1_0", "omega2_0")
+    if start == "driven release":
+        steps = np.arange(700) * 0.01
+        inputs = np.stack([0.2 * np.sin(5 * steps), 0.1 * np.cos(3 * steps), 0.4 * np.sin(2 * steps), 0 * steps], 1)
+    truth = fast_planar.rates_at(coef, (0.49, 0.11), omega0, at, 0.01, release_s=0.03, inputs=inputs)[0]
+    observed = tuple(r + rng.normal(0.0, s, len(r)) for r, s in zip(truth, sigma, strict=True))
+    args = (coef, phi0, omega0, at, observed, sigma)
+    flags = {"release_column": release_column, "timing_column": timing_column, "inputs": inputs}
+    jtj, jtr, rr = fast_planar.normal_equations_at(*args, 0.01, release_s=release_s, wrt=wrt, **flags)
+    ref_jtj, ref_jtr, ref_rr = _explicit_normal_equations(*args, release_s, wrt, **flags)
+    assert jtj.shape == (len(wrt) + release_column + timing_column,) * 2
+    assert np.count_nonzero(at[0] < release_s) > 0 or start == "moving"
+    scale = np.sqrt(np.outer(np.diag(ref_jtj), np.diag(ref_jtj)))  # entries relative to their columns' norms
+    np.testing.assert_allclose(jtj / scale, ref_jtj / scale, rtol=0, atol=1e-12)
+    bound = np.sqrt(np.diag(ref_jtj) * ref_rr)  # |J^T r| per column (Cauchy-Schwarz)
+    assert np.all(np.abs(jtr - ref_jtr) <= 1e-12 * bound), (jtr - ref_jtr) / bound
+    assert rr == pytest.approx(ref_rr, rel=1e-12)
+    no_columns = fast_planar.normal_equations_at(*args, 0.01, release_s=release_s, inputs=inputs)
+    assert no_columns[0].shape == (0, 0) and no_columns[2] == pytest.approx(ref_rr, rel=1e-12)
