@@ -80,6 +80,7 @@ from pendsim_bridge.mcap_writer import METADATA_CRC_KEY, metadata_crc
 from pendsim_mj.errors import RecordingError
 
 _COMPRESSIONS = ("", "zstd", "lz4")
+UNCHUNKED = "a message outside chunks (pendsim reads chunked files only)"
 INFLATE_AHEAD = 2
 """Chunks inflated ahead of the one being parsed (``McapFile.chunks``): more was measured no faster."""
 
@@ -303,6 +304,8 @@ class McapFile:
     def error_text(self, readable: str | None = None) -> str:
         """One line naming the first problem and how much is readable."""
         more = f" (and {len(self.problems) - 1} more problems)" if len(self.problems) > 1 else ""
+        if not self.chunk_refs and UNCHUNKED in self.problems[0]:  # a valid file of another layout
+            return f"{self.path}: {self.problems[0]}; write it with chunks (every MCAP writer's default layout)"
         if not self.chunk_refs:  # not one complete chunk: nothing a rewrite could keep
             return f"{self.path}: {self.problems[0]}{more}; no complete chunk of messages, nothing to recover"
         return (
@@ -721,7 +724,7 @@ class _Scanner:
             elif opcode == Opcode.ATTACHMENT:
                 self._attachment(at, body, end)
             elif opcode == Opcode.MESSAGE:
-                raise ValueError("a message outside chunks (pendsim reads chunked files only)")
+                raise ValueError(UNCHUNKED)
             elif opcode == Opcode.DATA_END:
                 self._data_end(at, body, end)
                 return end, True

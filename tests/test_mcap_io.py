@@ -239,3 +239,22 @@ def test_a_file_that_is_not_mcap_is_named_before_an_existing_output(tmp_path, ca
         assert main(argv) == 2
         err = capsys.readouterr().err.strip().splitlines()
         assert len(err) == 1 and err[0].endswith("run.rrd: not an MCAP file (no MCAP magic at the start)"), err
+
+
+def test_a_file_written_without_chunks_is_named_as_such_not_as_damaged(tmp_path):
+    from mcap.writer import Writer
+
+    path = tmp_path / "unchunked.mcap"
+    with open(path, "wb") as f:
+        w = Writer(f, use_chunking=False)
+        w.start()
+        schema = w.register_schema("sensor_msgs/msg/Imu", "ros2msg", ros2.SCHEMAS[IMU_SCHEMA])
+        channel = w.register_channel("/imu/m1", "cdr", schema)
+        w.add_message(channel, log_time=1, data=_imu_payloads(1)[1][0].tobytes(), publish_time=1)
+        w.finish()
+    with pytest.raises(RecordingError) as caught:
+        read_mcap(path, strict=True)
+    message = str(caught.value)
+    assert "a message outside chunks (pendsim reads chunked files only)" in message
+    assert message.endswith("write it with chunks (every MCAP writer's default layout)")
+    assert "recover" not in message and "damaged" not in message
