@@ -117,11 +117,11 @@ def analyse(
     for node, (accel, _) in stretches.columns.items():
         curves = curves_of_deviations(deviations[node], len(accel), stretches.rates[node])
         axes += _axis_results(node, moments[node], curves)
-    s = stretches
-    counts = {node: len(accel) for node, (accel, _) in s.columns.items()}
-    duration = max(end - start for start, end in s.segments.values())
-    rate = s.rates[next(iter(s.rates))]
-    return AllanReport(path, rate, duration, counts, s.sampling, s.segments, axes, s.largest, s.clocks)
+    found = stretches
+    counts = {node: len(accel) for node, (accel, _) in found.columns.items()}
+    duration = max(end - start for start, end in found.segments.values())
+    rate = found.rates[next(iter(found.rates))]
+    return AllanReport(path, rate, duration, counts, found.sampling, found.segments, axes, found.largest, found.clocks)
 
 
 def _deviations(columns: dict[str, tuple[np.ndarray, np.ndarray]]) -> dict[str, np.ndarray]:
@@ -202,11 +202,10 @@ def _static_stretches(path: Path, longest_segment: bool, progress: Callable[[int
     if not rec.imu:
         raise RecordingError(f"{path}: no /imu/m1 or /imu/m2 topic to analyse")
     rate = float(rec.metadata.get("pendsim/imu", {}).get("sample_rate_hz", "0") or 0)
+    rates, motions, instants, clocks, sampling = {}, {}, {}, {}, {}
     for node, topic in rec.imu.items():
         if len(topic.t_ns) < 2:
             raise RecordingError(f"{path}: {imu_topic(node)} has {len(topic.t_ns)} message(s); need at least 20")
-    rates, motions, instants, clocks, sampling = {}, {}, {}, {}, {}
-    for node, topic in rec.imu.items():
         instants[node], rates[node], clocks[node], sampling[node] = sample_instants(topic.t_ns, None, rate)
     uneven = [node for node, report in sampling.items() if not report.uniform]
     for node, stamp_ns in _header_stamps(path, uneven).items():

@@ -102,14 +102,11 @@ def adev_of_phase(x: np.ndarray, m: np.ndarray, *, threads: int = 2) -> np.ndarr
 
 
 def load_kernels() -> None:
-    """Load the compiled kernels (``allan_kernel``) into this process: numba's first call in a
-    process costs 0.4-0.5 s, which a caller can spend on a thread while it does other work (the
-    Allan report: while the recording is read)."""
+    """Load the compiled kernels (``allan_kernel.warm_up``) into this process before they run on
+    other threads (numba's first call in a process costs 0.3-0.5 s, less once numba is loaded)."""
     from pendsim_mj import allan_kernel
-    from pendsim_mj.signals import interrupts_deferred
 
-    with interrupts_deferred():  # numba's callbacks would swallow a Ctrl-C
-        allan_kernel.warm_up()
+    allan_kernel.warm_up()
 
 
 @dataclasses.dataclass(frozen=True)

@@ -7,6 +7,8 @@ from __future__ import annotations
 import numba
 import numpy as np
 
+from pendsim_mj.signals import interrupts_deferred
+
 
 @numba.njit(cache=True)
 def _oadev_at(x: np.ndarray, k: int) -> np.ndarray:  # pragma: no cover - compiled
@@ -85,9 +87,11 @@ def running_sum_into(x: np.ndarray, first: int, block: np.ndarray, mean: np.ndar
 
 def warm_up() -> None:
     """Call every kernel once on a few samples, in the forms the Allan report uses (float32 and
-    float64 data, C-ordered): numba's first call in a process loads its compiled code."""
-    x = np.zeros((9, 6))
-    running_sum_into(x, 0, np.zeros((8, 3), np.float32), np.zeros(3))
-    running_sum_into(x, 3, np.zeros((8, 3)), np.zeros(3))
-    oadev_serial(x, np.ones(1, np.int64))
-    oadev_parallel(x, np.ones(1, np.int64))
+    float64 data, C-ordered): numba's first call in a process loads its compiled code, with
+    Ctrl-C held back until it is done (``interrupts_deferred``: numba's callbacks would swallow it)."""
+    with interrupts_deferred():
+        x = np.zeros((9, 6))
+        running_sum_into(x, 0, np.zeros((8, 3), np.float32), np.zeros(3))
+        running_sum_into(x, 3, np.zeros((8, 3)), np.zeros(3))
+        oadev_serial(x, np.ones(1, np.int64))
+        oadev_parallel(x, np.ones(1, np.int64))
