@@ -58,8 +58,8 @@ def cpu_of_child(process: subprocess.Popen[str]) -> float:
 
 def run_pair(folder: Path, rate_hz: float, duration_s: float, extra_acquire: list[str]) -> dict:
     """nodes -> acquire; returns the counters, CPU and the emulator's log."""
-    from pendsim_bridge.mcap_reader import read_mcap
-    from pendsim_bridge.nodes import read_log
+    from pendsim_bridge.acquire.emulator import read_log
+    from pendsim_bridge.io.mcap.reader import read_mcap
 
     p1, p2 = free_ports(2)
     ports = ["--node", f"m1={p1}", "--node", f"m2={p2}"]

@@ -22,12 +22,12 @@ from pathlib import Path
 import allantools
 import numpy as np
 
-from pendsim_bridge import allan_report
-from pendsim_bridge.recording import RunInfo, imu_topic, read_recording, write_recording
-from pendsim_mj.allan import curves_of_phase, noise_terms, phase, tau_grid
-from pendsim_mj.model import exact_mjcf
-from pendsim_mj.params import DEFAULT_PARAMS
-from pendsim_mj.sensors import Bno055, ImuNoise, static_imu
+from pendsim_bridge.io.recording import RunInfo, imu_topic, read_recording, write_recording
+from pendsim_bridge.report import allan_report
+from pendsim_mj.allan.deviation import curves_of_phase, noise_terms, phase, tau_grid
+from pendsim_mj.rig.model import exact_mjcf
+from pendsim_mj.rig.params import DEFAULT_PARAMS
+from pendsim_mj.sensors.bno055 import Bno055, ImuNoise, static_imu
 
 
 def main() -> None:

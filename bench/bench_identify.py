@@ -22,9 +22,9 @@ from pendsim_bridge.cli import main as cli
 CHILD = r"""
 import json, resource, sys, time
 import numpy as np
-from pendsim_bridge.recording import read_recording
-from pendsim_bridge.validate import _per_node, align_recording, identify, recorded_params
-from pendsim_mj.identification import fit_damping
+from pendsim_bridge.io.recording import read_recording
+from pendsim_bridge.run.validate import _per_node, align_recording, identify, recorded_params
+from pendsim_mj.estimation.identification import fit_damping
 path, which = sys.argv[1], sys.argv[2]
 start = time.process_time()
 if which == "new":

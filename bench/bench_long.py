@@ -42,8 +42,8 @@ CLI = "import sys; from pendsim_bridge.cli import _run; _run()"
 ROLLOUT = """
 import sys, numpy as np, mujoco
 from mujoco import rollout
-from pendsim_mj.model import build_model
-from pendsim_mj.params import DEFAULT_PARAMS
+from pendsim_mj.rig.model import build_model
+from pendsim_mj.rig.params import DEFAULT_PARAMS
 duration_s = float(sys.argv[1])
 model = build_model(DEFAULT_PARAMS, timestep_s=0.01)
 data = mujoco.MjData(model)
@@ -60,8 +60,8 @@ for first in range(0, nstep, block):  # in blocks: the anchor's memory is flat t
 
 ALLANTOOLS = """
 import sys, numpy as np, allantools
-from pendsim_bridge.recording import imu_topic, read_recording
-from pendsim_mj.allan import tau_grid
+from pendsim_bridge.io.recording import imu_topic, read_recording
+from pendsim_mj.allan.deviation import tau_grid
 rec = read_recording(sys.argv[1], topics=[imu_topic("m1"), imu_topic("m2")])
 for node in ("m1", "m2"):
     topic = rec.imu[node]
@@ -102,7 +102,7 @@ def repeated(args: list[str], times: int) -> tuple[float, float, float, int]:
 
 def make_recordings(folder: Path, duration_s: int) -> tuple[Path, Path]:
     """The planar and static recordings of one duration (reused if present)."""
-    from pendsim_bridge.record import RecordSpec, record
+    from pendsim_bridge.run.record import RecordSpec, record
 
     planar, static = folder / f"planar_{duration_s}.mcap", folder / f"static_{duration_s}.mcap"
     start_ns = 1_700_000_000_000_000_000

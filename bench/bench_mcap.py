@@ -21,12 +21,12 @@ from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
 from mcap_ros2.writer import Writer as Ros2Writer
 
-from pendsim_bridge import ros2
-from pendsim_bridge.mcap_reader import read_mcap
-from pendsim_bridge.mcap_writer import BulkMcapWriter
-from pendsim_mj import rotations
-from pendsim_mj.sensors import Bno055, ImuNoise, sample_imu
-from pendsim_mj.simulation import simulate
+from pendsim_bridge.io import ros2
+from pendsim_bridge.io.mcap.reader import read_mcap
+from pendsim_bridge.io.mcap.writer import BulkMcapWriter
+from pendsim_mj.engines.simulation import simulate
+from pendsim_mj.sensors import rotations
+from pendsim_mj.sensors.bno055 import Bno055, ImuNoise, sample_imu
 
 IMU = "sensor_msgs/msg/Imu"
 BLOCK = 200_000

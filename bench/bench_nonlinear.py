@@ -16,12 +16,12 @@ import time
 
 import numpy as np
 
-from pendsim_mj.drives import Drive, Sine, Target
 from pendsim_mj.nonlinear import continue_response, stepped_sine
 from pendsim_mj.nonlinear.flow import RigFlow
 from pendsim_mj.nonlinear.periodic import ForcedShooting
 from pendsim_mj.nonlinear.tongues import _RestMonodromy
-from pendsim_mj.params import DEFAULT_PARAMS
+from pendsim_mj.rig.drives import Drive, Sine, Target
+from pendsim_mj.rig.params import DEFAULT_PARAMS
 
 
 def best_of(fn, repeat: int = 3) -> float:

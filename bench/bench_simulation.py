@@ -14,10 +14,10 @@ import time
 import mujoco
 import numpy as np
 
-from pendsim_mj import reference
-from pendsim_mj.model import build_model
-from pendsim_mj.params import DEFAULT_PARAMS
-from pendsim_mj.simulation import simulate
+from pendsim_mj.engines import reference
+from pendsim_mj.engines.simulation import simulate
+from pendsim_mj.rig.model import build_model
+from pendsim_mj.rig.params import DEFAULT_PARAMS
 
 
 def best_of(fn, repeat: int) -> float:

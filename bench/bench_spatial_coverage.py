@@ -15,13 +15,13 @@ import time
 
 import numpy as np
 
-from pendsim_bridge.spatial_validate import gyro_in_swing_frames
-from pendsim_mj.alignment import MeasuredRun, NodeSamples, align
-from pendsim_mj.model import SPATIAL
-from pendsim_mj.params import DEFAULT_PARAMS, RigParams
-from pendsim_mj.sensors import Bno055, sample_imu
-from pendsim_mj.simulation import simulate
-from pendsim_mj.spatial_identification import NAMES, TiltFit, fit_tilt, static_tilt_rad
+from pendsim_bridge.run.spatial_validate import gyro_in_swing_frames
+from pendsim_mj.engines.simulation import simulate
+from pendsim_mj.estimation.alignment import MeasuredRun, NodeSamples, align
+from pendsim_mj.estimation.spatial_identification import NAMES, TiltFit, fit_tilt, static_tilt_rad
+from pendsim_mj.rig.model import SPATIAL
+from pendsim_mj.rig.params import DEFAULT_PARAMS, RigParams
+from pendsim_mj.sensors.bno055 import Bno055, sample_imu
 
 SETTINGS = {  # tilt stiffness N m/rad, tilt damping N m s/rad
     "defaults": (2.0, 0.0007),

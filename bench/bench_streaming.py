@@ -23,7 +23,7 @@ from pathlib import Path
 
 RECORD = """
 import sys, time
-from pendsim_bridge.record import RecordSpec, record
+from pendsim_bridge.run.record import RecordSpec, record
 start = time.perf_counter()
 model = sys.argv[3]
 record(RecordSpec(duration_s=float(sys.argv[1]), model=model), sys.argv[2], start_time_ns=0)
@@ -32,7 +32,7 @@ print(time.perf_counter() - start, int(open('/proc/self/status').read().split('V
 READ = """
 import sys, time
 import numpy as np
-from pendsim_bridge.recording import read_recording
+from pendsim_bridge.io.recording import read_recording
 start = time.perf_counter()
 rec = read_recording(sys.argv[1])
 took = time.perf_counter() - start
@@ -46,7 +46,7 @@ for store in (rec.linear_accel_m_s2, rec.gravity_m_s2, rec.calibration):
 print(took, int(open('/proc/self/status').read().split('VmHWM:')[1].split()[0]), arrays, len(rec.imu["m1"].t_ns))
 """
 IMPORT_ONLY = """
-import pendsim_bridge.recording, pendsim_bridge.record
+import pendsim_bridge.io.recording, pendsim_bridge.run.record
 print(0, int(open('/proc/self/status').read().split('VmHWM:')[1].split()[0]))
 """
 

@@ -23,10 +23,10 @@ import numba
 import numpy as np
 from mujoco import rollout
 
-from pendsim_mj import fast_planar, reference
-from pendsim_mj.model import SPATIAL, build_model
-from pendsim_mj.params import DEFAULT_PARAMS
-from pendsim_mj.simulation import _initial_states
+from pendsim_mj.engines import fast_planar, reference
+from pendsim_mj.engines.simulation import _initial_states
+from pendsim_mj.rig.model import SPATIAL, build_model
+from pendsim_mj.rig.params import DEFAULT_PARAMS
 
 DT_S = 0.01
 

@@ -12,7 +12,7 @@ import time
 from pathlib import Path
 
 from pendsim_bridge.cli import main as cli
-from pendsim_bridge.rerun_view import view_recording
+from pendsim_bridge.report.rerun_view import view_recording
 
 
 def main() -> None:

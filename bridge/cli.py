@@ -10,11 +10,12 @@ import sys
 import threading
 from collections.abc import Iterator, Sequence
 
-from pendsim_bridge import heap
-from pendsim_bridge.options import Parser, UsageError
 from pendsim_mj import __version__
 from pendsim_mj.errors import PendsimError
-from pendsim_mj.signals import interrupts_deferred
+
+from . import heap
+from .options import Parser, UsageError
+from .signals import interrupts_deferred
 
 EXIT_USAGE = 2
 EXIT_INTERRUPTED = 130  # 128 + SIGINT
@@ -28,7 +29,7 @@ class Terminated(BaseException):
 
 def build_parser() -> Parser:
     """The ``pendsim`` parser with every command's subparser (importing the commands' modules)."""
-    from pendsim_bridge.commands import COMMANDS
+    from .commands import COMMANDS
 
     parser = Parser(
         prog="pendsim",

@@ -19,11 +19,13 @@ from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import NoReturn
 
-from pendsim_mj import drives
-from pendsim_mj.engines import ENGINES
-from pendsim_mj.errors import OutputError, ParameterError
-from pendsim_mj.outputs import atomic_output, check_file_target, check_folder_target, in_kernel_folder
-from pendsim_mj.params import DEFAULT_PARAMS, PARAMETER_LIMITS, RigParams
+from pendsim_mj.engines.dispatch import ENGINES
+from pendsim_mj.errors import ParameterError
+from pendsim_mj.rig import drives
+from pendsim_mj.rig.params import DEFAULT_PARAMS, PARAMETER_LIMITS, RigParams
+
+from .errors import OutputError
+from .io.outputs import atomic_output, check_file_target, check_folder_target, in_kernel_folder
 
 MAX_JSON_BYTES = 1_000_000  # parameter files are a few hundred bytes
 MAX_CSV_BYTES = 200_000_000  # a drive's time series: 1 kHz for hours is a few tens of MB
@@ -179,7 +181,7 @@ def input_file(text: str) -> Path:
 def mcap_file(text: str) -> Path:
     """An existing regular file (``input_file``) that starts with the MCAP magic: checked while
     parsing, so that a wrong input is named before anything else (e.g. an output that exists)."""
-    from pendsim_bridge.mcap_records import MCAP_MAGIC, import_hint
+    from .io.mcap.records import MCAP_MAGIC, import_hint
 
     path = input_file(text)
     try:
@@ -254,7 +256,7 @@ def add_parameter_options(p: argparse.ArgumentParser, *, what: str = "the rig") 
 
 
 def add_alignment_options(p: argparse.ArgumentParser) -> None:
-    """--release-s and --max-gap-s (how a recording is aligned; ``pendsim_mj.alignment``)."""
+    """--release-s and --max-gap-s (how a recording is aligned; ``pendsim_mj.estimation.alignment``)."""
     p.add_argument(
         "--release-s",
         type=float_in(0.0, MAX_LOG_TIME_S, "s"),
@@ -372,7 +374,7 @@ def initial_state_from(args: argparse.Namespace) -> tuple[tuple[float, float], t
 
 # -- drives ----------------------------------------------------------------------------------
 
-# One option per drivable input (pendsim_mj.drives.Target), its unit in the name.
+# One option per drivable input (pendsim_mj.rig.drives.Target), its unit in the name.
 DRIVE_OPTIONS = (
     ("--torque1-n-m", "torque_m1", "motor torque at the hinge of M1, N m (positive raises phi1)"),
     ("--torque2-n-m", "torque_m2", "motor torque at the hinge of M2, N m"),
@@ -524,7 +526,7 @@ def drive_from(args: argparse.Namespace) -> drives.Drive | None:
 def check_output(path: Path | None, suffixes: tuple[str, ...], *, force: bool = False) -> None:
     """An output file name: the right suffix, in a writable existing folder, not a folder, FIFO,
     device or kernel file, and (without ``force``) not an existing file. Checked before any work
-    so that a bad name costs nothing; ``pendsim_mj.outputs`` checks again when publishing."""
+    so that a bad name costs nothing; ``pendsim_bridge.io.outputs`` checks again when publishing."""
     if path is None:
         return
     if path.suffix.lower() not in suffixes:
@@ -583,7 +585,7 @@ def check_not_input(output: Path | None, input_path: Path) -> None:
 def replacing(path: Path, *, force: bool) -> Iterator[Path]:
     """The name to hand a library writer that never replaces a file (``mcap_tools.rewrite``):
     without ``force`` the output itself; with ``force`` a fresh, absent name beside it, published
-    over ``path`` atomically once the writer has finished (``pendsim_mj.outputs``)."""
+    over ``path`` atomically once the writer has finished (``pendsim_bridge.io.outputs``)."""
     if not force:
         yield path
         return

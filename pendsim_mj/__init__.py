@@ -4,11 +4,11 @@ Modules: ``params`` (RigParams), ``model`` (MJCF -> MjModel via MjSpec), ``simul
 (MuJoCo runs), ``reference`` (independent planar RK4, no MuJoCo), ``trajectory`` (the result
 container), ``analysis`` (frequencies, log decrement), ``errors``.
 
-Importing the package imports no physics engine; import ``pendsim_mj.simulation`` for MuJoCo.
+Importing the package imports no physics engine; import ``pendsim_mj.engines.simulation`` for MuJoCo.
 """
 
 from pendsim_mj.errors import ModelError, ParameterError, PendsimError, SimulationDiverged
-from pendsim_mj.params import DEFAULT_PARAMS, RigParams
+from pendsim_mj.rig.params import DEFAULT_PARAMS, RigParams
 
 __version__ = "0.1.0"
 

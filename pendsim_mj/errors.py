@@ -19,11 +19,3 @@ class ModelError(PendsimError):
 
 class RecordingError(PendsimError):
     """A recording file is missing, truncated, corrupted or not what was expected."""
-
-
-class OutputError(PendsimError):
-    """An output file or folder could not be written or published (exists, full disk, permissions)."""
-
-
-class ProcessError(PendsimError):
-    """A helper process (the Rerun viewer) could not be started, or stopped unexpectedly."""

@@ -27,7 +27,7 @@ import heapq
 from collections import Counter
 from typing import NamedTuple
 
-from pendsim_bridge.acquire.packets import MALFORMED_REASONS, Packet
+from .packets import MALFORMED_REASONS, Packet
 
 SEEN_HORIZON = 1 << 20  # sequence numbers remembered behind the released frontier (duplicates, late)
 

@@ -1,5 +1,5 @@
 """Clock quality of an acquisition: the delay of each packet beyond the fitted clock map and its
-summary. The map itself is ``pendsim_mj.timing.ClockFit`` (the lower-envelope fit that network
+summary. The map itself is ``pendsim_mj.estimation.timing.ClockFit`` (the lower-envelope fit that network
 jitter does not move), the same one validation uses on recorded stamps."""
 
 from __future__ import annotations
@@ -10,7 +10,7 @@ import math
 import numpy as np
 from numpy.typing import NDArray
 
-from pendsim_mj.timing import MAX_DRIFT_PPM, ClockFit, ClockRelation
+from pendsim_mj.estimation.timing import MAX_DRIFT_PPM, ClockFit, ClockRelation
 
 __all__ = ["MAX_DRIFT_PPM", "ClockFit", "ClockRelation", "jitter_summary_ms", "recorded_stamp_clock", "residuals_s"]
 

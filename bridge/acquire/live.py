@@ -19,12 +19,13 @@ import rerun as rr
 import rerun.blueprint as rrb
 from numpy.typing import NDArray
 
-from pendsim_bridge import serve as serving
-from pendsim_bridge.acquire.packets import GROUP_SLICES
-from pendsim_bridge.rerun_view import log_rig_geometry
-from pendsim_mj import rotations
-from pendsim_mj.errors import ProcessError
-from pendsim_mj.outputs import publish, temporary_sibling
+from pendsim_mj.sensors import rotations
+
+from ..errors import ProcessError
+from ..io.outputs import publish, temporary_sibling
+from ..report import serve as serving
+from ..report.rerun_view import log_rig_geometry
+from .packets import GROUP_SLICES
 
 APPLICATION_ID = "pendsim_acquire"
 TIMELINE = "time"  # seconds since the acquisition started

@@ -30,9 +30,9 @@ from typing import Any, NamedTuple, Protocol
 import numpy as np
 from numpy.typing import NDArray
 
-from pendsim_mj import rotations
 from pendsim_mj.errors import ParameterError
-from pendsim_mj.sensors import ACCEL_LSB_M_S2, GYRO_LSB_RAD_S, QUAT_LSB, STANDARD_GRAVITY_M_S2
+from pendsim_mj.sensors import rotations
+from pendsim_mj.sensors.bno055 import ACCEL_LSB_M_S2, GYRO_LSB_RAD_S, QUAT_LSB, STANDARD_GRAVITY_M_S2
 
 FORMATS = ("pendsim-v1", "csv", "json")
 

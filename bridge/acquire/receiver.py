@@ -41,16 +41,18 @@ from typing import Protocol
 import numpy as np
 from numpy.typing import NDArray
 
-from pendsim_bridge import ros2
-from pendsim_bridge.acquire.accounting import NodeCounters, NodeStream
-from pendsim_bridge.acquire.clock import MAX_DRIFT_PPM, ClockFit, ClockRelation, jitter_summary_ms, residuals_s
-from pendsim_bridge.acquire.packets import PacketError, StreamFormat
-from pendsim_bridge.acquire.ports import BNO055_NDOF, DEFAULT_NODES, NodeSpec, check_nodes
-from pendsim_bridge.acquire.sink import RecordingSink
 from pendsim_mj import __version__
-from pendsim_mj.errors import OutputError, ParameterError, RecordingError
-from pendsim_mj.outputs import describe_os_error, publish, temporary_sibling
-from pendsim_mj.params import DEFAULT_PARAMS, RigParams
+from pendsim_mj.errors import ParameterError, RecordingError
+from pendsim_mj.rig.params import DEFAULT_PARAMS, RigParams
+
+from ..errors import OutputError
+from ..io import ros2
+from ..io.outputs import describe_os_error, publish, temporary_sibling
+from .accounting import NodeCounters, NodeStream
+from .clock import MAX_DRIFT_PPM, ClockFit, ClockRelation, jitter_summary_ms, residuals_s
+from .packets import PacketError, StreamFormat
+from .ports import BNO055_NDOF, DEFAULT_NODES, NodeSpec, check_nodes
+from .sink import RecordingSink
 
 TICK_S = 0.05  # release and live-view cadence
 FLUSH_S = 0.5  # write to the file at least this often
@@ -360,7 +362,7 @@ def _run(
     say: Callable[[str], None],
     status: Callable[[str], None] | None,
 ) -> AcquireResult:
-    from pendsim_mj.model import exact_mjcf
+    from pendsim_mj.rig.model import exact_mjcf
 
     start_ns = time.monotonic_ns()
     utc_ns = time.time_ns() - start_ns  # host monotonic -> UTC, fixed for the run
@@ -518,7 +520,7 @@ def _device_stamps(node: _Node, device_us: NDArray[np.int64], t_ns: NDArray[np.i
     on the log-time base (the first sample's log time), so that they keep the node's own clock
     exactly. The log times follow the fit as it learns (steps of tens of microseconds early in a
     run, where the fit spans seconds); the stamps do not, and the whole run's clock relation is
-    fitted afterwards from (stamp, log time) (``pendsim_mj.timing.fit_clock``). A device time that
+    fitted afterwards from (stamp, log time) (``pendsim_mj.estimation.timing.fit_clock``). A device time that
     goes back (a node rebooted) or strays from the log time by more than ``STAMP_REANCHOR_S`` (plus
     twice the largest drift over the time since the origin) starts a new origin there, so stamps
     always increase and stay near the log times."""

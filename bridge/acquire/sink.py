@@ -1,5 +1,5 @@
 """The one adapter between samples that arrive over time and the MCAP file: the layout of
-``pendsim record`` (``bridge/recording.py``) for data that were measured, not simulated.
+``pendsim record`` (``bridge/io/recording.py``) for data that were measured, not simulated.
 
 Topics: ``/imu/m1``, ``/imu/m2`` (sensor_msgs/msg/Imu: orientation, angular velocity,
 acceleration with gravity; a quantity the packets do not carry has covariance element 0 = -1,
@@ -23,16 +23,18 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
-from pendsim_bridge import ros2
-from pendsim_bridge.acquire.packets import GROUP_SLICES
-from pendsim_bridge.mcap_writer import BulkMcapWriter
-from pendsim_bridge.recording import MJCF_ATTACHMENT, imu_topic
-from pendsim_bridge.recording_writer import TRANSIENT_LOCAL_QOS, static_tf_message
-from pendsim_mj import __version__, rotations
-from pendsim_mj.errors import OutputError
-from pendsim_mj.outputs import output_error
-from pendsim_mj.params import RigParams
-from pendsim_mj.sensors import Bno055
+from pendsim_mj import __version__
+from pendsim_mj.rig.params import RigParams
+from pendsim_mj.sensors import rotations
+from pendsim_mj.sensors.bno055 import Bno055
+
+from ..errors import OutputError
+from ..io import ros2
+from ..io.mcap.writer import BulkMcapWriter
+from ..io.outputs import output_error
+from ..io.recording import MJCF_ATTACHMENT, imu_topic
+from ..io.recording_writer import TRANSIENT_LOCAL_QOS, static_tf_message
+from .packets import GROUP_SLICES
 
 DIAGNOSTICS_TOPIC = "/diagnostics"
 NOT_PROVIDED = -1.0  # REP-145: covariance element 0 = -1 means the quantity is not provided

@@ -1,7 +1,7 @@
 """One module per ``pendsim`` command: ``register(subparsers)`` adds its parser (with
 ``handler=run``), ``run(args)`` parses nothing more, calls one library function and prints."""
 
-from pendsim_bridge.commands import (
+from . import (
     acquire,
     allan,
     analyze,

@@ -7,8 +7,10 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING, TypeVar
 
-from pendsim_bridge import options
-from pendsim_bridge.acquire.packets import (
+from pendsim_mj.errors import ParameterError
+
+from .. import options
+from ..acquire.packets import (
     DEFAULT_CSV_COLUMNS,
     DEFAULT_JSON_FIELDS,
     FORMATS,
@@ -18,13 +20,12 @@ from pendsim_bridge.acquire.packets import (
     parse_fields,
     parse_units,
 )
-from pendsim_bridge.acquire.ports import DEFAULT_NODES, NodeSpec, check_nodes, parse_node
-from pendsim_bridge.mcap_writer import COMPRESSIONS
-from pendsim_mj.errors import ParameterError
+from ..acquire.ports import DEFAULT_NODES, NodeSpec, check_nodes, parse_node
+from ..io.mcap.writer import COMPRESSIONS
 
 if TYPE_CHECKING:
-    from pendsim_bridge.acquire.live import LiveView
-    from pendsim_bridge.acquire.receiver import AcquireSpec
+    from ..acquire.live import LiveView
+    from ..acquire.receiver import AcquireSpec
 
 T = TypeVar("T")
 
@@ -183,8 +184,9 @@ def live_view(args: argparse.Namespace, spec: AcquireSpec) -> LiveView | None:
     """The live view the options ask for (None: none)."""
     if args.rerun is None and not args.spawn and not args.serve:
         return None
-    from pendsim_bridge.acquire.live import LiveView
-    from pendsim_mj.model import exact_mjcf
+    from pendsim_mj.rig.model import exact_mjcf
+
+    from ..acquire.live import LiveView
 
     live = LiveView(
         tuple(n.name for n in spec.nodes),
@@ -199,7 +201,7 @@ def live_view(args: argparse.Namespace, spec: AcquireSpec) -> LiveView | None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from pendsim_bridge.acquire.receiver import AcquireSpec, acquire, summary
+    from ..acquire.receiver import AcquireSpec, acquire, summary
 
     options.check_output(args.output, (".mcap",), force=args.force)
     options.check_output(args.rerun, (".rrd",), force=True)

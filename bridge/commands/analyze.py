@@ -11,8 +11,9 @@ from typing import Any
 
 import numpy as np
 
-from pendsim_bridge import options
-from pendsim_mj.drives import Drive, Sine
+from pendsim_mj.rig.drives import Drive, Sine
+
+from .. import options
 
 VERBS = ("backbone", "response", "bifurcation", "lyapunov", "tongues", "sync")
 # What a sweep drives when no drive option is given (the same as the documented examples).
@@ -137,8 +138,9 @@ def _written(paths: list[Path]) -> None:
 
 
 def _backbone(args: argparse.Namespace) -> int:
-    from pendsim_bridge.analysis_report import write_backbone
     from pendsim_mj.nonlinear import backbone
+
+    from ..report.analysis_report import write_backbone
 
     options.check_output_dir(args.out_dir, _files(args), force=args.force)
     params = options.params_from(args)
@@ -183,8 +185,9 @@ def _range(args: argparse.Namespace) -> np.ndarray:
 
 
 def _response(args: argparse.Namespace) -> int:
-    from pendsim_bridge.analysis_report import write_response
     from pendsim_mj.nonlinear import compare_with_branch, continue_response, stepped_sine
+
+    from ..report.analysis_report import write_response
 
     options.check_output_dir(args.out_dir, _files(args), force=args.force)
     params, drive, freqs = options.params_from(args), _sweep_drive(args, DEFAULT_SWEEP_DRIVE), _range(args)
@@ -223,9 +226,10 @@ def _print_response(sweeps: Any, branch: Any, agreements: Any) -> None:
 
 
 def _bifurcation(args: argparse.Namespace) -> int:
-    from pendsim_bridge.analysis_report import write_bifurcation
     from pendsim_mj.nonlinear import poincare_sweep
     from pendsim_mj.nonlinear.periodic import drive_frequency_hz
+
+    from ..report.analysis_report import write_bifurcation
 
     options.check_output_dir(args.out_dir, _files(args), force=args.force)
     params, drive = options.params_from(args), _sweep_drive(args, DEFAULT_CHAOS_DRIVE)
@@ -250,8 +254,9 @@ def _bifurcation(args: argparse.Namespace) -> int:
 
 
 def _lyapunov(args: argparse.Namespace) -> int:
-    from pendsim_bridge.analysis_report import write_lyapunov
     from pendsim_mj.nonlinear import largest_lyapunov
+
+    from ..report.analysis_report import write_lyapunov
 
     options.check_output_dir(args.out_dir, _files(args), force=args.force)
     drive = None if args.free else (options.drive_from(args) or DEFAULT_CHAOS_DRIVE)
@@ -281,8 +286,9 @@ def _period_or(drive: Drive | None, default: float) -> float:
 
 
 def _tongues(args: argparse.Namespace) -> int:
-    from pendsim_bridge.analysis_report import write_tongues
     from pendsim_mj.nonlinear import tongues
+
+    from ..report.analysis_report import write_tongues
 
     options.check_output_dir(args.out_dir, _files(args), force=args.force)
     freqs = _range(args)
@@ -303,8 +309,9 @@ def _tongues(args: argparse.Namespace) -> int:
 
 
 def _sync(args: argparse.Namespace) -> int:
-    from pendsim_bridge.analysis_report import write_sync
     from pendsim_mj.nonlinear import stepped_sine
+
+    from ..report.analysis_report import write_sync
 
     options.check_output_dir(args.out_dir, _files(args), force=args.force)
     params, drive, freqs = options.params_from(args), _sweep_drive(args, DEFAULT_SYNC_DRIVE), _range(args)

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from pendsim_bridge import options
+from .. import options
 
 PLANES = ("m2", "m1")
 
@@ -41,10 +41,11 @@ def register(sub: argparse._SubParsersAction[options.Parser]) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from pendsim_bridge.plots import COMPARISON_FILES, write_comparison
-    from pendsim_bridge.tables import comparison_table
-    from pendsim_mj.comparison import compare_planar_spatial
-    from pendsim_mj.model import Variant
+    from pendsim_mj.estimation.comparison import compare_planar_spatial
+    from pendsim_mj.rig.model import Variant
+
+    from ..report.plots import COMPARISON_FILES, write_comparison
+    from ..report.tables import comparison_table
 
     if args.engine != "mujoco":
         raise options.UsageError("the spatial model runs in MuJoCo only; drop --engine")
@@ -59,7 +60,7 @@ def run(args: argparse.Namespace) -> int:
     print(comparison_table(result))
     print(f"wrote {', '.join(str(f) for f in written)}")
     if args.rerun is not None:
-        from pendsim_bridge.rerun_view import view_comparison
+        from ..report.rerun_view import view_comparison
 
         view_comparison(result, params, variant, args.rerun, replace=args.force)
         print(f"wrote {args.rerun}")

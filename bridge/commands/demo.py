@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from pendsim_bridge import options
+from .. import options
 
 
 def register(sub: argparse._SubParsersAction[options.Parser]) -> None:
@@ -30,7 +30,7 @@ def register(sub: argparse._SubParsersAction[options.Parser]) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from pendsim_bridge.demo import DEMO_FILES, run_demo
+    from ..run.demo import DEMO_FILES, run_demo
 
     options.check_output_dir(args.out_dir, DEMO_FILES, force=args.force)
     result = run_demo(args.out_dir, duration_s=args.duration_s, replace=args.force)

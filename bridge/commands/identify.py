@@ -6,9 +6,14 @@ import argparse
 import json
 from pathlib import Path
 
-from pendsim_bridge import options
+from .. import options
 
-LAW_CHOICES = ("auto", "viscous", "coulomb", "both")  # pendsim_mj.planar_fit.LAW_CHOICES (not imported: fast start)
+LAW_CHOICES = (
+    "auto",
+    "viscous",
+    "coulomb",
+    "both",
+)  # pendsim_mj.estimation.planar_fit.LAW_CHOICES (not imported: fast start)
 
 
 def register(sub: argparse._SubParsersAction[options.Parser]) -> None:
@@ -52,14 +57,15 @@ def register(sub: argparse._SubParsersAction[options.Parser]) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from pendsim_bridge.tables import identification_table
-    from pendsim_bridge.validate import identify
     from pendsim_mj.errors import ParameterError
-    from pendsim_mj.outputs import atomic_output
+
+    from ..io.outputs import atomic_output
+    from ..report.tables import identification_table
+    from ..run.validate import identify
 
     options.check_output(args.write, (".json",), force=args.force)
     if args.model == "spatial":
-        from pendsim_bridge.spatial_validate import identify_and_write
+        from ..run.spatial_validate import identify_and_write
 
         if args.law not in ("auto", "viscous"):
             raise ParameterError(f"--law {args.law} applies to the planar fit; --model spatial fits viscous damping")

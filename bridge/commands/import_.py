@@ -6,11 +6,11 @@ import argparse
 import sys
 from pathlib import Path
 
-from pendsim_bridge import options
-from pendsim_bridge.acquire.packets import Units, parse_units
-from pendsim_bridge.commands.acquire import add_mjcf_option, argument, mjcf_from
-from pendsim_bridge.importers import IMPORT_FORMATS, parse_utc
-from pendsim_bridge.mcap_writer import COMPRESSIONS
+from .. import options
+from ..acquire.packets import Units, parse_units
+from ..io.importers import IMPORT_FORMATS, parse_utc
+from ..io.mcap.writer import COMPRESSIONS
+from .acquire import add_mjcf_option, argument, mjcf_from
 
 
 def column_list(text: str) -> tuple[str, ...]:
@@ -81,7 +81,7 @@ def register(sub: argparse._SubParsersAction[options.Parser]) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from pendsim_bridge.importers import ImportSpec, import_file
+    from ..io.importers import ImportSpec, import_file
 
     options.check_output(args.output, (".mcap",), force=args.force)
     mjcf, mjcf_source = mjcf_from(args)

@@ -4,8 +4,9 @@ from __future__ import annotations
 
 import argparse
 
-from pendsim_bridge import options
-from pendsim_mj.params import DEFAULT_PARAMS, RigParams
+from pendsim_mj.rig.params import DEFAULT_PARAMS, RigParams
+
+from .. import options
 
 
 def register(sub: argparse._SubParsersAction[options.Parser]) -> None:

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from pendsim_bridge import options
+from .. import options
 
 
 def register(sub: argparse._SubParsersAction[options.Parser]) -> None:
@@ -19,8 +19,8 @@ def register(sub: argparse._SubParsersAction[options.Parser]) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from pendsim_bridge.mcap_reader import read_mcap
-    from pendsim_bridge.tables import contents_table
+    from ..io.mcap.reader import read_mcap
+    from ..report.tables import contents_table
 
     print(contents_table(read_mcap(args.path, strict=True, payloads=False)))
     return 0

@@ -7,13 +7,14 @@ import math
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from pendsim_bridge import options
-from pendsim_bridge.commands.acquire import add_stream_options, argument, nodes_from, stream_from
-from pendsim_bridge.commands.record import add_imperfection_options, imperfections_from
 from pendsim_mj.errors import ParameterError
 
+from .. import options
+from .acquire import add_stream_options, argument, nodes_from, stream_from
+from .record import add_imperfection_options, imperfections_from
+
 if TYPE_CHECKING:
-    from pendsim_bridge.nodes import EmulatorSpec
+    from ..acquire.emulator import EmulatorSpec
 
 
 def per_node(text: str) -> tuple[str | None, float]:
@@ -94,9 +95,10 @@ def register(sub: argparse._SubParsersAction[options.Parser]) -> None:
 
 def spec_from(args: argparse.Namespace) -> EmulatorSpec:
     """The emulator spec the options describe."""
-    from pendsim_bridge.nodes import EmulatorSpec, Faults, NodeClock
-    from pendsim_bridge.record import RecordSpec
-    from pendsim_mj.sensors import Bno055
+    from pendsim_mj.sensors.bno055 import Bno055
+
+    from ..acquire.emulator import EmulatorSpec, Faults, NodeClock
+    from ..run.record import RecordSpec
 
     phi0, omega0 = options.initial_state_from(args)
     imperfect, mounts = imperfections_from(args)
@@ -128,8 +130,8 @@ def spec_from(args: argparse.Namespace) -> EmulatorSpec:
 
 
 def run(args: argparse.Namespace) -> int:
-    from pendsim_bridge.nodes import LOG_SUFFIXES, plan, summary
-    from pendsim_bridge.nodes import run as send
+    from ..acquire.emulator import LOG_SUFFIXES, plan, summary
+    from ..acquire.emulator import run as send
 
     if args.log is not None:
         options.check_output(args.log, LOG_SUFFIXES, force=args.force)

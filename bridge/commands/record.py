@@ -9,12 +9,13 @@ from pathlib import Path
 
 import numpy as np
 
-from pendsim_bridge import options
-from pendsim_bridge.mcap_writer import COMPRESSIONS
-from pendsim_bridge.record import MODELS, Model, RecordInterrupted, RecordSpec, record
 from pendsim_mj.errors import ParameterError
-from pendsim_mj.imperfections import Imperfections, axis_remap_matrix, random_mount
-from pendsim_mj.sensors import Bno055, ImuNoise
+from pendsim_mj.sensors.bno055 import Bno055, ImuNoise
+from pendsim_mj.sensors.imperfections import Imperfections, axis_remap_matrix, random_mount
+
+from .. import options
+from ..io.mcap.writer import COMPRESSIONS
+from ..run.record import MODELS, Model, RecordInterrupted, RecordSpec, record
 
 RELEASED_MODELS = tuple(m for m in MODELS if m != "static")
 
@@ -101,7 +102,7 @@ def axis_remap(text: str) -> tuple[int, int]:
 
 
 def add_imperfection_options(p: argparse.ArgumentParser, *, transport: bool = True) -> None:
-    """What real nodes add (pendsim_mj.imperfections); all off by default. Without ``transport``,
+    """What real nodes add (pendsim_mj.sensors.imperfections); all off by default. Without ``transport``,
     only what changes the values (heading, mount, axis remap, fusion error, hold wobble): loss,
     clock drift and latency are then the caller's (``pendsim nodes`` sends real packets)."""
     g = p.add_argument_group("imperfections of real nodes (all off by default; the paper is silent on them)")
@@ -231,9 +232,10 @@ def run(args: argparse.Namespace) -> int:
         print(f"pendsim: {interrupted}", file=sys.stderr)
         return EXIT_INTERRUPTED
     if args.rerun is not None and spec.model != "static":
-        from pendsim_bridge.record import simulate_for
-        from pendsim_bridge.rerun_view import view_trajectory
-        from pendsim_mj.model import build_model
+        from pendsim_mj.rig.model import build_model
+
+        from ..report.rerun_view import view_trajectory
+        from ..run.record import simulate_for
 
         targets = spec.drive.targets if spec.drive else ()
         view_trajectory(

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from pendsim_bridge import options
+from .. import options
 
 
 def register(sub: argparse._SubParsersAction[options.Parser]) -> None:
@@ -29,7 +29,7 @@ def register(sub: argparse._SubParsersAction[options.Parser]) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from pendsim_bridge.mcap_tools import recover
+    from ..io.mcap.tools import recover
 
     options.check_not_input(args.fixed, args.broken)
     options.check_output(args.fixed, (".mcap",), force=args.force)

@@ -8,10 +8,10 @@ import math
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from pendsim_bridge import options
+from .. import options
 
 if TYPE_CHECKING:
-    from pendsim_bridge.replay import ReplayMessage, ReplayStats
+    from ..run.replay import ReplayMessage, ReplayStats
 
 SPEED_RANGE = (1e-3, 1e6)
 """Replay speeds, x real time: from 1000 times slower to a million times faster (or max)."""
@@ -45,7 +45,7 @@ def register(sub: argparse._SubParsersAction[options.Parser]) -> None:
         description="Replay the messages of a recording in log-time order at --speed (1 = real time, 10, or max), "
         "within --start/--end (s of log time), for --topics, optionally --loop. Prints one line per message, or "
         "writes them to a new MCAP (-o, cut and filtered; --shift moves the window to t = 0) or to Rerun (--rerun). "
-        "From Python: pendsim_bridge.replay.replay() yields decoded messages.",
+        "From Python: pendsim_bridge.run.replay.replay() yields decoded messages.",
     )
     p.add_argument("path", type=options.mcap_file, help="the .mcap recording")
     p.add_argument("--speed", type=speed, default=math.inf, help="1 = real time, any factor > 0, or max (default)")
@@ -68,7 +68,7 @@ def register(sub: argparse._SubParsersAction[options.Parser]) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from pendsim_bridge.replay import ReplayStats, replay, replay_to_mcap
+    from ..run.replay import ReplayStats, replay, replay_to_mcap
 
     if args.output is not None:
         if args.loop:
@@ -107,7 +107,7 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _emit(message: ReplayMessage, args: argparse.Namespace) -> None:
-    from pendsim_bridge.replay import log_to_rerun
+    from ..run.replay import log_to_rerun
 
     if args.rerun is not None and message.schema_name in ("sensor_msgs/msg/Imu", "sensor_msgs/msg/JointState"):
         log_to_rerun(message)
@@ -129,6 +129,6 @@ def _rerun_sink(path: Path | None, *, replace: bool) -> contextlib.AbstractConte
     is None)."""
     if path is None:
         return contextlib.nullcontext()
-    from pendsim_bridge.rerun_view import rrd_output
+    from ..report.rerun_view import rrd_output
 
     return rrd_output(path, replace=replace, series=None, application_id="pendsim_replay")

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from pendsim_bridge import options
+from .. import options
 
 OUTPUT_SUFFIXES = (".npz", ".csv")
 
@@ -26,9 +26,10 @@ def register(sub: argparse._SubParsersAction[options.Parser]) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from pendsim_bridge.tables import run_summary
-    from pendsim_mj import engines
-    from pendsim_mj.analysis import summarize
+    from pendsim_mj.engines import dispatch as engines
+    from pendsim_mj.estimation.analysis import summarize
+
+    from ..report.tables import run_summary
 
     options.check_output(args.output, OUTPUT_SUFFIXES, force=args.force)
     options.check_output(args.rerun, (".rrd",), force=args.force)
@@ -38,13 +39,16 @@ def run(args: argparse.Namespace) -> int:
     traj = engines.run(args.engine, params, phi0, omega0, args.duration_s, args.dt_s, drive=drive)
     print(run_summary(summarize(traj), args.engine))
     if args.rerun is not None:
-        from pendsim_bridge.rerun_view import view_trajectory
-        from pendsim_mj.model import build_model
+        from pendsim_mj.rig.model import build_model
+
+        from ..report.rerun_view import view_trajectory
 
         model = build_model(params, drive_targets=drive.targets if drive else ())
         view_trajectory(traj, model, args.rerun, replace=args.force)
         print(f"wrote {args.rerun} (open it with: rerun {args.rerun})")
     if args.output is not None:
-        traj.save(args.output, replace=args.force)
+        from ..io.trajectory_file import save_trajectory
+
+        save_trajectory(traj, args.output, replace=args.force)
         print(f"wrote {args.output}")
     return 0

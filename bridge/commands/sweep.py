@@ -5,10 +5,11 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from pendsim_bridge import options
 from pendsim_mj.errors import ParameterError
-from pendsim_mj.sweep_features import FEATURE_GROUPS
-from pendsim_mj.sweep_plan import ENGINES, SweepPlan, axis_mapping, parse_vary
+from pendsim_mj.sweep.features import FEATURE_GROUPS
+from pendsim_mj.sweep.plan import ENGINES, SweepPlan, axis_mapping, parse_vary
+
+from .. import options
 
 # Options that define the sweep (not allowed together with a definition file).
 PLAN_OPTIONS = (
@@ -132,7 +133,7 @@ def register(sub: argparse._SubParsersAction[options.Parser]) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from pendsim_bridge.sweep import describe, run_sweep
+    from ..run.sweep import describe, run_sweep
 
     plan = _plan(args)
     if args.output.exists() and not args.output.is_dir():

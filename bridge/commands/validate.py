@@ -7,8 +7,9 @@ import math
 import sys
 from pathlib import Path
 
-from pendsim_bridge import options
-from pendsim_mj.params import PARAMETER_LIMITS
+from pendsim_mj.rig.params import PARAMETER_LIMITS
+
+from .. import options
 
 
 def damping_choice(text: str) -> str | tuple[float, float]:
@@ -81,8 +82,8 @@ def register(sub: argparse._SubParsersAction[options.Parser]) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from pendsim_bridge import heap
-    from pendsim_bridge.validate import Gates, gate_failures, table, validate, write_outputs
+    from .. import heap
+    from ..run.validate import Gates, gate_failures, table, validate, write_outputs
 
     heap.map_large_blocks()  # a long run's whole-run temporaries go back to the system when freed
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from pendsim_bridge import options
+from .. import options
 
 
 def register(sub: argparse._SubParsersAction[options.Parser]) -> None:
@@ -44,8 +44,8 @@ def register(sub: argparse._SubParsersAction[options.Parser]) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from pendsim_bridge.rerun_view import view_recording
-    from pendsim_bridge.serve import check_port_free, serve_web, spawn_viewer
+    from ..report.rerun_view import view_recording
+    from ..report.serve import check_port_free, serve_web, spawn_viewer
 
     rrd = args.save or args.path.with_suffix(".rrd")
     options.check_output(rrd, (".rrd",), force=args.force)

@@ -21,11 +21,11 @@ from collections.abc import Callable, Sequence
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from pendsim_mj.drives import Drive
 from pendsim_mj.errors import ParameterError
 from pendsim_mj.nonlinear.flow import RigFlow
 from pendsim_mj.nonlinear.periodic import drive_frequency_hz, period_inputs
-from pendsim_mj.params import RigParams
+from pendsim_mj.rig.drives import Drive
+from pendsim_mj.rig.params import RigParams
 
 PARAMETERS = ("frequency", "level")
 

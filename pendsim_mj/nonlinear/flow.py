@@ -6,7 +6,7 @@ stroboscopic samples and periodicity conditions fall on steps) and its own held 
 (``drives.held_inputs``). Sensors and energy are switched off: only the state is needed.
 
 The support's position and velocity, where it is driven, start at zero in every call: the
-pendulums feel only its acceleration (see ``pendsim_mj.drives``), so they do not enter x.
+pendulums feel only its acceleration (see ``pendsim_mj.rig.drives``), so they do not enter x.
 """
 
 from __future__ import annotations
@@ -20,10 +20,10 @@ import numpy as np
 from mujoco import rollout
 from numpy.typing import ArrayLike, NDArray
 
-from pendsim_mj.drives import Target
 from pendsim_mj.errors import SimulationDiverged
-from pendsim_mj.model import HINGES, build_model
-from pendsim_mj.params import RigParams
+from pendsim_mj.rig.drives import Target
+from pendsim_mj.rig.model import HINGES, build_model
+from pendsim_mj.rig.params import RigParams
 
 _STATE = mujoco.mjtState.mjSTATE_FULLPHYSICS
 _BAD = (mujoco.mjtWarning.mjWARN_BADQACC, mujoco.mjtWarning.mjWARN_BADQVEL, mujoco.mjtWarning.mjWARN_BADQPOS)

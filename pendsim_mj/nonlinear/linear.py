@@ -15,8 +15,8 @@ import math
 import numpy as np
 from numpy.typing import NDArray
 
-from pendsim_mj import reference
-from pendsim_mj.params import RigParams
+from pendsim_mj.engines import reference
+from pendsim_mj.rig.params import RigParams
 
 
 @dataclasses.dataclass(frozen=True)

@@ -25,10 +25,10 @@ from collections.abc import Callable
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from pendsim_mj.drives import Drive, held_inputs
 from pendsim_mj.errors import ParameterError
 from pendsim_mj.nonlinear.flow import RigFlow, scaled_norm
-from pendsim_mj.params import RigParams
+from pendsim_mj.rig.drives import Drive, held_inputs
+from pendsim_mj.rig.params import RigParams
 
 
 @dataclasses.dataclass(frozen=True)

@@ -21,9 +21,9 @@ import math
 import numpy as np
 from numpy.typing import NDArray
 
-from pendsim_mj.drives import Drive, Sine, held_inputs
 from pendsim_mj.errors import ParameterError
 from pendsim_mj.nonlinear.flow import RigFlow
+from pendsim_mj.rig.drives import Drive, Sine, held_inputs
 
 FD_EPS = 1e-7  # forward-difference step, relative to each unknown's scale
 

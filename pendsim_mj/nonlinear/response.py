@@ -26,7 +26,6 @@ from collections.abc import Callable, Sequence
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from pendsim_mj.drives import Drive
 from pendsim_mj.errors import ParameterError
 from pendsim_mj.nonlinear.continuation import Point, Settings, continue_branch, newton
 from pendsim_mj.nonlinear.flow import RigFlow, scaled_norm
@@ -39,7 +38,8 @@ from pendsim_mj.nonlinear.periodic import (
     response_phase_deg,
 )
 from pendsim_mj.nonlinear.sync import phase_locking
-from pendsim_mj.params import RigParams
+from pendsim_mj.rig.drives import Drive
+from pendsim_mj.rig.params import RigParams
 
 BIFURCATION_KINDS = ("fold", "period_doubling", "neimark_sacker", "branch_point")
 

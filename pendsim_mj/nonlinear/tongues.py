@@ -35,12 +35,12 @@ from collections.abc import Callable
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from pendsim_mj.drives import Drive, Sine, Target
 from pendsim_mj.errors import ParameterError
 from pendsim_mj.nonlinear.flow import RigFlow
 from pendsim_mj.nonlinear.linear import LinearModes, linear_modes
 from pendsim_mj.nonlinear.periodic import period_inputs
-from pendsim_mj.params import RigParams
+from pendsim_mj.rig.drives import Drive, Sine, Target
+from pendsim_mj.rig.params import RigParams
 
 PERTURBATION = 1e-7  # rad and rad/s: linear to ~1e-14 relative
 UNSTABLE = 1e-9  # growth per period above which rest counts as unstable (undamped: FD noise ~1e-10)

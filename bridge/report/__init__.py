@@ -1,0 +1,3 @@
+"""What people see: tables, PNG figures, Allan and analysis reports, sweep pictures, Rerun views
+and the served viewer.
+"""

@@ -1,0 +1,1 @@
+"""The runs the commands orchestrate: record, validate (planar and spatial), replay, sweep, demo."""

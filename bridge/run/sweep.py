@@ -1,0 +1,509 @@
+"""Run a sweep into a folder of results that survives interruption: serially, or on Dask.
+
+The folder (``out_dir``) holds:
+
+- ``sweep.json``: the definition and a hash of its cases; a later run into the same folder must
+  match it, and then resumes: only cases not yet recorded are computed.
+- ``parts/part-<first case>.parquet``: one file per finished task, each published atomically (a
+  unique temporary name, then a link): a case counts as finished exactly when its part exists, so
+  an interrupted sweep loses at most the tasks that were running.
+- ``results.parquet``: every case once, ordered by ``case_id``, written when all are finished.
+  One row per case: ``case_id``, the inputs (named as defined), for a sensitivity sweep
+  ``varied`` and ``relative_change``, ``diverged``, then the feature columns
+  (``pendsim_mj.sweep.features``). The definition is in the file's metadata (``pendsim.sweep``).
+- ``trajectories.zarr`` (with ``trajectories = true``): arrays ``phi_rad`` and ``omega_rad_s``
+  (ncases, nsamples, 2), chunked by cases, and ``t_s``; complete when ``results.parquet`` is.
+- ``maps/*.png`` and, for a sensitivity sweep, ``sensitivity.json`` (``pendsim_bridge.report.sweep_plots``).
+
+Backends: serial (this process; the engines use every core), a ``LocalCluster`` of ``workers``
+processes on loopback, or a running Dask scheduler at ``scheduler`` (tcp://HOST:PORT; its workers
+must have pendsim installed). Cases go out in tasks of ``cases_per_task`` (by default enough
+trajectory steps to amortise scheduling); the definition is sent to every worker once. Only this
+process writes files, one part per completed task, so a task that Dask recomputes (its worker
+died) is still written once, and no case is in the results twice. Every cluster started here is
+closed on every exit path: while a sweep runs, SIGTERM is turned into KeyboardInterrupt (as
+Ctrl-C), so the cluster's context manager and the temporary files' clean-up run too.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import dataclasses
+import json
+import logging
+import math
+import os
+import signal
+import socket
+import threading
+import time
+from collections.abc import Callable, Iterator
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.parquet as pq
+from numpy.typing import NDArray
+
+from pendsim_mj.errors import ParameterError
+from pendsim_mj.sweep.features import FEATURE_GROUPS
+from pendsim_mj.sweep.plan import CaseTable, SweepPlan
+from pendsim_mj.sweep.run import TaskResult, run_task
+
+from ..errors import OutputError
+from ..io.outputs import atomic_output, output_error
+
+STORE_VERSION = 1
+META_KEY = b"pendsim.sweep"
+# Trajectory steps per task on each engine: about 0.5-2 s of work, so scheduling (ms) is amortised.
+TASK_STEPS = {"fast": 30_000_000, "mujoco": 400_000, "spatial": 300_000}
+# Bound on a task's sampled states in memory (cases x samples x 5 x 8 bytes).
+TASK_STATE_BYTES = 256 * 2**20
+TASKS_PER_WORKER = 4  # at least this many tasks per worker (balance, progress, little lost on a kill)
+
+
+@dataclasses.dataclass(frozen=True)
+class SweepSummary:
+    """What a sweep run did.
+
+    Attributes:
+      out_dir: the results folder.
+      ncases: cases in the sweep.
+      computed: cases computed by this run; resumed: cases found finished before it.
+      diverged: cases whose run diverged.
+      tasks: tasks this run sent out.
+      backend: "serial", "LocalCluster (N workers)" or the scheduler address.
+      elapsed_s: wall time of this run, s.
+      results: ``results.parquet``; maps: the PNG files; sensitivity: ``sensitivity.json`` or None.
+    """
+
+    out_dir: Path
+    ncases: int
+    computed: int
+    resumed: int
+    diverged: int
+    tasks: int
+    backend: str
+    elapsed_s: float
+    results: Path
+    maps: tuple[Path, ...]
+    sensitivity: Path | None
+
+
+def run_sweep(
+    plan: SweepPlan,
+    out_dir: str | Path,
+    *,
+    workers: int | None = None,
+    scheduler: str | None = None,
+    cases_per_task: int | None = None,
+    progress: bool = True,
+    plots: bool = True,
+    on_task_done: Callable[[int], None] | None = None,
+) -> SweepSummary:
+    """Run (or resume) ``plan`` into ``out_dir``; see the module docstring.
+
+    Args:
+      plan: the sweep definition.
+      out_dir: the results folder (created; an existing one must hold the same sweep).
+      workers: start a LocalCluster with this many worker processes (loopback only).
+      scheduler: use the running Dask scheduler at this address instead.
+      cases_per_task: cases per task (default: from TASK_STEPS and the number of workers).
+      progress: show a progress bar with an ETA on stderr (when it is a terminal).
+      plots: draw the maps when the sweep is complete.
+      on_task_done: called with the number of tasks finished so far after each one is written.
+
+    Raises:
+      ParameterError: bad options or cases; OutputError: the folder holds another sweep or
+        cannot be written.
+    """
+    if workers is not None and scheduler is not None:
+        raise ParameterError("give either workers (a local cluster) or scheduler (a running one), not both")
+    if workers is not None and (isinstance(workers, bool) or not isinstance(workers, int) or workers < 1):
+        raise ParameterError(f"workers must be a whole number >= 1, got {workers!r}")
+    if cases_per_task is not None and (not isinstance(cases_per_task, int) or cases_per_task < 1):
+        raise ParameterError(f"cases_per_task must be a whole number >= 1, got {cases_per_task!r}")
+    if scheduler is not None:
+        check_scheduler(scheduler)
+    start = time.perf_counter()
+    table = plan.cases()
+    plan.case_inputs(table, np.arange(len(table)))  # every case's parameters and drive are valid, before any work
+    plan.case_drives(table, np.arange(len(table)))
+    store = SweepStore.open(Path(out_dir), plan, table)
+    remaining = np.setdiff1d(np.arange(len(table)), store.finished_ids())
+    resumed = len(table) - len(remaining)
+    parallel = workers or 1
+    if cases_per_task is None:
+        cases_per_task = default_cases_per_task(plan, len(table), parallel if scheduler is None else 8)
+    tasks = [remaining[i : i + cases_per_task] for i in range(0, len(remaining), cases_per_task)]
+    backend = "serial" if workers is None and scheduler is None else (scheduler or f"LocalCluster ({workers} workers)")
+    if tasks:
+        with _terminate_as_interrupt(), _progress_bar(len(table), resumed, progress, backend) as bar:
+
+            def done(result: TaskResult, count: int) -> None:
+                store.write_task(result, table)
+                bar(len(result.case_ids))
+                if on_task_done is not None:
+                    on_task_done(count)
+
+            if workers is None and scheduler is None:
+                _run_serial(plan, table, tasks, done)
+            else:
+                _run_dask(plan, table, tasks, done, workers=workers, scheduler=scheduler)
+    results = store.combine()
+    maps: tuple[Path, ...] = ()
+    sensitivity = None
+    if plots or plan.method == "sensitivity":
+        from ..report import sweep_plots
+
+        if plan.method == "sensitivity":
+            sensitivity = sweep_plots.write_sensitivity(results, table, out_dir=store.root)
+        if plots:
+            maps = tuple(sweep_plots.draw_maps(results, plan, table, store.root / "maps"))
+    diverged = int(pq.read_table(results, columns=["diverged"]).column("diverged").to_numpy().sum())
+    return SweepSummary(
+        out_dir=store.root,
+        ncases=len(table),
+        computed=len(remaining),
+        resumed=resumed,
+        diverged=diverged,
+        tasks=len(tasks),
+        backend=backend,
+        elapsed_s=time.perf_counter() - start,
+        results=results,
+        maps=maps,
+        sensitivity=sensitivity,
+    )
+
+
+def check_scheduler(address: str, *, timeout_s: float = 5.0) -> None:
+    """A Dask scheduler address tcp://HOST:PORT that accepts a connection, checked before anything
+    is written.
+
+    Raises:
+      ParameterError: a malformed address, or nothing listening there.
+    """
+    host, sep, port = address.removeprefix("tcp://").rpartition(":")
+    if not address.startswith("tcp://") or not sep or not host or not port.isdigit():
+        raise ParameterError(f"scheduler must be tcp://HOST:PORT, got {address!r}")
+    try:
+        socket.create_connection((host.strip("[]"), int(port)), timeout=timeout_s).close()
+    except OSError as exc:
+        raise ParameterError(f"cannot reach the Dask scheduler at {address!r}: {exc.strerror or exc}") from None
+
+
+def default_cases_per_task(plan: SweepPlan, ncases: int, parallel: int) -> int:
+    """Enough cases for TASK_STEPS trajectory steps, within TASK_STATE_BYTES of sampled states and
+    held drive inputs,
+    and at most ncases / (TASKS_PER_WORKER * parallel) so every worker gets several tasks."""
+    by_steps = TASK_STEPS[plan.engine] // max(1, plan.nstep)
+    driven = bool(plan.driven_targets(plan.cases()))
+    per_case = 40 * (plan.nstep // plan.save_every + 1) + (32 * plan.nstep if driven else 0)  # states, inputs
+    by_memory = TASK_STATE_BYTES // per_case
+    by_balance = math.ceil(ncases / (TASKS_PER_WORKER * parallel))
+    return max(1, min(by_steps, by_memory, by_balance))
+
+
+# -- the results folder ----------------------------------------------------------------------
+
+
+class SweepStore:
+    """The results folder of one sweep (layout in the module docstring). Only the process that
+    runs the sweep writes to it."""
+
+    def __init__(self, root: Path, plan: SweepPlan, table: CaseTable) -> None:
+        self.root = root
+        self.plan = plan
+        self.table = table
+        self.parts = root / "parts"
+        self.definition = {
+            "version": STORE_VERSION,
+            "plan": plan.to_mapping(),
+            "cases": len(table),
+            "cases_sha256": table.digest(),
+        }
+        self._zarr: Any = None
+
+    @classmethod
+    def open(cls, root: Path, plan: SweepPlan, table: CaseTable) -> SweepStore:
+        """Create the folder, or check that an existing one holds this sweep.
+
+        Raises:
+          OutputError: ``root`` is a file, holds a different sweep, or cannot be written.
+        """
+        store = cls(root, plan, table)
+        meta = root / "sweep.json"
+        if root.exists() and not root.is_dir():
+            raise OutputError(f"output {str(root)!r} is a file; give a folder for the sweep's results")
+        if meta.exists():
+            try:
+                found = json.loads(meta.read_text())
+            except (OSError, ValueError) as exc:
+                raise OutputError(f"{str(meta)!r} is unreadable ({exc}); delete the folder to start again") from None
+            if found != json.loads(json.dumps(store.definition)):
+                raise OutputError(
+                    f"{str(root)!r} holds a different sweep (its sweep.json does not match this definition); "
+                    "give another folder, or delete this one to start again"
+                )
+        elif root.exists() and any(root.iterdir()):
+            raise OutputError(f"{str(root)!r} exists and is not a sweep's results folder; give a new or empty folder")
+        try:
+            store.parts.mkdir(parents=True, exist_ok=True)
+            if not meta.exists():
+                with atomic_output(meta) as tmp:
+                    tmp.write_text(json.dumps(store.definition, indent=1) + "\n")
+        except OSError as exc:
+            raise output_error(root, exc) from None
+        if plan.trajectories:
+            store._open_zarr()
+        return store
+
+    def finished_ids(self) -> NDArray[np.int64]:
+        """Case ids recorded in the parts so far (sorted).
+
+        Raises:
+          OutputError: a part cannot be read (named, with what to do).
+        """
+        ids = [self._read_part(p, columns=["case_id"]).column("case_id").to_numpy() for p in self._part_files()]
+        return np.sort(np.concatenate(ids)) if ids else np.zeros(0, dtype=np.int64)
+
+    def write_task(self, result: TaskResult, table: CaseTable) -> Path:
+        """Record one finished task: its trajectories (if kept), then its part, atomically."""
+        ids = result.case_ids
+        if self._zarr is not None and result.trajectories is not None:
+            self._zarr["phi_rad"].oindex[ids] = result.trajectories[..., :2]
+            self._zarr["omega_rad_s"].oindex[ids] = result.trajectories[..., 2:]
+        path = self.parts / f"part-{int(ids[0]):09d}.parquet"
+        with atomic_output(path) as tmp:
+            pq.write_table(self._arrow(result, table), tmp)
+        return path
+
+    def combine(self) -> Path:
+        """Publish ``results.parquet``: every case once, by case_id.
+
+        Raises:
+          OutputError: a case is missing or recorded twice (the parts are not one sweep's).
+        """
+        parts = [self._read_part(p) for p in self._part_files()]
+        if not parts:
+            raise OutputError(f"{str(self.parts)!r} holds no results")
+        merged = pa.concat_tables(parts).sort_by("case_id")
+        ids = merged.column("case_id").to_numpy()
+        if len(ids) != len(self.table) or np.any(ids != np.arange(len(self.table))):
+            twice: NDArray[np.int64] = np.unique(ids[np.flatnonzero(np.diff(ids) == 0)])
+            raise OutputError(
+                f"{str(self.parts)!r} holds {len(ids)} rows for {len(self.table)} cases"
+                + (f" (case {int(twice[0])} twice)" if len(twice) else "")
+                + "; delete the folder to start again"
+            )
+        merged = merged.replace_schema_metadata({META_KEY: json.dumps(self.definition).encode()})
+        path = self.root / "results.parquet"
+        with atomic_output(path, replace=True) as tmp:
+            pq.write_table(merged, tmp)
+        return path
+
+    def _part_files(self) -> list[Path]:
+        return sorted(p for p in self.parts.glob("part-*.parquet") if not p.name.startswith("."))
+
+    def _read_part(self, path: Path, columns: list[str] | None = None) -> pa.Table:
+        try:
+            return pq.read_table(path, columns=columns)
+        except (OSError, pa.ArrowException) as exc:
+            raise OutputError(
+                f"results part {str(path)!r} is unreadable ({exc}); delete it and run again to recompute its cases"
+            ) from None
+
+    def _arrow(self, result: TaskResult, table: CaseTable) -> pa.Table:
+        ids = result.case_ids
+        cols: dict[str, pa.Array] = {"case_id": pa.array(ids, type=pa.int64())}
+        for j, name in enumerate(table.names):
+            cols[name] = pa.array(table.values[ids, j], type=pa.float64())
+        if table.varied is not None and table.relative_change is not None:
+            cols["varied"] = pa.array([table.varied[i] for i in ids], type=pa.string())
+            cols["relative_change"] = pa.array(table.relative_change[ids], type=pa.float64())
+        feats = result.features
+        cols["diverged"] = pa.array(feats.diverged, type=pa.bool_())
+        for j, name in enumerate(feats.names):
+            cols[name] = pa.array(feats.values[:, j], type=pa.float64())
+        if feats.poincare is not None:
+            for name, values in zip(FEATURE_GROUPS["poincare"], dataclasses.astuple(feats.poincare), strict=True):
+                cols[name] = pa.array([v.tolist() for v in values], type=pa.list_(pa.float64()))
+        return pa.table(cols)
+
+    def _open_zarr(self) -> None:
+        import zarr
+
+        path = self.root / "trajectories.zarr"
+        nsave = self.plan.nstep // self.plan.save_every + 1
+        shape = (len(self.table), nsave, 2)
+        chunk_cases = max(1, min(len(self.table), (8 * 2**20) // (16 * nsave)))
+        try:
+            group = zarr.open_group(str(path), mode="a")
+            for name in ("phi_rad", "omega_rad_s"):
+                if name not in group:
+                    group.create_array(name, shape=shape, chunks=(chunk_cases, nsave, 2), dtype="f8", fill_value=np.nan)
+            if "t_s" not in group:
+                group.create_array("t_s", shape=(nsave,), dtype="f8")[:] = (
+                    np.arange(nsave) * self.plan.dt_s * self.plan.save_every
+                )
+        except OSError as exc:
+            raise output_error(path, exc) from None
+        self._zarr = group
+
+
+# -- backends ----------------------------------------------------------------------------------
+
+Done = Callable[[TaskResult, int], None]
+
+
+def _run_serial(plan: SweepPlan, table: CaseTable, tasks: list[NDArray[np.int64]], done: Done) -> None:
+    for count, ids in enumerate(tasks, start=1):
+        done(_task(plan, _rows(table, ids), ids, None), count)
+
+
+def _rows(table: CaseTable, ids: NDArray[np.int64]) -> CaseTable:
+    """The rows ``ids`` of the table (what a task needs of it)."""
+    return CaseTable(names=table.names, values=table.values[ids])
+
+
+def _task(
+    plan: SweepPlan, rows: CaseTable, ids: NDArray[np.int64], nthread: int | None, keep: bool | None = None
+) -> TaskResult:
+    """The function a task runs (a worker imports it from here)."""
+    return run_task(plan, rows, ids, nthread=nthread, keep_trajectories=plan.trajectories if keep is None else keep)
+
+
+def _run_dask(
+    plan: SweepPlan,
+    table: CaseTable,
+    tasks: list[NDArray[np.int64]],
+    done: Done,
+    *,
+    workers: int | None,
+    scheduler: str | None,
+) -> None:
+    from dask.distributed import Client, LocalCluster, as_completed
+
+    with contextlib.ExitStack() as stack:
+        if workers is not None:
+            cluster = stack.enter_context(
+                LocalCluster(
+                    n_workers=workers,
+                    threads_per_worker=1,
+                    processes=True,
+                    host="127.0.0.1",
+                    dashboard_address=None,
+                    silence_logs=logging.ERROR,
+                )
+            )
+            client = stack.enter_context(Client(cluster))
+            nthread: int | None = max(1, (os.cpu_count() or 1) // workers)
+        else:
+            try:
+                client = stack.enter_context(Client(scheduler, timeout="10s"))
+            except (OSError, TimeoutError) as exc:
+                raise ParameterError(f"cannot reach the Dask scheduler at {scheduler!r}: {exc}") from None
+            nthread = None
+        shared = client.scatter(plan, broadcast=True, hash=False)
+        tag = table.digest()[:12]
+        futures = [
+            client.submit(
+                _task, shared, _rows(table, ids), ids, nthread, key=f"pendsim-sweep-{tag}-{int(ids[0])}", retries=2
+            )
+            for ids in tasks
+        ]
+        written: set[str] = set()
+        for future in as_completed(futures):
+            if future.key in written:  # never write a task twice
+                continue
+            result = future.result()
+            written.add(future.key)
+            done(result, len(written))
+            future.release()
+
+
+@contextlib.contextmanager
+def _terminate_as_interrupt() -> Iterator[None]:
+    """While active, SIGTERM raises KeyboardInterrupt (as Ctrl-C does), so every cluster and
+    process started inside is closed by its context manager; the previous handler comes back."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def interrupt(signum: int, frame: object) -> None:
+        raise KeyboardInterrupt
+
+    previous = signal.signal(signal.SIGTERM, interrupt)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+
+
+@contextlib.contextmanager
+def _progress_bar(total: int, initial: int, show: bool, backend: str) -> Iterator[Callable[[int], None]]:
+    from tqdm import tqdm
+
+    with tqdm(
+        total=total,
+        initial=initial,
+        unit="case",
+        desc=f"sweep ({backend})",
+        disable=None if show else True,
+        smoothing=0.1,
+    ) as bar:
+        yield bar.update
+
+
+def read_results(path: str | Path) -> tuple[pa.Table, dict[str, Any]]:
+    """A results.parquet and the sweep definition stored in it.
+
+    Raises:
+      OutputError: the file is missing, unreadable, or not a pendsim sweep's results.
+    """
+    try:
+        table = pq.read_table(path)
+    except (OSError, pa.ArrowException) as exc:
+        raise OutputError(f"cannot read sweep results {str(path)!r}: {exc}") from None
+    meta = (table.schema.metadata or {}).get(META_KEY)
+    if meta is None:
+        raise OutputError(f"{str(path)!r} is not the results of a pendsim sweep (no {META_KEY.decode()} metadata)")
+    return table, json.loads(meta)
+
+
+def _shorten(names: list[str], keep: int = 4) -> str:
+    return ", ".join(names) if len(names) <= keep else ", ".join(names[:keep]) + f", ... {len(names) - keep} more"
+
+
+def describe(summary: SweepSummary, plan: SweepPlan, *, top: int = 12) -> str:
+    """What ``pendsim sweep`` prints: the run, the files, and for a sensitivity sweep the ranking
+    of the first feature."""
+    table = pq.read_table(summary.results)
+    first = table.column_names.index("diverged")
+    inputs = [c for c in table.column_names[1:first] if c not in ("varied", "relative_change")]
+    features = table.column_names[first + 1 :]
+    lines = [
+        f"sweep of {summary.ncases} cases ({plan.method}, {plan.engine} engine, {plan.duration_s:g} s at "
+        f"{plan.dt_s:g} s) on {summary.backend}: computed {summary.computed} in {summary.elapsed_s:.1f} s"
+        + (f", {summary.resumed} already done" if summary.resumed else "")
+        + f", {summary.diverged} diverged",
+        f"results: {summary.results} ({table.num_rows} rows, {table.num_columns} columns: case_id, "
+        f"{len(inputs)} input{'s' if len(inputs) != 1 else ''} ({_shorten(inputs)}), diverged, {', '.join(features)})",
+    ]
+    if plan.trajectories:
+        lines.append(f"trajectories: {summary.out_dir / 'trajectories.zarr'}")
+    if summary.maps:
+        lines.append(f"maps: {summary.maps[0].parent}/ ({', '.join(p.name for p in summary.maps)})")
+    if summary.sensitivity is not None:
+        data = json.loads(summary.sensitivity.read_text())
+        for feature, entry in list(data["features"].items())[:1]:
+            lines.append(
+                f"sensitivity of {feature} (base {entry['base_value']:.6g}) to +/-{100 * data['relative_step']:g} % "
+                "of each parameter, elasticity d ln f / d ln p, largest first:"
+            )
+            for row in entry["ranking"][:top]:
+                value = row["elasticity"]
+                lines.append(f"  {row['parameter']:<28} {'n/a' if value is None else f'{value:+.4f}'}")
+        lines.append(f"every feature's full ranking: {summary.sensitivity}")
+    return "\n".join(lines)

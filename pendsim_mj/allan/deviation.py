@@ -1,0 +1,377 @@
+"""Allan deviation of static IMU records, with confidence intervals and noise terms (IEEE 952).
+
+- **Deviations**: the overlapping Allan deviation of each axis (frequency-type data: rates and
+  accelerations) on a log-spaced tau grid, 12 values per decade from 1/fs to a tenth of the
+  record. Computed exactly here rather than with ``allantools.oadev``: on this project's 2-core
+  machine that took 1.7 s per axis for a 6 h, 80 Hz record on a 90-tau grid (20 s for 12 axes,
+  against the 10 s budget for the whole analysis); this kernel (compiled by numba) sums the second
+  differences of the phase (the running sum of the data less its mean, built once from the
+  recording's own arrays: no joined copy) row by row over all axes, the taus spread over threads
+  (one process, no workers), and equals ``allantools.oadev`` to 1e-11 (tests/allan/test_allan.py).
+- **Confidence intervals**: ``allantools.edf_greenhall`` (equivalent degrees of freedom for the
+  overlapping estimator) and ``allantools.confidence_interval`` (chi-squared), with the noise type
+  of each tau identified from the local log-log slope (-1/2 white, 0 flicker, +1/2 random walk).
+- **Noise terms** read from the curve: white noise N (velocity or angle random walk) as the value
+  at tau = 1 s of the slope -1/2 line through the points where the slope is -1/2; rate random
+  walk K as the value at tau = 3 s of the slope +1/2 line (sigma = K sqrt(tau / 3)); bias
+  instability B as the flat part (slope within +-0.15, where the estimate is reliable, with the
+  N and K contributions subtracted) divided by 0.664 (= sqrt(2 ln 2 / pi)). A term whose slope
+  the curve never shows is None.
+- **Sampling**: Allan deviation assumes uniform sampling; ``check_sampling`` finds gaps and
+  irregular timestamps so that they are reported, not silently analysed.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import math
+
+import numpy as np
+
+from pendsim_mj.errors import ParameterError
+from pendsim_mj.sensors.bno055 import MIN_MOTION_RAD_S
+
+TAUS_PER_DECADE = 12
+ONE_SIGMA = math.erf(1 / math.sqrt(2))  # 0.6827: 1-sigma confidence
+BIAS_INSTABILITY_FACTOR = math.sqrt(2 * math.log(2) / math.pi)  # 0.664
+
+
+def tau_grid(n_samples: int, per_decade: int = TAUS_PER_DECADE) -> np.ndarray:
+    """Averaging factors m (integers, tau = m / fs) from 1 to n_samples / 10, log-spaced."""
+    top = n_samples / 10
+    if top < 2:
+        raise ParameterError(f"need at least 20 samples for an Allan deviation, got {n_samples}")
+    count = int(math.log10(top) * per_decade) + 1
+    return np.unique(np.rint(np.logspace(0, math.log10(top), count)).astype(np.int64))
+
+
+def phase(*columns: np.ndarray) -> np.ndarray:
+    """The phase x (n+1, a) of frequency-type data given as column blocks (each (n,) or (n, k),
+    together a columns; float32 data is summed in float64): x[0] = 0, x[i] = sum of the first
+    i samples less the column's mean. Built straight from the blocks in one compiled pass
+    (``allan_kernel.running_sum_into``: no copy of the data). The mean only adds a straight line
+    to x, which the second differences cancel; without it, x grows to n * mean and the sums lose
+    digits."""
+    from pendsim_mj.allan import kernel as allan_kernel  # numba only once needed
+
+    blocks = [np.asarray(c).reshape(len(c), -1) for c in columns]
+    n = len(blocks[0])
+    x = np.empty((n + 1, sum(b.shape[1] for b in blocks)))
+    x[0] = 0.0
+    j = 0
+    for b in blocks:
+        if len(b) != n:
+            raise ParameterError(f"column blocks must be equally long, got {n} and {len(b)}")
+        if b.dtype not in (np.float32, np.float64):
+            b = b.astype(float)
+        allan_kernel.running_sum_into(x, j, b, b.mean(axis=0, dtype=np.float64))
+        j += b.shape[1]
+    return x
+
+
+def overlapping_adev(y: np.ndarray, m: np.ndarray, *, threads: int = 2) -> np.ndarray:
+    """Overlapping Allan deviation of frequency-type data.
+
+    Args:
+      y: (n,) or (n, a) samples (a axes), uniformly sampled.
+      m: averaging factors (tau = m / fs), each <= (n - 1) / 2.
+      threads: 1: this thread only; more: the taus spread over numba's threads (one process,
+        the data not copied; the same results bit for bit).
+
+    Returns:
+      (len(m),) or (len(m), a) deviations in the units of y.
+    """
+    y = np.asarray(y, dtype=float)
+    flat = y.ndim == 1
+    out = adev_of_phase(phase(y), m, threads=threads)
+    return out[:, 0] if flat else out
+
+
+def adev_of_phase(x: np.ndarray, m: np.ndarray, *, threads: int = 2) -> np.ndarray:
+    """Overlapping Allan deviation (len(m), a) from the phase x (n+1, a) (``phase``)."""
+    m = np.asarray(m, dtype=np.int64)
+    n = len(x) - 1
+    if np.any(m < 1) or np.any(2 * m > n):
+        raise ParameterError(f"averaging factors must be in 1..{n // 2}, got {m.min()}..{m.max()}")
+    from pendsim_mj.allan import kernel as allan_kernel  # numba (and its compiled kernels) only once needed
+
+    x = np.ascontiguousarray(x, dtype=float)
+    kernel = allan_kernel.oadev_parallel if threads > 1 and x.size > 2_000_000 else allan_kernel.oadev_serial
+    return kernel(x, m)
+
+
+def load_kernels() -> None:
+    """Load the compiled kernels (``allan_kernel.warm_up``) into this process before they run on
+    other threads (numba's first call in a process costs 0.3-0.5 s, less once numba is loaded)."""
+    from pendsim_mj.allan import kernel as allan_kernel
+
+    allan_kernel.warm_up()
+
+
+@dataclasses.dataclass(frozen=True)
+class AllanCurve:
+    """One axis' Allan deviation.
+
+    Attributes:
+      tau_s: (k,) averaging times, s.
+      adev: (k,) overlapping Allan deviation, units of the data.
+      low, high: (k,) confidence interval bounds at ``confidence``.
+      edf: (k,) equivalent degrees of freedom.
+      alpha: (k,) noise type used for the edf (0 white, -1 flicker, -2 random walk of the data).
+      confidence: the interval's probability (0.683: 1 sigma).
+      n_samples: samples in the record.
+      rate_hz: sampling rate.
+    """
+
+    tau_s: np.ndarray
+    adev: np.ndarray
+    low: np.ndarray
+    high: np.ndarray
+    edf: np.ndarray
+    alpha: np.ndarray
+    confidence: float
+    n_samples: int
+    rate_hz: float
+
+
+def local_slopes(tau_s: np.ndarray, adev: np.ndarray) -> np.ndarray:
+    """d log(adev) / d log(tau) at each tau (central differences, one-sided at the ends)."""
+    return np.gradient(np.log(adev), np.log(tau_s))
+
+
+def _noise_alpha(slopes: np.ndarray) -> np.ndarray:
+    """Power-law noise type of frequency data from the ADEV slope mu/2: alpha = -2 slope - 1."""
+    return np.clip(np.rint(-2.0 * slopes - 1.0), -2, 1).astype(int)
+
+
+def allan_curves(y: np.ndarray, rate_hz: float, *, confidence: float = ONE_SIGMA, threads: int = 2) -> list[AllanCurve]:
+    """Allan deviation with confidence intervals for each column of y (n, a)."""
+    y = np.asarray(y, dtype=float)
+    return curves_of_phase(phase(y), rate_hz, confidence=confidence, threads=threads)
+
+
+def curves_of_phase(
+    x: np.ndarray, rate_hz: float, *, confidence: float = ONE_SIGMA, threads: int = 2
+) -> list[AllanCurve]:
+    """``allan_curves`` of the data whose phase (``phase``) is x (n+1, a): one curve per column."""
+    n = len(x) - 1
+    return curves_of_deviations(adev_of_phase(x, tau_grid(n), threads=threads), n, rate_hz, confidence=confidence)
+
+
+def curves_of_deviations(
+    adev: np.ndarray, n_samples: int, rate_hz: float, *, confidence: float = ONE_SIGMA
+) -> list[AllanCurve]:
+    """The curves (with confidence intervals) of the deviations adev (k, a) that ``adev_of_phase``
+    gave on ``tau_grid(n_samples)`` for a record of n_samples at rate_hz: one curve per column."""
+    n = n_samples
+    m = tau_grid(n)
+    tau = m / rate_hz
+    import allantools  # (with scipy) only once needed: not while a recording is read
+
+    edf_of = functools.cache(
+        lambda al, k: allantools.edf_greenhall(alpha=al, d=2, m=k, N=n + 1, overlapping=True)
+    )  # the axes of a record share m and N, and mostly the noise type
+    curves = []
+    for j in range(adev.shape[1]):
+        dev = adev[:, j]
+        if np.any(dev <= 0):  # a constant axis: no noise to analyse
+            alpha = np.zeros(len(m), int)
+            edf = np.full(len(m), np.nan)
+            curves.append(AllanCurve(tau, dev, dev.copy(), dev.copy(), edf, alpha, confidence, n, rate_hz))
+            continue
+        alpha = _noise_alpha(local_slopes(tau, dev))
+        edf = np.array([edf_of(int(al), int(k)) for al, k in zip(alpha, m, strict=True)])
+        low, high = confidence_interval(dev, edf, confidence)
+        curves.append(AllanCurve(tau, dev, low, high, edf, alpha, confidence, n, rate_hz))
+    return curves
+
+
+def confidence_interval(dev: np.ndarray, edf: np.ndarray, confidence: float) -> tuple[np.ndarray, np.ndarray]:
+    """``allantools.confidence_interval`` (chi-squared, NIST SP1065 eq. 45) for arrays: the
+    (low, high) bounds of the deviations dev (k,) with edf (k,) degrees of freedom."""
+    from scipy.stats import chi2
+
+    tail = min(abs(confidence), abs(confidence - 1)) / 2
+    edf = np.asarray(edf, dtype=float)
+    low = np.sqrt(edf * dev * dev / chi2.ppf(1 - tail, edf))
+    high = np.sqrt(edf * dev * dev / chi2.ppf(tail, edf))
+    return low, high
+
+
+@dataclasses.dataclass(frozen=True)
+class NoiseTerms:
+    """IEEE 952 terms read from one curve (None where the curve shows no such slope).
+
+    white: N, units/sqrt(Hz) = units*sqrt(s) (velocity or angle random walk): adev at tau = 1 s
+      on the -1/2 line.
+    bias_instability: B, units: flat level / 0.664.
+    bias_instability_tau_s: where the flat part is (its middle), s.
+    rate_random_walk: K, units/sqrt(s): adev at tau = 3 s on the +1/2 line.
+    """
+
+    white: float | None
+    bias_instability: float | None
+    bias_instability_tau_s: float | None
+    rate_random_walk: float | None
+
+
+def noise_terms(curve: AllanCurve, *, slope_tolerance: float = 0.15, min_edf: float = 30.0) -> NoiseTerms:
+    """Read N, B and K from a curve (see the module docstring)."""
+    tau, dev = curve.tau_s, curve.adev
+    if np.any(dev <= 0):
+        return NoiseTerms(None, None, None, None)
+    slopes = local_slopes(tau, dev)
+    reliable = ~(curve.edf < min_edf)  # NaN edf counts as reliable (it is only for constant data)
+
+    def line_value(target: float, at_tau: float) -> float | None:
+        near = (np.abs(slopes - target) <= slope_tolerance / 2) & reliable
+        if not np.any(near):
+            near = (np.abs(slopes - target) <= slope_tolerance) & reliable
+        if not np.any(near):
+            return None
+        # the fixed-slope line through those points, in log space: log dev = c + target log tau
+        c = np.mean(np.log(dev[near]) - target * np.log(tau[near]))
+        return float(math.exp(c + target * math.log(at_tau)))
+
+    white = line_value(-0.5, 1.0)
+    rrw = line_value(0.5, 3.0)
+    flat = (np.abs(slopes) <= slope_tolerance) & reliable
+    b, b_tau = None, None
+    if np.any(flat):
+        # The flat level with the white and random-walk parts removed: sigma_B^2 =
+        # sigma^2 - N^2/tau - K^2 tau/3. Where little is left, the "flat" points are only the
+        # crossover from -1/2 to +1/2, not bias instability.
+        variance = dev[flat] ** 2
+        rest = variance - (white or 0.0) ** 2 / tau[flat] - (rrw or 0.0) ** 2 * tau[flat] / 3
+        level = float(np.median(rest))
+        if level > 0.25 * float(np.median(variance)):
+            b = math.sqrt(level) / BIAS_INSTABILITY_FACTOR
+            b_tau = float(np.exp(np.median(np.log(tau[flat]))))
+    return NoiseTerms(white, b, b_tau, rrw)
+
+
+@dataclasses.dataclass(frozen=True)
+class SamplingReport:
+    """How uniform a record's timestamps are.
+
+    gaps: (index, start time s, missing duration s) where an interval exceeds 1.5 nominal steps.
+    irregular: intervals off the nominal step by more than 10 % that are not gaps.
+    """
+
+    nominal_dt_s: float
+    gaps: list[tuple[int, float, float]]
+    irregular: int
+    max_deviation_s: float
+
+    @property
+    def uniform(self) -> bool:
+        return not self.gaps and self.irregular == 0
+
+    def describe(self) -> str:
+        parts = []
+        if self.gaps:
+            largest = max(self.gaps, key=lambda g: g[2])
+            parts.append(
+                f"{len(self.gaps)} gap(s), the largest {largest[2]:.3f} s missing after t = {largest[1]:.3f} s"
+            )
+        if self.irregular:
+            parts.append(f"{self.irregular} irregular interval(s), up to {self.max_deviation_s * 1e3:.2f} ms off")
+        return "; ".join(parts) if parts else "uniform"
+
+
+def check_sampling(t_ns: np.ndarray, rate_hz: float) -> SamplingReport:
+    """Gaps and irregular intervals in integer-ns timestamps nominally 1/rate_hz apart."""
+    nominal = 1e9 / rate_hz
+    dt = np.diff(np.asarray(t_ns, dtype=np.int64)).astype(float)
+    gap = dt > 1.5 * nominal
+    irregular = (np.abs(dt - nominal) > 0.1 * nominal) & ~gap
+    gaps = [(int(i), float(t_ns[i]) * 1e-9, float(dt[i] - nominal) * 1e-9) for i in np.flatnonzero(gap)]
+    deviation = float(np.max(np.abs(dt - nominal))) * 1e-9 if len(dt) else 0.0
+    return SamplingReport(nominal * 1e-9, gaps, int(irregular.sum()), deviation)
+
+
+MOTION_WINDOW_S = 0.1  # the gyro's turning rate is averaged over this before it counts as motion
+
+
+@dataclasses.dataclass(frozen=True)
+class Motion:
+    """How a node turns during a recording that should be static.
+
+    Attributes:
+      rate_rad_s: (n,) magnitude of the gyro less its median (the bias), averaged over
+        MOTION_WINDOW_S, rad/s.
+      largest_rad_s: its largest value, rad/s; at index ``largest_index``.
+    """
+
+    rate_rad_s: np.ndarray
+    largest_rad_s: float
+    largest_index: int
+
+    @property
+    def moving(self) -> np.ndarray:
+        """(n,) True where the node turns faster than MIN_MOTION_RAD_S (validate's "no motion")."""
+        return self.rate_rad_s > MIN_MOTION_RAD_S
+
+    @property
+    def static(self) -> bool:
+        return not bool(self.moving.any())
+
+
+def gyro_motion(gyro_rad_s: np.ndarray, rate_hz: float) -> Motion:
+    """How a node whose (n, 3) gyro samples come at ``rate_hz`` turns (see ``Motion``). Noise
+    (the BNO055's 0.001-0.002 rad/s) averages to a few 0.001 rad/s; a pendulum swinging by
+    1 deg turns at 0.09 rad/s at its centre."""
+    g = np.asarray(gyro_rad_s, dtype=float)
+    if len(g) == 0:
+        return Motion(np.zeros(0), 0.0, 0)
+    speed = np.zeros(len(g))
+    for j in range(g.shape[1]):  # column by column: temporaries of one column, not of the (n, 3) data
+        d = g[:, j] - np.median(g[:, j])
+        speed += d * d
+    np.sqrt(speed, out=speed)
+    k = min(len(speed), max(1, round(MOTION_WINDOW_S * rate_hz)))
+    rate = np.convolve(speed, np.ones(k) / k, mode="same")
+    i = int(np.argmax(rate))
+    return Motion(rate, float(rate[i]), i)
+
+
+MOTION_MARGIN_S = 0.5
+"""Samples this close to any node's motion are not static (``still_samples``): the turning rate is
+averaged over MOTION_WINDOW_S and crosses MIN_MOTION_RAD_S only after the motion has begun (a
+coupled pendulum, moved through the springs, a second or more after the release)."""
+
+
+def motion_intervals_s(t_s: np.ndarray, moving: np.ndarray) -> np.ndarray:
+    """(k, 2) first and last instant (s, as t_s) of each run of moving samples (``Motion.moving``)."""
+    edges = np.diff(np.concatenate([[0], np.asarray(moving, dtype=np.int8), [0]]))
+    first, last = np.flatnonzero(edges == 1), np.flatnonzero(edges == -1) - 1
+    return np.stack([t_s[first], t_s[last]], axis=1) if len(first) else np.zeros((0, 2))
+
+
+def still_samples(t_s: np.ndarray, intervals_s: np.ndarray, margin_s: float = MOTION_MARGIN_S) -> np.ndarray:
+    """(n,) True at the instants t_s (s) farther than ``margin_s`` from every interval of
+    ``intervals_s`` (k, 2): e.g. every node's motion (``motion_intervals_s`` of each, stacked),
+    so that a static stretch ends before the earliest motion onset of any node."""
+    if not len(intervals_s):
+        return np.ones(len(t_s), bool)
+    order = np.argsort(intervals_s[:, 0], kind="stable")
+    starts = intervals_s[order, 0] - margin_s
+    reach = np.maximum.accumulate(intervals_s[order, 1]) + margin_s  # the farthest end so far
+    i = np.searchsorted(starts, t_s, side="right") - 1
+    return ~((i >= 0) & (t_s <= reach[np.maximum(i, 0)]))
+
+
+def longest_uniform_segment(t_ns: np.ndarray, rate_hz: float, usable: np.ndarray | None = None) -> slice:
+    """The longest run of samples with no gap and no irregular interval (and, given a (n,) bool
+    ``usable``, only usable samples: e.g. the static ones)."""
+    nominal = 1e9 / rate_hz
+    dt = np.diff(np.asarray(t_ns, dtype=np.int64)).astype(float)
+    broken = np.abs(dt - nominal) > 0.1 * nominal
+    if usable is not None:
+        broken |= ~usable[1:] | ~usable[:-1]
+    bad = np.flatnonzero(broken)
+    edges = np.concatenate([[-1], bad, [len(t_ns) - 1]])
+    lengths = np.diff(edges)
+    i = int(np.argmax(lengths))
+    return slice(int(edges[i] + 1), int(edges[i + 1] + 1))

@@ -1,0 +1,141 @@
+"""Argument checks shared by both engines; each error names the argument and what is allowed.
+
+Imports no physics engine, so the reference solver can use it.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+
+import numpy as np
+from numpy.typing import ArrayLike
+
+from pendsim_mj.errors import ParameterError, SimulationDiverged
+from pendsim_mj.rig.drives import Drive, Target
+from pendsim_mj.rig.params import RigParams
+
+MAX_STEPS = 10_000_000  # about 10 GB of trajectory arrays; a day of simulated time at 10 ms is 8.6e6
+
+
+def check_step(duration_s: float, dt_s: float) -> int:
+    """Validate duration and step (s); return the number of steps."""
+    for name, value in (("duration_s", duration_s), ("dt_s", dt_s)):
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) or value <= 0:
+            raise ParameterError(f"{name} must be a finite number > 0 s, got {value!r}")
+    if dt_s > duration_s:
+        raise ParameterError(f"dt_s = {dt_s} s must not exceed duration_s = {duration_s} s")
+    if duration_s / dt_s > MAX_STEPS:
+        raise ParameterError(
+            f"duration_s / dt_s = {duration_s / dt_s:.3g} steps is over the limit of {MAX_STEPS:.0e} "
+            "(memory grows with the steps); shorten the run or lengthen the step"
+        )
+    nstep = round(duration_s / dt_s)
+    if abs(nstep * dt_s - duration_s) > 1e-9 * max(1.0, duration_s):
+        raise ParameterError(f"duration_s = {duration_s} s must be a whole number of steps of dt_s = {dt_s} s")
+    return nstep
+
+
+def check_params(params: RigParams | Sequence[RigParams]) -> list[RigParams]:
+    """One RigParams or a non-empty sequence of them, as a list."""
+    if isinstance(params, RigParams):
+        return [params]
+    plist = list(params) if isinstance(params, Sequence) else []
+    if not plist or not all(isinstance(p, RigParams) for p in plist):
+        raise ParameterError("params must be a RigParams or a non-empty sequence of RigParams")
+    return plist
+
+
+def check_initial(
+    phi0_rad: ArrayLike, omega0_rad_s: ArrayLike, nbatch: int | None = None
+) -> tuple[np.ndarray, np.ndarray]:
+    """Initial angles (rad) and velocities (rad/s) as (nbatch, 2) float arrays, checked."""
+    out = []
+    for name, value in (("phi0_rad", phi0_rad), ("omega0_rad_s", omega0_rad_s)):
+        try:
+            arr = np.asarray(value, dtype=float)
+        except (TypeError, ValueError):
+            raise ParameterError(f"{name} must be numbers, got {value!r}") from None
+        given_shape = arr.shape
+        if arr.ndim == 1:
+            arr = arr[None, :]
+        if arr.ndim != 2 or arr.shape[1] != 2:
+            raise ParameterError(f"{name} must have shape (2,) or (nbatch, 2), got {given_shape}")
+        if not np.all(np.isfinite(arr)):
+            raise ParameterError(f"{name} must be finite, got {arr.tolist() if arr.size <= 8 else 'non-finite values'}")
+        out.append(arr)
+    phi, omega = out
+    n = max(len(phi), len(omega), nbatch or 1)
+    for name, arr in (("phi0_rad", phi), ("omega0_rad_s", omega)):
+        if len(arr) not in (1, n):
+            raise ParameterError(f"{name} has {len(arr)} rows; expected 1 or {n}")
+    return np.broadcast_to(phi, (n, 2)).copy(), np.broadcast_to(omega, (n, 2)).copy()
+
+
+def broadcast_params(plist: list[RigParams], nbatch: int) -> list[RigParams]:
+    """Repeat a single parameter set over the batch, or check the counts match."""
+    if len(plist) == 1:
+        return plist * nbatch
+    if len(plist) != nbatch:
+        raise ParameterError(f"got {len(plist)} parameter sets for {nbatch} initial conditions")
+    return plist
+
+
+def check_drives(
+    drive: object, nbatch: int, *, same_targets: bool = True
+) -> tuple[list[Drive | None], tuple[Target, ...]]:
+    """One Drive (or None) for every run, or a sequence of nbatch of them (driving the same
+    targets unless not ``same_targets``); returns the per-run list and the driven targets (all
+    of them, in Target order; empty when nothing is driven)."""
+    if drive is None or isinstance(drive, Drive):
+        drives: list[Drive | None] = [drive] * nbatch
+    elif isinstance(drive, Sequence) and all(d is None or isinstance(d, Drive) for d in drive):
+        drives = list(drive)
+        if len(drives) != nbatch:
+            raise ParameterError(f"got {len(drives)} drives for {nbatch} runs")
+    else:
+        raise ParameterError(f"drive must be a drives.Drive, a sequence of them, or None; got {drive!r}")
+    kinds = {d.targets if d is not None else () for d in drives}
+    if len(kinds) > 1 and same_targets:
+        names = sorted(", ".join(t.value for t in k) or "nothing" for k in kinds)
+        raise ParameterError(f"the drives of one batch must drive the same targets, got {'; '.join(names)}")
+    union = set().union(*kinds)
+    return drives, tuple(t for t in Target if t in union)
+
+
+# An unforced rig with non-negative damping cannot gain energy; RK4 at a stable step keeps the
+# energy error near 1e-5 of the energy (measured in tests/engines/test_physics.py). A growth above this
+# share of (initial energy + one pendulum's gravity scale m g OC) means the step is unstable.
+ENERGY_GROWTH_LIMIT = 0.01
+
+
+def energy_grew(total_energy_j: np.ndarray, energy_scale_j: np.ndarray) -> np.ndarray:
+    """(nbatch,) True where a run's total energy (nbatch, n) grew past the limit, or is not finite.
+
+    Args:
+      total_energy_j: (nbatch, n) kinetic + potential energy above rest, J.
+      energy_scale_j: (nbatch,) a natural energy scale of each run (m1 g OC1), J.
+    """
+    e0 = total_energy_j[:, 0]
+    growth = np.max(total_energy_j, axis=1) - e0
+    limit = ENERGY_GROWTH_LIMIT * (np.abs(e0) + energy_scale_j)
+    return ~(growth <= limit)  # also catches NaN
+
+
+def check_energy_bounded(total_energy_j: np.ndarray, energy_scale_j: np.ndarray, dt_s: float) -> None:
+    """Raise SimulationDiverged where the total energy (..., n) grew past the limit.
+
+    Args:
+      total_energy_j: (nbatch, n) kinetic + potential energy above rest, J.
+      energy_scale_j: (nbatch,) a natural energy scale of each run (m1 g OC1), J.
+      dt_s: the step, named in the message.
+    """
+    bad = energy_grew(total_energy_j, energy_scale_j)
+    if np.any(bad):
+        i = int(np.flatnonzero(bad)[0])
+        e0 = total_energy_j[i, 0]
+        top = np.max(total_energy_j[i])
+        raise SimulationDiverged(
+            f"simulation diverged: the energy of run {i} grew from {e0:.4g} J to {top:.4g} J "
+            f"without any input; reduce dt_s (now {dt_s} s) or the stiffness"
+        )

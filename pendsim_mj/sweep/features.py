@@ -1,0 +1,207 @@
+"""The features of a sweep, computed for a whole batch of runs at once from their sampled motion.
+
+Imports no physics engine: every engine hands over a ``Motion`` (the fast kernel's states, or a
+MuJoCo Trajectory) and gets the same features. Feature groups and the columns they give:
+
+- ``frequency``: ``freq1_hz``, ``freq2_hz``: dominant frequency of phi1, phi2, the same estimate
+  ``pendsim simulate`` prints (``analysis.spectral_peak_hz``: Hann window, 8x zero padding,
+  log-parabola refinement).
+- ``amplitude``: ``amp1_rad``, ``amp2_rad``: largest |phi| over the run; ``amp1_end_rad``,
+  ``amp2_end_rad``: largest |phi| over its last fifth (what is left at the end).
+- ``decay``: ``decay1_per_s``, ``decay2_per_s``: ln(A_head / A_tail) / (t_tail - t_head), where
+  A_head is the largest |phi| in the first fifth of the run at time t_head and A_tail the largest
+  in the last fifth at t_tail. For a free decay with envelope exp(-sigma t) this is sigma (the
+  paper's log decrement gives b = 2 J sigma for one pendulum swinging alone).
+- ``energy``: ``energy_j``, ``energy_end_j``: total (kinetic + potential above rest) energy at the
+  start and the end; ``dissipated_j``: energy taken by the hinge damping over the run.
+- ``poincare``: list columns ``poincare_t_s``, ``poincare_phi2_rad``, ``poincare_omega2_rad_s``:
+  the section phi1 = 0 crossed upward (omega1 > 0), one entry per crossing; the crossing instant
+  is the root of the cubic Hermite interpolant of phi1 (slopes omega1) between samples, phi2 and
+  omega2 are interpolated the same way (slopes omega2, alpha2): fourth order in the step.
+- ``lyapunov``: ``lyapunov_per_s``: largest Lyapunov exponent (fast engine only; computed by
+  ``fast_planar.lyapunov`` and passed in).
+- always: ``diverged`` (bool): the run became non-finite or its energy grew without input; its
+  other features are NaN.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Sequence
+
+import numpy as np
+from numpy.typing import NDArray
+
+from pendsim_mj.errors import ParameterError
+from pendsim_mj.estimation.analysis import spectral_peak_hz_batch
+
+FloatArray = NDArray[np.float64]
+
+FEATURE_GROUPS: dict[str, tuple[str, ...]] = {
+    "frequency": ("freq1_hz", "freq2_hz"),
+    "amplitude": ("amp1_rad", "amp2_rad", "amp1_end_rad", "amp2_end_rad"),
+    "decay": ("decay1_per_s", "decay2_per_s"),
+    "energy": ("energy_j", "energy_end_j", "dissipated_j"),
+    "poincare": ("poincare_t_s", "poincare_phi2_rad", "poincare_omega2_rad_s"),
+    "lyapunov": ("lyapunov_per_s",),
+}
+DEFAULT_GROUPS = ("frequency", "amplitude", "energy")
+LIST_GROUPS = frozenset({"poincare"})  # groups whose columns hold one list per case
+WINDOW_SHARE = 0.2  # head and tail windows of amplitude and decay: a fifth of the run
+
+
+def check_groups(groups: Sequence[str]) -> tuple[str, ...]:
+    """Feature group names, checked and de-duplicated in the canonical order; a single column name
+    (``freq1_hz``) selects its group."""
+    by_column = {col: group for group, cols in FEATURE_GROUPS.items() for col in cols}
+    chosen = set()
+    for name in groups:
+        group = name if name in FEATURE_GROUPS else by_column.get(name)
+        if group is None:
+            allowed = ", ".join(FEATURE_GROUPS)
+            raise ParameterError(f"unknown feature {name!r}; allowed: {allowed} (or one of their columns)")
+        chosen.add(group)
+    if not chosen:
+        raise ParameterError(f"no features asked for; allowed: {', '.join(FEATURE_GROUPS)}")
+    return tuple(g for g in FEATURE_GROUPS if g in chosen)
+
+
+def scalar_columns(groups: Sequence[str]) -> tuple[str, ...]:
+    """The one-number-per-case columns of these groups, in order."""
+    return tuple(col for g in groups if g not in LIST_GROUPS for col in FEATURE_GROUPS[g])
+
+
+@dataclasses.dataclass(frozen=True)
+class Motion:
+    """A batch of m runs sampled at n instants t_s (s), what every feature is computed from.
+
+    Attributes:
+      t_s: (n,) sample times, uniformly spaced.
+      phi_rad, omega_rad_s, alpha_rad_s2: (m, n, 2) angles, rates, angular accelerations.
+      total_energy_j: (m, n) kinetic + potential energy above rest, J.
+      dissipated_j: (m, n) energy taken by the hinge damping since t = 0, J.
+      diverged: (m,) runs that became non-finite or gained energy without input.
+    """
+
+    t_s: FloatArray
+    phi_rad: FloatArray
+    omega_rad_s: FloatArray
+    alpha_rad_s2: FloatArray
+    total_energy_j: FloatArray
+    dissipated_j: FloatArray
+    diverged: NDArray[np.bool_]
+
+
+@dataclasses.dataclass(frozen=True)
+class PoincareSamples:
+    """Section crossings per case: three tuples of m arrays (one array per case, k_i entries)."""
+
+    t_s: tuple[FloatArray, ...]
+    phi2_rad: tuple[FloatArray, ...]
+    omega2_rad_s: tuple[FloatArray, ...]
+
+
+@dataclasses.dataclass(frozen=True)
+class Features:
+    """Features of m runs: ``values[:, j]`` is column ``names[j]`` (NaN where a run diverged)."""
+
+    names: tuple[str, ...]
+    values: FloatArray
+    diverged: NDArray[np.bool_]
+    poincare: PoincareSamples | None
+
+    def column(self, name: str) -> FloatArray:
+        """One scalar column, (m,)."""
+        if name not in self.names:
+            raise ParameterError(f"feature {name!r} was not computed; computed: {', '.join(self.names)}")
+        return self.values[:, self.names.index(name)]
+
+
+def compute(motion: Motion, groups: Sequence[str], *, lyapunov_per_s: FloatArray | None = None) -> Features:
+    """The features of ``groups`` (checked by ``check_groups``) for every run of ``motion``.
+
+    Args:
+      motion: the sampled runs.
+      groups: feature groups.
+      lyapunov_per_s: (m,) exponents, required when "lyapunov" is asked for.
+    """
+    groups = check_groups(groups)
+    t = motion.t_s
+    phi = motion.phi_rad
+    m, n = phi.shape[:2]
+    columns: dict[str, FloatArray] = {}
+    if "frequency" in groups:
+        flat = np.moveaxis(phi, 2, 1).reshape(2 * m, n)  # rows: case 0 phi1, case 0 phi2, ...
+        freq = spectral_peak_hz_batch(t, flat).reshape(m, 2)
+        columns["freq1_hz"], columns["freq2_hz"] = freq[:, 0], freq[:, 1]
+    head = max(1, round(WINDOW_SHARE * (n - 1)))  # samples 0..head and n-1-head..n-1
+    mag = np.abs(phi)
+    head_i = np.argmax(mag[:, : head + 1], axis=1)  # (m, 2)
+    tail_i = n - 1 - head + np.argmax(mag[:, n - 1 - head :], axis=1)
+    head_amp = np.take_along_axis(mag, head_i[:, None, :], axis=1)[:, 0]
+    tail_amp = np.take_along_axis(mag, tail_i[:, None, :], axis=1)[:, 0]
+    if "amplitude" in groups:
+        whole = mag.max(axis=1)
+        columns["amp1_rad"], columns["amp2_rad"] = whole[:, 0], whole[:, 1]
+        columns["amp1_end_rad"], columns["amp2_end_rad"] = tail_amp[:, 0], tail_amp[:, 1]
+    if "decay" in groups:
+        with np.errstate(divide="ignore", invalid="ignore"):
+            decay = np.log(head_amp / tail_amp) / (t[tail_i] - t[head_i])
+        decay[~np.isfinite(decay)] = np.nan  # a pendulum at rest has no decay
+        columns["decay1_per_s"], columns["decay2_per_s"] = decay[:, 0], decay[:, 1]
+    if "energy" in groups:
+        columns["energy_j"] = motion.total_energy_j[:, 0]
+        columns["energy_end_j"] = motion.total_energy_j[:, -1]
+        columns["dissipated_j"] = motion.dissipated_j[:, -1]
+    if "lyapunov" in groups:
+        if lyapunov_per_s is None or np.shape(lyapunov_per_s) != (m,):
+            raise ParameterError("the lyapunov feature needs the exponents of every run (the fast engine)")
+        columns["lyapunov_per_s"] = np.asarray(lyapunov_per_s, dtype=float)
+    names = scalar_columns(groups)
+    values = np.stack([columns[c] for c in names], axis=1) if names else np.zeros((m, 0))
+    values[motion.diverged] = np.nan
+    poincare = _poincare(motion) if "poincare" in groups else None
+    return Features(names=names, values=values, diverged=motion.diverged.copy(), poincare=poincare)
+
+
+def _hermite(y0: FloatArray, y1: FloatArray, d0: FloatArray, d1: FloatArray, h: float, s: FloatArray) -> FloatArray:
+    """Cubic Hermite interpolant through (0, y0), (h, y1) with slopes d0, d1, at s in [0, 1]."""
+    s2, s3 = s * s, s * s * s
+    return (2 * s3 - 3 * s2 + 1) * y0 + (s3 - 2 * s2 + s) * h * d0 + (-2 * s3 + 3 * s2) * y1 + (s3 - s2) * h * d1
+
+
+def _poincare(motion: Motion) -> PoincareSamples:
+    """Upward crossings of phi1 = 0 (see the module docstring), every case at once."""
+    t = motion.t_s
+    h = float(t[1] - t[0])
+    p1 = motion.phi_rad[..., 0]
+    case, i = np.nonzero((p1[:, :-1] < 0) & (p1[:, 1:] >= 0))
+    y0, y1 = p1[case, i], p1[case, i + 1]
+    d0, d1 = motion.omega_rad_s[case, i, 0], motion.omega_rad_s[case, i + 1, 0]
+    s = y0 / (y0 - y1)  # the linear estimate, then Newton on the Hermite cubic (kept in [0, 1])
+    for _ in range(6):
+        s2 = s * s
+        value = _hermite(y0, y1, d0, d1, h, s)
+        slope = (
+            (6 * s2 - 6 * s) * y0 + (3 * s2 - 4 * s + 1) * h * d0 + (-6 * s2 + 6 * s) * y1 + (3 * s2 - 2 * s) * h * d1
+        )
+        with np.errstate(divide="ignore", invalid="ignore"):
+            step = np.where(slope != 0, value / slope, 0.0)
+        s = np.clip(s - step, 0.0, 1.0)
+    ts = t[i] + s * h
+    phi2 = _hermite(
+        motion.phi_rad[case, i, 1], motion.phi_rad[case, i + 1, 1], motion.omega_rad_s[case, i, 1],
+        motion.omega_rad_s[case, i + 1, 1], h, s,
+    )  # fmt: skip
+    omega2 = _hermite(
+        motion.omega_rad_s[case, i, 1], motion.omega_rad_s[case, i + 1, 1], motion.alpha_rad_s2[case, i, 1],
+        motion.alpha_rad_s2[case, i + 1, 1], h, s,
+    )  # fmt: skip
+    m = motion.phi_rad.shape[0]
+    bounds = np.searchsorted(case, np.arange(m + 1))
+    empty = np.zeros(0)
+
+    def split(values: FloatArray) -> tuple[FloatArray, ...]:
+        return tuple(empty if motion.diverged[c] else values[bounds[c] : bounds[c + 1]].copy() for c in range(m))
+
+    return PoincareSamples(t_s=split(ts), phi2_rad=split(phi2), omega2_rad_s=split(omega2))

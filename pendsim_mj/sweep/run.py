@@ -1,0 +1,185 @@
+"""Run one task of a sweep: a group of cases through an engine, to their features. No I/O.
+
+This is the function a Dask worker calls (the sweep runner of the bridge sends it the plan once
+and each task its rows of the case table), and the serial path calls it the same way, so a case's
+result does not depend on where or with which other cases it ran: the fast kernel integrates
+every member alone (bit for bit, see ``fast_planar``) and every feature is computed per row.
+
+Engines: ``fast`` (``fast_planar``, all cores through numba), ``mujoco`` (the planar MuJoCo
+model) and ``spatial`` (the spatial variant), both through ``simulation.simulate_batch``, i.e.
+``mujoco.rollout`` with one MjData per thread, one thread per core and one compiled model per
+distinct parameter set. MuJoCo is imported only for those two.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+from numpy.typing import NDArray
+
+from pendsim_mj.engines import fast_planar
+from pendsim_mj.errors import SimulationDiverged
+from pendsim_mj.rig.checks import energy_grew
+from pendsim_mj.rig.drives import Drive, inputs_at_samples, stack_inputs
+from pendsim_mj.rig.params import ParamColumns
+from pendsim_mj.sweep.features import Features, Motion, compute
+from pendsim_mj.sweep.plan import CaseTable, SweepPlan
+
+FloatArray = NDArray[np.float64]
+LYAPUNOV_RENORMALISE_STEPS = 100  # Benettin renormalisation every 100 steps (1 s at 10 ms)
+
+
+@dataclasses.dataclass(frozen=True)
+class TaskResult:
+    """What one task returns.
+
+    Attributes:
+      case_ids: (k,) the cases, in the order of every array here.
+      features: their features.
+      trajectories: (k, nsave, 4) phi1, phi2 (rad), omega1, omega2 (rad/s) at the saved samples,
+        when asked for; NaN for a run that diverged on a MuJoCo engine.
+    """
+
+    case_ids: NDArray[np.int64]
+    features: Features
+    trajectories: FloatArray | None
+
+
+def run_task(
+    plan: SweepPlan,
+    cases: CaseTable,
+    case_ids: NDArray[np.int64],
+    *,
+    nthread: int | None = None,
+    keep_trajectories: bool = False,
+) -> TaskResult:
+    """Features of the cases ``case_ids`` whose inputs are the rows of ``cases`` (same order).
+
+    Args:
+      plan: the sweep definition (engine, duration, step, features, base values).
+      cases: k rows of the sweep's case table (``CaseTable`` with only these rows).
+      case_ids: (k,) their numbers in the whole sweep.
+      nthread: threads for the engine (default: every core).
+      keep_trajectories: also return the sampled trajectories.
+    """
+    ids = np.asarray(case_ids, dtype=np.int64)
+    rows = np.arange(len(cases))
+    params, phi0, omega0 = plan.case_inputs(cases, rows)
+    drives = plan.case_drives(cases, rows)
+    held = stack_inputs(drives, plan.nstep, plan.dt_s) if drives[0] is not None else None  # (k, nstep, 4)
+    if plan.engine == "fast":
+        motion, lyapunov = _fast_motion(plan, params, phi0, omega0, held, nthread)
+    else:
+        motion, lyapunov = _mujoco_motion(plan, params, phi0, omega0, drives, held, nthread), None
+    features = compute(motion, plan.features, lyapunov_per_s=lyapunov)
+    traj = None
+    if keep_trajectories:
+        traj = np.concatenate([motion.phi_rad, motion.omega_rad_s], axis=2)
+    return TaskResult(case_ids=ids, features=features, trajectories=traj)
+
+
+def _driven(held: FloatArray | None, k: int) -> NDArray[np.bool_]:
+    """(k,) cases with a non-zero input: their energy may grow, so only non-finite is divergence."""
+    return np.zeros(k, dtype=bool) if held is None else np.any(held != 0, axis=(1, 2))
+
+
+def _fast_motion(
+    plan: SweepPlan,
+    params: ParamColumns,
+    phi0: FloatArray,
+    omega0: FloatArray,
+    held: FloatArray | None,
+    nthread: int | None,
+) -> tuple[Motion, FloatArray | None]:
+    coef = fast_planar.coefficients(params)
+    states = fast_planar.integrate(
+        coef, phi0, omega0, plan.nstep, plan.dt_s, inputs=held, save_every=plan.save_every, nthread=nthread
+    )
+    diverged = fast_planar.diverged(states, coef, _driven(held, len(phi0)))
+    phi1, phi2, omega1, omega2, dissipated = (states[:, i, :] for i in range(5))  # (nsave, k) each
+    u = None if held is None else inputs_at_samples(held)[:, :: plan.save_every].transpose(2, 1, 0)  # (4, nsave, k)
+    alpha1, alpha2 = fast_planar.accelerations(phi1, phi2, omega1, omega2, coef, u)
+    energy = fast_planar.kinetic_energy(omega1, omega2, coef) + fast_planar.potential_energy(phi1, phi2, coef)
+
+    def pair(a: FloatArray, b: FloatArray) -> FloatArray:
+        return np.stack([a.T, b.T], axis=-1)  # (k, nsave, 2)
+
+    motion = Motion(
+        t_s=np.asarray(np.arange(states.shape[0]) * (plan.dt_s * plan.save_every), dtype=np.float64),
+        phi_rad=pair(phi1, phi2),
+        omega_rad_s=pair(omega1, omega2),
+        alpha_rad_s2=pair(alpha1, alpha2),
+        total_energy_j=energy.T,
+        dissipated_j=dissipated.T,
+        diverged=diverged,
+    )
+    lyapunov = None
+    if "lyapunov" in plan.features:
+        every = min(LYAPUNOV_RENORMALISE_STEPS, plan.nstep)
+        lyapunov = fast_planar.lyapunov(
+            coef, phi0, omega0, plan.nstep - plan.nstep % every, plan.dt_s, renormalise_every=every, nthread=nthread
+        )[-1]
+    return motion, lyapunov
+
+
+def _mujoco_motion(
+    plan: SweepPlan,
+    columns: ParamColumns,
+    phi0: FloatArray,
+    omega0: FloatArray,
+    drives: list[Drive | None],
+    held: FloatArray | None,
+    nthread: int | None,
+) -> Motion:
+    """Run the batch on ``mujoco.rollout``; where it diverges, run the cases one by one to flag
+    exactly the ones that do (their motion is NaN)."""
+    from pendsim_mj.engines.simulation import simulate_batch
+    from pendsim_mj.rig.model import PLANAR, SPATIAL
+
+    variant = SPATIAL if plan.engine == "spatial" else PLANAR
+    params = columns.to_params()
+    k = len(params)
+    nsave = plan.nstep // plan.save_every + 1
+    arrays = {name: np.full((k, nsave, 2), np.nan) for name in ("phi", "omega", "alpha")}
+    energy = np.full((k, nsave), np.nan)
+    dissipated = np.full((k, nsave), np.nan)
+    diverged = np.zeros(k, dtype=bool)
+
+    def run(rows: NDArray[np.int64]) -> None:
+        traj = simulate_batch(
+            [params[i] for i in rows],
+            phi0[rows],
+            omega0[rows],
+            plan.duration_s,
+            plan.dt_s,
+            nthread=nthread,
+            variant=variant,
+            drive=None if drives[0] is None else [drives[i] for i in rows],
+        )
+        step = plan.save_every
+        arrays["phi"][rows] = traj.phi_rad[:, ::step]
+        arrays["omega"][rows] = traj.omega_rad_s[:, ::step]
+        arrays["alpha"][rows] = traj.alpha_rad_s2[:, ::step]
+        energy[rows] = traj.total_energy_j[:, ::step]
+        dissipated[rows] = traj.dissipated_j[:, ::step]
+
+    try:
+        run(np.arange(k))
+    except SimulationDiverged:
+        for i in range(k):
+            try:
+                run(np.array([i]))
+            except SimulationDiverged:
+                diverged[i] = True
+    scale = columns.column("m1_kg") * columns.column("g_m_s2") * columns.column("oc1_m")
+    diverged |= energy_grew(energy, scale) & ~_driven(held, k)
+    return Motion(
+        t_s=np.asarray(np.arange(nsave) * (plan.dt_s * plan.save_every), dtype=np.float64),
+        phi_rad=arrays["phi"],
+        omega_rad_s=arrays["omega"],
+        alpha_rad_s2=arrays["alpha"],
+        total_energy_j=energy,
+        dissipated_j=dissipated,
+        diverged=diverged,
+    )

@@ -1,0 +1,125 @@
+"""The clock fit: device time to host time under network delays that only ever add time.
+
+The synthetic truth: host = a + x / (1 + drift) for a node whose clock gains ``drift``; each
+arrival adds a minimum delay and a random one (exponential, plus bursts of 100 ms on some packets).
+"""
+
+import numpy as np
+import pytest
+
+from pendsim_bridge.acquire.clock import MAX_DRIFT_PPM, ClockFit, residuals_s
+from pendsim_mj.estimation.timing import ClockRelation
+
+
+def _arrivals(seed: int, drift_ppm: float, *, duration_s=60.0, rate_hz=80.0, jitter_s=5e-3, bursts=0.1):
+    rng = np.random.default_rng(seed)
+    n = int(duration_s * rate_hz)
+    device = 412.345 + np.arange(n) / rate_hz  # the node's clock, s
+    true_host = 3.0 + (device - device[0]) / (1 + drift_ppm * 1e-6)
+    delay = 3e-4 + rng.exponential(jitter_s, n) + np.where(rng.random(n) < bursts, 0.1, 0.0)
+    return device, true_host, true_host + delay
+
+
+def _fit(device, arrival):
+    fit = ClockFit()
+    for x, y in zip(device, arrival, strict=True):
+        fit.add(float(x), float(y))
+    return fit.relation()
+
+
+@pytest.mark.parametrize("seed", range(10))
+@pytest.mark.parametrize("drift_ppm", [-80.0, 0.0, 45.0])
+def test_fit_recovers_drift_and_time_under_jitter_and_bursts(seed, drift_ppm):
+    device, true_host, arrival = _arrivals(seed, drift_ppm)
+    line = _fit(device, arrival)
+    assert line.drift_ppm == pytest.approx(drift_ppm, abs=0.5)
+    # Mapped times sit on the true send times plus the minimum delay (0.3 ms), to tens of us.
+    error = np.asarray(line.to_recorder(device)) - (true_host + 3e-4)
+    assert np.max(np.abs(error)) < 60e-6
+
+
+def test_jitter_does_not_move_the_fit_while_least_squares_follows_it():
+    device, true_host, arrival = _arrivals(11, 20.0, jitter_s=20e-3, bursts=0.3)
+    quiet = _fit(device, true_host + 3e-4)  # every packet at the minimum delay
+    noisy = _fit(device, arrival)
+    moved = np.max(np.abs(np.asarray(noisy.to_recorder(device)) - np.asarray(quiet.to_recorder(device))))
+    assert moved < 100e-6
+    slope, offset = np.polyfit(device, arrival, 1)  # what a least-squares fit of arrivals would say
+    least_squares_error = np.mean(slope * device + offset - true_host)
+    assert least_squares_error > 0.04  # it follows the mean delay (20 ms + 30 % of 100 ms)
+
+
+def test_residuals_are_the_delays_beyond_the_minimum():
+    device, _, arrival = _arrivals(12, -30.0, jitter_s=2e-3, bursts=0.0)
+    line = _fit(device, arrival)
+    residual = residuals_s(line, device, arrival)
+    assert residual.min() > -20e-6
+    assert np.median(residual) == pytest.approx(2e-3 * np.log(2), rel=0.1)  # median of the exponential
+
+
+def test_reordered_and_duplicated_points_are_skipped():
+    fit = ClockFit()
+    for x, y in [(0.0, 1.0), (1.0, 2.0), (0.5, 1.0), (1.0, 1.5), (2.0, 3.0)]:
+        fit.add(x, y)
+    assert fit.count == 3  # (0.5, 1.0) came after 1.0; (1.0, 1.5) repeats a device time
+    assert fit.relation().to_recorder(2.0) == pytest.approx(3.0)
+
+
+def test_slope_stays_within_the_drift_bound_early_in_a_run():
+    fit = ClockFit()
+    fit.add(0.0, 0.050)  # a delayed first packet
+    fit.add(0.0125, 0.0126)  # then one on time: the edge's slope is far from 1
+    assert abs(fit.relation().drift_ppm) <= MAX_DRIFT_PPM + 1e-6
+    single = ClockFit()
+    single.add(5.0, 7.0)
+    assert single.relation().rate == 1.0 and single.relation().to_recorder(6.0) == pytest.approx(8.0)
+
+
+def _stamping_node():
+    from pendsim_bridge.acquire.packets import StreamFormat
+    from pendsim_bridge.acquire.ports import DEFAULT_NODES
+    from pendsim_bridge.acquire.receiver import _Node
+
+    return _Node(DEFAULT_NODES[0], StreamFormat(), 80.0, 200_000_000)
+
+
+def test_header_stamps_keep_device_time_while_log_times_follow_the_learning_fit():
+    """The log times of successive batches come from a fit that still moves (here +250 ppm, then a
+    step back of 70 us, as early in a real run); the header stamps stay the device times at rate 1
+    from the first sample's log time, whatever the fit does."""
+    from pendsim_bridge.acquire.receiver import _device_stamps
+
+    node = _stamping_node()
+    device_us = 300_000_000 + 12_500 * np.arange(120, dtype=np.int64)
+    log_ns = 5_000_000_000 + np.rint(12_500_000 * (1 + 250e-6) * np.arange(120)).astype(np.int64)
+    log_ns[60:] -= 70_000
+    stamps = np.concatenate(
+        [_device_stamps(node, device_us[:60], log_ns[:60]), _device_stamps(node, device_us[60:], log_ns[60:])]
+    )
+    np.testing.assert_array_equal(stamps, log_ns[0] + (device_us - device_us[0]) * 1000)
+
+
+def test_header_stamps_increase_across_a_node_restart():
+    """A node that reboots (its device time starts again near zero) gets a new stamp origin at its
+    first sample after the restart: stamps strictly increase and stay on its log times."""
+    from pendsim_bridge.acquire.receiver import _device_stamps
+
+    node = _stamping_node()
+    device_us = np.concatenate([900_000_000 + 12_500 * np.arange(50), 1_000 + 12_500 * np.arange(50)]).astype(np.int64)
+    log_ns = 5_000_000_000 + 12_500_000 * np.arange(100, dtype=np.int64)
+    stamps = _device_stamps(node, device_us, log_ns)
+    assert np.all(np.diff(stamps) > 0)
+    np.testing.assert_array_equal(stamps[50:] - stamps[50], (device_us[50:] - device_us[50]) * 1000)
+    assert stamps[50] == log_ns[50]
+
+
+def test_a_clock_map_done_in_place_gives_the_same_instants_in_the_stamps_own_array():
+    # the truth: the map written out, recorder = offset + rate (stamp - stamp0), on a new array
+    relation = ClockRelation(offset_s=1.7e9 + 0.123456789, rate=1.0 + 37e-6, stamp0_s=12.345)
+    stamps = 12.345 + np.cumsum(np.random.default_rng(4).uniform(0.011, 0.014, 100_000))
+    expected = 1.7e9 + 0.123456789 + (1.0 + 37e-6) * (stamps - 12.345)
+    own = stamps.copy()
+    mapped = relation.to_recorder_in_place(own)
+    assert mapped is own
+    np.testing.assert_array_equal(mapped, expected)
+    np.testing.assert_array_equal(relation.to_recorder(stamps), expected)

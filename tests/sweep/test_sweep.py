@@ -1,0 +1,461 @@
+"""Sweeps: how cases are made, the features against independent computations, the results folder
+(Parquet parts, resume, trajectories), the maps, and the pendsim sweep command."""
+
+import json
+import math
+import re
+from pathlib import Path
+
+import numpy as np
+import pyarrow.parquet as pq
+import pytest
+
+from pendsim_bridge.cli import main
+from pendsim_bridge.errors import OutputError
+from pendsim_bridge.run.sweep import run_sweep
+from pendsim_mj.engines import fast_planar, reference
+from pendsim_mj.errors import ParameterError
+from pendsim_mj.estimation.analysis import spectral_peak_hz
+from pendsim_mj.rig.params import DEFAULT_PARAMS, RigParams
+from pendsim_mj.sweep.plan import PARAMETER_NAMES, SweepPlan, elasticities, parse_vary
+from pendsim_mj.sweep.run import run_task
+
+DEG = math.pi / 180
+UNDAMPED = DEFAULT_PARAMS.with_overrides(b1_n_m_s=0.0, b2_n_m_s=0.0)
+PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
+
+
+def _plan(**kw) -> SweepPlan:
+    return SweepPlan.from_mapping(kw)
+
+
+# -- cases -----------------------------------------------------------------------------------
+
+
+def test_grid_holds_every_combination_with_the_first_input_slowest():
+    plan = _plan(vary={"c1_n_m": {"from": 5.0, "to": 7.0, "num": 3}, "phi1_deg": [10.0, 20.0]})
+    table = plan.cases()
+    assert table.names == ("c1_n_m", "phi1_deg")
+    np.testing.assert_array_equal(table.values, [[5, 10], [5, 20], [6, 10], [6, 20], [7, 10], [7, 20]])
+    log = parse_vary("b1_n_m_s=1e-4:1e-2:3:log").grid_values()
+    np.testing.assert_allclose(log, [1e-4, 1e-3, 1e-2], rtol=1e-12)
+
+
+def test_random_and_latin_hypercube_cases_are_seeded_and_inside_their_ranges():
+    for method in ("random", "lhs"):
+        plan = _plan(
+            method=method, samples=500, seed=3, vary={"c1_n_m": {"from": 4, "to": 8}, "phi1_deg": {"from": 0, "to": 90}}
+        )
+        a, b = plan.cases().values, plan.cases().values
+        np.testing.assert_array_equal(a, b)
+        assert np.all((a[:, 0] >= 4) & (a[:, 0] < 8) & (a[:, 1] >= 0) & (a[:, 1] < 90))
+        other = _plan(
+            method=method, samples=500, seed=4, vary={"c1_n_m": {"from": 4, "to": 8}, "phi1_deg": {"from": 0, "to": 90}}
+        )
+        assert not np.array_equal(a, other.cases().values)
+    # a Latin hypercube puts exactly one case in each of the n equal slices of every input
+    lhs = _plan(method="lhs", samples=500, vary={"c1_n_m": {"from": 4, "to": 8}, "phi1_deg": {"from": 0, "to": 90}})
+    values = lhs.cases().values
+    for j, (low, high) in enumerate(((4, 8), (0, 90))):
+        slices = np.floor((values[:, j] - low) / (high - low) * 500).astype(int)
+        np.testing.assert_array_equal(np.sort(slices), np.arange(500))
+
+
+def test_a_csv_of_cases_is_read_row_by_row(tmp_path):
+    path = tmp_path / "cases.csv"
+    path.write_text("c1_n_m,phi1_deg,omega2_rad_s\n5.5,12,0.1\n6.5,-20,0\n")
+    plan = _plan(cases=str(path))
+    assert plan.method == "csv"
+    table = plan.cases()
+    assert table.names == ("c1_n_m", "phi1_deg", "omega2_rad_s")
+    params, phi0, omega0 = plan.case_inputs(table, np.arange(2))
+    np.testing.assert_array_equal(params.column("c1_n_m"), [5.5, 6.5])
+    assert [p.c1_n_m for p in params.to_params()] == [5.5, 6.5]
+    np.testing.assert_allclose(phi0, [[12 * DEG, 0], [-20 * DEG, 0]])
+    np.testing.assert_allclose(omega0, [[0, 0.1], [0, 0]])
+    path.write_text("c1_n_m,phi1_deg\n5.5,abc\n")
+    with pytest.raises(ParameterError, match=r"line 2: not all numbers"):
+        _plan(cases=str(path))
+    path.write_text("spring,phi1_deg\n5.5,1\n")
+    with pytest.raises(ParameterError, match=r"unknown input 'spring'"):
+        _plan(cases=str(path))
+
+
+def test_a_sensitivity_sweep_scales_each_nonzero_parameter_alone_by_the_step():
+    plan = _plan(method="sensitivity", relative_step=0.01)
+    table = plan.cases()
+    scalable = tuple(n for n in PARAMETER_NAMES if getattr(DEFAULT_PARAMS, n) != 0)
+    assert table.names == scalable and "plane_offset_m" not in scalable
+    assert len(table) == 1 + 2 * len(scalable)
+    base = np.array([getattr(DEFAULT_PARAMS, n) for n in scalable])
+    np.testing.assert_array_equal(table.values[0], base)
+    for row, name, change in zip(table.values[1:], table.varied[1:], table.relative_change[1:], strict=True):
+        j = scalable.index(name)
+        assert row[j] == pytest.approx(base[j] * (1 + change), rel=1e-15)
+        np.testing.assert_array_equal(np.delete(row, j), np.delete(base, j))
+
+
+def test_toml_and_json_definitions_give_the_same_plan(tmp_path):
+    toml = tmp_path / "s.toml"
+    toml.write_text(
+        'method = "lhs"\nsamples = 20\nengine = "fast"\nduration_s = 5.0\nfeatures = ["frequency", "decay"]\n'
+        "[base]\nphi2_deg = 3.0\n[vary]\nc1_n_m = {from = 5.0, to = 7.0}\nphi1_deg = {from = 10, to = 40}\n"
+    )
+    from_toml = SweepPlan.load(toml)
+    js = tmp_path / "s.json"
+    js.write_text(json.dumps(from_toml.to_mapping()))
+    from_json = SweepPlan.load(js)
+    assert from_json == from_toml
+    np.testing.assert_array_equal(from_json.cases().values, from_toml.cases().values)
+    assert from_toml.features == ("frequency", "decay") and dict(from_toml.base) == {"phi2_deg": 3.0}
+
+
+def test_the_definition_file_shown_in_the_docs_loads(tmp_path):
+    page = (Path(__file__).resolve().parents[2] / "docs" / "sweeps.md").read_text()
+    (tmp_path / "doc.toml").write_text(re.search(r"```toml\n(.*?)```", page, re.S).group(1))
+    plan = SweepPlan.load(tmp_path / "doc.toml")
+    assert (plan.method, plan.samples, plan.features) == ("lhs", 2000, ("frequency", "decay", "lyapunov"))
+    assert plan.cases().names == ("c1_n_m", "phi1_deg", "b2_n_m_s") and dict(plan.base)["b1_n_m_s"] == 0.0005
+
+
+@pytest.mark.parametrize(
+    ("data", "message"),
+    [
+        ({"vary": {"spring": [1.0]}}, "vary: unknown input 'spring'; allowed: any RigParams field"),
+        ({"vary": {"c1_n_m": [1.0]}, "colour": 1}, "unknown key(s) colour in the sweep definition"),
+        ({"vary": {"c1_n_m": {"from": 1.0}}}, "vary c1_n_m: expected keys from, to"),
+        ({"method": "random", "vary": {"c1_n_m": {"from": 1, "to": 2}}}, "method random needs samples >= 1"),
+        ({"method": "random", "samples": 5, "vary": {"c1_n_m": [1.0, 2.0]}}, "random and lhs need a range"),
+        ({"vary": {"c1_n_m": [1.0]}, "features": ["colour"]}, "unknown feature 'colour'; allowed: frequency"),
+        ({"vary": {"c1_n_m": [1.0]}, "engine": "mujoco", "features": ["lyapunov"]}, "lyapunov feature needs the fast"),
+        ({"vary": {"c1_n_m": [1.0]}, "duration_s": 1.005}, "must be a whole number of steps"),
+        ({"method": "grid"}, "method grid needs at least one varied input"),
+        ({"vary": {"c1_n_m": [-1.0]}}, None),  # checked when the cases are made: see below
+    ],
+)
+def test_bad_definitions_name_what_is_wrong(data, message):
+    if message is None:
+        plan = _plan(**data)
+        with pytest.raises(ParameterError, match=r"case 0: c1_n_m must be >= 0 N/m, got -1.0"):
+            plan.case_inputs(plan.cases(), np.arange(1))
+        return
+    with pytest.raises(ParameterError, match=re.escape(message)):
+        _plan(**data)
+
+
+# -- features against independent computations -----------------------------------------------
+
+
+def _reference_runs(plan: SweepPlan):
+    table = plan.cases()
+    params, phi0, omega0 = plan.case_inputs(table, np.arange(len(table)))
+    return table, reference.solve_batch(params.to_params(), phi0, omega0, plan.duration_s, plan.dt_s)
+
+
+def test_frequency_amplitude_and_energy_features_equal_those_of_the_reference_runs():
+    plan = _plan(vary={"phi1_deg": [10.0, 45.0, 80.0], "c2_n_m": [4.0, 8.0]}, duration_s=20.0)
+    table, ref = _reference_runs(plan)
+    feats = run_task(plan, table, np.arange(len(table))).features
+    for i in range(len(table)):
+        run = ref.member(i)
+        for k in (1, 2):
+            assert feats.column(f"freq{k}_hz")[i] == pytest.approx(
+                spectral_peak_hz(run.t_s, run.phi_rad[:, k - 1]), abs=1e-9
+            )
+            assert feats.column(f"amp{k}_rad")[i] == pytest.approx(np.max(np.abs(run.phi_rad[:, k - 1])), abs=1e-10)
+            tail = np.max(np.abs(run.phi_rad[-401:, k - 1]))  # the last fifth: 4 s of 20 s
+            assert feats.column(f"amp{k}_end_rad")[i] == pytest.approx(tail, abs=1e-10)
+        assert feats.column("energy_j")[i] == pytest.approx(run.total_energy_j[0], abs=1e-12)
+        assert feats.column("energy_end_j")[i] == pytest.approx(run.total_energy_j[-1], abs=1e-10)
+        assert feats.column("dissipated_j")[i] == pytest.approx(run.dissipated_j[-1], abs=1e-10)
+    assert not feats.diverged.any()
+
+
+def test_decay_of_a_pendulum_swinging_alone_is_b_over_2j():
+    # springs off: each pendulum is a damped pendulum; at 2 deg its envelope is exp(-b t / (2 J))
+    base = {"c1_n_m": 0.0, "c2_n_m": 0.0, "phi1_deg": 2.0, "phi2_deg": 2.0}
+    plan = _plan(base=base, vary={"b1_n_m_s": [0.0005, 0.002]}, duration_s=120.0, features=["decay"])
+    feats = run_task(plan, plan.cases(), np.arange(2)).features
+    expected1 = np.array([0.0005, 0.002]) / (2 * DEFAULT_PARAMS.j1_kg_m2)
+    expected2 = DEFAULT_PARAMS.b2_n_m_s / (2 * DEFAULT_PARAMS.j2_kg_m2)
+    np.testing.assert_allclose(feats.column("decay1_per_s"), expected1, rtol=2e-3)
+    np.testing.assert_allclose(feats.column("decay2_per_s"), expected2, rtol=2e-3)
+
+
+def test_poincare_samples_lie_on_the_section_by_one_reference_step_from_the_sample_before():
+    plan = _plan(vary={"phi1_deg": [30.0, 70.0]}, base={"phi2_deg": -10.0}, duration_s=10.0, features=["poincare"])
+    table = plan.cases()
+    result = run_task(plan, table, np.arange(2), keep_trajectories=True)
+    params = plan.case_inputs(table, np.arange(2))[0].to_params()
+    for i in range(2):
+        times = result.features.poincare.t_s[i]
+        assert 5 <= len(times) <= 12  # about one crossing per period (0.87 Hz) in 10 s
+        # cubic Hermite interpolation errs by at most h^4/384 max|f''''| (f: phi, slopes omega; or
+        # omega, slopes alpha); max|f''''| is read off the run's own fourth differences
+        bound = 1.5 * np.max(np.abs(np.diff(result.trajectories[i], 4, axis=0)), axis=0) / 384 + 1e-11
+        k = np.floor(times / plan.dt_s + 1e-12).astype(int)
+        states = result.trajectories[i, k]  # phi1, phi2, omega1, omega2 at the sample before
+        for j in range(len(times)):
+            step = times[j] - k[j] * plan.dt_s
+            after = reference.integrate([params[i]], states[j : j + 1, :2], states[j : j + 1, 2:], 1, step)[-1, :, 0]
+            assert abs(after[0]) < bound[0] and states[j, 0] < 0 and after[2] > 0  # phi1 = 0, rising
+            assert after[1] == pytest.approx(result.features.poincare.phi2_rad[i][j], abs=bound[1])
+            assert after[3] == pytest.approx(result.features.poincare.omega2_rad_s[i][j], abs=bound[3])
+
+
+def _mode1(params: RigParams) -> tuple[float, np.ndarray]:
+    """Frequency (Hz) and shape of the lower linearised mode, from the reference's Jacobian."""
+    k = reference._coefficients([params])
+    jac = np.zeros((4, 4))
+    for j in range(4):
+        step = np.zeros((5, 1))
+        step[j] = 1e-6
+        jac[:, j] = (reference.derivative(step, k) - reference.derivative(-step, k))[:4, 0] / 2e-6
+    values, vectors = np.linalg.eig(jac)
+    upper = np.flatnonzero(values.imag > 0)
+    low = upper[np.argmin(values.imag[upper])]
+    shape = np.real(vectors[:2, low] / vectors[np.argmax(np.abs(vectors[:2, low])), low])
+    return values.imag[low] / (2 * math.pi), shape
+
+
+def test_sensitivity_elasticities_equal_those_of_the_linearised_mode_frequency():
+    # a small release in the shape of mode 1 of the undamped rig: freq1 is that mode's frequency,
+    # whose elasticities follow from the linearised equations (eigenvalues) with the same +/-1 %
+    f0, shape = _mode1(UNDAMPED)
+    amplitude = 0.3 * DEG
+    names = ["c1_n_m", "c2_n_m", "j1_kg_m2", "j2_kg_m2", "m1_kg", "oc2_m", "l04_m", "om1_m"]
+    base = {"b1_n_m_s": 0.0, "b2_n_m_s": 0.0, "phi1_rad": amplitude * shape[0], "phi2_rad": amplitude * shape[1]}
+    plan = _plan(method="sensitivity", parameters=names, base=base, duration_s=60.0, features=["frequency"])
+    table = plan.cases()
+    feats = run_task(plan, table, np.arange(len(table))).features
+    measured = elasticities(table, feats.values)[:, feats.names.index("freq1_hz")]
+    expected = []
+    for name in names:
+        value = getattr(UNDAMPED, name)
+        lo, _ = _mode1(UNDAMPED.with_overrides(**{name: value * 0.99}))
+        hi, _ = _mode1(UNDAMPED.with_overrides(**{name: value * 1.01}))
+        expected.append((hi - lo) / (0.02 * f0))
+    np.testing.assert_allclose(measured, expected, atol=2e-3)
+    assert measured[names.index("om1_m")] == 0.0  # the IMU mount does not move the dynamics
+
+
+def test_a_diverging_case_is_flagged_and_its_features_are_nan():
+    plan = _plan(vary={"c1_n_m": [6.0, 1e6]}, duration_s=5.0, features=["frequency", "energy", "poincare"])
+    feats = run_task(plan, plan.cases(), np.arange(2)).features
+    np.testing.assert_array_equal(feats.diverged, [False, True])
+    assert np.all(np.isfinite(feats.values[0])) and np.all(np.isnan(feats.values[1]))
+    assert len(feats.poincare.t_s[1]) == 0
+
+
+def test_mujoco_engines_give_the_features_of_the_fast_engine():
+    # the planar MuJoCo model agrees with the planar equations to 1e-9 rad (tests/engines/test_physics.py);
+    # the spatial variant with the planes 0 m apart stays in its plane, so it agrees too
+    vary = {"phi1_deg": [20.0, 50.0]}
+    fast = run_task(_plan(vary=vary, duration_s=10.0), _plan(vary=vary).cases(), np.arange(2)).features
+    for engine in ("mujoco", "spatial"):
+        plan = _plan(vary=vary, duration_s=10.0, engine=engine, base={"plane_offset_m": 0.0})
+        feats = run_task(plan, plan.cases(), np.arange(2)).features
+        assert feats.names == fast.names
+        for name in fast.names:  # MuJoCo's dissipated energy is a 4th-order quadrature, not RK4's own
+            tol = 1e-6 if name == "dissipated_j" else 1e-8
+            np.testing.assert_allclose(feats.column(name), fast.column(name), rtol=tol, err_msg=name)
+    spatial = _plan(vary=vary, duration_s=10.0, engine="spatial")
+    assert spatial.base_params().plane_offset_m == 0.050  # the paper's offset unless given
+
+
+def test_a_drive_sweep_gives_the_features_of_the_driven_reference_runs():
+    # a horizontal support shake from rest across the first mode: the rig gains energy from the
+    # input (never flagged as divergence) and the features are those of the reference's runs
+    base = {"support_x_amplitude_m_s2": 0.3, "phi1_deg": 0.0, "torque_m2_amplitude_n_m": 0.002,
+            "torque_m2_frequency_hz": 1.1}  # fmt: skip
+    plan = _plan(vary={"support_x_frequency_hz": [0.6, 0.87, 1.2]}, base=base, duration_s=20.0,
+                 features=["frequency", "amplitude", "energy"])  # fmt: skip
+    table = plan.cases()
+    drives = plan.case_drives(table, np.arange(3))
+    assert [d.support_x.frequency_hz for d in drives] == [0.6, 0.87, 1.2] and drives[0].torque_m2.amplitude == 0.002
+    feats = run_task(plan, table, np.arange(3)).features
+    params, phi0, omega0 = plan.case_inputs(table, np.arange(3))
+    ref = reference.solve_batch(params.to_params(), phi0, omega0, 20.0, drive=drives)
+    assert not feats.diverged.any() and np.all(feats.column("energy_end_j") > feats.column("energy_j"))
+    for i in range(3):
+        run = ref.member(i)
+        assert feats.column("freq1_hz")[i] == pytest.approx(spectral_peak_hz(run.t_s, run.phi_rad[:, 0]), abs=1e-9)
+        assert feats.column("amp1_rad")[i] == pytest.approx(np.max(np.abs(run.phi_rad[:, 0])), abs=1e-10)
+        assert feats.column("energy_end_j")[i] == pytest.approx(run.total_energy_j[-1], abs=1e-10)
+    with pytest.raises(ParameterError, match="the sweep drives pivot_z: set or vary pivot_z_frequency_hz too"):
+        bad = _plan(vary={"pivot_z_amplitude_m_s2": [1.0]})
+        bad.case_drives(bad.cases(), np.arange(1))
+
+
+# -- the results folder ----------------------------------------------------------------------
+
+SMALL = {"method": "random", "samples": 40, "vary": {"c1_n_m": {"from": 5, "to": 7}, "phi1_deg": {"from": 5, "to": 60}},
+         "duration_s": 3.0, "features": ["frequency", "amplitude", "poincare"]}  # fmt: skip
+
+
+def test_results_hold_one_row_per_case_with_inputs_features_and_the_definition(tmp_path):
+    plan = _plan(**SMALL)
+    summary = run_sweep(plan, tmp_path / "out", cases_per_task=7, progress=False, plots=False)
+    assert (summary.ncases, summary.computed, summary.resumed, summary.tasks) == (40, 40, 0, 6)
+    table = pq.read_table(summary.results)
+    assert table.column_names[:4] == ["case_id", "c1_n_m", "phi1_deg", "diverged"]
+    np.testing.assert_array_equal(table.column("case_id").to_numpy(), np.arange(40))
+    np.testing.assert_array_equal(table.column("c1_n_m").to_numpy(), plan.cases().values[:, 0])
+    direct = run_task(plan, plan.cases(), np.arange(40)).features
+    np.testing.assert_array_equal(table.column("freq1_hz").to_numpy(), direct.column("freq1_hz"))
+    assert table.column("poincare_t_s").to_pylist()[3] == direct.poincare.t_s[3].tolist()
+    meta = json.loads(table.schema.metadata[b"pendsim.sweep"])
+    assert SweepPlan.from_mapping(meta["plan"]) == plan
+
+
+def test_an_interrupted_sweep_resumes_without_redoing_finished_cases(tmp_path):
+    plan = _plan(**SMALL)
+    whole = run_sweep(plan, tmp_path / "whole", cases_per_task=7, progress=False, plots=False)
+
+    def stop_after_two(done: int) -> None:
+        if done == 2:
+            raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        run_sweep(plan, tmp_path / "cut", cases_per_task=7, progress=False, plots=False, on_task_done=stop_after_two)
+    assert sorted(p.name for p in (tmp_path / "cut" / "parts").iterdir()) == [
+        "part-000000000.parquet",
+        "part-000000007.parquet",
+    ]
+    assert not (tmp_path / "cut" / "results.parquet").exists()
+    again = run_sweep(plan, tmp_path / "cut", cases_per_task=5, progress=False, plots=False)
+    assert (again.resumed, again.computed, again.tasks) == (14, 26, 6)
+    assert pq.read_table(again.results).equals(pq.read_table(whole.results))
+
+
+def test_a_folder_holding_another_sweep_is_refused_and_left_untouched(tmp_path):
+    run_sweep(_plan(**SMALL), tmp_path / "out", progress=False, plots=False)
+    before = {p: p.read_bytes() for p in (tmp_path / "out").rglob("*") if p.is_file()}
+    other = _plan(**{**SMALL, "seed": 1})
+    with pytest.raises(OutputError, match="holds a different sweep"):
+        run_sweep(other, tmp_path / "out", progress=False, plots=False)
+    assert {p: p.read_bytes() for p in (tmp_path / "out").rglob("*") if p.is_file()} == before
+    (tmp_path / "stuff").mkdir()
+    (tmp_path / "stuff" / "notes.txt").write_text("mine")
+    with pytest.raises(OutputError, match="is not a sweep's results folder"):
+        run_sweep(other, tmp_path / "stuff", progress=False, plots=False)
+
+
+def test_a_corrupted_part_is_named_and_never_read_as_results(tmp_path):
+    plan = _plan(**SMALL)
+    run_sweep(plan, tmp_path / "out", cases_per_task=10, progress=False, plots=False)
+    part = tmp_path / "out" / "parts" / "part-000000010.parquet"
+    part.write_bytes(part.read_bytes()[:200])
+    with pytest.raises(OutputError, match=r"part-000000010.parquet' is unreadable.*delete it and run again"):
+        run_sweep(plan, tmp_path / "out", progress=False, plots=False)
+    part.unlink()
+    again = run_sweep(plan, tmp_path / "out", progress=False, plots=False)
+    assert (again.resumed, again.computed) == (30, 10)
+
+
+def test_trajectories_go_to_a_chunked_zarr_store_equal_to_the_kernel(tmp_path):
+    import zarr
+
+    plan = _plan(**{**SMALL, "trajectories": True, "save_every": 5})
+    run_sweep(plan, tmp_path / "out", cases_per_task=9, progress=False, plots=False)
+    group = zarr.open_group(str(tmp_path / "out" / "trajectories.zarr"), mode="r")
+    phi, omega, t = group["phi_rad"], group["omega_rad_s"], group["t_s"][:]
+    assert phi.shape == omega.shape == (40, 61, 2) and phi.chunks[1:] == (61, 2)
+    np.testing.assert_allclose(t, np.arange(61) * 0.05)
+    table = plan.cases()
+    params, phi0, omega0 = plan.case_inputs(table, np.arange(40))
+    states = fast_planar.integrate(fast_planar.coefficients(params), phi0, omega0, 300, 0.01, save_every=5)
+    np.testing.assert_array_equal(phi[:], states[:, :2].transpose(2, 0, 1))
+    np.testing.assert_array_equal(omega[:], states[:, 2:4].transpose(2, 0, 1))
+
+
+def test_maps_are_drawn_for_one_and_two_inputs(tmp_path):
+    one = _plan(vary={"c1_n_m": [4.0, 6.0, 8.0]}, duration_s=3.0, features=["frequency", "poincare"])
+    line = run_sweep(one, tmp_path / "one", progress=False)
+    assert sorted(p.name for p in line.maps) == ["freq1_hz.png", "freq2_hz.png", "poincare_phi2_rad.png"]
+    two = _plan(vary={"c1_n_m": [4.0, 8.0], "phi1_deg": [10.0, 20.0, 30.0]}, duration_s=3.0, features=["energy"])
+    heat = run_sweep(two, tmp_path / "two", progress=False)
+    assert sorted(p.name for p in heat.maps) == ["dissipated_j.png", "energy_end_j.png", "energy_j.png"]
+    for path in (*line.maps, *heat.maps):
+        assert path.read_bytes().startswith(PNG_MAGIC) and path.stat().st_size > 5000
+
+
+# -- the command ----------------------------------------------------------------------------
+
+
+def test_the_sensitivity_of_the_phi1_frequency_at_30_deg_runs_from_one_command_and_ranks_parameters(tmp_path, capsys):
+    out = tmp_path / "sens"
+    assert main(["sweep", "--sensitivity", "--features", "frequency", "-o", str(out)]) == 0
+    text = capsys.readouterr().out
+    ranking = json.loads((out / "sensitivity.json").read_text())["features"]["freq1_hz"]["ranking"]
+    values = [abs(r["elasticity"]) for r in ranking if r["elasticity"] is not None]
+    assert values == sorted(values, reverse=True) and len(ranking) == len(SweepPlan(method="sensitivity").cases().names)
+    # M1 at 30 deg swings mostly as a pendulum of its own: its inertia, gravity moment and the
+    # coupling springs come first (f ~ sqrt(m g OC / J): elasticities near -1/2 and +1/2)
+    assert ranking[0]["parameter"] == "j1_kg_m2" and -0.55 < ranking[0]["elasticity"] < -0.45
+    assert {r["parameter"] for r in ranking[1:4]} == {"m1_kg", "oc1_m", "g_m_s2"}
+    lines = text.splitlines()
+    assert lines[0].startswith("sweep of 59 cases (sensitivity, fast engine, 30 s at 0.01 s) on serial")
+    assert (
+        "sensitivity of freq1_hz" in text
+        and lines[lines.index(next(x for x in lines if x.startswith("sensitivity of"))) + 1].split()[0] == "j1_kg_m2"
+    )
+    assert (out / "maps" / "sensitivity_freq1_hz.png").read_bytes().startswith(PNG_MAGIC)
+
+
+def test_a_definition_file_runs_and_a_second_run_resumes(tmp_path, capsys):
+    definition = tmp_path / "grid.toml"
+    definition.write_text(
+        'duration_s = 2.0\nfeatures = ["amplitude"]\n[vary]\nphi1_deg = {from = 10, to = 50, num = 5}\n'
+    )
+    out = tmp_path / "res"
+    assert main(["sweep", str(definition), "-o", str(out), "--no-plots"]) == 0
+    assert "computed 5 in" in capsys.readouterr().out
+    assert main(["sweep", str(definition), "-o", str(out), "--no-plots"]) == 0
+    text = capsys.readouterr().out
+    assert "computed 0 in" in text and "5 already done" in text
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        ([], "nothing to sweep: give a definition file, --vary NAME=SPEC"),
+        (["--vary", "spring=1:2:3"], "unknown input 'spring'"),
+        (["--vary", "c1_n_m=1:x:3"], "vary c1_n_m: not a number: 'x'"),
+        (["--vary", "c1_n_m"], "expected NAME=FROM:TO:NUM"),
+        (["--vary", "c1_n_m=1:2", "--features", "colour"], "unknown feature 'colour'"),
+        (["--vary", "c1_n_m=-5,1"], None),
+        (["--random", "5", "--vary", "c1_n_m=1,2"], "random and lhs need a range"),
+        (
+            ["--vary", "c1_n_m=1:2:3", "--engine", "mujoco", "--features", "lyapunov"],
+            "lyapunov feature needs the fast engine",
+        ),
+        (["--vary", "c1_n_m=1:2:3", "--workers", "0"], "argument --workers: must be an integer in [1, 1024]"),
+        (["--vary", "c1_n_m=1:2:3", "--workers", "2", "--scheduler", "tcp://127.0.0.1:1"], "not allowed with argument"),
+        (
+            ["--vary", "c1_n_m=5:7:3", "--scheduler", "tcp://127.0.0.1:9"],
+            "cannot reach the Dask scheduler at 'tcp://127.0.0.1:9'",
+        ),
+    ],
+)
+def test_bad_input_gives_one_line_exit_2_and_writes_nothing(tmp_path, capsys, monkeypatch, args, message):
+    monkeypatch.chdir(tmp_path)
+    assert main(["sweep", *args]) == 2
+    captured = capsys.readouterr()
+    lines = captured.err.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("pendsim: error: "), captured.err
+    if message is not None:
+        assert message in lines[0]
+    else:
+        assert "case 0: c1_n_m must be >= 0 N/m, got -5.0" in lines[0]
+    assert captured.out == "" and list(tmp_path.iterdir()) == []
+
+
+def test_a_definition_file_and_sweep_options_together_are_refused(tmp_path, capsys):
+    definition = tmp_path / "s.json"
+    definition.write_text(json.dumps({"vary": {"c1_n_m": [5.0]}}))
+    assert main(["sweep", str(definition), "--vary", "c2_n_m=1,2", "-o", str(tmp_path / "o")]) == 2
+    assert "give the sweep in" in capsys.readouterr().err and not (tmp_path / "o").exists()
+    definition.write_text("{not json")
+    assert main(["sweep", str(definition), "-o", str(tmp_path / "o")]) == 2
+    assert "is not valid JSON" in capsys.readouterr().err

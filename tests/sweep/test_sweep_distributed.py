@@ -1,0 +1,176 @@
+"""The Dask backend with real processes on loopback: a 10 000-case sweep run serially, on a
+LocalCluster of 2 workers started by ``pendsim sweep --workers 2``, and on a running cluster
+reached by its address with one worker process killed (SIGKILL) mid-sweep gives the same rows;
+the killed worker's task is retried, no case is written twice, and no process is left running,
+also when ``pendsim sweep --workers 2`` itself gets SIGTERM or SIGKILL."""
+
+import logging
+import os
+import signal
+import subprocess
+import sys
+import time
+
+import numpy as np
+import psutil
+import pyarrow as pa
+import pyarrow.parquet as pq
+import pytest
+from dask.distributed import Client, LocalCluster
+
+from pendsim_bridge.cli import main
+from pendsim_bridge.run.sweep import run_sweep
+from pendsim_mj.sweep.plan import SweepPlan
+
+FEATURES = ["frequency", "amplitude", "decay", "energy", "poincare", "lyapunov"]
+VARY = {
+    "c1_n_m": {"from": 3.0, "to": 9.0},
+    "phi1_deg": {"from": -80.0, "to": 80.0},
+    "phi2_deg": {"from": -30.0, "to": 30.0},
+}
+# short runs (1 s) keep 10 000 cases quick; 250 cases per task make 40 tasks
+PLAN = SweepPlan.from_mapping(
+    {"method": "random", "samples": 10_000, "seed": 7, "vary": VARY, "duration_s": 1.0, "features": FEATURES}
+)
+CASES_PER_TASK = 250
+
+
+def _children() -> set[int]:
+    """Processes below this one, but multiprocessing's resource tracker: the first spawned process
+    starts it and it lives as long as its parent (the subprocess tests below see it end too)."""
+    found = set()
+    for p in psutil.Process().children(recursive=True):
+        try:  # zombies (other tests' reaped-late orphans under the suite's subreaper) have no command line
+            if p.status() != psutil.STATUS_ZOMBIE and "multiprocessing.resource_tracker" not in " ".join(p.cmdline()):
+                found.add(p.pid)
+        except psutil.Error:
+            continue
+    return found
+
+
+def _tree(pid: int) -> set[int]:
+    return {pid} | {p.pid for p in psutil.Process(pid).children(recursive=True)}
+
+
+def _alive(pid: int) -> bool:
+    try:
+        return psutil.Process(pid).status() != psutil.STATUS_ZOMBIE
+    except psutil.Error:
+        return False
+
+
+def _all_gone(pids: set[int], timeout_s: float = 15.0) -> bool:
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        alive = [p for p in pids if _alive(p)]
+        if not alive:
+            return True
+        time.sleep(0.1)
+    return False
+
+
+@pytest.fixture(scope="module")
+def serial_rows(tmp_path_factory) -> pa.Table:
+    out = tmp_path_factory.mktemp("sweeps") / "serial"
+    summary = run_sweep(PLAN, out, cases_per_task=CASES_PER_TASK, progress=False, plots=False)
+    assert summary.backend == "serial" and summary.tasks == 40
+    return pq.read_table(summary.results)
+
+
+def _assert_same_rows(expected: pa.Table, got: pa.Table) -> None:
+    assert got.column_names == expected.column_names and got.num_rows == expected.num_rows == 10_000
+    np.testing.assert_array_equal(got.column("case_id").to_numpy(), np.arange(10_000))  # each case once
+    for name in expected.column_names:
+        a, b = expected.column(name), got.column(name)
+        if pa.types.is_list(a.type):
+            assert [len(x) for x in a.to_pylist()] == [len(x) for x in b.to_pylist()], name
+            a, b = pa.concat_arrays(a.chunks).flatten(), pa.concat_arrays(b.chunks).flatten()
+        a_np, b_np = a.to_numpy(zero_copy_only=False), b.to_numpy(zero_copy_only=False)
+        if a_np.dtype == bool:
+            np.testing.assert_array_equal(a_np, b_np, err_msg=name)
+        else:
+            np.testing.assert_allclose(b_np, a_np, rtol=0, atol=1e-12, equal_nan=True, err_msg=name)
+
+
+def test_pendsim_sweep_on_2_local_workers_gives_the_serial_rows_and_leaves_no_process(serial_rows, tmp_path, capsys):
+    before = _children()
+    args = ["sweep", "--random", "10000", "--seed", "7", "--duration-s", "1", "--features", ",".join(FEATURES)]
+    args += [f"--vary={name}={spec['from']}:{spec['to']}" for name, spec in VARY.items()]
+    args += ["--workers", "2", "--cases-per-task", str(CASES_PER_TASK), "--no-plots", "-o", str(tmp_path / "local")]
+    assert main(args) == 0
+    assert "on LocalCluster (2 workers): computed 10000" in capsys.readouterr().out
+    _assert_same_rows(serial_rows, pq.read_table(tmp_path / "local" / "results.parquet"))
+    assert _all_gone(_children() - before)
+
+
+def test_a_worker_killed_mid_sweep_loses_only_its_task_which_is_retried(serial_rows, tmp_path):
+    # a cluster started here and reached by its address (--scheduler); a worker process busy with
+    # a task is killed (SIGKILL) when the first task is in; its nanny starts a new one
+    before = _children()
+    killed: list[int] = []
+    with (
+        LocalCluster(
+            n_workers=2,
+            threads_per_worker=1,
+            processes=True,
+            host="127.0.0.1",
+            dashboard_address=None,
+            silence_logs=logging.ERROR,
+        ) as cluster,
+        Client(cluster) as client,
+    ):
+        pids = client.run(os.getpid)  # worker address -> process id
+
+        def kill_a_busy_worker(done: int) -> None:
+            if done != 1:
+                return
+            busy = [addr for addr, ws in list(cluster.scheduler.workers.items()) if ws.processing]
+            victim = pids[busy[0] if busy else next(iter(pids))]
+            os.kill(victim, signal.SIGKILL)
+            killed.append(victim)
+
+        summary = run_sweep(
+            PLAN,
+            tmp_path / "killed",
+            scheduler=cluster.scheduler_address,
+            cases_per_task=CASES_PER_TASK,
+            progress=False,
+            plots=False,
+            on_task_done=kill_a_busy_worker,
+        )
+        runs: dict[str, int] = {}
+        for entry in cluster.scheduler.transition_log:
+            if str(entry[0]).startswith("pendsim-sweep") and entry[2] == "processing":
+                runs[str(entry[0])] = runs.get(str(entry[0]), 0) + 1
+    assert len(killed) == 1 and _all_gone(set(killed))
+    assert len(runs) == 40 and max(runs.values()) >= 2  # the killed worker's task ran again elsewhere
+    assert summary.tasks == 40 and len(list((tmp_path / "killed" / "parts").iterdir())) == 40  # each written once
+    _assert_same_rows(serial_rows, pq.read_table(summary.results))
+    assert _all_gone(_children() - before)
+
+
+@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGKILL], ids=["SIGTERM", "SIGKILL"])
+def test_a_signal_to_pendsim_sweep_on_workers_leaves_no_process_running(tmp_path, sig):
+    # SIGTERM: the sweep stops cleanly (exit 130) and closes its cluster; SIGKILL cannot be
+    # caught, and the worker processes then notice that their parent is gone and exit
+    out = tmp_path / "out"
+    cmd = [sys.executable, "-m", "pendsim_bridge.cli", "sweep", "--random", "400", "--vary", "c1_n_m=4:8",
+           "--duration-s", "30", "--cases-per-task", "5", "--workers", "2", "--no-plots", "-o", str(out)]  # fmt: skip
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        deadline = time.monotonic() + 240  # the workers may compile the kernel first (a fresh clone)
+        while time.monotonic() < deadline and not list((out / "parts").glob("part-*.parquet")):
+            time.sleep(0.05)
+        assert list((out / "parts").glob("part-*.parquet")), "the sweep did not start"
+        started = _tree(proc.pid)
+        assert len(started) >= 3  # pendsim, its two workers (and multiprocessing's tracker)
+        proc.send_signal(sig)
+        _, err = proc.communicate(timeout=60)
+    finally:
+        proc.kill()
+        proc.wait()
+    if sig == signal.SIGTERM:
+        assert proc.returncode == 130 and "pendsim: interrupted" in err
+    else:
+        assert proc.returncode == -signal.SIGKILL
+    assert _all_gone(started, timeout_s=30), [p for p in started if psutil.pid_exists(p)]
