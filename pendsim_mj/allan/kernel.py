@@ -87,7 +87,7 @@ def warm_up() -> None:
     """Call every kernel once on a few samples, in the forms the Allan report uses (float32 and
     float64 data, C-ordered): numba's first call in a process loads its compiled code. A caller
     that must not lose Ctrl-C meanwhile holds interrupts back around this call
-    (``pendsim_bridge.signals.interrupts_deferred``: numba's callbacks would swallow them)."""
+    (the bridge's ``signals.interrupts_deferred``: numba's callbacks would swallow them)."""
     x = np.zeros((9, 6))
     running_sum_into(x, 0, np.zeros((8, 3), np.float32), np.zeros(3))
     running_sum_into(x, 3, np.zeros((8, 3)), np.zeros(3))
