@@ -1,8 +1,8 @@
 """CPU time and peak memory of damping identification (issue 16 target: identify on a 1 h
 recording at most 15 s CPU and 500 MB peak): the planar fit that ``pendsim identify`` runs now
 against the previous mujoco.sysid fit of b1, b2, on 120 s and 1 h recordings, in one run.
-Each measurement runs in a fresh interpreter (its own peak RSS, imports included); the
-recordings are made first (not timed). Old path at 1 h: minutes and over 1 GB (skip it with
+Each measurement runs in a fresh interpreter (its peak RSS includes the imports, its CPU time
+starts after them); the recordings are made first (not timed). Old path at 1 h: minutes and over 1 GB (skip it with
 --no-old-1h).
 
 Run: python bench/bench_identify.py [--no-old-1h]
