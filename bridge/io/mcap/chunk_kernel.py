@@ -2,7 +2,7 @@
 with ``compiled=True``; this module is imported only then: numba stays out of a process that
 does not ask for it).
 
-``index_messages`` does in one compiled pass what ``mcap_reader._messages_by_index`` does with
+``index_messages`` does in one compiled pass what ``extract._messages_by_index`` does with
 about 40 numpy calls per chunk (with the wanted channels' payloads gathered, a 6 h static
 recording's chunks of about 7200 messages took 0.5-0.6 ms each instead of 2.2-2.4 ms): it walks the chunk's
 records from the first message to the end, each of which must be a Message record inside the

@@ -1,10 +1,11 @@
 """The byte layouts of the MCAP records pendsim builds and parses in bulk, defined once for the
 writer and the reader (https://mcap.dev/spec), and bounded decompression.
 
-Every record is ``opcode (u8) | length (u64 LE) | body``. The layouts here are the ones handled
-with numpy or ``struct`` instead of ``mcap.records`` (messages, message indexes, chunk heads, the
-footer); the others (schema, channel, metadata, attachment, indexes, statistics) are framed and
-parsed with ``mcap.records``.
+Every record is ``opcode (u8) | length (u64 LE) | body`` (``record_frame`` finds one in a
+buffer). The layouts here are the ones handled with numpy or ``struct`` instead of
+``mcap.records`` (messages, message indexes, chunk heads, the footer); the others (schema,
+channel, metadata, attachment, indexes, statistics) are framed and parsed with ``mcap.records``
+(``parse_record``).
 """
 
 from __future__ import annotations
@@ -15,6 +16,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from mcap.data_stream import ReadDataStream
 from mcap.opcode import Opcode
 
 MCAP_MAGIC = b"\x89MCAP0\r\n"
@@ -69,6 +71,34 @@ SUMMARY_OPCODES = frozenset(
     }
 )
 
+
+def record_frame(buf: Any, size: int, at: int) -> tuple[int, int, int] | None:
+    """(opcode, body start, end) of the record at ``at`` in buf[:size], or None if it cannot fit."""
+    if at + RECORD_HEAD.size > size:
+        return None
+    opcode, length = RECORD_HEAD.unpack_from(buf, at)
+    end = at + RECORD_HEAD.size + length
+    if end > size:
+        return None
+    return opcode, at + RECORD_HEAD.size, end
+
+
+def parse_record(cls: Any, body: bytes | memoryview) -> Any:
+    """One record (an ``mcap.records`` class) from its body, which it must fill exactly.
+
+    Raises:
+      ValueError: the body is damaged, naming the record type.
+    """
+    stream = ReadDataStream(io.BytesIO(bytes(body)))
+    try:
+        record = cls.read(stream)
+    except Exception as exc:  # EndOfFile, struct.error, UnicodeDecodeError: damaged
+        raise ValueError(f"damaged {cls.__name__} record ({type(exc).__name__})") from None
+    if stream.count != len(body):
+        raise ValueError(f"damaged {cls.__name__} record (its fields fill {stream.count} of {len(body)} bytes)")
+    return record
+
+
 # Decompression limits: a chunk may not claim more than MAX_CHUNK_BYTES uncompressed, nor more
 # than MAX_RATIO times its compressed size once past RATIO_FREE_BYTES (zstd on IMU data reaches
 # 3-10x; a chunk of constant values about 100x; 1000x is a bomb). Output is read with a bound,
@@ -110,12 +140,12 @@ def decompress(compression: str, data: bytes | memoryview, uncompressed_size: in
             if one is not None:
                 raw = one
             else:  # several frames, or a frame that claims another size: read with a bound
-                import zstandard
+                import zstandard  # on first use: a process loads only the codecs its files need
 
                 with zstandard.ZstdDecompressor().stream_reader(io.BytesIO(data), read_across_frames=True) as r:
                     raw = _read_bounded(r, uncompressed_size + 1)
         elif compression == "lz4":
-            import lz4.frame
+            import lz4.frame  # on first use: a process loads only the codecs its files need
 
             raw = lz4.frame.LZ4FrameDecompressor().decompress(bytes(data), max_length=uncompressed_size + 1)
         else:
@@ -138,7 +168,7 @@ def _zstd_one_frame(data: bytes | memoryview, uncompressed_size: int) -> bytes |
     frames, another declared size, a damaged frame): the caller then reads the stream with a bound.
     The output never exceeds ``uncompressed_size``: the frame's declared size is checked first
     (zstd allocates what the frame declares), and a frame without one is capped."""
-    import zstandard
+    import zstandard  # on first use: a process loads only the codecs its files need
 
     try:
         declared = zstandard.frame_content_size(data)
@@ -166,11 +196,11 @@ def _read_bounded(reader: Any, limit: int) -> bytes:
 def compressor(name: str):
     """(Chunk.compression string, compress function or None) for an option name."""
     if name == "zstd":
-        import zstandard
+        import zstandard  # on first use: a process loads only the codecs its files need
 
         return "zstd", zstandard.ZstdCompressor(level=3).compress
     if name == "lz4":
-        import lz4.frame
+        import lz4.frame  # on first use: a process loads only the codecs its files need
 
         return "lz4", lz4.frame.compress
     if name == "none":
