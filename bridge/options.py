@@ -19,7 +19,7 @@ from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import NoReturn
 
-from pendsim_mj.engines.dispatch import ENGINES
+from pendsim_mj.engines.dispatch import ENGINE_NAMES
 from pendsim_mj.errors import ParameterError
 from pendsim_mj.rig import drives
 from pendsim_mj.rig.params import DEFAULT_PARAMS, PARAMETER_LIMITS, RigParams
@@ -219,8 +219,8 @@ def add_run_options(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument(
         "--engine",
-        type=choice(ENGINES, "unknown engine {value!r}; allowed: {allowed}"),
-        choices=ENGINES,
+        type=choice(ENGINE_NAMES, "unknown engine {value!r}; allowed: {allowed}"),
+        choices=ENGINE_NAMES,
         default="mujoco",
         help="mujoco (the MJCF model), reference (planar Newtonian RK4) or fast (the same planar equations, "
         "compiled); default mujoco",

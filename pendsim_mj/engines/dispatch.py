@@ -3,28 +3,69 @@
 The MuJoCo model (``pendsim_mj.engines.simulation``), the independent planar reference
 (``pendsim_mj.engines.reference``) and the compiled planar kernel (``pendsim_mj.engines.fast_planar``, the
 reference's equations in closed form, many times faster) take the same arguments and return the
-same ``Trajectory``; this module picks one by name, importing MuJoCo only when it is asked for.
+same ``Trajectory`` (the ``Engine`` protocol); ``ENGINES`` names them, and this module picks one
+by name, importing MuJoCo (or numba) only when it is asked for.
 """
 
 from __future__ import annotations
 
+import functools
 import math
-from collections.abc import Iterator, Sequence
-from typing import Literal
+from collections.abc import Iterator, Mapping, Sequence
+from typing import get_args
 
 from numpy.typing import ArrayLike
 
+from pendsim_mj.engines.protocol import Engine, EngineName
 from pendsim_mj.engines.trajectory import Trajectory
 from pendsim_mj.errors import ParameterError
 from pendsim_mj.rig.drives import Drive
 from pendsim_mj.rig.params import RigParams
 
-Engine = Literal["mujoco", "reference", "fast"]
-ENGINES: tuple[Engine, ...] = ("mujoco", "reference", "fast")
-FAST_PATH: dict[str, Engine] = {"reference": "fast"}
+ENGINE_NAMES: tuple[EngineName, ...] = get_args(EngineName)
+"""("mujoco", "reference", "fast"): the engines' names in the order the command line lists them."""
+FAST_PATH: dict[str, EngineName] = {"reference": "fast"}
 """The engine that computes an engine's runs where they must be fast (one or two members, long
 runs): the planar reference's on its compiled kernel ``fast_planar``, the same equations, tested
 equal to it to 1e-12 rad (``reference`` stays the paper-faithful check the tests use)."""
+_PLANAR = {"reference": "the reference is planar", "fast": "the fast engine is planar"}
+
+
+class _Engines(Mapping[str, Engine]):
+    """Each engine's batch entry point by name; its module is imported on the first lookup, so that
+    the names (and ``in``) cost no import of MuJoCo or numba (seconds at start-up)."""
+
+    def __getitem__(self, name: str) -> Engine:
+        if name == "mujoco":
+            from pendsim_mj.engines.simulation import simulate_batch
+
+            return simulate_batch
+        if name == "reference":
+            from pendsim_mj.engines.reference import solve_batch
+
+            return solve_batch
+        if name == "fast":
+            from pendsim_mj.engines.fast_planar import solve_batch as solve_fast
+
+            return solve_fast
+        raise KeyError(name)
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(ENGINE_NAMES)
+
+    def __len__(self) -> int:
+        return len(ENGINE_NAMES)
+
+    def __contains__(self, name: object) -> bool:
+        return name in ENGINE_NAMES
+
+    def __repr__(self) -> str:
+        return f"ENGINES{ENGINE_NAMES}"
+
+
+ENGINES: Mapping[str, Engine] = _Engines()
+"""``ENGINE_NAMES`` -> the engine's batch entry point (``simulation.simulate_batch``,
+``reference.solve_batch``, ``fast_planar.solve_batch``), each an ``Engine``."""
 
 
 def run_batch(
@@ -38,7 +79,7 @@ def run_batch(
     spatial: bool = False,
     drive: Drive | None = None,
 ) -> Trajectory:
-    """A batch of runs on the named engine; arguments as ``simulation.simulate_batch``.
+    """A batch of runs on the named engine; arguments as ``Engine`` (``simulation.simulate_batch``).
 
     Args:
       engine: "mujoco", "reference" or "fast".
@@ -48,25 +89,7 @@ def run_batch(
     Raises:
       ParameterError: an unknown engine, or the spatial variant asked of the reference.
     """
-    if engine == "mujoco":
-        from pendsim_mj.engines.simulation import simulate_batch
-        from pendsim_mj.rig.model import PLANAR, SPATIAL
-
-        variant = SPATIAL if spatial else PLANAR
-        return simulate_batch(params, phi0_rad, omega0_rad_s, duration_s, dt_s, variant=variant, drive=drive)
-    if engine == "reference":
-        if spatial:
-            raise ParameterError("the spatial model runs in MuJoCo only; the reference is planar")
-        from pendsim_mj.engines.reference import solve_batch
-
-        return solve_batch(params, phi0_rad, omega0_rad_s, duration_s, dt_s, drive=drive)
-    if engine == "fast":
-        if spatial:
-            raise ParameterError("the spatial model runs in MuJoCo only; the fast engine is planar")
-        from pendsim_mj.engines import fast_planar
-
-        return fast_planar.solve_batch(params, phi0_rad, omega0_rad_s, duration_s, dt_s, drive=drive)
-    raise ParameterError(f"unknown engine {engine!r}; allowed: {', '.join(ENGINES)}")
+    return _engine(engine, spatial)(params, phi0_rad, omega0_rad_s, duration_s, dt_s, drive=drive)
 
 
 def run(
@@ -101,6 +124,7 @@ def run_blocks(
     blocks share their boundary row (``simulation.simulate_blocks``). A driven run on the
     reference engine is solved whole and then cut (its support motion is integrated from the
     start), so its memory grows with the duration; so does a driven run on the fast engine."""
+    _check_engine(engine, spatial)
     if engine == "mujoco":
         from pendsim_mj.engines.simulation import simulate_blocks
         from pendsim_mj.rig.model import PLANAR, SPATIAL
@@ -109,24 +133,32 @@ def run_blocks(
         return simulate_blocks(
             params, phi0_rad, omega0_rad_s, duration_s, dt_s, block_steps=block_steps, variant=variant, drive=drive
         )
+    if drive is not None:
+        return _cut(run(engine, params, phi0_rad, omega0_rad_s, duration_s, dt_s, drive=drive), block_steps)
     if engine == "reference":
-        if spatial:
-            raise ParameterError("the spatial model runs in MuJoCo only; the reference is planar")
-        if drive is not None:
-            whole = run(engine, params, phi0_rad, omega0_rad_s, duration_s, dt_s, drive=drive)
-            return _cut(whole, block_steps)
         from pendsim_mj.engines.reference import solve_blocks
+    else:
+        from pendsim_mj.engines.fast_planar import solve_blocks
+    return solve_blocks(params, phi0_rad, omega0_rad_s, duration_s, dt_s, block_steps=block_steps)
 
-        return solve_blocks(params, phi0_rad, omega0_rad_s, duration_s, dt_s, block_steps=block_steps)
-    if engine == "fast":
-        if spatial:
-            raise ParameterError("the spatial model runs in MuJoCo only; the fast engine is planar")
-        if drive is not None:
-            return _cut(run(engine, params, phi0_rad, omega0_rad_s, duration_s, dt_s, drive=drive), block_steps)
-        from pendsim_mj.engines import fast_planar
 
-        return fast_planar.solve_blocks(params, phi0_rad, omega0_rad_s, duration_s, dt_s, block_steps=block_steps)
-    raise ParameterError(f"unknown engine {engine!r}; allowed: {', '.join(ENGINES)}")
+def _check_engine(engine: str, spatial: bool) -> None:
+    """ParameterError for a name not in ``ENGINES``, or the spatial variant of a planar engine."""
+    if engine not in ENGINES:
+        raise ParameterError(f"unknown engine {engine!r}; allowed: {', '.join(ENGINES)}")
+    if spatial and engine in _PLANAR:
+        raise ParameterError(f"the spatial model runs in MuJoCo only; {_PLANAR[engine]}")
+
+
+def _engine(engine: str, spatial: bool) -> Engine:
+    """The named engine, checked (``_check_engine``); MuJoCo's spatial variant where ``spatial``."""
+    _check_engine(engine, spatial)
+    if spatial:
+        from pendsim_mj.engines.simulation import simulate_batch
+        from pendsim_mj.rig.model import SPATIAL
+
+        return functools.partial(simulate_batch, variant=SPATIAL)
+    return ENGINES[engine]
 
 
 def _cut(traj: Trajectory, block_steps: int) -> Iterator[tuple[int, Trajectory]]:
