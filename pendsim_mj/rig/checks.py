@@ -119,7 +119,8 @@ def energy_grew(total_energy_j: np.ndarray, energy_scale_j: np.ndarray) -> np.nd
     e0 = total_energy_j[:, 0]
     growth = np.max(total_energy_j, axis=1) - e0
     limit = ENERGY_GROWTH_LIMIT * (np.abs(e0) + energy_scale_j)
-    return ~(growth <= limit)  # also catches NaN
+    grew: np.ndarray = ~(growth <= limit)  # also catches NaN
+    return grew
 
 
 def check_energy_bounded(total_energy_j: np.ndarray, energy_scale_j: np.ndarray, dt_s: float) -> None:

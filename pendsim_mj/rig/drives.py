@@ -209,7 +209,9 @@ class Drive:
         return tuple(t for t in Target if getattr(self, t.value) is not None)
 
     def signal(self, target: Target) -> Signal | None:
-        return getattr(self, target.value)
+        """The signal driving ``target``, None where it is not driven."""
+        signal: Signal | None = getattr(self, target.value)
+        return signal
 
     def __bool__(self) -> bool:
         return bool(self.targets)
@@ -242,7 +244,7 @@ def phase_rad(signal: Sine | SteppedSine | Chirp, t_s: ArrayLike) -> NDArray[np.
       Chirp, linear: 2 pi (f0 t + (f1 - f0) t^2 / (2 D)) for t <= D, then + 2 pi f1 (t - D).
       Chirp, log: 2 pi f0 D (r^(t/D) - 1) / ln r with r = f1/f0, for t <= D, then + 2 pi f1 (t - D).
     """
-    t = np.asarray(t_s, dtype=float)
+    t = np.asarray(t_s, dtype=np.float64)
     two_pi = 2.0 * math.pi
     if isinstance(signal, Sine):
         return two_pi * signal.frequency_hz * t + signal.phase_rad
@@ -251,7 +253,8 @@ def phase_rad(signal: Sine | SteppedSine | Chirp, t_s: ArrayLike) -> NDArray[np.
         dwell = signal.dwell_s
         j = np.clip(np.floor(t / dwell).astype(int), 0, len(f) - 1)
         done = np.concatenate([[0.0], np.cumsum(f * dwell)])  # cycles completed before dwell j
-        return two_pi * (done[j] + f[j] * (t - j * dwell))
+        stepped: NDArray[np.float64] = two_pi * (done[j] + f[j] * (t - j * dwell))
+        return stepped
     if isinstance(signal, Chirp):
         f0, f1, d = signal.f0_hz, signal.f1_hz, signal.duration_s
         tc = np.minimum(t, d)
@@ -266,12 +269,13 @@ def phase_rad(signal: Sine | SteppedSine | Chirp, t_s: ArrayLike) -> NDArray[np.
 
 def frequency_hz(signal: Sine | SteppedSine | Chirp, t_s: ArrayLike) -> NDArray[np.float64]:
     """Instantaneous frequency d theta / dt / (2 pi) of a sinusoidal signal, Hz; shape of t_s."""
-    t = np.asarray(t_s, dtype=float)
+    t = np.asarray(t_s, dtype=np.float64)
     if isinstance(signal, Sine):
         return np.full(t.shape, signal.frequency_hz)
     if isinstance(signal, SteppedSine):
         f = np.asarray(signal.frequencies_hz)
-        return f[np.clip(np.floor(t / signal.dwell_s).astype(int), 0, len(f) - 1)]
+        current: NDArray[np.float64] = f[np.clip(np.floor(t / signal.dwell_s).astype(int), 0, len(f) - 1)]
+        return current
     if isinstance(signal, Chirp):
         f0, f1, d = signal.f0_hz, signal.f1_hz, signal.duration_s
         x = np.clip(t / d, 0.0, 1.0)
@@ -344,7 +348,8 @@ def support_initial_velocity(held_accel_m_s2: NDArray[np.float64], dt_s: float) 
     v_rel = np.concatenate(
         [np.zeros_like(held_accel_m_s2[..., :1, :]), np.cumsum(held_accel_m_s2, axis=-2) * dt_s], axis=-2
     )
-    return -np.mean(v_rel, axis=-2)
+    v0: NDArray[np.float64] = -np.mean(v_rel, axis=-2)
+    return v0
 
 
 def support_motion(

@@ -74,7 +74,7 @@ def log_decrement_b(j_kg_m2: float, decay_ratio: float, window_s: float) -> floa
 FRICTION_SMOOTHING_RAD_S = 0.01
 
 
-def friction_direction(omega_rad_s):
+def friction_direction(omega_rad_s: NDArray[np.float64]) -> NDArray[np.float64]:
     """omega / sqrt(omega^2 + w_s^2): the smoothed sign(omega) of the dry-friction law (any shape)."""
     return omega_rad_s / np.sqrt(omega_rad_s * omega_rad_s + FRICTION_SMOOTHING_RAD_S * FRICTION_SMOOTHING_RAD_S)
 
