@@ -13,8 +13,9 @@ uses which.
   P + 1 reduced ones built from the compiled kernel's normal equations (no n x P Jacobian), with
   per-kind scales and a stop on the BIC's resolution; no other fit poses that problem.
 
-Linear least squares (the swing frame's mounting, M2's sign) is ``np.linalg.lstsq`` where it is
-used.
+Linear least squares is numpy's where it is used (``np.linalg.lstsq``: the swing frame's
+mounting, M2's sign; ``np.polyfit``: decay rates, the timing probes' parabola): one call each,
+nothing to share.
 
 Why the start fit does not go through ``mujoco.minimize.least_squares`` (which the issue that
 split this room expected to replace it): measured with the same residuals and the same batched
