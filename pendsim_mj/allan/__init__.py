@@ -10,13 +10,28 @@ Modules and their jobs:
 - ``kernel``: the deviations' sums compiled by numba (imported only when they run).
 
 Importing this package imports none of them (no numba, scipy or allantools): each name below is
-imported from its module on first use.
+imported from its module on first use (``pendsim_mj.lazy``).
 """
 
 from __future__ import annotations
 
-import importlib
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
+
+from pendsim_mj import lazy
+
+_LAZY = {
+    "AllanCurve": "pendsim_mj.allan.deviation",
+    "Motion": "pendsim_mj.allan.deviation",
+    "NoiseTerms": "pendsim_mj.allan.deviation",
+    "SamplingReport": "pendsim_mj.allan.deviation",
+    "allan_curves": "pendsim_mj.allan.deviation",
+    "check_sampling": "pendsim_mj.allan.deviation",
+    "gyro_motion": "pendsim_mj.allan.deviation",
+    "longest_uniform_segment": "pendsim_mj.allan.deviation",
+    "noise_terms": "pendsim_mj.allan.deviation",
+    "overlapping_adev": "pendsim_mj.allan.deviation",
+    "tau_grid": "pendsim_mj.allan.deviation",
+}
 
 if TYPE_CHECKING:
     from pendsim_mj.allan.deviation import (
@@ -32,20 +47,8 @@ if TYPE_CHECKING:
         overlapping_adev,
         tau_grid,
     )
-
-_HOME = {
-    "AllanCurve": "deviation",
-    "Motion": "deviation",
-    "NoiseTerms": "deviation",
-    "SamplingReport": "deviation",
-    "allan_curves": "deviation",
-    "check_sampling": "deviation",
-    "gyro_motion": "deviation",
-    "longest_uniform_segment": "deviation",
-    "noise_terms": "deviation",
-    "overlapping_adev": "deviation",
-    "tau_grid": "deviation",
-}
+else:
+    __getattr__, __dir__ = lazy.exports(__name__, _LAZY)
 
 __all__ = [
     "AllanCurve",
@@ -60,16 +63,3 @@ __all__ = [
     "overlapping_adev",
     "tau_grid",
 ]
-
-
-def __getattr__(name: str) -> Any:
-    """A public name, imported from its module on first use (PEP 562) and kept here."""
-    if name not in _HOME:
-        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-    value = getattr(importlib.import_module(f"{__name__}.{_HOME[name]}"), name)
-    globals()[name] = value
-    return value
-
-
-def __dir__() -> list[str]:
-    return sorted({*globals(), *__all__})

@@ -24,13 +24,54 @@ Modules and their jobs:
 - ``least_squares``: the room's nonlinear least-squares solvers and which fit uses which.
 
 Importing this package imports none of them (no MuJoCo, numba or scipy): each name below is
-imported from its module on first use.
+imported from its module on first use (``pendsim_mj.lazy``).
 """
 
 from __future__ import annotations
 
-import importlib
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
+
+from pendsim_mj import lazy
+
+_LAZY = {
+    "MeasuredRun": "pendsim_mj.estimation.alignment",
+    "NodeRun": "pendsim_mj.estimation.alignment",
+    "NodeSamples": "pendsim_mj.estimation.alignment",
+    "StartState": "pendsim_mj.estimation.alignment",
+    "align": "pendsim_mj.estimation.alignment",
+    "Beat": "pendsim_mj.estimation.analysis",
+    "RunSummary": "pendsim_mj.estimation.analysis",
+    "beat": "pendsim_mj.estimation.analysis",
+    "log_decrement_damping": "pendsim_mj.estimation.analysis",
+    "peak_amplitudes": "pendsim_mj.estimation.analysis",
+    "spectral_peak_hz": "pendsim_mj.estimation.analysis",
+    "summarize": "pendsim_mj.estimation.analysis",
+    "zero_crossing_hz": "pendsim_mj.estimation.analysis",
+    "Comparison3D": "pendsim_mj.estimation.comparison",
+    "compare_planar_spatial": "pendsim_mj.estimation.comparison",
+    "DampingFit": "pendsim_mj.estimation.identification",
+    "LogDecrement": "pendsim_mj.estimation.identification",
+    "ModalDecrement": "pendsim_mj.estimation.identification",
+    "fit_damping": "pendsim_mj.estimation.identification",
+    "log_decrement": "pendsim_mj.estimation.identification",
+    "modal_decrement": "pendsim_mj.estimation.identification",
+    "planar_damping": "pendsim_mj.estimation.identification",
+    "LawFit": "pendsim_mj.estimation.planar_fit",
+    "fit_planar": "pendsim_mj.estimation.planar_fit",
+    "QUANTITIES": "pendsim_mj.estimation.quantities",
+    "VALIDATED": "pendsim_mj.estimation.quantities",
+    "Quantity": "pendsim_mj.estimation.quantities",
+    "TiltFit": "pendsim_mj.estimation.spatial_identification",
+    "fit_tilt": "pendsim_mj.estimation.spatial_identification",
+    "SwingFrame": "pendsim_mj.estimation.swing_frame",
+    "fit_swing_frame": "pendsim_mj.estimation.swing_frame",
+    "DEFAULT_MAX_GAP_S": "pendsim_mj.estimation.timing",
+    "ClockRelation": "pendsim_mj.estimation.timing",
+    "Coverage": "pendsim_mj.estimation.timing",
+    "Comparison": "pendsim_mj.estimation.validation",
+    "compare": "pendsim_mj.estimation.validation",
+    "resample": "pendsim_mj.estimation.validation",
+}
 
 if TYPE_CHECKING:
     from pendsim_mj.estimation.alignment import MeasuredRun, NodeRun, NodeSamples, StartState, align
@@ -60,46 +101,8 @@ if TYPE_CHECKING:
     from pendsim_mj.estimation.swing_frame import SwingFrame, fit_swing_frame
     from pendsim_mj.estimation.timing import DEFAULT_MAX_GAP_S, ClockRelation, Coverage
     from pendsim_mj.estimation.validation import Comparison, compare, resample
-
-_HOME = {
-    "MeasuredRun": "alignment",
-    "NodeRun": "alignment",
-    "NodeSamples": "alignment",
-    "StartState": "alignment",
-    "align": "alignment",
-    "Beat": "analysis",
-    "RunSummary": "analysis",
-    "beat": "analysis",
-    "log_decrement_damping": "analysis",
-    "peak_amplitudes": "analysis",
-    "spectral_peak_hz": "analysis",
-    "summarize": "analysis",
-    "zero_crossing_hz": "analysis",
-    "Comparison3D": "comparison",
-    "compare_planar_spatial": "comparison",
-    "DampingFit": "identification",
-    "LogDecrement": "identification",
-    "ModalDecrement": "identification",
-    "fit_damping": "identification",
-    "log_decrement": "identification",
-    "modal_decrement": "identification",
-    "planar_damping": "identification",
-    "LawFit": "planar_fit",
-    "fit_planar": "planar_fit",
-    "QUANTITIES": "quantities",
-    "VALIDATED": "quantities",
-    "Quantity": "quantities",
-    "TiltFit": "spatial_identification",
-    "fit_tilt": "spatial_identification",
-    "SwingFrame": "swing_frame",
-    "fit_swing_frame": "swing_frame",
-    "DEFAULT_MAX_GAP_S": "timing",
-    "ClockRelation": "timing",
-    "Coverage": "timing",
-    "Comparison": "validation",
-    "compare": "validation",
-    "resample": "validation",
-}
+else:
+    __getattr__, __dir__ = lazy.exports(__name__, _LAZY)
 
 __all__ = [
     "DEFAULT_MAX_GAP_S",
@@ -140,16 +143,3 @@ __all__ = [
     "summarize",
     "zero_crossing_hz",
 ]
-
-
-def __getattr__(name: str) -> Any:
-    """A public name, imported from its module on first use (PEP 562) and kept here."""
-    if name not in _HOME:
-        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-    value = getattr(importlib.import_module(f"{__name__}.{_HOME[name]}"), name)
-    globals()[name] = value
-    return value
-
-
-def __dir__() -> list[str]:
-    return sorted({*globals(), *__all__})

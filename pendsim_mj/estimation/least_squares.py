@@ -42,6 +42,7 @@ from __future__ import annotations
 import io
 import math
 from collections.abc import Callable
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -89,7 +90,9 @@ def gauss_newton(
     return x
 
 
-def sysid_least_squares(sysid, parameters, residual_fn) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
+def sysid_least_squares(
+    sysid: Any, parameters: Any, residual_fn: Callable[..., Any]
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
     """Minimise a ``sysid.build_residual_fn`` residual over ``parameters`` with MuJoCo's
     ``minimize.least_squares`` called directly, as ``sysid.optimize`` would, but with its
     per-iteration printout sent to a buffer through the optimiser's ``output`` argument
@@ -98,6 +101,11 @@ def sysid_least_squares(sysid, parameters, residual_fn) -> tuple[np.ndarray, np.
 
     xtol: stop when the relative step is below 1e-5 (b to 0.001 %, under its CI); a tenfold
     mu_factor: at the noise floor the Armijo search gives up in ~14 rollouts, not ~140.
+
+    Args:
+      sysid: the ``mujoco.sysid`` module (its caller imports it).
+      parameters: a ``sysid.ParameterDict`` (bounds, first values).
+      residual_fn: what ``sysid.build_residual_fn`` returns.
 
     Returns (x, final residuals, covariance from ``sysid.calculate_intervals`` at the optimum,
     iterations).

@@ -12,13 +12,27 @@ Modules and their jobs:
 
 Importing this package imports none of them (``engines.trajectory`` imports ``rotations``, and
 ``bno055`` imports ``engines.trajectory``): each name below is imported from its module on first
-use. None imports MuJoCo.
+use (``pendsim_mj.lazy``). None imports MuJoCo.
 """
 
 from __future__ import annotations
 
-import importlib
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
+
+from pendsim_mj import lazy
+
+_LAZY = {
+    "MIN_MOTION_RAD_S": "pendsim_mj.sensors.bno055",
+    "Bno055": "pendsim_mj.sensors.bno055",
+    "ImuNoise": "pendsim_mj.sensors.bno055",
+    "ImuSampler": "pendsim_mj.sensors.bno055",
+    "ImuSamples": "pendsim_mj.sensors.bno055",
+    "sample_imu": "pendsim_mj.sensors.bno055",
+    "static_imu": "pendsim_mj.sensors.bno055",
+    "Imperfections": "pendsim_mj.sensors.imperfections",
+    "axis_remap_matrix": "pendsim_mj.sensors.imperfections",
+    "random_mount": "pendsim_mj.sensors.imperfections",
+}
 
 if TYPE_CHECKING:
     from pendsim_mj.sensors.bno055 import (
@@ -31,19 +45,8 @@ if TYPE_CHECKING:
         static_imu,
     )
     from pendsim_mj.sensors.imperfections import Imperfections, axis_remap_matrix, random_mount
-
-_HOME = {
-    "MIN_MOTION_RAD_S": "bno055",
-    "Bno055": "bno055",
-    "ImuNoise": "bno055",
-    "ImuSampler": "bno055",
-    "ImuSamples": "bno055",
-    "sample_imu": "bno055",
-    "static_imu": "bno055",
-    "Imperfections": "imperfections",
-    "axis_remap_matrix": "imperfections",
-    "random_mount": "imperfections",
-}
+else:
+    __getattr__, __dir__ = lazy.exports(__name__, _LAZY)
 
 __all__ = [
     "MIN_MOTION_RAD_S",
@@ -57,16 +60,3 @@ __all__ = [
     "sample_imu",
     "static_imu",
 ]
-
-
-def __getattr__(name: str) -> Any:
-    """A public name, imported from its module on first use (PEP 562) and kept here."""
-    if name not in _HOME:
-        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-    value = getattr(importlib.import_module(f"{__name__}.{_HOME[name]}"), name)
-    globals()[name] = value
-    return value
-
-
-def __dir__() -> list[str]:
-    return sorted({*globals(), *__all__})

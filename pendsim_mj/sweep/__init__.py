@@ -13,31 +13,34 @@ Modules and their jobs:
   ``FEATURE_GROUPS``), whichever engine ran them.
 
 Importing this package imports none of them (``run`` imports the compiled kernel, numba): each
-name below is imported from its module on first use.
+name below is imported from its module on first use (``pendsim_mj.lazy``).
 """
 
 from __future__ import annotations
 
-import importlib
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
+
+from pendsim_mj import lazy
+
+_LAZY = {
+    "FEATURE_GROUPS": "pendsim_mj.sweep.features",
+    "Features": "pendsim_mj.sweep.features",
+    "Axis": "pendsim_mj.sweep.plan",
+    "CaseTable": "pendsim_mj.sweep.plan",
+    "SweepPlan": "pendsim_mj.sweep.plan",
+    "elasticities": "pendsim_mj.sweep.plan",
+    "parse_vary": "pendsim_mj.sweep.plan",
+    "read_cases_csv": "pendsim_mj.sweep.plan",
+    "TaskResult": "pendsim_mj.sweep.run",
+    "run_task": "pendsim_mj.sweep.run",
+}
 
 if TYPE_CHECKING:
     from pendsim_mj.sweep.features import FEATURE_GROUPS, Features
     from pendsim_mj.sweep.plan import Axis, CaseTable, SweepPlan, elasticities, parse_vary, read_cases_csv
     from pendsim_mj.sweep.run import TaskResult, run_task
-
-_HOME = {
-    "FEATURE_GROUPS": "features",
-    "Features": "features",
-    "Axis": "plan",
-    "CaseTable": "plan",
-    "SweepPlan": "plan",
-    "elasticities": "plan",
-    "parse_vary": "plan",
-    "read_cases_csv": "plan",
-    "TaskResult": "run",
-    "run_task": "run",
-}
+else:
+    __getattr__, __dir__ = lazy.exports(__name__, _LAZY)
 
 __all__ = [
     "FEATURE_GROUPS",
@@ -51,16 +54,3 @@ __all__ = [
     "read_cases_csv",
     "run_task",
 ]
-
-
-def __getattr__(name: str) -> Any:
-    """A public name, imported from its module on first use (PEP 562) and kept here."""
-    if name not in _HOME:
-        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-    value = getattr(importlib.import_module(f"{__name__}.{_HOME[name]}"), name)
-    globals()[name] = value
-    return value
-
-
-def __dir__() -> list[str]:
-    return sorted({*globals(), *__all__})

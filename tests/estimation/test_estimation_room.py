@@ -1,8 +1,9 @@
 """The estimation room's facade, ``pendsim_mj.estimation`` (alignment, validation metrics,
-identification and fits): each exported name is its module's own object, the docstring names
-every module of the room, and importing the room imports neither MuJoCo, numba nor scipy (each
-name is imported on first use)."""
+identification and fits): each exported name is its module's own object and what mypy sees, the
+docstring names every module of the room, and importing the room imports neither MuJoCo, numba
+nor scipy (each name is imported on first use)."""
 
+import ast
 import importlib
 import subprocess
 import sys
@@ -17,15 +18,24 @@ HEAVY = ("mujoco", "numba", "scipy")
 
 def test_every_exported_name_is_its_modules_own_object():
     assert len(set(room.__all__)) == len(room.__all__)
+    assert set(room.__all__) == set(room._LAZY)
     for name in room.__all__:
-        home = importlib.import_module(f"pendsim_mj.estimation.{room._HOME[name]}")
-        assert getattr(room, name) is getattr(home, name), name
+        assert getattr(room, name) is getattr(importlib.import_module(room._LAZY[name]), name), name
     assert set(room.__all__) <= set(dir(room))
+    with pytest.raises(AttributeError, match="has no attribute 'no_such_name'"):
+        room.no_such_name  # noqa: B018
 
 
-def test_an_unknown_name_is_an_attribute_error_naming_it():
-    with pytest.raises(AttributeError, match="no_such_name"):
-        _ = room.no_such_name
+def test_what_mypy_sees_is_what_the_facade_gives():
+    tree = ast.parse(Path(room.__file__).read_text())
+    typing_block = next(n for n in tree.body if isinstance(n, ast.If) and ast.unparse(n.test) == "TYPE_CHECKING")
+    seen = {
+        alias.name: node.module
+        for node in typing_block.body
+        if isinstance(node, ast.ImportFrom)
+        for alias in node.names
+    }
+    assert seen == room._LAZY
 
 
 def test_the_docstring_names_every_module_of_the_room():
