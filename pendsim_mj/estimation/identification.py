@@ -24,7 +24,6 @@ the spatial model: ``fit_damping``).
 from __future__ import annotations
 
 import dataclasses
-import io
 import math
 import time
 from collections.abc import Sequence
@@ -35,6 +34,7 @@ import numpy as np
 
 from pendsim_mj.errors import ParameterError
 from pendsim_mj.estimation.analysis import log_decrement_damping
+from pendsim_mj.estimation.least_squares import sysid_least_squares
 from pendsim_mj.rig.drives import Drive
 from pendsim_mj.rig.model import HINGES, build_spec
 from pendsim_mj.rig.params import PARAMETER_LIMITS, RigParams
@@ -202,38 +202,6 @@ def fit_damping(
         _sysid(), params, phi0_rad, t_s, gyro_z_rad_s, gyro_sigma_rad_s, fusion_rate_hz, start_b_n_m_s, max_b_n_m_s,
         omega0_rad_s,
     )  # fmt: skip
-
-
-def sysid_least_squares(sysid, parameters, residual_fn) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
-    """Minimise a ``sysid.build_residual_fn`` residual over ``parameters`` with MuJoCo's
-    ``minimize.least_squares`` called directly, as ``sysid.optimize`` would, but with its
-    per-iteration printout sent to a buffer through the optimiser's ``output`` argument
-    (``sysid.optimize`` cannot pass the backend's ``verbose``: its own argument takes the name).
-    Full verbosity is what makes the optimiser keep the Jacobian at the optimum in its log.
-
-    xtol: stop when the relative step is below 1e-5 (b to 0.001 %, under its CI); a tenfold
-    mu_factor: at the noise floor the Armijo search gives up in ~14 rollouts, not ~140.
-
-    Returns (x, final residuals, covariance from ``sysid.calculate_intervals`` at the optimum,
-    iterations).
-    """
-    from mujoco import minimize
-
-    fitted = parameters.copy()
-    x, log = minimize.least_squares(
-        x0=parameters.as_vector(),
-        residual=lambda x: np.concatenate(residual_fn(x, fitted)[0]),
-        bounds=parameters.get_bounds(),
-        verbose=minimize.Verbosity.FULLITER,
-        output=io.StringIO(),
-        max_iter=200,
-        xtol=1e-5,
-        mu_factor=10.0,
-    )
-    fitted.update_from_vector(x)
-    final = np.concatenate(residual_fn(x, fitted)[0])
-    covariance, _ = sysid.calculate_intervals([final], log[-1].jacobian, alpha=0.05)
-    return np.asarray(x, dtype=float), final, np.asarray(covariance), len(log) - 1  # the last entry: the end point
 
 
 def sensors_only(spec: mujoco.MjSpec, names: tuple[str, ...]) -> mujoco.MjSpec:

@@ -51,7 +51,8 @@ import mujoco
 import numpy as np
 
 from pendsim_mj.errors import ParameterError
-from pendsim_mj.estimation.identification import sensors_only, sysid_least_squares
+from pendsim_mj.estimation.identification import sensors_only
+from pendsim_mj.estimation.least_squares import sysid_least_squares
 from pendsim_mj.rig.model import HINGES, SPATIAL, TILTS, build_spec
 from pendsim_mj.rig.params import PARAMETER_LIMITS, RigParams
 
