@@ -24,7 +24,8 @@ def seconds(t_ns: int | float | NDArray[np.generic]) -> float | NDArray[np.float
     """Nanoseconds (int, float or an array of either) in seconds: a float, or an array of float64
     (float32 stays float32)."""
     if isinstance(t_ns, np.ndarray):
-        return t_ns * 1e-9
+        in_s: NDArray[np.floating] = np.multiply(t_ns, 1e-9)
+        return in_s
     return float(t_ns * 1e-9)
 
 
@@ -35,7 +36,8 @@ def nanoseconds(t_s: NDArray[np.floating]) -> NDArray[np.int64]: ...
 def nanoseconds(t_s: float | NDArray[np.floating]) -> int | NDArray[np.int64]:
     """Seconds (float or array) in whole nanoseconds, rounded to the nearest (array: int64)."""
     if isinstance(t_s, np.ndarray):
-        return np.rint(t_s * 1e9).astype(np.int64)
+        in_ns: NDArray[np.int64] = np.rint(t_s * 1e9).astype(np.int64)
+        return in_ns
     return round(t_s * 1e9)
 
 

@@ -12,8 +12,11 @@ ROOT = Path(__file__).resolve().parent.parent
 # The modules a script imports from (docs/api.md): the facades, and the rig's parameters and drives.
 # pyproject.toml sets strict mode's per-module flags on the same list, for every mypy run.
 STRICT_MODULES = (
-    "pendsim_mj", "pendsim_mj.lazy", "pendsim_mj.rig", "pendsim_mj.rig.params", "pendsim_mj.rig.drives",
-    "pendsim_bridge", "pendsim_bridge.io",
+    "pendsim_mj", "pendsim_mj.lazy", "pendsim_mj.units", "pendsim_mj.rig", "pendsim_mj.rig.params",
+    "pendsim_mj.rig.drives", "pendsim_mj.engines", "pendsim_mj.engines.protocol", "pendsim_mj.engines.trajectory",
+    "pendsim_mj.engines.simulation", "pendsim_mj.engines.reference", "pendsim_mj.sensors", "pendsim_mj.estimation",
+    "pendsim_mj.allan", "pendsim_mj.nonlinear", "pendsim_mj.sweep",
+    "pendsim_bridge", "pendsim_bridge.io", "pendsim_bridge.io.mcap", "pendsim_bridge.io.recording",
 )  # fmt: skip
 
 

@@ -44,7 +44,7 @@ Drives (``pendsim_mj.rig.drives``), held constant over each step exactly as MuJo
 from __future__ import annotations
 
 import math
-from collections.abc import Iterator, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from typing import NamedTuple
 
 import numpy as np
@@ -98,7 +98,7 @@ class _Coefficients(NamedTuple):
 
 
 def _coefficients(params: Sequence[RigParams]) -> _Coefficients:
-    def col(fn) -> np.ndarray:
+    def col(fn: Callable[[RigParams], float]) -> np.ndarray:
         return np.array([fn(p) for p in params], dtype=float)
 
     return _Coefficients(
@@ -126,7 +126,9 @@ def _coefficients(params: Sequence[RigParams]) -> _Coefficients:
     )
 
 
-def _spring(xi, yi, xj, yj, c):
+def _spring(
+    xi: np.ndarray, yi: np.ndarray, xj: np.ndarray, yj: np.ndarray, c: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Spring from point i to point j: length, direction cosines and the force on i (toward j)."""
     dx = xj - xi
     dy = yj - yi

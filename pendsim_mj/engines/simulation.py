@@ -322,7 +322,8 @@ def _sensor(model: mujoco.MjModel, sensordata: np.ndarray, name: str) -> np.ndar
 
 def variant_has_tilt(model: mujoco.MjModel) -> bool:
     """Whether the model has the spatial variant's tilt joints."""
-    return mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, TILTS[0]) >= 0
+    found: int = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, TILTS[0])
+    return found >= 0
 
 
 def _rest_potential_j(model: mujoco.MjModel) -> float:
@@ -359,16 +360,16 @@ def _weight_on_support_n(model: mujoco.MjModel) -> float:
 
 
 def _trajectory(
-    models,
-    unique,
-    param_list,
-    states,
-    sensordata,
-    dt_s,
-    nstep,
-    clamp,
-    inputs,
-    drives,
+    models: Sequence[mujoco.MjModel],
+    unique: dict[RigParams, mujoco.MjModel],
+    param_list: Sequence[RigParams],
+    states: np.ndarray,
+    sensordata: np.ndarray,
+    dt_s: float,
+    nstep: int,
+    clamp: Clamp,
+    inputs: np.ndarray,
+    drives: Sequence[Drive | None] | None,
     *,
     first_row: int = 0,
     dissipated0_j: float = 0.0,

@@ -116,7 +116,8 @@ class Trajectory:
     @property
     def total_energy_j(self) -> np.ndarray:
         """Kinetic + potential energy above rest, J, shape (..., n)."""
-        return self.kinetic_j + self.potential_j
+        total: np.ndarray = self.kinetic_j + self.potential_j
+        return total
 
     def body_quat_wxyz(self) -> np.ndarray:
         """(..., n, 2, 4) orientation of each pendulum body in the world: its tilt about world x
