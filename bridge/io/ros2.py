@@ -16,6 +16,8 @@ from typing import Any
 
 import numpy as np
 
+from pendsim_mj.units import NS_PER_S, split_ns
+
 ENCAPSULATION_CDR_LE = b"\x00\x01\x00\x00"
 _PRIMITIVES = {"int32": ("<i4", 4), "uint32": ("<u4", 4), "float64": ("<f8", 8), "uint8": ("u1", 1)}
 
@@ -206,7 +208,7 @@ def decoder_for(schema: Any) -> Callable[[bytes], Any]:
 def split_time(t_ns: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Integer nanoseconds to builtin_interfaces/Time (sec int32, nanosec uint32)."""
     t_ns = np.asarray(t_ns, dtype=np.int64)
-    return (t_ns // 1_000_000_000).astype(np.int32), (t_ns % 1_000_000_000).astype(np.uint32)
+    return (t_ns // NS_PER_S).astype(np.int32), (t_ns % NS_PER_S).astype(np.uint32)
 
 
 # ROS 2 message definitions (ros2msg, dependencies after a line of 80 '='), as the MCAP ros2
@@ -316,7 +318,7 @@ class _CdrText:
 def encode_diagnostic_array(t_ns: int, statuses: list[DiagnosticStatus]) -> bytes:
     """A diagnostic_msgs/msg/DiagnosticArray, CDR-encoded here (strings of any length; decoded in
     the tests by mcap_ros2's DecoderFactory and by rosbags)."""
-    sec, nanosec = divmod(int(t_ns), 1_000_000_000)
+    sec, nanosec = split_ns(t_ns)
     cdr = _CdrText()
     cdr.i32(sec)
     cdr.u32(nanosec)

@@ -31,6 +31,7 @@ import numpy as np
 
 from pendsim_mj.errors import ParameterError
 from pendsim_mj.sensors.bno055 import MIN_MOTION_RAD_S
+from pendsim_mj.units import NS_PER_S, seconds
 
 TAUS_PER_DECADE = 12
 ONE_SIGMA = math.erf(1 / math.sqrt(2))  # 0.6827: 1-sigma confidence
@@ -282,13 +283,13 @@ class SamplingReport:
 
 def check_sampling(t_ns: np.ndarray, rate_hz: float) -> SamplingReport:
     """Gaps and irregular intervals in integer-ns timestamps nominally 1/rate_hz apart."""
-    nominal = 1e9 / rate_hz
+    nominal = NS_PER_S / rate_hz
     dt = np.diff(np.asarray(t_ns, dtype=np.int64)).astype(float)
     gap = dt > 1.5 * nominal
     irregular = (np.abs(dt - nominal) > 0.1 * nominal) & ~gap
-    gaps = [(int(i), float(t_ns[i]) * 1e-9, float(dt[i] - nominal) * 1e-9) for i in np.flatnonzero(gap)]
-    deviation = float(np.max(np.abs(dt - nominal))) * 1e-9 if len(dt) else 0.0
-    return SamplingReport(nominal * 1e-9, gaps, int(irregular.sum()), deviation)
+    gaps = [(int(i), seconds(float(t_ns[i])), seconds(float(dt[i] - nominal))) for i in np.flatnonzero(gap)]
+    deviation = seconds(float(np.max(np.abs(dt - nominal)))) if len(dt) else 0.0
+    return SamplingReport(seconds(nominal), gaps, int(irregular.sum()), deviation)
 
 
 MOTION_WINDOW_S = 0.1  # the gyro's turning rate is averaged over this before it counts as motion
@@ -365,7 +366,7 @@ def still_samples(t_s: np.ndarray, intervals_s: np.ndarray, margin_s: float = MO
 def longest_uniform_segment(t_ns: np.ndarray, rate_hz: float, usable: np.ndarray | None = None) -> slice:
     """The longest run of samples with no gap and no irregular interval (and, given a (n,) bool
     ``usable``, only usable samples: e.g. the static ones)."""
-    nominal = 1e9 / rate_hz
+    nominal = NS_PER_S / rate_hz
     dt = np.diff(np.asarray(t_ns, dtype=np.int64)).astype(float)
     broken = np.abs(dt - nominal) > 0.1 * nominal
     if usable is not None:

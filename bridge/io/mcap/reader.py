@@ -43,6 +43,7 @@ from mcap.records import Attachment, Channel, Schema, Statistics
 from numpy.typing import NDArray
 
 from pendsim_mj.errors import RecordingError
+from pendsim_mj.units import seconds
 
 from .chunks import INFLATE_AHEAD, ChunkRef, inflate, inflate_ahead, total_range
 from .extract import ChannelData, CompiledIndex, chunk_messages, read_index
@@ -238,7 +239,7 @@ class McapFile:
         t0 = min((r.start_ns for r in intact), default=0)
         t_end = max((r.end_ns for r in intact), default=0)
         return (
-            f"{n} messages in {len(intact)} chunks intact, {(t_end - t0) / 1e9:.3f} s of log time "
+            f"{n} messages in {len(intact)} chunks intact, {seconds(t_end - t0):.3f} s of log time "
             f"({self.bytes_read} of {self.file_size} bytes)"
         )
 
@@ -336,7 +337,7 @@ class McapContents:
         t0 = min((int(m.log_time_ns[0]) for m in self.messages.values() if len(m)), default=0)
         t_end = max((int(m.log_time_ns[-1]) for m in self.messages.values() if len(m)), default=0)
         return (
-            f"{self.message_count} messages in {self.chunks} chunks intact, {(t_end - t0) / 1e9:.3f} s of log "
+            f"{self.message_count} messages in {self.chunks} chunks intact, {seconds(t_end - t0):.3f} s of log "
             f"time ({self.bytes_read} of {self.file_size} bytes)"
         )
 

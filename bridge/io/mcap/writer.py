@@ -58,6 +58,8 @@ from mcap.records import (
 )
 from numpy.typing import ArrayLike, NDArray
 
+from pendsim_mj.units import nanoseconds
+
 from ...errors import OutputError
 from ..outputs import output_error
 from .records import (
@@ -276,7 +278,7 @@ class BulkMcapWriter:
         settled = int(now_ns) - self.reorder_window_ns
         due = self._pending_bytes >= self.chunk_bytes
         if self.flush_interval_s is not None:
-            due = due or settled - max(self._written_ns, 0) >= self.flush_interval_s * 1e9
+            due = due or settled - max(self._written_ns, 0) >= nanoseconds(self.flush_interval_s)
             due = due or self._clock() - self._last_flush_wall >= self.flush_interval_s
         if due and settled >= 0:
             self._emit(settled)
