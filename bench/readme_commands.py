@@ -63,6 +63,51 @@ def _sha(path: Path) -> str:
     return hashlib.sha256(path.read_bytes()).hexdigest()
 
 
+def _without_wall_times(value: object) -> object:
+    if isinstance(value, dict):
+        return {k: _without_wall_times(v) for k, v in value.items() if k != "seconds"}
+    if isinstance(value, list):
+        return [_without_wall_times(v) for v in value]
+    return value
+
+
+def _relative_stamps(value: object, t0_ns: int) -> object:
+    """A decoded ROS 2 message as plain data, every header stamp counted from t0_ns."""
+    if isinstance(value, (list, tuple)):
+        return [_relative_stamps(v, t0_ns) for v in value]
+    if hasattr(value, "__slots__"):
+        fields = {name: getattr(value, name) for name in value.__slots__}
+        if set(fields) == {"sec", "nanosec"}:
+            return int(fields["sec"]) * 1_000_000_000 + int(fields["nanosec"]) - t0_ns
+        return {name: _relative_stamps(v, t0_ns) for name, v in fields.items()}
+    if isinstance(value, bytes):
+        return value.hex()
+    return value
+
+
+def _normalized(path: Path) -> str:
+    """A digest of what a file means, without what depends on when it was made: a JSON report
+    without its ``seconds`` (wall time); an MCAP file as its decoded messages with log and publish
+    times and header stamps counted from the first message's log time."""
+    digest = hashlib.sha256()
+    if path.suffix == ".json":
+        digest.update(json.dumps(_without_wall_times(json.loads(path.read_text())), sort_keys=True).encode())
+    elif path.suffix == ".mcap":
+        from mcap.reader import make_reader
+        from mcap_ros2.decoder import DecoderFactory
+
+        with open(path, "rb") as f:
+            t0 = None
+            reader = make_reader(f, decoder_factories=[DecoderFactory()])
+            for _, channel, message, decoded in reader.iter_decoded_messages(log_time_order=True):
+                t0 = message.log_time if t0 is None else t0
+                row = (channel.topic, message.log_time - t0, message.publish_time - t0, _relative_stamps(decoded, t0))
+                digest.update(repr(row).encode())
+    else:
+        return _sha(path)
+    return digest.hexdigest()
+
+
 def _run_once(folder: Path) -> dict[str, object]:
     folder.mkdir(parents=True, exist_ok=False)
     env = dict(os.environ, PYTHONHASHSEED="0", TQDM_DISABLE="1")
@@ -72,18 +117,25 @@ def _run_once(folder: Path) -> dict[str, object]:
         done = subprocess.run(argv, cwd=folder, env=env, capture_output=True, text=True, check=False)
         runs.append({"command": command, "rc": done.returncode, "stdout": _mask(done.stdout)})
         print(f"{done.returncode:3d}  {command}", flush=True)
-    files = {str(p.relative_to(folder)): _sha(p) for p in sorted(folder.rglob("*")) if p.is_file()}
-    return {"runs": runs, "files": files}
+    paths = [p for p in sorted(folder.rglob("*")) if p.is_file()]
+    files = {str(p.relative_to(folder)): _sha(p) for p in paths}
+    normalized = {str(p.relative_to(folder)): _normalized(p) for p in paths if p.suffix in (".json", ".mcap")}
+    return {"runs": runs, "files": files, "normalized": normalized}
 
 
 def run(out: Path, twice: bool) -> None:
     first = _run_once(out / "a")
-    manifest = {"runs": first["runs"], "files": first["files"], "nondeterministic": []}
+    manifest = {**first, "nondeterministic": [], "unnormalizable": []}
     if twice:
         second = _run_once(out / "b")
         files_a, files_b = first["files"], second["files"]
+        norm_a, norm_b = first["normalized"], second["normalized"]
         assert isinstance(files_a, dict) and isinstance(files_b, dict)
+        assert isinstance(norm_a, dict) and isinstance(norm_b, dict)
         manifest["nondeterministic"] = sorted(k for k in files_a if files_b.get(k) != files_a[k])
+        manifest["unnormalizable"] = sorted(
+            k for k in manifest["nondeterministic"] if norm_b.get(k, "") != norm_a.get(k)
+        )
     (out / "manifest.json").write_text(json.dumps(manifest, indent=1))
 
 
@@ -94,16 +146,21 @@ def compare(before_path: Path, after_path: Path) -> int:
     for b, a in zip(before["runs"], after["runs"], strict=True):
         if b["rc"] != a["rc"] or b["stdout"] != a["stdout"]:
             problems.append(f"output of `{b['command']}` differs (rc {b['rc']} -> {a['rc']})")
-    skip = set(before["nondeterministic"])
+    varies = set(before["nondeterministic"])
+    skip = set(before["unnormalizable"])
     for name in sorted(set(before["files"]) | set(after["files"])):
         if name in skip:
             continue
-        if before["files"].get(name) != after["files"].get(name):
-            problems.append(f"file {name} differs")
+        table = "normalized" if name in varies else "files"
+        if before[table].get(name) != after[table].get(name):
+            problems.append(f"file {name} differs" + (" (normalized)" if name in varies else ""))
     for line in problems:
         print(line)
-    compared = len(set(before["files"]) - skip)
-    counts = f"{len(before['runs'])} commands, {compared} deterministic files compared, {len(skip)} not"
+    compared = len(set(before["files"]) - varies)
+    counts = (
+        f"{len(before['runs'])} commands, {compared} files compared byte for byte, "
+        f"{len(varies - skip)} by their normalized content, {len(skip)} not compared"
+    )
     print(f"{counts}; {len(problems)} differences")
     return 1 if problems else 0
 
