@@ -50,6 +50,11 @@ _MASKS = (
     (re.compile(r"in \d+(\.\d+)? ?s\b"), "in <time>"),
     (re.compile(r"\d+(\.\d+)?(it/s|s/it)"), "<rate>"),
     (re.compile(r"\[\d\d:\d\d<\d\d:\d\d[^\]]*\]"), "[<eta>]"),
+    # when the run was made: UTC instants, log times, and sizes of files compressed with them
+    (re.compile(r"\d{4}-\d\d-\d\dT\d\d:\d\d:\d\d(\.\d+)?Z"), "<utc>"),
+    (re.compile(r"log time \d+\.\d+ to \d+\.\d+ s"), "log time <t0> to <t1> s"),
+    (re.compile(r"start_time_ns = \d+"), "start_time_ns = <t0>"),
+    (re.compile(r"\d+\.\d+ MB"), "<size> MB"),
 )
 
 
