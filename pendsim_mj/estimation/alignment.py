@@ -82,6 +82,7 @@ from pendsim_mj.estimation.start_fit import (
 from pendsim_mj.estimation.swing_frame import fit_swing_frame
 from pendsim_mj.estimation.timing import DEFAULT_MAX_GAP_S, check_max_gap, coverage, fusion_phase
 from pendsim_mj.rig.params import RigParams
+from pendsim_mj.sensors.bno055 import FUSION_RATE_HZ
 
 __all__ = [
     "ANGLE_SIGMA_RAD",
@@ -169,7 +170,7 @@ def align(
     nodes: Sequence[NodeSamples],
     params: RigParams,
     *,
-    fusion_rate_hz: float | None = 100.0,
+    fusion_rate_hz: float | None = FUSION_RATE_HZ,
     release_s: float | None = None,
     max_gap_s: float = DEFAULT_MAX_GAP_S,
     start_fit_s: float = 1.0,

@@ -38,7 +38,7 @@ from pendsim_mj.estimation.least_squares import sysid_least_squares
 from pendsim_mj.rig.drives import Drive
 from pendsim_mj.rig.model import HINGES, build_spec
 from pendsim_mj.rig.params import PARAMETER_LIMITS, RigParams
-from pendsim_mj.sensors.bno055 import fused_instants
+from pendsim_mj.sensors.bno055 import FUSION_RATE_HZ, fused_instants
 
 if TYPE_CHECKING:
     from pendsim_mj.estimation.planar_fit import LawFit
@@ -178,7 +178,7 @@ def fit_damping(
     gyro_z_rad_s: np.ndarray,
     *,
     gyro_sigma_rad_s: tuple[float, float],
-    fusion_rate_hz: float | None = 100.0,
+    fusion_rate_hz: float | None = FUSION_RATE_HZ,
     start_b_n_m_s: tuple[float, float] = (1e-3, 1e-3),
     max_b_n_m_s: float = 0.05,
     omega0_rad_s: tuple[float, float] = (0.0, 0.0),

@@ -49,6 +49,8 @@ from pendsim_mj.sensors.imperfections import Imperfections
 
 STANDARD_GRAVITY_M_S2 = 9.80665  # the "g" of the chip's range setting
 ACCEL_LSB_M_S2 = 0.01  # BNO055 datasheet: 1 m/s^2 = 100 LSB (acceleration, linear, gravity)
+SAMPLE_RATE_HZ = 80.0  # the rig's ESP32 nodes read the chip at 80 Hz (paper; spec RIG.md section 6)
+FUSION_RATE_HZ = 100.0  # NDOF mode: fused output at 100 Hz (BNO055 datasheet; FIELD-NOTES: BNO055)
 GYRO_LSB_RAD_S = 1.0 / 900.0  # BNO055 datasheet: 1 rad/s = 900 LSB
 QUAT_LSB = 2.0**-14  # BNO055 datasheet: quaternion 1 = 2^14 LSB
 CALIBRATION_FIELDS = ("system", "gyro", "accel", "mag")
@@ -89,8 +91,8 @@ class ImuNoise:
 class Bno055:
     """Configuration of the two simulated BNO055 nodes (index 0: M1, 1: M2)."""
 
-    sample_rate_hz: float = 80.0
-    fusion_rate_hz: float = 100.0
+    sample_rate_hz: float = SAMPLE_RATE_HZ
+    fusion_rate_hz: float = FUSION_RATE_HZ
     fusion_timing: bool = True
     noise: bool = True
     noise_model: ImuNoise = ImuNoise()
