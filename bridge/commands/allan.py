@@ -7,6 +7,7 @@ import json
 from pathlib import Path
 
 from .. import options
+from ..report.allan_report import analyse, as_json, plots, table
 
 USUAL_PLOTS = tuple(f"allan_{node}_{sensor}.png" for node in ("m1", "m2") for sensor in ("accel", "gyro"))
 """The plots of a two-node recording, checked before the analysis (others at publication)."""
@@ -34,9 +35,7 @@ def register(sub: argparse._SubParsersAction[options.Parser]) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from tqdm import tqdm
-
-    from ..report.allan_report import analyse, as_json, plots, table
+    from tqdm import tqdm  # start-up: only when it runs
 
     plot_dir = args.plot_dir or args.path.with_name(f"{args.path.stem}_allan")
     if not args.no_plots:
@@ -62,4 +61,4 @@ def run(args: argparse.Namespace) -> int:
 
 def _import_plotting() -> None:
     """matplotlib, imported while the deviations are computed (``analyse``'s while_computing)."""
-    from ..report import plots  # noqa: F401
+    from ..report import plots  # noqa: F401  (start-up: matplotlib loads meanwhile)

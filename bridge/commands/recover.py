@@ -6,6 +6,7 @@ import argparse
 from pathlib import Path
 
 from .. import options
+from ..io.mcap.tools import recover
 
 
 def register(sub: argparse._SubParsersAction[options.Parser]) -> None:
@@ -29,8 +30,6 @@ def register(sub: argparse._SubParsersAction[options.Parser]) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..io.mcap.tools import recover
-
     options.check_not_input(args.fixed, args.broken)
     options.check_output(args.fixed, (".mcap",), force=args.force)
     with options.replacing(args.fixed, force=args.force) as target:

@@ -6,12 +6,9 @@ import argparse
 import contextlib
 import math
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 from .. import options
-
-if TYPE_CHECKING:
-    from ..run.replay import ReplayMessage, ReplayStats
+from ..run.replay import ReplayMessage, ReplayStats, log_to_rerun, replay, replay_to_mcap
 
 SPEED_RANGE = (1e-3, 1e6)
 """Replay speeds, x real time: from 1000 times slower to a million times faster (or max)."""
@@ -68,8 +65,6 @@ def register(sub: argparse._SubParsersAction[options.Parser]) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..run.replay import ReplayStats, replay, replay_to_mcap
-
     if args.output is not None:
         if args.loop:
             raise options.UsageError("--loop cannot write to a file (it never ends); drop --loop or -o")
@@ -107,8 +102,6 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _emit(message: ReplayMessage, args: argparse.Namespace) -> None:
-    from ..run.replay import log_to_rerun
-
     if args.rerun is not None and message.schema_name in ("sensor_msgs/msg/Imu", "sensor_msgs/msg/JointState"):
         log_to_rerun(message)
     if not args.quiet:
@@ -129,6 +122,6 @@ def _rerun_sink(path: Path | None, *, replace: bool) -> contextlib.AbstractConte
     is None)."""
     if path is None:
         return contextlib.nullcontext()
-    from ..report.rerun_view import rrd_output
+    from ..report.rerun_view import rrd_output  # start-up: Rerun, only with --rerun
 
     return rrd_output(path, replace=replace, series=None, application_id="pendsim_replay")

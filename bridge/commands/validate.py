@@ -9,7 +9,8 @@ from pathlib import Path
 
 from pendsim_mj.rig.params import PARAMETER_LIMITS
 
-from .. import options
+from .. import heap, options
+from ..report.validation_report import table, write_outputs
 
 
 def damping_choice(text: str) -> str | tuple[float, float]:
@@ -82,8 +83,7 @@ def register(sub: argparse._SubParsersAction[options.Parser]) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from .. import heap
-    from ..run.validate import Gates, gate_failures, table, validate, write_outputs
+    from ..run.validate import Gates, gate_failures, validate  # start-up: MuJoCo and scipy, when it runs
 
     heap.map_large_blocks()  # a long run's whole-run temporaries go back to the system when freed
 

@@ -6,6 +6,7 @@ import argparse
 from pathlib import Path
 
 from .. import options
+from ..report.serve import check_port_free, serve_web, spawn_viewer
 
 
 def register(sub: argparse._SubParsersAction[options.Parser]) -> None:
@@ -44,8 +45,7 @@ def register(sub: argparse._SubParsersAction[options.Parser]) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..report.rerun_view import view_recording
-    from ..report.serve import check_port_free, serve_web, spawn_viewer
+    from ..report.rerun_view import view_recording  # start-up: Rerun and MuJoCo, when it runs
 
     rrd = args.save or args.path.with_suffix(".rrd")
     options.check_output(rrd, (".rrd",), force=args.force)
