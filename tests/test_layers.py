@@ -169,6 +169,20 @@ def test_the_bridge_layers_point_down():
     assert not upward, "imports from a higher layer: " + "; ".join(upward)
 
 
+def test_no_command_imports_another():
+    """A verb's module (one that registers a parser) takes shared options from ``options`` or a
+    shared module of ``commands``, never from another verb."""
+    verbs = {
+        name
+        for name, path in MODULES.items()
+        if name.startswith("pendsim_bridge.commands.")
+        and any(isinstance(n, ast.FunctionDef) and n.name == "register" for n in ast.parse(path.read_text()).body)
+    }
+    assert len(verbs) > 10
+    crossing = [f"{v} -> {t}" for v in sorted(verbs) for t in sorted(EDGES[v] & verbs)]
+    assert not crossing, "commands importing commands: " + "; ".join(crossing)
+
+
 def test_no_module_is_over_800_lines():
     long = {str(p.relative_to(ROOT)): n for p in MODULES.values() if (n := len(p.read_text().splitlines())) > MAX_LINES}
     assert not long, f"modules over {MAX_LINES} lines: {long}"

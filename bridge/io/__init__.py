@@ -1,3 +1,3 @@
-"""Files: MCAP reading and writing (mcap), the ROS 2 codec, recordings, lab-file importers, atomic
-publication of outputs.
+"""Files: MCAP reading and writing (mcap), the ROS 2 codec, recordings (their layout, reader and
+writer, and the measured arrays a recording gives: ``measured``), atomic publication of outputs.
 """

@@ -27,16 +27,18 @@ from ..io.outputs import atomic_directory
 from ..io.recording import NODES
 from .figure_lines import DrawnLines
 
-if TYPE_CHECKING:  # the identification (and scipy) is imported where it runs: a report needs none of it
+if TYPE_CHECKING:  # types only: a report loads neither the identification nor scipy
     from pendsim_mj.estimation.identification import DampingFit, LogDecrement, ModalDecrement
     from pendsim_mj.estimation.validation import Comparison
 
 NOMINAL_RELEASE_RAD = (math.pi / 6, 0.0)  # paper: the simulation releases M1 from 30 deg
-AT_REST_RAD_S = 0.1
+AT_REST_RAD_S = 0.1  # a start slower than this on both hinges is at rest: compared from 30 deg too
 
 
 @dataclasses.dataclass(frozen=True)
 class Identification:
+    """The damping a recording's free decay gives (``run.validate.identify``), and its start."""
+
     log_decrement: list[LogDecrement]
     fit: DampingFit
     release_angle_rad: tuple[float, float]
@@ -49,6 +51,8 @@ class Identification:
 
 @dataclasses.dataclass(frozen=True)
 class CaseResult:
+    """One model against the recording: an engine, from one start, over one window."""
+
     engine: str
     release: str  # "estimated" or "nominal"
     window: str  # "5 s" or "whole"
@@ -57,6 +61,9 @@ class CaseResult:
 
 @dataclasses.dataclass(frozen=True)
 class ValidationReport:
+    """A validation (``run.validate.validate``): the rig validated, the aligned measured run and
+    every case's comparisons."""
+
     path: Path
     params: RigParams
     damping_source: str
@@ -113,7 +120,7 @@ def write_outputs(
     """report.json and (with ``plots``) the paper's Figures 9-15 into ``out_dir``, published
     together when all are written (``atomic_directory``: never over files of the same names
     unless ``replace``). Returns the paths written."""
-    from .plots import validation_figures  # matplotlib: only when the figures are drawn
+    from .plots import validation_figures  # start-up: matplotlib, only when the figures are drawn
 
     out = Path(out_dir)
     with atomic_directory(out, replace=replace) as tmp:

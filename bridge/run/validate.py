@@ -4,7 +4,9 @@ and the planar reference compute, with the paper's metrics (spec RIG.md sections
 This module reads and wires; the physics layer does the work on arrays:
 ``pendsim_mj.estimation.alignment`` (clocks, start, swing frames, fusion timing, coverage),
 ``pendsim_mj.estimation.validation`` (metrics on covered samples), ``pendsim_mj.estimation.identification`` (damping)
-and ``pendsim_mj.estimation.quantities`` (what is compared).
+and ``pendsim_mj.estimation.quantities`` (what is compared). The recording is read into arrays and
+aligned by ``pendsim_bridge.io.measured``; the ``ValidationReport`` returned, its files and its
+table are ``pendsim_bridge.report.validation_report``'s.
 
 Only the IMU topics are used as the measurement (never /joint_states, which a simulated recording
 holds as ground truth): phi_n from each node's orientation about its hinge axis, omega_n from its
