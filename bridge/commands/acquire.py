@@ -7,12 +7,12 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from .. import options
-from ..acquire.receiver import AcquireSpec, acquire, summary
 from ..io.mcap.writer import COMPRESSIONS
 from .node_options import add_stream_options, nodes_from, stream_from
 
 if TYPE_CHECKING:
     from ..acquire.live import LiveView
+    from ..acquire.receiver import AcquireSpec
 
 
 def register(sub: argparse._SubParsersAction[options.Parser]) -> None:
@@ -80,6 +80,8 @@ def live_view(args: argparse.Namespace, spec: AcquireSpec) -> LiveView | None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from ..acquire.receiver import AcquireSpec, acquire, summary  # start-up: loaded when the command runs
+
     options.check_output(args.output, (".mcap",), force=args.force)
     options.check_output(args.rerun, (".rrd",), force=True)
     mjcf, mjcf_source = options.mjcf_from(args)

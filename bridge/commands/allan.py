@@ -7,7 +7,6 @@ import json
 from pathlib import Path
 
 from .. import options
-from ..report.allan_report import analyse, as_json, plots, table
 
 USUAL_PLOTS = tuple(f"allan_{node}_{sensor}.png" for node in ("m1", "m2") for sensor in ("accel", "gyro"))
 """The plots of a two-node recording, checked before the analysis (others at publication)."""
@@ -35,7 +34,9 @@ def register(sub: argparse._SubParsersAction[options.Parser]) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from tqdm import tqdm  # start-up: only when it runs
+    from tqdm import tqdm  # start-up: loaded when the command runs
+
+    from ..report.allan_report import analyse, as_json, plots, table
 
     plot_dir = args.plot_dir or args.path.with_name(f"{args.path.stem}_allan")
     if not args.no_plots:

@@ -123,7 +123,7 @@ def _add_sync(p: argparse.ArgumentParser) -> None:
 
 
 def _bar(total: float | None, desc: str) -> Any:
-    from tqdm import tqdm  # start-up: only when it runs
+    from tqdm import tqdm  # start-up: loaded when the command runs
 
     return tqdm(total=total, desc=desc, unit="", disable=None, leave=False)
 

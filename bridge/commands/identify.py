@@ -60,7 +60,7 @@ def register(sub: argparse._SubParsersAction[options.Parser]) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..report.tables import identification_table  # start-up: MuJoCo and scipy, when it runs
+    from ..report.tables import identification_table  # start-up: MuJoCo and scipy, when the command runs
     from ..run.validate import identify
 
     options.check_output(args.write, (".json",), force=args.force)

@@ -95,7 +95,7 @@ def register(sub: argparse._SubParsersAction[options.Parser]) -> None:
 
 def spec_from(args: argparse.Namespace) -> EmulatorSpec:
     """The emulator spec the options describe."""
-    from ..acquire.emulator import EmulatorSpec, Faults, NodeClock  # start-up: MuJoCo, when it runs
+    from ..acquire.emulator import EmulatorSpec, Faults, NodeClock  # start-up: MuJoCo, when the command runs
     from ..run.record import RecordSpec
 
     phi0, omega0 = options.initial_state_from(args)
@@ -128,7 +128,7 @@ def spec_from(args: argparse.Namespace) -> EmulatorSpec:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..acquire.emulator import LOG_SUFFIXES, plan, summary  # start-up: MuJoCo, when it runs
+    from ..acquire.emulator import LOG_SUFFIXES, plan, summary  # start-up: MuJoCo, when the command runs
     from ..acquire.emulator import run as send
 
     if args.log is not None:

@@ -118,7 +118,7 @@ def spec_from(args: argparse.Namespace) -> RecordSpec:
 
 
 def run(args: argparse.Namespace) -> int:
-    from tqdm import tqdm  # start-up: only when it runs
+    from tqdm import tqdm  # start-up: loaded when the command runs
 
     options.check_output(args.output, (".mcap",), force=args.force)
     options.check_output(args.rerun, (".rrd",), force=args.force)

@@ -6,7 +6,6 @@ import argparse
 from pathlib import Path
 
 from .. import options
-from ..io.mcap.tools import recover
 
 
 def register(sub: argparse._SubParsersAction[options.Parser]) -> None:
@@ -30,6 +29,8 @@ def register(sub: argparse._SubParsersAction[options.Parser]) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from ..io.mcap.tools import recover  # start-up: loaded when the command runs
+
     options.check_not_input(args.fixed, args.broken)
     options.check_output(args.fixed, (".mcap",), force=args.force)
     with options.replacing(args.fixed, force=args.force) as target:

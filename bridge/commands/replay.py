@@ -6,9 +6,12 @@ import argparse
 import contextlib
 import math
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from .. import options
-from ..run.replay import ReplayMessage, ReplayStats, log_to_rerun, replay, replay_to_mcap
+
+if TYPE_CHECKING:
+    from ..run.replay import ReplayMessage, ReplayStats
 
 SPEED_RANGE = (1e-3, 1e6)
 """Replay speeds, x real time: from 1000 times slower to a million times faster (or max)."""
@@ -65,6 +68,8 @@ def register(sub: argparse._SubParsersAction[options.Parser]) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from ..run.replay import ReplayStats, replay, replay_to_mcap  # start-up: loaded when the command runs
+
     if args.output is not None:
         if args.loop:
             raise options.UsageError("--loop cannot write to a file (it never ends); drop --loop or -o")
@@ -102,6 +107,8 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _emit(message: ReplayMessage, args: argparse.Namespace) -> None:
+    from ..run.replay import log_to_rerun  # start-up: loaded when the command runs
+
     if args.rerun is not None and message.schema_name in ("sensor_msgs/msg/Imu", "sensor_msgs/msg/JointState"):
         log_to_rerun(message)
     if not args.quiet:

@@ -10,7 +10,6 @@ from pendsim_mj.estimation.analysis import summarize
 from pendsim_mj.rig.model import build_model
 
 from .. import options
-from ..io.trajectory_file import save_trajectory
 
 OUTPUT_SUFFIXES = (".npz", ".csv")
 
@@ -31,7 +30,7 @@ def register(sub: argparse._SubParsersAction[options.Parser]) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..report.tables import run_summary  # start-up: MuJoCo and scipy, when it runs
+    from ..report.tables import run_summary  # start-up: MuJoCo and scipy, when the command runs
 
     options.check_output(args.output, OUTPUT_SUFFIXES, force=args.force)
     options.check_output(args.rerun, (".rrd",), force=args.force)
@@ -47,6 +46,8 @@ def run(args: argparse.Namespace) -> int:
         view_trajectory(traj, model, args.rerun, replace=args.force)
         print(f"wrote {args.rerun} (open it with: rerun {args.rerun})")
     if args.output is not None:
+        from ..io.trajectory_file import save_trajectory  # start-up: only with -o
+
         save_trajectory(traj, args.output, replace=args.force)
         print(f"wrote {args.output}")
     return 0

@@ -6,7 +6,6 @@ import argparse
 from pathlib import Path
 
 from .. import options
-from ..report.serve import check_port_free, serve_web, spawn_viewer
 
 
 def register(sub: argparse._SubParsersAction[options.Parser]) -> None:
@@ -45,7 +44,8 @@ def register(sub: argparse._SubParsersAction[options.Parser]) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..report.rerun_view import view_recording  # start-up: Rerun and MuJoCo, when it runs
+    from ..report.rerun_view import view_recording  # start-up: Rerun and MuJoCo, when the command runs
+    from ..report.serve import check_port_free, serve_web, spawn_viewer
 
     rrd = args.save or args.path.with_suffix(".rrd")
     options.check_output(rrd, (".rrd",), force=args.force)
