@@ -26,7 +26,7 @@ BRIDGE_LAYERS = (
     ("io",),  # files: MCAP, ROS 2, recordings, atomic outputs
     ("report",),  # what people see: tables, figures, Rerun views
     ("run",),  # the runs: record, validate, replay, sweep, demo
-    ("acquire",),  # live acquisition and the node emulator
+    ("acquire",),  # measured data in: live acquisition, the node emulator, lab-file imports
     ("options",),  # the command line's argument types and shared options
     ("commands",),  # one module per verb
     ("cli",),  # the parser and the exit codes
@@ -118,7 +118,9 @@ def _bridge_layer(module: str) -> int:
     parts = module.split(".")
     if len(parts) == 1:  # the package's facade
         return len(BRIDGE_LAYERS)
-    return next(k for k, names in enumerate(BRIDGE_LAYERS) if parts[1] in names)
+    layer = next((k for k, names in enumerate(BRIDGE_LAYERS) if parts[1] in names), None)
+    assert layer is not None, f"{module} belongs to no layer: name its place in BRIDGE_LAYERS"
+    return layer
 
 
 def test_the_graph_reads_every_module_and_resolves_relative_imports():

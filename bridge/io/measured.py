@@ -1,7 +1,8 @@
 """A recording turned into what the physics layer aligns and compares: each node's IMU samples
 as arrays on the recorder's clock (``node_samples``), the measured run aligned on them
 (``align_recording``, ``pendsim_mj.estimation.alignment``), and the rig and drive the recording
-holds (``recorded_params``, ``recording_drive``).
+holds (``recorded_params``, ``recording_drive``). A recording made by ``pendsim acquire`` keeps
+each node's clock relation in its metadata (``recorded_stamp_clock``).
 
 Validation, identification and the Rerun view all start here.
 """

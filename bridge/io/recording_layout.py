@@ -1,7 +1,8 @@
 """The names and layouts of a pendsim recording: its nodes, topics, frames and joints, the MJCF
-attachment, the fixed CDR layouts of its /tf and /drive messages, and ``RunInfo`` (how the run was
-made). The reader (``recording``) and the writer (``recording_writer``) both follow it; the topics
-are described in ``recording``'s docstring.
+attachment, the fixed CDR layouts of its /tf and /drive messages, ``RunInfo`` (how the run was
+made) and how its log times read as UTC (``UNIX_2000_S``, ``utc_iso``). The reader
+(``recording``) and the writer (``recording_writer``) both follow it; the topics are described in
+``recording``'s docstring.
 """
 
 from __future__ import annotations
