@@ -20,7 +20,8 @@ from pendsim_mj.estimation.timing import DEFAULT_MAX_GAP_S, MAX_DRIFT_PPM, Clock
 from pendsim_mj.rig.drives import Drive
 from pendsim_mj.rig.params import DEFAULT_PARAMS, RigParams
 
-from .recording import NODES, Recording, imu_topic
+from .recording import Recording
+from .recording_layout import NODES, imu_topic
 
 
 def recorded_stamp_clock(metadata: dict[str, dict[str, str]], node: str, start_time_ns: int) -> ClockRelation | None:

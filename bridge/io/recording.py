@@ -50,18 +50,15 @@ from pendsim_mj.sensors.imperfections import Imperfections
 from . import ros2
 from .mcap.reader import ChannelData, McapFile, scan_mcap
 from .mcap.writer import BulkMcapWriter
-from .recording_layout import (
-    DEFAULT_START_NS,
-    DRIVE_LAYOUT,
-    DRIVE_TOPIC,
-    JOINT_NAMES,
-    MJCF_ATTACHMENT,
-    NODES,
-    SPATIAL_JOINT_NAMES,
-    TF_LAYOUT,
-    RunInfo,
-    imu_topic,
-)
+
+# ``X as X``: the layout's names a script uses with a recording, exported here too
+from .recording_layout import DEFAULT_START_NS as DEFAULT_START_NS
+from .recording_layout import DRIVE_LAYOUT, JOINT_NAMES, SPATIAL_JOINT_NAMES, TF_LAYOUT
+from .recording_layout import DRIVE_TOPIC as DRIVE_TOPIC
+from .recording_layout import MJCF_ATTACHMENT as MJCF_ATTACHMENT
+from .recording_layout import NODES as NODES
+from .recording_layout import RunInfo as RunInfo
+from .recording_layout import imu_topic as imu_topic
 from .recording_writer import RecordingWriter
 
 

@@ -32,7 +32,8 @@ from pendsim_mj.errors import RecordingError
 from pendsim_mj.estimation.timing import nominal_rate_hz
 
 from ..io.outputs import atomic_directory
-from ..io.recording import NODES, imu_topic, read_recording
+from ..io.recording import read_recording
+from ..io.recording_layout import NODES, imu_topic
 from ..signals import interrupts_deferred
 
 SENSORS = (("accel", "m/s^2", "accelerometer"), ("gyro", "rad/s", "gyroscope"))

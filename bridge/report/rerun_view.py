@@ -44,7 +44,8 @@ from pendsim_mj.sensors import rotations
 from ..errors import OutputError
 from ..io.measured import align_recording, recorded_params, recording_drive
 from ..io.outputs import atomic_output
-from ..io.recording import DRIVE_TOPIC, NODES, imu_topic, read_recording
+from ..io.recording import read_recording
+from ..io.recording_layout import DRIVE_TOPIC, NODES, imu_topic
 
 if TYPE_CHECKING:
     from pendsim_mj.estimation.alignment import MeasuredRun

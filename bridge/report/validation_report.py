@@ -24,7 +24,7 @@ from pendsim_mj.rig.drives import Drive
 from pendsim_mj.rig.params import RigParams
 
 from ..io.outputs import atomic_directory
-from ..io.recording import NODES
+from ..io.recording_layout import NODES
 from .figure_lines import DrawnLines
 
 if TYPE_CHECKING:  # types only: a report loads neither the identification nor scipy

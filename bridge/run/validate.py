@@ -47,15 +47,12 @@ from pendsim_mj.rig.params import RigParams
 
 from .. import heap
 from ..io.measured import align_recording, node_samples, recorded_params, recording_drive
-from ..io.recording import DRIVE_TOPIC, NODES, imu_topic, read_recording
+from ..io.recording import read_recording
+from ..io.recording_layout import DRIVE_TOPIC, NODES, imu_topic
 from ..report.figure_lines import FIGURES, DrawnLines, drawn_lines
-from ..report.validation_report import (
-    AT_REST_RAD_S,
-    NOMINAL_RELEASE_RAD,
-    CaseResult,
-    Identification,
-    ValidationReport,
-)
+from ..report.validation_report import AT_REST_RAD_S, NOMINAL_RELEASE_RAD, CaseResult
+from ..report.validation_report import Identification as Identification  # what identify returns, beside it
+from ..report.validation_report import ValidationReport as ValidationReport  # what validate returns, beside it
 from . import spatial_validate
 
 MODEL_BLOCK_STEPS = 6000  # model steps simulated at once (60 s at 0.01 s)
