@@ -29,7 +29,7 @@ class Terminated(BaseException):
 
 def build_parser() -> Parser:
     """The ``pendsim`` parser with every command's subparser (importing the commands' modules)."""
-    from .commands import COMMANDS
+    from .commands import COMMANDS  # start-up: the commands load here, in main, with Ctrl-C deferred
 
     parser = Parser(
         prog="pendsim",

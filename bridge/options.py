@@ -17,7 +17,7 @@ import os
 import stat
 from collections.abc import Callable, Iterator
 from pathlib import Path
-from typing import NoReturn
+from typing import NoReturn, TypeVar
 
 from pendsim_mj.engines.dispatch import ENGINE_NAMES
 from pendsim_mj.errors import ParameterError
@@ -25,12 +25,15 @@ from pendsim_mj.rig import drives
 from pendsim_mj.rig.params import DEFAULT_PARAMS, PARAMETER_LIMITS, RigParams
 
 from .errors import OutputError
+from .io.mcap.records import MCAP_MAGIC, import_hint
 from .io.outputs import atomic_output, check_file_target, check_folder_target, in_kernel_folder
 
 MAX_JSON_BYTES = 1_000_000  # parameter files are a few hundred bytes
 MAX_CSV_BYTES = 200_000_000  # a drive's time series: 1 kHz for hours is a few tens of MB
 MAX_JSON_DEPTH = 1  # one object of numbers: {"b1_n_m_s": 0.0007}
 MAX_LOG_TIME_S = 9.2e9  # MCAP log times are unsigned 64-bit nanoseconds; int64 arithmetic: 2^63 ns
+
+T = TypeVar("T")
 
 
 class UsageError(Exception):
@@ -147,6 +150,19 @@ def choice(allowed: tuple[str, ...], message: str) -> Callable[[str], str]:
     return parse
 
 
+def argument(parse: Callable[[str], T], name: str) -> Callable[[str], T]:
+    """An argparse type from a parser that raises ParameterError."""
+
+    def convert(text: str) -> T:
+        try:
+            return parse(text)
+        except ParameterError as exc:
+            raise argparse.ArgumentTypeError(str(exc)) from None
+
+    convert.__name__ = name
+    return convert
+
+
 def assignment(text: str) -> tuple[str, float]:
     """NAME=VALUE with a finite number (its range is the parameter's, see ``RigParams``)."""
     name, sep, value = text.partition("=")
@@ -181,8 +197,6 @@ def input_file(text: str) -> Path:
 def mcap_file(text: str) -> Path:
     """An existing regular file (``input_file``) that starts with the MCAP magic: checked while
     parsing, so that a wrong input is named before anything else (e.g. an output that exists)."""
-    from .io.mcap.records import MCAP_MAGIC, import_hint
-
     path = input_file(text)
     try:
         with open(path, "rb") as f:
@@ -253,6 +267,32 @@ def add_parameter_options(p: argparse.ArgumentParser, *, what: str = "the rig") 
         metavar="NAME=VALUE",
         help=f"override a parameter of {what} in SI units, e.g. --set c1_n_m=6.0 (see 'pendsim info'); repeatable",
     )
+
+
+def add_mjcf_option(p: argparse.ArgumentParser) -> None:
+    """``--mjcf FILE.xml``: the rig's model to attach to a recording (``mjcf_from``)."""
+    p.add_argument(
+        "--mjcf",
+        type=input_file,
+        metavar="FILE.xml",
+        help="the rig's MJCF model to attach (default: pendsim's, with the --set/--params-file parameters)",
+    )
+
+
+def mjcf_from(args: argparse.Namespace) -> tuple[str | None, str]:
+    """(the MJCF text or None, where it came from), checked by compiling it with MuJoCo."""
+    if args.mjcf is None:
+        return None, "built by pendsim from the rig parameters"
+    import mujoco  # start-up: loaded only to check a given model
+
+    try:
+        text = args.mjcf.read_text()
+        mujoco.MjModel.from_xml_string(text)
+    except (OSError, UnicodeDecodeError) as exc:
+        raise UsageError(f"{args.mjcf}: cannot read: {exc}") from None
+    except ValueError as exc:
+        raise UsageError(f"{args.mjcf}: not a valid MJCF model: {' '.join(str(exc).split())}") from None
+    return text, str(args.mjcf.resolve())
 
 
 def add_alignment_options(p: argparse.ArgumentParser) -> None:

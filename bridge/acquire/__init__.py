@@ -1,4 +1,5 @@
-"""Live acquisition from the rig's two sensor nodes over UDP (``pendsim acquire``).
+"""Measured data in: live acquisition from the rig's two sensor nodes over UDP (``pendsim acquire``),
+their emulation (``pendsim nodes``) and lab files (``pendsim import``).
 
 - ``packets``: the three packet formats (pendsim-v1 binary, CSV line, JSON object), each with an
   encoder (the emulator's) and a decoder that turns anything malformed into a ``PacketError``.
@@ -7,6 +8,8 @@
 - ``sink``: the one adapter between acquisition and the MCAP writer.
 - ``receiver``: the sockets, the loop, signals, the status line and the summary.
 - ``live``: the Rerun live view, in batches.
+- ``importers``: lab files (CSV, LabVIEW .lvm, TDMS) into a recording, through the same sink.
+- ``emulator``: the two nodes emulated from a simulated run (``pendsim nodes``).
 
 Docs: docs/acquisition.md (with the pendsim-v1 byte table).
 """

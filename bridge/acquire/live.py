@@ -14,6 +14,7 @@ import subprocess
 import time
 from pathlib import Path
 
+import mujoco
 import numpy as np
 import rerun as rr
 import rerun.blueprint as rrb
@@ -75,8 +76,6 @@ class LiveView:
         spawn: bool = False,
         serve: tuple[str, int] | None = None,
     ) -> None:
-        import mujoco
-
         self.nodes = nodes
         self.batches = 0
         self._closed = False

@@ -362,7 +362,7 @@ def _run(
     say: Callable[[str], None],
     status: Callable[[str], None] | None,
 ) -> AcquireResult:
-    from pendsim_mj.rig.model import exact_mjcf
+    from pendsim_mj.rig.model import exact_mjcf  # start-up: MuJoCo, once the acquisition runs
 
     start_ns = time.monotonic_ns()
     utc_ns = time.time_ns() - start_ns  # host monotonic -> UTC, fixed for the run

@@ -32,7 +32,7 @@ from ..errors import OutputError
 from ..io import ros2
 from ..io.mcap.writer import BulkMcapWriter
 from ..io.outputs import output_error
-from ..io.recording import MJCF_ATTACHMENT, imu_topic
+from ..io.recording_layout import MJCF_ATTACHMENT, imu_topic
 from ..io.recording_writer import TRANSIENT_LOCAL_QOS, static_tf_message
 from .packets import GROUP_SLICES
 

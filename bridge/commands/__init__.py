@@ -1,5 +1,7 @@
 """One module per ``pendsim`` command: ``register(subparsers)`` adds its parser (with
-``handler=run``), ``run(args)`` parses nothing more, calls one library function and prints."""
+``handler=run``), ``run(args)`` parses nothing more, calls one library function and prints. A
+command never imports another: the options they share are in ``pendsim_bridge.options`` and
+``node_options`` (the sensor nodes' options), which is not a command."""
 
 from . import (
     acquire,

@@ -34,7 +34,7 @@ def register(sub: argparse._SubParsersAction[options.Parser]) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from tqdm import tqdm
+    from tqdm import tqdm  # start-up: loaded when the command runs
 
     from ..report.allan_report import analyse, as_json, plots, table
 
@@ -62,4 +62,4 @@ def run(args: argparse.Namespace) -> int:
 
 def _import_plotting() -> None:
     """matplotlib, imported while the deviations are computed (``analyse``'s while_computing)."""
-    from ..report import plots  # noqa: F401
+    from ..report import plots  # noqa: F401  (start-up: matplotlib loads meanwhile)

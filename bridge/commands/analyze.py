@@ -123,7 +123,7 @@ def _add_sync(p: argparse.ArgumentParser) -> None:
 
 
 def _bar(total: float | None, desc: str) -> Any:
-    from tqdm import tqdm
+    from tqdm import tqdm  # start-up: loaded when the command runs
 
     return tqdm(total=total, desc=desc, unit="", disable=None, leave=False)
 
@@ -138,9 +138,9 @@ def _written(paths: list[Path]) -> None:
 
 
 def _backbone(args: argparse.Namespace) -> int:
-    from pendsim_mj.nonlinear import backbone
+    from pendsim_mj.nonlinear import backbone  # start-up: MuJoCo, scipy
 
-    from ..report.analysis_report import write_backbone
+    from ..report.analysis_report import write_backbone  # start-up: matplotlib
 
     options.check_output_dir(args.out_dir, _files(args), force=args.force)
     params = options.params_from(args)
@@ -168,7 +168,7 @@ def _backbone(args: argparse.Namespace) -> int:
 
 
 def _sweep_drive(args: argparse.Namespace, default: Drive) -> Drive:
-    from pendsim_mj.nonlinear.periodic import drive_frequency_hz
+    from pendsim_mj.nonlinear.periodic import drive_frequency_hz  # start-up: MuJoCo, scipy
 
     drive = options.drive_from(args) or default
     try:
@@ -185,9 +185,9 @@ def _range(args: argparse.Namespace) -> np.ndarray:
 
 
 def _response(args: argparse.Namespace) -> int:
-    from pendsim_mj.nonlinear import compare_with_branch, continue_response, stepped_sine
+    from pendsim_mj.nonlinear import compare_with_branch, continue_response, stepped_sine  # start-up: MuJoCo, scipy
 
-    from ..report.analysis_report import write_response
+    from ..report.analysis_report import write_response  # start-up: matplotlib
 
     options.check_output_dir(args.out_dir, _files(args), force=args.force)
     params, drive, freqs = options.params_from(args), _sweep_drive(args, DEFAULT_SWEEP_DRIVE), _range(args)
@@ -226,10 +226,10 @@ def _print_response(sweeps: Any, branch: Any, agreements: Any) -> None:
 
 
 def _bifurcation(args: argparse.Namespace) -> int:
-    from pendsim_mj.nonlinear import poincare_sweep
+    from pendsim_mj.nonlinear import poincare_sweep  # start-up: MuJoCo, scipy
     from pendsim_mj.nonlinear.periodic import drive_frequency_hz
 
-    from ..report.analysis_report import write_bifurcation
+    from ..report.analysis_report import write_bifurcation  # start-up: matplotlib
 
     options.check_output_dir(args.out_dir, _files(args), force=args.force)
     params, drive = options.params_from(args), _sweep_drive(args, DEFAULT_CHAOS_DRIVE)
@@ -254,9 +254,9 @@ def _bifurcation(args: argparse.Namespace) -> int:
 
 
 def _lyapunov(args: argparse.Namespace) -> int:
-    from pendsim_mj.nonlinear import largest_lyapunov
+    from pendsim_mj.nonlinear import largest_lyapunov  # start-up: MuJoCo, scipy
 
-    from ..report.analysis_report import write_lyapunov
+    from ..report.analysis_report import write_lyapunov  # start-up: matplotlib
 
     options.check_output_dir(args.out_dir, _files(args), force=args.force)
     drive = None if args.free else (options.drive_from(args) or DEFAULT_CHAOS_DRIVE)
@@ -286,9 +286,9 @@ def _period_or(drive: Drive | None, default: float) -> float:
 
 
 def _tongues(args: argparse.Namespace) -> int:
-    from pendsim_mj.nonlinear import tongues
+    from pendsim_mj.nonlinear import tongues  # start-up: MuJoCo, scipy
 
-    from ..report.analysis_report import write_tongues
+    from ..report.analysis_report import write_tongues  # start-up: matplotlib
 
     options.check_output_dir(args.out_dir, _files(args), force=args.force)
     freqs = _range(args)
@@ -309,9 +309,9 @@ def _tongues(args: argparse.Namespace) -> int:
 
 
 def _sync(args: argparse.Namespace) -> int:
-    from pendsim_mj.nonlinear import stepped_sine
+    from pendsim_mj.nonlinear import stepped_sine  # start-up: MuJoCo, scipy
 
-    from ..report.analysis_report import write_sync
+    from ..report.analysis_report import write_sync  # start-up: matplotlib
 
     options.check_output_dir(args.out_dir, _files(args), force=args.force)
     params, drive, freqs = options.params_from(args), _sweep_drive(args, DEFAULT_SYNC_DRIVE), _range(args)

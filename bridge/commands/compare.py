@@ -41,7 +41,7 @@ def register(sub: argparse._SubParsersAction[options.Parser]) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from pendsim_mj.estimation.comparison import compare_planar_spatial
+    from pendsim_mj.estimation.comparison import compare_planar_spatial  # start-up: MuJoCo, scipy, matplotlib
     from pendsim_mj.rig.model import Variant
 
     from ..report.plots import COMPARISON_FILES, write_comparison
@@ -60,7 +60,7 @@ def run(args: argparse.Namespace) -> int:
     print(comparison_table(result))
     print(f"wrote {', '.join(str(f) for f in written)}")
     if args.rerun is not None:
-        from ..report.rerun_view import view_comparison
+        from ..report.rerun_view import view_comparison  # start-up: Rerun, only with --rerun
 
         view_comparison(result, params, variant, args.rerun, replace=args.force)
         print(f"wrote {args.rerun}")

@@ -30,7 +30,7 @@ def register(sub: argparse._SubParsersAction[options.Parser]) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..run.demo import DEMO_FILES, run_demo
+    from ..run.demo import DEMO_FILES, run_demo  # start-up: MuJoCo, scipy and Rerun, when the command runs
 
     options.check_output_dir(args.out_dir, DEMO_FILES, force=args.force)
     result = run_demo(args.out_dir, duration_s=args.duration_s, replace=args.force)

@@ -6,7 +6,10 @@ import argparse
 import json
 from pathlib import Path
 
+from pendsim_mj.errors import ParameterError
+
 from .. import options
+from ..io.outputs import atomic_output
 
 LAW_CHOICES = (
     "auto",
@@ -57,15 +60,12 @@ def register(sub: argparse._SubParsersAction[options.Parser]) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from pendsim_mj.errors import ParameterError
-
-    from ..io.outputs import atomic_output
-    from ..report.tables import identification_table
+    from ..report.tables import identification_table  # start-up: MuJoCo and scipy, when the command runs
     from ..run.validate import identify
 
     options.check_output(args.write, (".json",), force=args.force)
     if args.model == "spatial":
-        from ..run.spatial_validate import identify_and_write
+        from ..run.spatial_validate import identify_and_write  # start-up: MuJoCo and scipy
 
         if args.law not in ("auto", "viscous"):
             raise ParameterError(f"--law {args.law} applies to the planar fit; --model spatial fits viscous damping")

@@ -7,10 +7,9 @@ import sys
 from pathlib import Path
 
 from .. import options
+from ..acquire.importers import IMPORT_FORMATS, ImportSpec, import_file, parse_utc
 from ..acquire.packets import Units, parse_units
-from ..io.importers import IMPORT_FORMATS, parse_utc
 from ..io.mcap.writer import COMPRESSIONS
-from .acquire import add_mjcf_option, argument, mjcf_from
 
 
 def column_list(text: str) -> tuple[str, ...]:
@@ -44,7 +43,7 @@ def register(sub: argparse._SubParsersAction[options.Parser]) -> None:
     )
     p.add_argument(
         "--units",
-        type=argument(parse_units, "units"),
+        type=options.argument(parse_units, "units"),
         metavar="MAP",
         help="units of the values, e.g. accel=m/s2,gyro=dps (accel: m/s2, g, mg; gyro: dps, rad/s; "
         "default accel=m/s2,gyro=dps)",
@@ -62,14 +61,14 @@ def register(sub: argparse._SubParsersAction[options.Parser]) -> None:
     )
     p.add_argument(
         "--start-utc",
-        type=argument(parse_utc, "time"),
+        type=options.argument(parse_utc, "time"),
         metavar="TIME",
         help="when the first sample was taken, ISO 8601 with its zone, e.g. 2026-11-25T10:00:00Z: for files whose "
         "times count from the node's boot (millis()) or from zero (default: the file's times, taken as UTC if they "
         "are Unix times, else kept relative and said so)",
     )
     options.add_parameter_options(p, what="the rig recorded with the data")
-    add_mjcf_option(p)
+    options.add_mjcf_option(p)
     p.add_argument(
         "--compression",
         type=options.choice(COMPRESSIONS, "unknown compression {value!r}; allowed: {allowed}"),
@@ -81,10 +80,8 @@ def register(sub: argparse._SubParsersAction[options.Parser]) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..io.importers import ImportSpec, import_file
-
     options.check_output(args.output, (".mcap",), force=args.force)
-    mjcf, mjcf_source = mjcf_from(args)
+    mjcf, mjcf_source = options.mjcf_from(args)
     spec = ImportSpec(
         format=args.format,
         columns=args.columns,

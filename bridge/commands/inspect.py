@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 
 from .. import options
+from ..io.mcap.reader import read_mcap
 
 
 def register(sub: argparse._SubParsersAction[options.Parser]) -> None:
@@ -19,8 +20,7 @@ def register(sub: argparse._SubParsersAction[options.Parser]) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..io.mcap.reader import read_mcap
-    from ..report.tables import contents_table
+    from ..report.tables import contents_table  # start-up: MuJoCo and scipy (the tables' result types)
 
     print(contents_table(read_mcap(args.path, strict=True, payloads=False)))
     return 0

@@ -8,10 +8,10 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from pendsim_mj.errors import ParameterError
+from pendsim_mj.sensors.bno055 import Bno055
 
 from .. import options
-from .acquire import add_stream_options, argument, nodes_from, stream_from
-from .record import add_imperfection_options, imperfections_from
+from .node_options import add_imperfection_options, add_stream_options, imperfections_from, nodes_from, stream_from
 
 if TYPE_CHECKING:
     from ..acquire.emulator import EmulatorSpec
@@ -68,7 +68,7 @@ def register(sub: argparse._SubParsersAction[options.Parser]) -> None:
     p.add_argument("--malformed", type=rate, default=0.0, help="rate of extra malformed datagrams, 0-1 (default 0)")
     p.add_argument(
         "--clock-drift-ppm",
-        type=argument(per_node, "[NAME=]PPM"),
+        type=options.argument(per_node, "[NAME=]PPM"),
         action="append",
         default=[],
         metavar="[NAME=]PPM",
@@ -76,7 +76,7 @@ def register(sub: argparse._SubParsersAction[options.Parser]) -> None:
     )
     p.add_argument(
         "--clock-offset-s",
-        type=argument(per_node, "[NAME=]S"),
+        type=options.argument(per_node, "[NAME=]S"),
         action="append",
         default=[],
         metavar="[NAME=]S",
@@ -95,9 +95,7 @@ def register(sub: argparse._SubParsersAction[options.Parser]) -> None:
 
 def spec_from(args: argparse.Namespace) -> EmulatorSpec:
     """The emulator spec the options describe."""
-    from pendsim_mj.sensors.bno055 import Bno055
-
-    from ..acquire.emulator import EmulatorSpec, Faults, NodeClock
+    from ..acquire.emulator import EmulatorSpec, Faults, NodeClock  # start-up: MuJoCo, when the command runs
     from ..run.record import RecordSpec
 
     phi0, omega0 = options.initial_state_from(args)
@@ -130,7 +128,7 @@ def spec_from(args: argparse.Namespace) -> EmulatorSpec:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..acquire.emulator import LOG_SUFFIXES, plan, summary
+    from ..acquire.emulator import LOG_SUFFIXES, plan, summary  # start-up: MuJoCo, when the command runs
     from ..acquire.emulator import run as send
 
     if args.log is not None:

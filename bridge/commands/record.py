@@ -3,19 +3,16 @@
 from __future__ import annotations
 
 import argparse
-import math
 import sys
 from pathlib import Path
 
-import numpy as np
-
-from pendsim_mj.errors import ParameterError
+from pendsim_mj.rig.model import build_model
 from pendsim_mj.sensors.bno055 import Bno055, ImuNoise
-from pendsim_mj.sensors.imperfections import Imperfections, axis_remap_matrix, random_mount
 
 from .. import options
 from ..io.mcap.writer import COMPRESSIONS
-from ..run.record import MODELS, Model, RecordInterrupted, RecordSpec, record
+from ..run.record import MODELS, Model, RecordInterrupted, RecordSpec, record, simulate_for
+from .node_options import add_imperfection_options, imperfections_from
 
 RELEASED_MODELS = tuple(m for m in MODELS if m != "static")
 
@@ -90,105 +87,6 @@ def register(sub: argparse._SubParsersAction[options.Parser]) -> None:
     p.set_defaults(handler=run)
 
 
-def axis_remap(text: str) -> tuple[int, int]:
-    """CONFIG,SIGN: the BNO055's AXIS_MAP_CONFIG and AXIS_MAP_SIGN registers (hex 0x.. or decimal)."""
-    try:
-        config, sign = (int(v, 0) for v in text.split(","))
-        axis_remap_matrix(config, sign)
-    except ValueError as exc:
-        detail = str(exc) if isinstance(exc, ParameterError) else "expected CONFIG,SIGN such as 0x21,0x04"
-        raise argparse.ArgumentTypeError(f"--axis-remap {text!r}: {detail}") from None
-    return config, sign
-
-
-def add_imperfection_options(p: argparse.ArgumentParser, *, transport: bool = True) -> None:
-    """What real nodes add (pendsim_mj.sensors.imperfections); all off by default. Without ``transport``,
-    only what changes the values (heading, mount, axis remap, fusion error, hold wobble): loss,
-    clock drift and latency are then the caller's (``pendsim nodes`` sends real packets)."""
-    g = p.add_argument_group("imperfections of real nodes (all off by default; the paper is silent on them)")
-    g.add_argument(
-        "--heading-deg",
-        type=options.float_in(-360.0, 360.0, "deg"),
-        default=0.0,
-        help="NDOF heading: the orientation's world frame turned by this angle about the vertical (magnetic north)",
-    )
-    g.add_argument(
-        "--mount-misalignment-deg",
-        type=options.float_in(0.0, 45.0, "deg"),
-        default=0.0,
-        metavar="A",
-        help="each node glued on turned by A deg about a random axis (drawn from --seed)",
-    )
-    g.add_argument(
-        "--axis-remap",
-        type=axis_remap,
-        default=(0x24, 0x00),
-        metavar="CONFIG,SIGN",
-        help="both nodes' AXIS_MAP_CONFIG,AXIS_MAP_SIGN registers, e.g. 0x21,0x04 (default 0x24,0x00: none)",
-    )
-    g.add_argument(
-        "--fusion-error-deg",
-        type=options.float_in(0.0, 10.0, "deg"),
-        default=0.0,
-        metavar="E",
-        help="rms per axis of a slowly varying error of the fused orientation (periods around 30 s), deg",
-    )
-    if transport:
-        g.add_argument(
-            "--packet-loss",
-            type=options.float_in(0.0, 0.9),
-            default=0.0,
-            metavar="P",
-            help="share of each node's samples lost in transport, in bursts (e.g. 0.05)",
-        )
-        g.add_argument(
-            "--loss-burst-samples",
-            type=options.float_in(1.0, 1000.0),
-            default=3.0,
-            metavar="L",
-            help="mean length of a burst of lost samples (default 3; 1: independent losses)",
-        )
-        g.add_argument(
-            "--clock-drift-ppm",
-            type=options.float_in(-1000.0, 1000.0, "ppm"),
-            default=0.0,
-            metavar="PPM",
-            help="M2's node clock runs this much faster than M1's (its stamps are on its own clock)",
-        )
-        g.add_argument(
-            "--latency-s",
-            type=options.float_in(0.0, 1.0, "s"),
-            default=0.0,
-            help="mean transport latency (exponential) between sampling and logging, s",
-        )
-    g.add_argument(
-        "--hold-wobble-deg",
-        type=options.float_in(0.0, 5.0, "deg"),
-        default=0.0,
-        help="with --hold-s: rms angle the hand moves the held pendulums by (slow drift plus 8-12 Hz tremor), deg",
-    )
-
-
-def imperfections_from(args: argparse.Namespace) -> tuple[Imperfections, tuple[tuple[float, float, float, float], ...]]:
-    """The Imperfections and the two mount rotations the options describe."""
-    config, sign = args.axis_remap
-    imperfect = Imperfections(
-        heading_rad=math.radians(args.heading_deg),
-        axis_map_config=(config, config),
-        axis_map_sign=(sign, sign),
-        fusion_error_rad=math.radians(args.fusion_error_deg),
-        packet_loss=getattr(args, "packet_loss", 0.0),
-        loss_burst_samples=args.loss_burst_samples if getattr(args, "packet_loss", 0.0) > 0 else 1.0,
-        clock_drift_ppm=(0.0, args.clock_drift_ppm) if hasattr(args, "latency_s") else (0.0, 0.0),
-        latency_s=getattr(args, "latency_s", 0.0),
-        hold_wobble_rad=math.radians(args.hold_wobble_deg),
-    )
-    rng = np.random.default_rng([args.seed, 5])
-    angle = math.radians(args.mount_misalignment_deg)
-    mounts = tuple(random_mount(angle, rng) if angle else (1.0, 0.0, 0.0, 0.0) for _ in range(2))
-    return imperfect, mounts
-
-
 def spec_from(args: argparse.Namespace) -> RecordSpec:
     """The RecordSpec the options describe."""
     if args.model == "spatial" and (args.static or args.engine != "mujoco"):
@@ -220,7 +118,7 @@ def spec_from(args: argparse.Namespace) -> RecordSpec:
 
 
 def run(args: argparse.Namespace) -> int:
-    from tqdm import tqdm
+    from tqdm import tqdm  # start-up: loaded when the command runs
 
     options.check_output(args.output, (".mcap",), force=args.force)
     options.check_output(args.rerun, (".rrd",), force=args.force)
@@ -232,10 +130,7 @@ def run(args: argparse.Namespace) -> int:
         print(f"pendsim: {interrupted}", file=sys.stderr)
         return EXIT_INTERRUPTED
     if args.rerun is not None and spec.model != "static":
-        from pendsim_mj.rig.model import build_model
-
-        from ..report.rerun_view import view_trajectory
-        from ..run.record import simulate_for
+        from ..report.rerun_view import view_trajectory  # start-up: Rerun, only with --rerun
 
         targets = spec.drive.targets if spec.drive else ()
         view_trajectory(

@@ -29,7 +29,7 @@ def register(sub: argparse._SubParsersAction[options.Parser]) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..io.mcap.tools import recover
+    from ..io.mcap.tools import recover  # start-up: loaded when the command runs
 
     options.check_not_input(args.fixed, args.broken)
     options.check_output(args.fixed, (".mcap",), force=args.force)

@@ -68,7 +68,7 @@ def register(sub: argparse._SubParsersAction[options.Parser]) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..run.replay import ReplayStats, replay, replay_to_mcap
+    from ..run.replay import ReplayStats, replay, replay_to_mcap  # start-up: loaded when the command runs
 
     if args.output is not None:
         if args.loop:
@@ -107,7 +107,7 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _emit(message: ReplayMessage, args: argparse.Namespace) -> None:
-    from ..run.replay import log_to_rerun
+    from ..run.replay import log_to_rerun  # start-up: loaded when the command runs
 
     if args.rerun is not None and message.schema_name in ("sensor_msgs/msg/Imu", "sensor_msgs/msg/JointState"):
         log_to_rerun(message)
@@ -129,6 +129,6 @@ def _rerun_sink(path: Path | None, *, replace: bool) -> contextlib.AbstractConte
     is None)."""
     if path is None:
         return contextlib.nullcontext()
-    from ..report.rerun_view import rrd_output
+    from ..report.rerun_view import rrd_output  # start-up: Rerun, only with --rerun
 
     return rrd_output(path, replace=replace, series=None, application_id="pendsim_replay")

@@ -5,6 +5,10 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from pendsim_mj.engines import dispatch as engines
+from pendsim_mj.estimation.analysis import summarize
+from pendsim_mj.rig.model import build_model
+
 from .. import options
 
 OUTPUT_SUFFIXES = (".npz", ".csv")
@@ -26,10 +30,7 @@ def register(sub: argparse._SubParsersAction[options.Parser]) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from pendsim_mj.engines import dispatch as engines
-    from pendsim_mj.estimation.analysis import summarize
-
-    from ..report.tables import run_summary
+    from ..report.tables import run_summary  # start-up: MuJoCo and scipy, when the command runs
 
     options.check_output(args.output, OUTPUT_SUFFIXES, force=args.force)
     options.check_output(args.rerun, (".rrd",), force=args.force)
@@ -39,15 +40,13 @@ def run(args: argparse.Namespace) -> int:
     traj = engines.run(args.engine, params, phi0, omega0, args.duration_s, args.dt_s, drive=drive)
     print(run_summary(summarize(traj), args.engine))
     if args.rerun is not None:
-        from pendsim_mj.rig.model import build_model
-
-        from ..report.rerun_view import view_trajectory
+        from ..report.rerun_view import view_trajectory  # start-up: Rerun, only with --rerun
 
         model = build_model(params, drive_targets=drive.targets if drive else ())
         view_trajectory(traj, model, args.rerun, replace=args.force)
         print(f"wrote {args.rerun} (open it with: rerun {args.rerun})")
     if args.output is not None:
-        from ..io.trajectory_file import save_trajectory
+        from ..io.trajectory_file import save_trajectory  # start-up: only with -o
 
         save_trajectory(traj, args.output, replace=args.force)
         print(f"wrote {args.output}")

@@ -133,7 +133,7 @@ def register(sub: argparse._SubParsersAction[options.Parser]) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..run.sweep import describe, run_sweep
+    from ..run.sweep import describe, run_sweep  # start-up: numba, scipy and pyarrow, when the command runs
 
     plan = _plan(args)
     if args.output.exists() and not args.output.is_dir():

@@ -9,7 +9,7 @@ from pathlib import Path
 
 from pendsim_mj.rig.params import PARAMETER_LIMITS
 
-from .. import options
+from .. import heap, options
 
 
 def damping_choice(text: str) -> str | tuple[float, float]:
@@ -82,8 +82,8 @@ def register(sub: argparse._SubParsersAction[options.Parser]) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from .. import heap
-    from ..run.validate import Gates, gate_failures, table, validate, write_outputs
+    from ..report.validation_report import table, write_outputs  # start-up: loaded when the command runs
+    from ..run.validate import Gates, gate_failures, validate
 
     heap.map_large_blocks()  # a long run's whole-run temporaries go back to the system when freed
 

@@ -44,7 +44,7 @@ def register(sub: argparse._SubParsersAction[options.Parser]) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..report.rerun_view import view_recording
+    from ..report.rerun_view import view_recording  # start-up: Rerun and MuJoCo, when the command runs
     from ..report.serve import check_port_free, serve_web, spawn_viewer
 
     rrd = args.save or args.path.with_suffix(".rrd")

@@ -1,15 +1,16 @@
-"""Files: MCAP reading and writing (mcap), the ROS 2 codec, recordings, lab-file importers, atomic
-publication of outputs.
+"""Files: MCAP reading and writing (mcap), the ROS 2 codec, recordings (their layout, reader and
+writer), the measured arrays a recording gives, atomic publication of outputs.
 
 - ``recording``: one MCAP file per run; ``read_recording`` gives a ``Recording`` (arrays per
   topic: ``ImuTopic``, ``JointStates``; times in ns since its ``start_time_ns``);
 - ``mcap``: any MCAP file, every CRC checked: ``read_mcap`` (-> ``McapContents``), ``scan_mcap``
   (-> ``McapFile``, chunk by chunk), the streaming ``BulkMcapWriter``;
 - ``trajectory_file``: ``save_trajectory``, a simulated run to ``.npz`` or ``.csv``;
-- ``importers``: lab files (CSV, LabVIEW ``.lvm``, TDMS) to recordings: ``import_file``;
+- ``measured``: a recording turned into what the physics takes: ``align_recording`` (-> a
+  ``MeasuredRun``), ``recorded_params``, ``recording_drive``;
 - ``outputs``: ``atomic_output``, ``atomic_directory``: a file or folder appears only complete;
-- ``ros2``: the CDR layouts of the messages pendsim writes; ``recording_writer``: a recording
-  written block by block.
+- ``ros2``: the CDR layouts of the messages pendsim writes; ``recording_layout``: the topics and
+  metadata a recording holds; ``recording_writer``: a recording written block by block.
 
 Importing this package imports none of them: the names above are imported when first used
 (``pendsim_mj.lazy``).
@@ -32,17 +33,17 @@ _LAZY = {
     "scan_mcap": ".mcap.reader",
     "BulkMcapWriter": ".mcap.writer",
     "save_trajectory": ".trajectory_file",
-    "ImportResult": ".importers",
-    "ImportSpec": ".importers",
-    "import_file": ".importers",
+    "align_recording": ".measured",
+    "recorded_params": ".measured",
+    "recording_drive": ".measured",
     "atomic_directory": ".outputs",
     "atomic_output": ".outputs",
 }
 
 if TYPE_CHECKING:
-    from .importers import ImportResult, ImportSpec, import_file
     from .mcap.reader import McapContents, McapFile, read_mcap, scan_mcap
     from .mcap.writer import BulkMcapWriter
+    from .measured import align_recording, recorded_params, recording_drive
     from .outputs import atomic_directory, atomic_output
     from .recording import ImuTopic, JointStates, Recording, read_recording
     from .trajectory_file import save_trajectory
@@ -51,18 +52,18 @@ else:
 
 __all__ = [
     "BulkMcapWriter",
-    "ImportResult",
-    "ImportSpec",
     "ImuTopic",
     "JointStates",
     "McapContents",
     "McapFile",
     "Recording",
+    "align_recording",
     "atomic_directory",
     "atomic_output",
-    "import_file",
     "read_mcap",
     "read_recording",
+    "recorded_params",
+    "recording_drive",
     "save_trajectory",
     "scan_mcap",
 ]

@@ -41,7 +41,7 @@ from numpy.typing import NDArray
 from pendsim_mj import __version__
 from pendsim_mj.engines.trajectory import Trajectory
 from pendsim_mj.errors import ParameterError, RecordingError
-from pendsim_mj.rig.drives import CHANNEL_LABELS, NCHANNEL, Drive, recorded_drive
+from pendsim_mj.rig.drives import NCHANNEL, Drive, recorded_drive
 from pendsim_mj.rig.params import RigParams
 from pendsim_mj.sensors import rotations
 from pendsim_mj.sensors.bno055 import Bno055, ImuNoise, ImuSamples
@@ -51,40 +51,15 @@ from . import ros2
 from .mcap.reader import ChannelData, McapFile, scan_mcap
 from .mcap.writer import BulkMcapWriter
 
-NODES = ("m1", "m2")
-JOINT_NAMES = ("hinge_phi1", "hinge_phi2")
-SPATIAL_JOINT_NAMES = ("tilt_m1", "tilt_m2")  # pendsim_mj.rig.model.TILTS: the spatial variant's extra joints
-WORLD_FRAME = "world"
-MJCF_ATTACHMENT = "pendulums.xml"
-SITE_QUAT_WXYZ = rotations.IMU_SITE_QUAT_WXYZ  # the IMU site's axes in its body at rest
-TF_LAYOUT = ros2.tf_layout(((WORLD_FRAME, "m1"), (WORLD_FRAME, "m2")))
-STATIC_TF_LAYOUT = ros2.tf_layout((("m1", "imu_m1"), ("m2", "imu_m2")))
-STATIC_WORLD_TF_LAYOUT = ros2.tf_layout(
-    ((WORLD_FRAME, "m1"), (WORLD_FRAME, "m2"), ("m1", "imu_m1"), ("m2", "imu_m2"))
-)  # a static recording: the pendulums at rest under the world root, then the mounts
-DEFAULT_START_NS = 1_735_689_600_000_000_000  # 2025-01-01T00:00:00Z: a fixed UTC start for files made in memory
-
-
-DRIVE_TOPIC = "/drive"
-DRIVE_LABEL = ",".join(CHANNEL_LABELS)
-DRIVE_LAYOUT = ros2.float64_multiarray_layout(DRIVE_LABEL, NCHANNEL)
-
-
-def imu_topic(node: str) -> str:
-    return f"/imu/{node}"
-
-
-@dataclasses.dataclass(frozen=True)
-class RunInfo:
-    """How a run was made: enough, with the MJCF, to re-simulate it."""
-
-    engine: str
-    phi0_rad: tuple[float, float]
-    omega0_rad_s: tuple[float, float]
-    duration_s: float
-    dt_s: float
-    model: str = "planar"
-    release_time_s: float = 0.0  # when the pendulums were let go, on the recording's clock
+# ``X as X``: the layout's names a script uses with a recording, exported here too
+from .recording_layout import DEFAULT_START_NS as DEFAULT_START_NS
+from .recording_layout import DRIVE_LAYOUT, JOINT_NAMES, SPATIAL_JOINT_NAMES, TF_LAYOUT
+from .recording_layout import DRIVE_TOPIC as DRIVE_TOPIC
+from .recording_layout import MJCF_ATTACHMENT as MJCF_ATTACHMENT
+from .recording_layout import NODES as NODES
+from .recording_layout import RunInfo as RunInfo
+from .recording_layout import imu_topic as imu_topic
+from .recording_writer import RecordingWriter
 
 
 def write_recording(
@@ -111,8 +86,6 @@ def write_recording(
       compression: chunk compression, "zstd", "lz4" or "none".
       start_time_ns: UTC log time of t = 0, ns.
     """
-    from .recording_writer import RecordingWriter
-
     with BulkMcapWriter(path, compression=compression, library=f"pendsim {__version__}") as w:
         rw = RecordingWriter(
             w, params=params, config=imu.config, run=run, mjcf_xml=mjcf_xml, start_time_ns=start_time_ns,

@@ -1,5 +1,6 @@
-"""Write a recording block by block: the topics, metadata and attachment of ``recording.py``'s
-layout, through one streaming ``BulkMcapWriter``.
+"""Write a recording block by block: the topics, metadata and attachment of a recording
+(``recording``'s docstring; the names in ``recording_layout``), through one streaming
+``BulkMcapWriter``.
 
 ROS conventions kept (checked by tests with the mcap library, ``rosbags`` and Foxglove's
 TypeScript readers):
@@ -34,7 +35,7 @@ from pendsim_mj.sensors.bno055 import Bno055, ImuSamples
 
 from . import ros2
 from .mcap.writer import BulkMcapWriter
-from .recording import (
+from .recording_layout import (
     DRIVE_LABEL,
     DRIVE_LAYOUT,
     DRIVE_TOPIC,
@@ -304,7 +305,7 @@ def write_metadata(
     w: BulkMcapWriter, params: RigParams, config: Bno055, run: RunInfo, compression: str, start_time_ns: int
 ) -> None:
     """``pendsim/run``, ``pendsim/rig_parameters`` and ``pendsim/imu``."""
-    import mujoco
+    import mujoco  # start-up: only its version is recorded, when a recording is written
 
     w.add_metadata(
         "pendsim/run",

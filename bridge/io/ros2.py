@@ -194,7 +194,7 @@ def decoder_for(schema: Any) -> Callable[[bytes], Any]:
     Raises:
       ValueError: the schema is not a ROS 2 message definition mcap_ros2 can parse.
     """
-    from mcap_ros2.decoder import DecoderFactory
+    from mcap_ros2.decoder import DecoderFactory  # start-up: only for messages of a foreign layout
 
     try:
         decoder = DecoderFactory().decoder_for("cdr", schema)

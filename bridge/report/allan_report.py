@@ -31,7 +31,9 @@ from pendsim_mj.allan.deviation import (
 from pendsim_mj.errors import RecordingError
 from pendsim_mj.estimation.timing import nominal_rate_hz
 
-from ..io.recording import NODES, imu_topic, read_recording
+from ..io.outputs import atomic_directory
+from ..io.recording import read_recording
+from ..io.recording_layout import NODES, imu_topic
 from ..signals import interrupts_deferred
 
 SENSORS = (("accel", "m/s^2", "accelerometer"), ("gyro", "rad/s", "gyroscope"))
@@ -98,7 +100,7 @@ def analyse(
         (``pendsim_mj.allan.deviation.gyro_motion``), gaps or irregular timestamps, which Allan deviation
         cannot take.
     """
-    from ..io.mcap import chunk_kernel  # numba, for the analysis only
+    from ..io.mcap import chunk_kernel  # start-up: numba, for the analysis only
 
     path = Path(path)
     chunk_kernel.warm_up()  # numba's first call in this process: the chunks are then parsed compiled
@@ -107,7 +109,7 @@ def analyse(
         load_kernels()
     with ThreadPoolExecutor(max_workers=1, thread_name_prefix="allan") as pool:
         computing = pool.submit(_deviations, stretches.columns)  # compiled, without the GIL
-        import allantools  # noqa: F401  (meanwhile: the confidence intervals' degrees of freedom)
+        import allantools  # noqa: F401  (start-up: loaded meanwhile, for the confidence intervals)
 
         if while_computing is not None:
             while_computing()
@@ -392,8 +394,6 @@ def plots(report: AllanReport, directory: str | Path, *, replace: bool = False) 
     forked workers: a fork of a process with threads can deadlock) and published together into
     ``directory`` (``atomic_directory``: never over
     plots of the same names unless ``replace``); returns the PNG paths."""
-    from ..io.outputs import atomic_directory
-
     directory = Path(directory)
     duration = duration_text(report.duration_s)
     names = []
@@ -419,7 +419,7 @@ def plots(report: AllanReport, directory: str | Path, *, replace: bool = False) 
 
 
 def _render(job) -> Path:
-    from .plots import allan_plot
+    from .plots import allan_plot  # start-up: matplotlib, only when the plots are drawn
 
     curves, terms, labels, title, unit, path = job
     return allan_plot(curves, terms, labels, title=title, unit=unit, path=path)

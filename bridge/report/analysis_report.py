@@ -33,6 +33,7 @@ from pendsim_mj.nonlinear import (
 from pendsim_mj.rig.drives import Drive
 
 from ..io.outputs import atomic_directory
+from . import figures
 
 BIFURCATION_STYLE = {
     "fold": ("D", "tab:red", "fold"),
@@ -94,8 +95,7 @@ def _finish(fig: Any, ax_legend: Any, path: Path) -> None:
     if handles:
         ax_legend.legend(handles, labels, fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0)
     fig.tight_layout()
-    fig.savefig(path, bbox_inches="tight")
-    plt.close(fig)
+    figures.save_figure(fig, path, replace=True)
 
 
 def _segments(x: np.ndarray, y: np.ndarray, stable: np.ndarray) -> list[tuple[np.ndarray, np.ndarray, bool]]:
@@ -367,8 +367,7 @@ def write_tongues(result: Tongues, out_dir: Path, *, settings: dict[str, Any], r
         handles, labels = ax.get_legend_handles_labels()
         fig.legend(handles, labels, fontsize=7, loc="lower center", ncol=3, bbox_to_anchor=(0.5, -0.02))
         fig.tight_layout(rect=(0, 0.06, 1, 1))
-        fig.savefig(tmp / "tongues.png", bbox_inches="tight")
-        plt.close(fig)
+        figures.save_figure(fig, tmp / "tongues.png", replace=True)
     return [out_dir / n for n in ("tongues.json", "tongues.csv", "tongues.png")]
 
 

@@ -2,7 +2,7 @@
 over ``ENVELOPE_ABOVE`` points, reduced to their min-max envelope (``envelope``). ``validate``
 reduces each whole-run line when its comparison is made (``drawn_lines``), so a long run's figures
 hold a few thousand points per line instead of its series (``plots.validation_figures`` draws
-them)."""
+them); ``FIGURES`` names the validation's figures and what each draws."""
 
 from __future__ import annotations
 
@@ -10,6 +10,21 @@ import dataclasses
 
 import numpy as np
 from numpy.typing import ArrayLike
+
+FIGURES = (
+    ("fig09_tangential_acceleration_m1", "tangential_m1", "short"),
+    ("fig10_normal_acceleration_m1", "normal_m1", "short"),
+    ("fig11_phi1", "phi1", "short"),
+    ("fig12_phi1", "phi1", "whole"),
+    ("fig13_omega1", "omega1", "short"),
+    ("fig15_omega2", "omega2", "whole"),
+)
+"""The paper's Figures 9-13 and 15 (``plots.validation_figures``): (file stem, quantity, window).
+The whole-run comparisons keep their metrics only; of the quantities a whole-run figure draws,
+the lines it draws are kept, reduced to their envelopes when compared (``drawn_lines``, in
+``ValidationReport.lines``; not of the planar reference from the nominal start, which no figure
+draws), so a long run's memory holds none of its whole-run series."""
+
 
 Line = tuple[np.ndarray, np.ndarray]
 """A line to draw: its instants (k,) s and values (k,), float64, NaN where it breaks."""

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -12,24 +13,15 @@ import matplotlib.pyplot as plt
 from matplotlib import ticker
 
 from pendsim_mj.allan.deviation import AllanCurve, NoiseTerms
+from pendsim_mj.estimation.analysis import carrier_envelope
+from pendsim_mj.estimation.quantities import BY_NAME
 
-from .figure_lines import broken, drawn_lines
+from ..io.outputs import atomic_directory
+from . import figures
+from .figure_lines import FIGURES, broken, drawn_lines
+from .figures import legend_outside
 
 AXIS_COLOURS = ("tab:red", "tab:green", "tab:blue")
-
-
-def legend_outside(ax, *, fontsize: float = 7) -> None:
-    """The axes' legend to the right of the plot area, never over the data."""
-    ax.legend(fontsize=fontsize, loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0.0, frameon=False)
-
-
-def save_figure(fig, path: str | Path) -> Path:
-    """Write a figure as PNG, cropped to what is drawn (the legends outside the axes included),
-    and close it."""
-    path = Path(path)
-    fig.savefig(path, bbox_inches="tight", pad_inches=0.1)
-    plt.close(fig)
-    return path
 
 
 def allan_plot(
@@ -84,7 +76,7 @@ def allan_plot(
     ax.xaxis.set_major_formatter(ticker.LogFormatter())
     ax.yaxis.set_major_formatter(ticker.LogFormatter())
     legend_outside(ax)
-    return save_figure(fig, path)  # cropped to what is drawn: no tight_layout pass needed
+    return figures.save_figure(fig, path, replace=True)  # cropped to what is drawn: no tight_layout pass needed
 
 
 def validation_figures(report, directory: str | Path) -> list[Path]:
@@ -93,18 +85,14 @@ def validation_figures(report, directory: str | Path) -> list[Path]:
     the run starts from rest). Lines break at gaps in the samples; a long run's lines are drawn as
     their envelopes (``figure_lines.envelope``; the whole run's as ``validate`` kept them:
     ``ValidationReport.lines``)."""
-    from pendsim_mj.estimation.quantities import BY_NAME
-
-    from ..run.validate import FIGURES
-
     directory = Path(directory)
     directory.mkdir(parents=True, exist_ok=True)
     short = next(c.window for c in report.cases if c.window != "whole")
     gap = report.run.max_gap_s
 
-    figures = [(stem, quantity, short if window == "short" else window) for stem, quantity, window in FIGURES]
+    wanted = [(stem, quantity, short if window == "short" else window) for stem, quantity, window in FIGURES]
     out = []
-    for stem, quantity, window in figures:
+    for stem, quantity, window in wanted:
         m = report.case("mujoco", "estimated", window).comparisons[quantity]
         r = report.case("reference", "estimated", window).comparisons[quantity]
         q = BY_NAME[quantity]
@@ -150,9 +138,8 @@ def validation_figures(report, directory: str | Path) -> list[Path]:
             ax = low
         ax.set_xlabel("time since the start t (s)")
         fig.tight_layout()
-        out.append(
-            save_figure(fig, directory / f"{stem}_{'whole' if window == 'whole' else window.replace(' ', '')}.png")
-        )
+        name = f"{stem}_{'whole' if window == 'whole' else window.replace(' ', '')}.png"
+        out.append(figures.save_figure(fig, directory / name, replace=True))
     # Figure 14: Delta, IAE and ISE of phi1 over the short window.
     m = report.case("mujoco", "estimated", short).comparisons["phi1"]
     fig, axes = plt.subplots(3, 1, figsize=(9, 7), dpi=100, sharex=True)
@@ -168,14 +155,13 @@ def validation_figures(report, directory: str | Path) -> list[Path]:
     axes[0].set_title(f"phi1 error, MuJoCo from the estimated start, first {short}")
     axes[2].set_xlabel("time since the start t (s)")
     fig.tight_layout()
-    out.append(save_figure(fig, directory / f"fig14_error_phi1_{short.replace(' ', '')}.png"))
+    out.append(figures.save_figure(fig, directory / f"fig14_error_phi1_{short.replace(' ', '')}.png", replace=True))
     return sorted(out)
 
 
 def comparison_figures(comparison, directory: str | Path) -> list[Path]:
     """Planar against spatial: angles, in-plane difference, tilt, envelopes, spectra near f0."""
-    from pendsim_mj.estimation.analysis import carrier_envelope
-    from pendsim_mj.estimation.comparison import spectrum_near
+    from pendsim_mj.estimation.comparison import spectrum_near  # start-up: scipy and MuJoCo, for comparisons only
 
     directory = Path(directory)
     directory.mkdir(parents=True, exist_ok=True)
@@ -187,7 +173,7 @@ def comparison_figures(comparison, directory: str | Path) -> list[Path]:
 
     def save(fig, name):
         fig.tight_layout()
-        out.append(save_figure(fig, directory / name))
+        out.append(figures.save_figure(fig, directory / name, replace=True))
 
     fig, axes = plt.subplots(2, 1, figsize=(10, 6), dpi=100, sharex=True)
     for k, ax in enumerate(axes):
@@ -241,10 +227,6 @@ COMPARISON_FILES = (
 def write_comparison(comparison, out_dir: str | Path, *, replace: bool = False) -> list[Path]:
     """summary.json and the three comparison PNGs (``COMPARISON_FILES``) into ``out_dir``,
     published together (never over files of the same names unless ``replace``)."""
-    import json
-
-    from ..io.outputs import atomic_directory
-
     out = Path(out_dir)
     with atomic_directory(out, replace=replace) as tmp:
         (tmp / "summary.json").write_text(json.dumps(comparison.to_json(), indent=1))

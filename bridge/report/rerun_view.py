@@ -27,22 +27,30 @@ import numpy as np
 import pyarrow as pa
 import rerun as rr
 import rerun.blueprint as rrb
+from rerun.components import LineStrip3DBatch
+from rerun.encodings import Vec3DBatch
 
+from pendsim_mj.engines.dispatch import whole_steps_s
+from pendsim_mj.engines.simulation import simulate_blocks
 from pendsim_mj.engines.trajectory import Trajectory
 from pendsim_mj.errors import ModelError
-from pendsim_mj.estimation.quantities import QUANTITIES
+from pendsim_mj.estimation.quantities import BY_NAME, QUANTITIES
+from pendsim_mj.estimation.timing import DEFAULT_MAX_GAP_S
 from pendsim_mj.rig.drives import Drive
 from pendsim_mj.rig.mjcf_guard import compile_untrusted
-from pendsim_mj.rig.model import BODIES, SPRING_ENDS, SPRING_POINT_OWNER, SPRINGS
+from pendsim_mj.rig.model import BODIES, SPRING_ENDS, SPRING_POINT_OWNER, SPRINGS, build_model
 from pendsim_mj.sensors import rotations
 
 from ..errors import OutputError
+from ..io.measured import align_recording, recorded_params, recording_drive
 from ..io.outputs import atomic_output
+from ..io.recording import read_recording
+from ..io.recording_layout import DRIVE_TOPIC, NODES, imu_topic
 
 if TYPE_CHECKING:
     from pendsim_mj.estimation.alignment import MeasuredRun
 
-    from ..run.validate import ValidationReport
+    from .validation_report import ValidationReport
 
 TIMELINE = "time"
 APPLICATION_ID = "pendsim"
@@ -335,9 +343,6 @@ def _segments_arrow(ends: np.ndarray) -> pa.Array:
     """Line strips of two points each, ends (m, 2, 3) m, as the Arrow array Rerun makes of them
     (``LineStrip3DBatch``: the same offsets and float32 points), without its offset loop in
     Python (one call per strip: about 0.7 s per hour of springs)."""
-    from rerun.components import LineStrip3DBatch
-    from rerun.encodings import Vec3DBatch
-
     offsets = np.arange(0, 2 * len(ends) + 1, 2, dtype=np.int32)
     points = Vec3DBatch(ends.reshape(-1)).as_arrow_array()
     return pa.ListArray.from_arrays(offsets, points, type=LineStrip3DBatch._ARROW_DATATYPE)
@@ -416,7 +421,7 @@ def error_in_windows(
     ISE continued from the previous window's end): memory of one window, whatever the duration.
     The curves equal one whole-run ``compare``'s to the integration rule's difference at the
     window boundaries (Simpson's pairing restarts there; tested to 1e-6 of the total)."""
-    from pendsim_mj.estimation.validation import compare
+    from pendsim_mj.estimation.validation import compare  # scipy: not for the live view
 
     n = len(t_s)
     starts = list(range(0, max(n - 1, 1), window))
@@ -543,22 +548,15 @@ def view_recording(
     safe (``rig_model``).
 
     Args:
-      release_s, max_gap_s: as ``validate.align_recording`` (the start on the recording's clock
+      release_s, max_gap_s: as ``measured.align_recording`` (the start on the recording's clock
         instead of finding it; the longest gap interpolated across).
       drive: the drive of the re-simulation, from the start on; by default the one the recording
         holds on its /drive topic from the start on (none for a free run;
-        ``validate.recording_drive``). The start is found by the model, driven by it, over its
+        ``measured.recording_drive``). The start is found by the model, driven by it, over its
         first second (``pendsim_mj.estimation.alignment``).
       replace: replace an existing .rrd file (``--force``).
       warn: receives a warning line (an MJCF attachment ignored).
     """
-    from pendsim_mj.engines.dispatch import whole_steps_s
-    from pendsim_mj.engines.simulation import simulate_blocks
-    from pendsim_mj.estimation.timing import DEFAULT_MAX_GAP_S
-
-    from ..io.recording import DRIVE_TOPIC, NODES, imu_topic, read_recording
-    from ..run.validate import align_recording, recorded_params, recording_drive
-
     # a truncated or damaged file fails here, before Rerun sees it (only the topics shown are decoded)
     rec = read_recording(path, topics=[*(imu_topic(n) for n in NODES), DRIVE_TOPIC])
     params = recorded_params(rec)
@@ -589,8 +587,6 @@ def rig_model(mjcf_xml: str | None, traj: Trajectory, *, warn: Callable[[str], N
     """The model to draw: the recording's MJCF attachment if ``pendsim_mj.rig.mjcf_guard`` accepts it
     (no file references, within size limits) and it compiles, else the run's parameters (with a
     warning naming the reason)."""
-    from pendsim_mj.rig.model import build_model
-
     if mjcf_xml:
         try:
             return compile_untrusted(mjcf_xml)
@@ -635,7 +631,7 @@ class _ModelAtInstants:
         return self.values
 
     def _interpolate(self, *, until_s: float) -> None:
-        from pendsim_mj.estimation.validation import resample
+        from pendsim_mj.estimation.validation import resample  # scipy: not for the live view
 
         stop = int(np.searchsorted(self.at_s, until_s, side="right"))
         if stop > self.done:
@@ -710,8 +706,6 @@ def view_aligned(
     block and never held whole (32 bytes per step are kept: ``_log_blocks``); the phi1 error is
     interpolated block by block, and every series goes to Rerun in windows of VIEW_BLOCK_STEPS
     rows, so that memory beyond the measured run grows by 32 bytes per model step."""
-    from pendsim_mj.estimation.quantities import BY_NAME
-
     it = blocks()
     first = next(it)
     model = rig_model(mjcf_xml, first[1], warn=warn)
@@ -737,8 +731,6 @@ def view_aligned(
 
 def view_comparison(comparison, params, variant, rrd_path: str | Path, *, replace: bool = False) -> Path:
     """Planar and spatial rigs side by side (0.8 m apart) and their angles on shared plots."""
-    from pendsim_mj.rig.model import build_model
-
     planar_model = build_model(params.with_overrides(plane_offset_m=0.0))
     spatial_model = build_model(params, variant=variant)
     with rrd_output(rrd_path, replace=replace, series=("planar", "spatial")):

@@ -34,6 +34,7 @@ import sys
 import tempfile
 import threading
 import time
+import uuid
 from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import IO
@@ -340,9 +341,7 @@ def _send_file(rrd: Path, url: str, log: IO[bytes]) -> None:
     Raises:
       ProcessError: the file could not be sent within SEND_TIMEOUT_S.
     """
-    import uuid
-
-    import rerun as rr
+    import rerun as rr  # start-up: Rerun, only when a file is sent
 
     stream = rr.RecordingStream("pendsim_serve", recording_id=uuid.uuid4())
     try:

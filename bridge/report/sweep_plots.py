@@ -31,6 +31,7 @@ from pendsim_mj.sweep.features import FEATURE_GROUPS, LIST_GROUPS
 from pendsim_mj.sweep.plan import CaseTable, SweepPlan, elasticities
 
 from ..io.outputs import atomic_output
+from . import figures
 
 _UNITS = {name: unit for name, unit, _ in RigParams.describe()}
 _SUFFIX_UNITS = (
@@ -125,13 +126,6 @@ def _number(value: float) -> float | None:
     return float(value) if np.isfinite(value) else None
 
 
-def _save(fig: plt.Figure, path: Path) -> Path:
-    with atomic_output(path, replace=True) as tmp:
-        fig.savefig(tmp, format="png")
-    plt.close(fig)
-    return path
-
-
 def _bars(path: Path, e: NDArray[np.float64], params: tuple[str, ...], feature: str, title: str) -> Path:
     order = _ranking(e)[::-1]  # matplotlib draws the first bar at the bottom: largest on top
     shown = np.nan_to_num(e[order])
@@ -159,7 +153,7 @@ def _bars(path: Path, e: NDArray[np.float64], params: tuple[str, ...], feature: 
     ax.set_title(title, fontsize=10)
     ax.grid(True, axis="x", alpha=0.3)
     fig.tight_layout()
-    return _save(fig, path)
+    return figures.save_figure(fig, path, replace=True, crop=False)
 
 
 def _line(path: Path, x: NDArray[np.float64], y: NDArray[np.float64], xname: str, yname: str, title: str) -> Path:
@@ -171,7 +165,7 @@ def _line(path: Path, x: NDArray[np.float64], y: NDArray[np.float64], xname: str
     ax.set_title(title, fontsize=10)
     ax.grid(True, alpha=0.3)
     fig.tight_layout()
-    return _save(fig, path)
+    return figures.save_figure(fig, path, replace=True, crop=False)
 
 
 def _heat(
@@ -193,7 +187,7 @@ def _heat(
     ax.set_ylabel(label(names[0]))
     ax.set_title(title, fontsize=10)
     fig.tight_layout()
-    return _save(fig, path)
+    return figures.save_figure(fig, path, replace=True, crop=False)
 
 
 def _scatter(
@@ -210,7 +204,7 @@ def _scatter(
     ax.set_ylabel(label(names[0]))
     ax.set_title(title, fontsize=10)
     fig.tight_layout()
-    return _save(fig, path)
+    return figures.save_figure(fig, path, replace=True, crop=False)
 
 
 def _panels(
@@ -229,7 +223,7 @@ def _panels(
         ax.grid(True, alpha=0.3)
     fig.suptitle(title, fontsize=10)
     fig.tight_layout()
-    return _save(fig, path)
+    return figures.save_figure(fig, path, replace=True, crop=False)
 
 
 def _bifurcation(path: Path, x: NDArray[np.float64], samples: list[list[float]], xname: str, title: str) -> Path:
@@ -242,4 +236,4 @@ def _bifurcation(path: Path, x: NDArray[np.float64], samples: list[list[float]],
     ax.set_title(title, fontsize=10)
     ax.grid(True, alpha=0.3)
     fig.tight_layout()
-    return _save(fig, path)
+    return figures.save_figure(fig, path, replace=True, crop=False)

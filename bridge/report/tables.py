@@ -9,7 +9,8 @@ from pendsim_mj.estimation.analysis import RunSummary
 from pendsim_mj.estimation.comparison import Comparison3D
 
 from ..io.mcap.reader import McapContents
-from ..run.validate import Identification
+from ..io.recording_layout import UNIX_2000_S, utc_iso
+from .validation_report import Identification
 
 
 def run_summary(summary: RunSummary, engine: str) -> str:
@@ -40,8 +41,6 @@ def contents_table(contents: McapContents) -> str:
     starts = [int(m.log_time_ns[0]) for m in contents.messages.values() if len(m)]
     ends = [int(m.log_time_ns[-1]) for m in contents.messages.values() if len(m)]
     if starts:
-        from ..io.importers import UNIX_2000_S, utc_iso
-
         t0, t1 = min(starts) / 1e9, max(ends) / 1e9
         lines.append(f"duration {t1 - t0:.3f} s (log time {t0:.3f} to {t1:.3f} s)")
         if t0 >= UNIX_2000_S:

@@ -16,8 +16,9 @@ from pendsim_mj.errors import ParameterError
 
 from ..io.outputs import atomic_directory
 from ..report.rerun_view import view_report
+from ..report.validation_report import ValidationReport, table, write_outputs
 from .record import RecordSpec, record
-from .validate import ValidationReport, table, validate, write_outputs
+from .validate import validate
 
 HOLD_S = 2.0  # held before the release, as a real recording starts
 DEMO_FILES = ("run.mcap", "report.json", "run.rrd")

@@ -33,7 +33,7 @@ from pendsim_mj.sensors.bno055 import Bno055, ImuSampler, sample_imu, static_imu
 
 from ..io.mcap.writer import BulkMcapWriter
 from ..io.outputs import atomic_output
-from ..io.recording import RunInfo
+from ..io.recording_layout import RunInfo
 from ..io.recording_writer import RecordingWriter
 
 Model = Literal["planar", "spatial", "static"]

@@ -312,7 +312,7 @@ def replay_to_mcap(
 def log_to_rerun(message: ReplayMessage) -> None:
     """Log one replayed message to the current Rerun recording on the 'log_time' timeline:
     Imu -> angular velocity and acceleration scalars; JointState -> positions and velocities."""
-    import rerun as rr
+    import rerun as rr  # start-up: Rerun, only for a replay into Rerun
 
     rr.set_time("log_time", duration=message.t_s)
     m = message.decoded

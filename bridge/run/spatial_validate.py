@@ -2,33 +2,36 @@
 and the support's tilt stiffness and damping (``identify --model spatial``).
 
 Reads and wires; the work is in ``pendsim_mj`` (``alignment``, ``validation.compare``,
-``spatial_identification``). Both use the run as ``pendsim_bridge.run.validate`` aligns it.
+``spatial_identification``). Both use the run as ``pendsim_bridge.io.measured`` aligns it.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import json
 import math
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 
+from pendsim_mj.engines.dispatch import whole_steps_s
 from pendsim_mj.engines.simulation import simulate
+from pendsim_mj.engines.trajectory import Trajectory
 from pendsim_mj.errors import ParameterError, RecordingError
 from pendsim_mj.estimation.alignment import MeasuredRun
-from pendsim_mj.estimation.quantities import VALIDATED
+from pendsim_mj.estimation.quantities import VALIDATED, Quantity
 from pendsim_mj.estimation.spatial_identification import NAMES, TILT_STARTS, TiltFit, fit_tilt, static_tilt_rad
 from pendsim_mj.estimation.timing import DEFAULT_MAX_GAP_S
-from pendsim_mj.estimation.validation import compare
+from pendsim_mj.estimation.validation import compare, resample
 from pendsim_mj.rig.model import SPATIAL
 from pendsim_mj.rig.params import DEFAULT_PARAMS, PLANE_OFFSET_PRESETS_M, RigParams
 from pendsim_mj.sensors.bno055 import ImuNoise
 
+from ..io.measured import align_recording, node_samples, recorded_params
+from ..io.outputs import atomic_output
 from ..io.recording import Recording, read_recording
-
-if TYPE_CHECKING:
-    from .validate import CaseResult
+from ..report.validation_report import CaseResult
 
 MODELS = ("planar", "spatial")
 RELEASE_AT_START_RAD_S = 0.2  # a start "in motion" slower than this is a release at the recording's start
@@ -38,6 +41,12 @@ PAPER_OFFSET_M = max(PLANE_OFFSET_PRESETS_M)  # 0.050: the spatial model of a ri
 def spatial_params(params: RigParams) -> RigParams:
     """The rig for the spatial model: its plane offset, or the paper's 50 mm if it has none."""
     return params if params.plane_offset_m > 0 else params.with_overrides(plane_offset_m=PAPER_OFFSET_M)
+
+
+def model_at(traj: Trajectory, run: MeasuredRun, quantity: Quantity) -> np.ndarray:
+    """A quantity of a model run at the instants its node's measured values belong to."""
+    at = run.nodes[quantity.node].value_t_s
+    return resample(traj.t_s, quantity.computed(traj), np.clip(at, 0.0, traj.t_s[-1]))
 
 
 def spatial_case(
@@ -54,8 +63,6 @@ def spatial_case(
     quantity, as a ``CaseResult`` with engine "mujoco-spatial", and the rig it ran. With
     ``damping_fit`` its b1, b2 are fitted to the gyros first, with the start state (tilt values
     as given; ``covariance``: each node's gyro covariance)."""
-    from .validate import CaseResult, model_at, whole_steps_s
-
     start = run.start
     params = spatial_params(params)
     if damping_fit:  # the spatial model's own b1, b2 (each model with its best damping)
@@ -110,28 +117,6 @@ def model_choice(planar: CaseResult, spatial: CaseResult) -> dict[str, Any]:
         "overall": overall,
         "better": min(MODELS, key=lambda m: overall[m]),
     }
-
-
-def choice_lines(choice: dict[str, Any], offset_m: float) -> list[str]:
-    """The printed comparison of the planar and the spatial model."""
-    lines = [
-        "",
-        f"planar vs spatial model ({1000 * offset_m:g} mm between the planes, tilt freedoms), MuJoCo, "
-        "from the estimated start, whole run:",
-        f"  {'quantity':14} {'rms planar':>11} {'rms spatial':>11} {'delta planar':>12} {'delta spatial':>13}  better",
-    ]
-    for name, q in choice["quantities"].items():
-        d = [f"{v:.2e}" if v is not None else "-" for v in (q["delta_f"]["planar"], q["delta_f"]["spatial"])]
-        lines.append(
-            f"  {name:14} {q['rms']['planar']:11.4g} {q['rms']['spatial']:11.4g} {d[0]:>12} {d[1]:>13}  {q['better']}"
-            f"  ({q['unit']})"
-        )
-    o = choice["overall"]
-    lines.append(
-        f"  overall (mean rms / std of the measured): planar {o['planar']:.4g}, spatial {o['spatial']:.4g}: "
-        f"the {choice['better']} model fits better"
-    )
-    return lines
 
 
 def _finite(v: float) -> float | None:
@@ -193,8 +178,6 @@ def identify_spatial(
 ) -> SpatialIdentification:
     """Tilt stiffness, tilt damping, b1 and b2 from a recording's free decay (spatial model), with
     the start state; ``tilt_start`` ("zero", "static"; default ``tilt_start_of`` the recording)."""
-    from .validate import align_recording, node_samples, recorded_params
-
     rec = read_recording(path)
     if rec.drive_input_s is not None:
         raise ParameterError(
@@ -255,10 +238,6 @@ def identify_and_write(
     """``identify --model spatial``: the fit's printed lines; with ``write``, the four values as
     JSON (parameter names, for ``--params-file`` of simulate and record; the plane offset is
     record's --offset-m) written atomically."""
-    import json
-
-    from ..io.outputs import atomic_output
-
     result = identify_spatial(path, release_s=release_s, max_gap_s=max_gap_s)
     lines = identification_lines(path, result)
     if write is not None:

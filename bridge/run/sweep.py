@@ -155,7 +155,7 @@ def run_sweep(
     maps: tuple[Path, ...] = ()
     sensitivity = None
     if plots or plan.method == "sensitivity":
-        from ..report import sweep_plots
+        from ..report import sweep_plots  # start-up: matplotlib, only for the maps
 
         if plan.method == "sensitivity":
             sensitivity = sweep_plots.write_sensitivity(results, table, out_dir=store.root)
@@ -332,7 +332,7 @@ class SweepStore:
         return pa.table(cols)
 
     def _open_zarr(self) -> None:
-        import zarr
+        import zarr  # start-up: only for a zarr store
 
         path = self.root / "trajectories.zarr"
         nsave = self.plan.nstep // self.plan.save_every + 1
@@ -383,7 +383,7 @@ def _run_dask(
     workers: int | None,
     scheduler: str | None,
 ) -> None:
-    from dask.distributed import Client, LocalCluster, as_completed
+    from dask.distributed import Client, LocalCluster, as_completed  # start-up: only for a Dask run
 
     with contextlib.ExitStack() as stack:
         if workers is not None:
@@ -443,7 +443,7 @@ def _terminate_as_interrupt() -> Iterator[None]:
 
 @contextlib.contextmanager
 def _progress_bar(total: int, initial: int, show: bool, backend: str) -> Iterator[Callable[[int], None]]:
-    from tqdm import tqdm
+    from tqdm import tqdm  # start-up: only when a bar is shown
 
     with tqdm(
         total=total,

@@ -4,7 +4,9 @@ and the planar reference compute, with the paper's metrics (spec RIG.md sections
 This module reads and wires; the physics layer does the work on arrays:
 ``pendsim_mj.estimation.alignment`` (clocks, start, swing frames, fusion timing, coverage),
 ``pendsim_mj.estimation.validation`` (metrics on covered samples), ``pendsim_mj.estimation.identification`` (damping)
-and ``pendsim_mj.estimation.quantities`` (what is compared).
+and ``pendsim_mj.estimation.quantities`` (what is compared). The recording is read into arrays and
+aligned by ``pendsim_bridge.io.measured``; the ``ValidationReport`` returned, its files and its
+table are ``pendsim_bridge.report.validation_report``'s.
 
 Only the IMU topics are used as the measurement (never /joint_states, which a simulated recording
 holds as ground truth): phi_n from each node's orientation about its hinge axis, omega_n from its
@@ -18,143 +20,42 @@ from rest, from the nominal 30 deg.
 from __future__ import annotations
 
 import dataclasses
-import functools
-import json
 import math
 from collections.abc import Mapping
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import DTypeLike
 
 from pendsim_mj.engines import dispatch as engines
 from pendsim_mj.engines.dispatch import whole_steps_s
-from pendsim_mj.engines.trajectory import Trajectory
-from pendsim_mj.errors import ParameterError, RecordingError
-from pendsim_mj.estimation.alignment import MeasuredRun, NodeSamples, align
-from pendsim_mj.estimation.quantities import VALIDATED, Quantity
+from pendsim_mj.errors import ParameterError
+from pendsim_mj.estimation.alignment import MeasuredRun
+from pendsim_mj.estimation.identification import (
+    LogDecrement,
+    ModalDecrement,
+    log_decrement,
+    modal_decrement,
+    planar_damping,
+)
+from pendsim_mj.estimation.quantities import VALIDATED
 from pendsim_mj.estimation.timing import DEFAULT_MAX_GAP_S
 from pendsim_mj.estimation.validation import Comparison, compare, resample
 from pendsim_mj.rig.checks import check_step
 from pendsim_mj.rig.drives import Drive
-from pendsim_mj.rig.params import DEFAULT_PARAMS, RigParams
+from pendsim_mj.rig.params import RigParams
 
 from .. import heap
-from ..acquire.clock import recorded_stamp_clock
-from ..io.outputs import atomic_directory
-from ..io.recording import DRIVE_TOPIC, NODES, Recording, imu_topic, read_recording
-from ..report.figure_lines import DrawnLines, drawn_lines
+from ..io.measured import align_recording, node_samples, recorded_params, recording_drive
+from ..io.recording import read_recording
+from ..io.recording_layout import DRIVE_TOPIC, NODES, imu_topic
+from ..report.figure_lines import FIGURES, DrawnLines, drawn_lines
+from ..report.validation_report import AT_REST_RAD_S, NOMINAL_RELEASE_RAD, CaseResult
+from ..report.validation_report import Identification as Identification  # what identify returns, beside it
+from ..report.validation_report import ValidationReport as ValidationReport  # what validate returns, beside it
+from . import spatial_validate
 
-if TYPE_CHECKING:  # the identification (and scipy) is imported where it runs: the view needs none of it
-    from pendsim_mj.estimation.identification import DampingFit, LogDecrement, ModalDecrement
-
-NOMINAL_RELEASE_RAD = (math.pi / 6, 0.0)  # paper: the simulation releases M1 from 30 deg
-AT_REST_RAD_S = 0.1
 MODEL_BLOCK_STEPS = 6000  # model steps simulated at once (60 s at 0.01 s)
-FIGURES = (
-    ("fig09_tangential_acceleration_m1", "tangential_m1", "short"),
-    ("fig10_normal_acceleration_m1", "normal_m1", "short"),
-    ("fig11_phi1", "phi1", "short"),
-    ("fig12_phi1", "phi1", "whole"),
-    ("fig13_omega1", "omega1", "short"),
-    ("fig15_omega2", "omega2", "whole"),
-)
-"""The paper's Figures 9-13 and 15 (``plots.validation_figures``): (file stem, quantity, window).
-The whole-run comparisons keep their metrics only; of the quantities a whole-run figure draws,
-the lines it draws are kept, reduced to their envelopes when compared (``figure_lines``, in
-``ValidationReport.lines``; not of the planar reference from the nominal start, which no figure
-draws), so a long run's memory holds none of its whole-run series."""
-
-
-def node_samples(rec: Recording) -> tuple[NodeSamples, NodeSamples]:
-    """Both nodes' /imu/mN samples as arrays (log times and header stamps in s)."""
-    missing = [imu_topic(n) for n in NODES if n not in rec.imu]
-    if missing:
-        raise RecordingError(
-            f"{rec.path}: needs both /imu/m1 and /imu/m2 (M1's and M2's IMU); {', '.join(missing)} missing; "
-            "a one-node recording is for 'pendsim inspect' and 'pendsim allan' (docs/acquisition.md)"
-        )
-    out = []
-    for n in NODES:
-        topic = rec.imu[n]
-        stamps = topic.stamp_ns
-        clock = recorded_stamp_clock(rec.metadata, n, rec.start_time_ns)  # acquire's fit over the arrivals
-        out.append(
-            NodeSamples(
-                log_t_s=topic.t_ns * 1e-9 if clock is None else clock.to_recorder_in_place(stamps * 1e-9),
-                quat_wxyz=topic.quat_wxyz,
-                gyro_rad_s=topic.gyro_rad_s,
-                accel_m_s2=topic.accel_m_s2,
-                stamp_s=stamps * 1e-9 if np.any(stamps != stamps[0]) else None,  # constant stamps: none
-                gyro_covariance=topic.gyro_covariance[0] if len(topic.gyro_covariance) else None,
-            )
-        )
-    return out[0], out[1]
-
-
-def fusion_rate_of(rec: Recording) -> float | None:
-    """The nodes' fusion rate from the recording's metadata (a recording from elsewhere: a BNO055
-    in NDOF mode, 100 Hz)."""
-    imu_meta = rec.metadata.get("pendsim/imu", {})
-    if imu_meta.get("fusion_timing", "true") != "true":
-        return None
-    return float(imu_meta.get("fusion_rate_hz", "100"))
-
-
-def align_recording(
-    rec: Recording,
-    params: RigParams,
-    *,
-    release_s: float | None = None,
-    max_gap_s: float = DEFAULT_MAX_GAP_S,
-    samples: tuple[NodeSamples, NodeSamples] | None = None,
-    off_hinge: bool = True,
-    float32_values: bool = False,
-) -> MeasuredRun:
-    """The measured run of a recording (``pendsim_mj.estimation.alignment.align`` on its IMU topics, and on
-    its /drive topic for a driven run); ``samples``: its ``node_samples`` if the caller has them;
-    ``off_hinge``: keep the gyros off the hinge axes (for a spatial fit); ``float32_values``: the
-    run's values as float32 (``align``)."""
-    if samples is None:
-        samples = node_samples(rec)  # its errors name the file already
-    try:
-        return align(
-            samples,
-            params,
-            fusion_rate_hz=fusion_rate_of(rec),
-            release_s=release_s,
-            max_gap_s=max_gap_s,
-            drive_input=rec.drive_input_s,
-            off_hinge=off_hinge,
-            float32_values=float32_values,
-        )
-    except RecordingError as exc:
-        raise RecordingError(f"{rec.path}: {exc}") from None
-
-
-def recording_drive(rec: Recording, run: MeasuredRun) -> Drive | None:
-    """The recording's drive from the aligned run's start on (drive time 0 there), covering the
-    whole run; None for a free run."""
-    return rec.drive_from(run.start.time_s, until_s=run.duration_s + 0.1)
-
-
-def _runs(
-    engine: str,
-    params: RigParams,
-    starts: list[tuple[tuple[float, float], tuple[float, float]]],
-    duration_s: float,
-    dt_s: float = 0.01,
-    drive: Drive | None = None,
-) -> list[Trajectory]:
-    """One trajectory per start state (angles, rates), computed as one batch (the planar
-    reference on its compiled kernel, ``engines.FAST_PATH``), driven by ``drive`` (time 0 at
-    the start) or free."""
-    engine = engines.FAST_PATH.get(engine, engine)
-    phi0 = np.array([s[0] for s in starts], dtype=float)
-    omega0 = np.array([s[1] for s in starts], dtype=float)
-    batch = engines.run_batch(engine, params, phi0, omega0, whole_steps_s(duration_s, dt_s), dt_s, drive=drive)
-    return [batch.member(i) for i in range(len(starts))]  # fmt: skip
 
 
 def model_series(
@@ -193,24 +94,6 @@ def _window(inside: np.ndarray, *arrays: np.ndarray) -> tuple[np.ndarray, ...]:
     return arrays if inside.all() else tuple(a[inside] for a in arrays)
 
 
-def model_at(traj: Trajectory, run: MeasuredRun, quantity: Quantity) -> np.ndarray:
-    """A quantity of a model run at the instants its node's measured values belong to."""
-    at = run.nodes[quantity.node].value_t_s
-    return resample(traj.t_s, quantity.computed(traj), np.clip(at, 0.0, traj.t_s[-1]))
-
-
-@dataclasses.dataclass(frozen=True)
-class Identification:
-    log_decrement: list[LogDecrement]
-    fit: DampingFit
-    release_angle_rad: tuple[float, float]
-    release_time_s: float
-    release_rate_rad_s: tuple[float, float] = (0.0, 0.0)
-    start_kind: str = "release"
-    modal_decrement: ModalDecrement | None = None  # None: a mode without three amplitude peaks
-    driven: bool = False  # the fit used the recorded drive; the decrements (free decay only) are skipped
-
-
 def identify(
     path: str | Path,
     *,
@@ -237,8 +120,6 @@ def _identify(
     losses and start state together; the one call into ``pendsim_mj.estimation.identification``). A driven
     run (``drive``, time 0 at the start): the fit with the drive, no decrements (they assume a
     free decay)."""
-    from pendsim_mj.estimation.identification import log_decrement, modal_decrement, planar_damping
-
     decrement: list[LogDecrement] = []
     modal: ModalDecrement | None = None
     if drive is None:
@@ -266,55 +147,6 @@ def _identify(
     return Identification(
         decrement, fit, start.phi_rad, start.time_s, start.omega_rad_s, start.kind, modal, drive is not None
     )
-
-
-def recorded_params(rec: Recording) -> RigParams:
-    try:
-        return rec.params()
-    except RecordingError:
-        return DEFAULT_PARAMS  # a recording from elsewhere: the paper's rig
-
-
-@dataclasses.dataclass(frozen=True)
-class CaseResult:
-    engine: str
-    release: str  # "estimated" or "nominal"
-    window: str  # "5 s" or "whole"
-    comparisons: dict[str, Comparison]
-
-
-@dataclasses.dataclass(frozen=True)
-class ValidationReport:
-    path: Path
-    params: RigParams
-    damping_source: str
-    identification: Identification | None
-    run: MeasuredRun
-    cases: list[CaseResult]
-    mjcf_xml: str | None  # the recording's MJCF attachment, if any
-    model_choice: dict[str, Any] | None = None  # --model spatial: planar vs spatial (spatial_validate)
-    drive: Drive | None = None  # a driven recording's drive from the start on (every model run has it)
-    lines: dict[tuple[str, str, str], DrawnLines] = dataclasses.field(default_factory=dict)
-    """What the whole-run figures draw: (engine, release, quantity) -> its lines (``FIGURES``)."""
-
-    @functools.cached_property
-    def model_run(self) -> Trajectory:
-        """MuJoCo from the estimated start with the validated parameters, the whole Trajectory
-        (simulated when first asked for: the validation itself keeps only what it compares)."""
-        start = self.run.start
-        state = [(start.phi_rad, start.omega_rad_s)]
-        return _runs("mujoco", self.params, state, self.run.duration_s + 0.02, drive=self.drive)[0]
-
-    def case(self, engine: str = "mujoco", release: str = "estimated", window: str = "whole") -> CaseResult:
-        for c in self.cases:
-            if (c.engine, c.release, c.window) == (engine, release, window):
-                return c
-        raise KeyError((engine, release, window))
-
-    @property
-    def has_nominal(self) -> bool:
-        """The nominal 30 deg release is compared too (the run starts from rest)."""
-        return any(c.release == "nominal" for c in self.cases)
 
 
 def validate(
@@ -369,9 +201,7 @@ def validate(
     del samples
     tilt_start = "zero"
     if model == "spatial":
-        from .spatial_validate import tilt_start_of
-
-        tilt_start = tilt_start_of(rec)
+        tilt_start = spatial_validate.tilt_start_of(rec)
     del rec  # the decoded topics: the aligned run holds what is compared
     heap.trim()
     identification = None
@@ -434,8 +264,6 @@ def validate(
             ]
     choice = None
     if model == "spatial":
-        from . import spatial_validate
-
         case, spatial = spatial_validate.spatial_case(
             run,
             model_params,
@@ -487,187 +315,3 @@ def gate_failures(report: ValidationReport, gates: Gates) -> list[str]:
         if not err <= gates.max_error_phi1:
             failures.append(f"max |Delta phi1| {err:.4g} rad > --max-error-phi1 {gates.max_error_phi1:g}")
     return failures
-
-
-def write_outputs(
-    report: ValidationReport, out_dir: str | Path, *, plots: bool = True, replace: bool = False
-) -> list[Path]:
-    """report.json and (with ``plots``) the paper's Figures 9-15 into ``out_dir``, published
-    together when all are written (``atomic_directory``: never over files of the same names
-    unless ``replace``). Returns the paths written."""
-    from ..report.plots import validation_figures
-
-    out = Path(out_dir)
-    with atomic_directory(out, replace=replace) as tmp:
-        (tmp / "report.json").write_text(json.dumps(report_json(report), indent=1))
-        names = ["report.json"] + ([p.name for p in validation_figures(report, tmp)] if plots else [])
-    return [out / name for name in names]
-
-
-def report_json(report: ValidationReport) -> dict[str, Any]:
-    """Everything a machine needs: alignment, coverage, damping, and every metric of every case."""
-
-    def clean(v):
-        return None if isinstance(v, float) and not math.isfinite(v) else v
-
-    ident = None
-    if report.identification is not None:
-        i = report.identification
-        ident = {
-            "log_decrement": [
-                {"b_n_m_s": d.b_n_m_s, "a0_rad": d.a0_rad, "at_rad": d.at_rad, "window_s": d.window_s}
-                for d in i.log_decrement
-            ],
-            "modal_decrement": None
-            if i.modal_decrement is None
-            else {
-                "b_n_m_s": i.modal_decrement.b_n_m_s.tolist(),
-                "decay_rate_1_s": i.modal_decrement.decay_rate_1_s.tolist(),
-                "frequency_hz": i.modal_decrement.frequency_hz.tolist(),
-                "window_s": i.modal_decrement.window_s,
-            },
-            "least_squares": {
-                "b_n_m_s": i.fit.b_n_m_s.tolist(),
-                "ci95_n_m_s": i.fit.ci95_n_m_s.tolist(),
-                "residual_rms_sigma": i.fit.residual_rms_sigma,
-                "iterations": i.fit.iterations,
-                "seconds": i.fit.seconds,
-                "law": i.fit.law,
-                "friction_n_m": i.fit.friction_n_m.tolist(),
-                "friction_ci95_n_m": i.fit.friction_ci95_n_m.tolist(),
-                "timing2_s": i.fit.timing2_s,
-                "timing2_ci95_s": i.fit.timing2_ci95_s,
-                "laws": [
-                    {
-                        "law": f.law,
-                        "bic": f.bic,
-                        "ljung_box_p": list(f.ljung_box_p),
-                        "residual_rms_sigma": f.residual_rms_sigma,
-                    }
-                    for f in i.fit.laws
-                ],
-            },
-        }
-    run = report.run
-    nodes = {}
-    for name, node in zip(NODES, run.nodes, strict=True):
-        frame = node.frame
-        nodes[name] = {
-            "hinge_axis": frame.hinge_axis.tolist(),
-            "toward_pivot": frame.toward_pivot.tolist(),
-            "tangential": frame.tangential.tolist(),
-            "radius_m": frame.radius_m,
-            "mirrored_axes": frame.mirrored,
-            "frame_fit_rms_m_s2": frame.fit_rms_m_s2,
-            "clock_drift_ppm": node.clock.drift_ppm if node.clock is not None else None,
-            "fusion_phase_s": node.fusion_phase_s,
-            "coverage": node.coverage.summary(),
-        }
-    return {
-        "file": str(report.path),
-        "release": {
-            "kind": run.start.kind,
-            "time_s": run.start.time_s,
-            "estimated_angle_rad": list(run.start.phi_rad),
-            "estimated_rate_rad_s": list(run.start.omega_rad_s),
-            "start_fit_rms_sigma": run.start.fit_rms,
-            "start_fit_unexplained": run.start.unexplained,
-            "nominal_angle_rad": list(NOMINAL_RELEASE_RAD) if report.has_nominal else None,
-        },
-        "nodes": nodes,
-        "relative_timing_range_s": None if run.relative_timing_range_s is None else list(run.relative_timing_range_s),
-        "max_gap_s": run.max_gap_s,
-        "damping": {
-            "source": report.damping_source,
-            "b1_n_m_s": report.params.b1_n_m_s,
-            "b2_n_m_s": report.params.b2_n_m_s,
-        },
-        "identification": ident,
-        **({"model_choice": report.model_choice} if report.model_choice is not None else {}),
-        "cases": [
-            {
-                "engine": c.engine,
-                "release": c.release,
-                "window": c.window,
-                "metrics": {q: {k: clean(v) for k, v in cmp.summary().items()} for q, cmp in c.comparisons.items()},
-            }
-            for c in report.cases
-        ],
-    }
-
-
-def start_line(path: str | Path, run: MeasuredRun) -> str:
-    """Where the run starts, how, and from what state; one line."""
-    s = run.start
-    phi1, phi2 = (math.degrees(a) for a in s.phi_rad)
-    how = {
-        "release": "release from rest found",
-        "in motion": (
-            "no hold before the release (the recording starts in motion or at its release); "
-            "the model starts from the state at its first samples"
-        ),
-        "given": "start given",
-    }[s.kind]
-    rates = ""
-    if s.kind != "release":
-        rates = f", {math.degrees(s.omega_rad_s[0]):.2f} deg/s, {math.degrees(s.omega_rad_s[1]):.2f} deg/s"
-    note = f"; {s.fit_note()}" if s.poor_fit else ""
-    return (
-        f"{path}: {how} at {s.time_s:.3f} s on the recording's clock; from {phi1:.2f} deg, {phi2:.2f} deg{rates}{note}"
-    )
-
-
-def _before(count: int) -> str:
-    return f" from the start, {count} before it" if count else ""
-
-
-def coverage_line(run: MeasuredRun) -> str:
-    """How much of the run each node's samples cover; one line."""
-    parts = []
-    for name, node in zip(NODES, run.nodes, strict=True):
-        c = node.coverage
-        part = (
-            f"{name} {100 * c.covered_fraction:.1f} % ({c.samples} samples{_before(node.before_start)}, "
-            f"{100 * c.lost_fraction:.1f} % lost, "
-            f"{c.gaps} gaps over {run.max_gap_s:g} s, longest {c.longest_gap_s:.3f} s"
-        )
-        if node.clock is not None and abs(node.clock.drift_ppm) >= 1:
-            part += f", clock {node.clock.drift_ppm:+.0f} ppm"
-        parts.append(part + ")")
-    return f"covered: {'; '.join(parts)}"
-
-
-def table(report: ValidationReport) -> str:
-    """Per quantity: measured and computed frequency and delta, max |Delta|, IAE, ISE."""
-    lines = [
-        start_line(report.path, report.run),
-        coverage_line(report.run),
-        f"damping {report.damping_source}: b1 = {report.params.b1_n_m_s:.5g}, "
-        f"b2 = {report.params.b2_n_m_s:.5g} N m s/rad",
-    ]
-    for case in report.cases:
-        if case.release != "estimated":
-            continue
-        lines.append("")
-        lines.append(f"{case.engine} model, from the estimated start, {case.window}:")
-        head = f"  {'quantity':14} {'f meas (Hz)':>11} {'f comp (Hz)':>11} {'delta':>9}"
-        lines.append(f"{head} {'max|Delta|':>11} {'IAE':>10} {'ISE':>10}  unit")
-        for q in VALIDATED:
-            cmp = case.comparisons[q.name]
-            lines.append(
-                f"  {q.label:14} {cmp.f_measured_hz:11.5f} {cmp.f_computed_hz:11.5f} {cmp.delta_f:9.2e} "
-                f"{cmp.max_abs:11.4g} {cmp.iae:10.4g} {cmp.ise:10.4g}  {q.unit}"
-            )
-    if report.model_choice is not None:
-        from .spatial_validate import choice_lines
-
-        lines += choice_lines(report.model_choice, report.model_choice["plane_offset_m"])
-    if report.has_nominal:
-        nominal = report.case("mujoco", "nominal", "whole").comparisons["phi1"]
-        lines.append("")
-        lines.append(
-            "from the nominal 30 deg at rest instead (the paper's simulation; compared because the estimated start "
-            f"is at rest within {AT_REST_RAD_S:g} rad/s): phi1 max|Delta| {nominal.max_abs:.4g} rad, "
-            f"IAE {nominal.iae:.4g} rad s over the whole run"
-        )
-    return "\n".join(lines)

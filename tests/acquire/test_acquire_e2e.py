@@ -13,12 +13,12 @@ import numpy as np
 import pytest
 from acquire_helpers import Pendsim, free_udp_ports
 
-from pendsim_bridge.acquire.clock import recorded_stamp_clock
 from pendsim_bridge.acquire.emulator import plan, read_log
 from pendsim_bridge.acquire.emulator import run as run_nodes
 from pendsim_bridge.cli import build_parser, main
 from pendsim_bridge.commands.nodes import spec_from
 from pendsim_bridge.io.mcap.reader import read_mcap
+from pendsim_bridge.io.measured import recorded_stamp_clock
 from pendsim_bridge.io.recording import read_recording
 from pendsim_bridge.io.ros2 import SCHEMAS
 from pendsim_bridge.run.validate import validate

@@ -1,17 +1,22 @@
 """Plots a reader can read: every PNG legend lies outside every plot area of its figure (no data
-hidden under it), and the Rerun phase portraits have labelled axes and both traces visible (the
-measured one wide, under the model's narrow line, as in the time series)."""
+hidden under it), every PNG goes through the one saving path (``figures.save_figure``), and the
+Rerun phase portraits have labelled axes and both traces visible (the measured one wide, under
+the model's narrow line, as in the time series)."""
 
 import contextlib
 import io
+import re
+from pathlib import Path
 
 import matplotlib
+import matplotlib.pyplot as plt
 import numpy as np
 import pytest
 import rerun as rr
 
 import pendsim_bridge.report.plots as plots
 from pendsim_bridge.cli import main
+from pendsim_bridge.report import figures, sweep_plots
 from pendsim_bridge.report.allan_report import analyse
 from pendsim_bridge.report.rerun_view import PHASE_DRAW_ORDER, SERIES_STYLE
 from pendsim_bridge.run.validate import validate
@@ -47,13 +52,13 @@ def _check_legends(figure) -> int:
 
 def test_every_png_legend_lies_outside_the_plot_areas(recordings, tmp_path, monkeypatch):
     checked = []
-    original = plots.save_figure
+    original = figures.save_figure
 
-    def check_then_save(figure, path):
+    def check_then_save(figure, path, **kwargs):
         checked.append((path.name, _check_legends(figure)))
-        return original(figure, path)
+        return original(figure, path, **kwargs)
 
-    monkeypatch.setattr(plots, "save_figure", check_then_save)
+    monkeypatch.setattr(figures, "save_figure", check_then_save)
     report = validate(recordings / "run.mcap", damping="recorded")
     plots.validation_figures(report, tmp_path / "validation")
     comparison = compare_planar_spatial(
@@ -70,20 +75,40 @@ def test_every_png_legend_lies_outside_the_plot_areas(recordings, tmp_path, monk
         unit="rad/s",
         path=tmp_path / "allan.png",
     )
-    assert len(checked) == 7 + 3 + 1
-    assert sum(n for _, n in checked) >= 10  # the figures do have legends: 6 validation, 4 compare, 1 Allan
+    x = np.array([[1.0, 10.0], [2.0, 20.0], [3.0, 30.0]])
+    sweep_plots._scatter(tmp_path / "scatter.png", x, np.array([0.5, np.nan, 0.7]), ("a", "b"), "f", "diverged")
+    assert len(checked) == 7 + 3 + 1 + 1
+    assert sum(n for _, n in checked) >= 11  # the figures have legends: 6 validation, 4 compare, Allan, sweep
     assert matplotlib.get_backend().lower() == "agg"
+
+
+def test_save_figure_refuses_a_legend_over_the_data_and_writes_nothing(tmp_path):
+    fig, ax = plt.subplots()
+    ax.plot([0, 1], [0, 1], label="over the data")
+    ax.legend(loc="center")
+    with pytest.raises(ValueError, match="a legend covers the plot"):
+        figures.save_figure(fig, tmp_path / "bad.png")
+    assert not list(tmp_path.iterdir())  # no file, no temporary left behind
+    assert not plt.fignum_exists(fig.number)  # closed all the same
+
+
+def test_every_png_is_written_by_save_figure_alone():
+    bridge = Path(figures.__file__).parents[1]
+    savers = sorted(
+        str(p.relative_to(bridge)) for p in bridge.rglob("*.py") if re.search(r"\.savefig\(", p.read_text())
+    )
+    assert savers == ["report/figures.py"]
 
 
 def test_whole_run_figures_show_the_differences_under_the_overlay(recordings, tmp_path, monkeypatch):
     saved = {}
-    original = plots.save_figure
+    original = figures.save_figure
 
-    def keep_then_save(figure, path):
+    def keep_then_save(figure, path, **kwargs):
         saved[path.name] = [(a.get_ylabel(), [line.get_ydata() for line in a.get_lines()]) for a in figure.axes]
-        return original(figure, path)
+        return original(figure, path, **kwargs)
 
-    monkeypatch.setattr(plots, "save_figure", keep_then_save)
+    monkeypatch.setattr(figures, "save_figure", keep_then_save)
     report = validate(recordings / "run.mcap", damping="recorded")
     plots.validation_figures(report, tmp_path / "validation")
     whole = {name: axes for name, axes in saved.items() if "whole" in name}

@@ -12,8 +12,8 @@ import rerun as rr
 from mcap.reader import make_reader
 
 from pendsim_bridge.cli import main
+from pendsim_bridge.io.measured import align_recording, recorded_params
 from pendsim_bridge.io.recording import read_recording
-from pendsim_bridge.run.validate import align_recording, recorded_params
 
 
 def _read_rrd(path):

@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 from pendsim_bridge.cli import main
+from pendsim_bridge.io.measured import align_recording, recorded_params
 from pendsim_bridge.io.recording import RunInfo, read_recording, write_recording
-from pendsim_bridge.run.validate import align_recording, recorded_params
 from pendsim_mj.engines.simulation import simulate
 from pendsim_mj.estimation.identification import fit_damping, log_decrement
 from pendsim_mj.rig.model import exact_mjcf

@@ -8,9 +8,10 @@ import math
 import numpy as np
 import pytest
 
+from pendsim_bridge.io.measured import align_recording, recorded_params
 from pendsim_bridge.io.recording import DRIVE_TOPIC, NODES, imu_topic, read_recording
 from pendsim_bridge.run.record import RecordSpec, record
-from pendsim_bridge.run.validate import align_recording, model_series, recorded_params, validate
+from pendsim_bridge.run.validate import model_series, validate
 from pendsim_mj.estimation.analysis import _hysteresis_sign, noise_level
 from pendsim_mj.estimation.quantities import VALIDATED
 from pendsim_mj.estimation.validation import compare, resample

@@ -8,10 +8,11 @@ import numpy as np
 import pytest
 from scipy.interpolate import CubicSpline
 
+from pendsim_bridge.io.measured import align_recording
 from pendsim_bridge.io.recording import NODES, imu_topic, read_recording
 from pendsim_bridge.report import figure_lines
 from pendsim_bridge.run.record import RecordSpec, record
-from pendsim_bridge.run.validate import align_recording, model_series, validate
+from pendsim_bridge.run.validate import model_series, validate
 from pendsim_mj.estimation import analysis
 from pendsim_mj.estimation.analysis import hann_magnitude, padded_length, spectral_peak_hz
 from pendsim_mj.estimation.swing_frame import ANGLE_BLOCK, SwingFrame, relative_axis, twist_angle

@@ -33,6 +33,7 @@ from __future__ import annotations
 import dataclasses
 import datetime
 import hashlib
+import logging
 import math
 import re
 from pathlib import Path
@@ -46,7 +47,9 @@ from pendsim_mj.estimation.timing import nominal_rate_hz
 from pendsim_mj.rig.params import DEFAULT_PARAMS, RigParams
 from pendsim_mj.sensors.bno055 import STANDARD_GRAVITY_M_S2
 
-from ..acquire.packets import (
+from ..io.outputs import atomic_output
+from ..io.recording_layout import UNIX_2000_S, utc_iso
+from .packets import (
     ACCEL_UNITS,
     COLUMN_NAMES,
     GROUP_SLICES,
@@ -58,11 +61,10 @@ from ..acquire.packets import (
     calib_levels,
     groups_of,
 )
-from ..acquire.ports import BNO055_NDOF, NODE_NAMES
-from .outputs import atomic_output
+from .ports import BNO055_NDOF, NODE_NAMES
+from .sink import RecordingSink
 
 IMPORT_FORMATS = ("csv", "lvm", "tdms")
-UNIX_2000_S = 946_684_800.0  # 2000-01-01T00:00:00Z: file times from here on are taken as Unix (UTC) times
 SUFFIXES = {".csv": "csv", ".txt": "csv", ".lvm": "lvm", ".tdms": "tdms"}
 TDMS_VERSIONS = (4712, 4713)  # the lead-in's version number: TDMS 1.0 and 2.0
 
@@ -261,7 +263,7 @@ def _lvm_data_lines(path: Path, rows: int) -> tuple[int, ...] | None:
 
 def read_lvm(path: Path) -> Table:
     """A LabVIEW measurement file's first segment as a Table."""
-    import lvm_read
+    import lvm_read  # only for .lvm files
 
     try:
         # Never the pickle cache beside the user's file: read the text, write nothing.
@@ -296,9 +298,7 @@ def read_lvm(path: Path) -> Table:
 
 def read_tdms(path: Path) -> Table:
     """Every channel of a TDMS file (``GROUP/CHANNEL``) as a Table."""
-    import logging
-
-    from nptdms import TdmsFile
+    from nptdms import TdmsFile  # only for .tdms files
 
     try:
         with open(path, "rb") as f:
@@ -523,9 +523,7 @@ def import_file(
       RecordingError: the file is not what it claims or holds bad values (nothing is written).
       OutputError: the output exists (without ``replace``) or cannot be written.
     """
-    from pendsim_mj.rig.model import exact_mjcf
-
-    from ..acquire.sink import RecordingSink
+    from pendsim_mj.rig.model import exact_mjcf  # MuJoCo: only when an import runs
 
     source, output = Path(source), Path(output)
     fmt = format_of(source, spec.format)
@@ -599,12 +597,6 @@ def import_file(
         output.stat().st_size,
         tuple(notes),
     )
-
-
-def utc_iso(t_ns: int) -> str:
-    """ns since 1970 as ISO 8601 UTC with a Z, to the microsecond."""
-    moment = datetime.datetime(1970, 1, 1, tzinfo=datetime.UTC) + datetime.timedelta(microseconds=t_ns // 1000)
-    return moment.strftime("%Y-%m-%dT%H:%M:%S.%fZ")
 
 
 def parse_utc(text: str) -> int:
