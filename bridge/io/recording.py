@@ -138,7 +138,7 @@ class JointStates:
         return self.t_ns * 1e-9
 
 
-Series = tuple[NDArray[np.int64], NDArray]  # (t_ns since the start, values)
+Series = tuple[NDArray[np.int64], NDArray[Any]]  # (t_ns since the start, values)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -432,11 +432,11 @@ class _Column:
 
     def __init__(self, capacity: int) -> None:
         self.capacity = max(capacity, 1)
-        self.data: NDArray | None = None
-        self.constant: NDArray | None = None
+        self.data: NDArray[Any] | None = None
+        self.constant: NDArray[Any] | None = None
         self.n = 0
 
-    def add(self, values: NDArray, *, may_be_constant: bool = False) -> None:
+    def add(self, values: NDArray[Any], *, may_be_constant: bool = False) -> None:
         m = len(values)
         if not m:
             return
@@ -459,7 +459,7 @@ class _Column:
         self.data[self.n : self.n + m] = values
         self.n += m
 
-    def result(self, shape: tuple[int, ...], dtype: Any = np.float64) -> NDArray:
+    def result(self, shape: tuple[int, ...], dtype: Any = np.float64) -> NDArray[Any]:
         if self.constant is not None:
             return np.broadcast_to(self.constant.reshape(shape), (self.n, *shape))
         if self.data is None:
@@ -548,7 +548,7 @@ class _TopicDecoder:
             return None
         return TF_LAYOUT
 
-    def _bulk(self, payloads: NDArray[np.uint8]) -> dict[str, NDArray] | None:
+    def _bulk(self, payloads: NDArray[np.uint8]) -> dict[str, NDArray[Any]] | None:
         if self.schema.data != ros2.SCHEMAS[self.schema.name]:
             return None  # another definition of the type: decode with it
         if self.layout is None or self.layout.size != payloads.shape[1]:
@@ -565,7 +565,7 @@ class _TopicDecoder:
             out = {k: v.reshape(len(dec), -1)[:, :2] for k, v in out.items()}
         return out
 
-    def _one_by_one(self, payloads: NDArray[np.uint8] | list[bytes]) -> dict[str, NDArray]:
+    def _one_by_one(self, payloads: NDArray[np.uint8] | list[bytes]) -> dict[str, NDArray[Any]]:
         """Per message with the file's own schema (slow; for messages without our fixed layout)."""
         rows = [bytes(p) for p in payloads]
         try:
@@ -579,7 +579,7 @@ class _TopicDecoder:
                 f"({type(exc).__name__})"
             ) from None
 
-    def _extract(self, messages: list[Any]) -> dict[str, NDArray]:
+    def _extract(self, messages: list[Any]) -> dict[str, NDArray[Any]]:
         name = self.schema.name
         if name == "sensor_msgs/msg/Imu":
             self.frame_id = messages[0].header.frame_id
