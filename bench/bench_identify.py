@@ -23,7 +23,8 @@ CHILD = r"""
 import json, resource, sys, time
 import numpy as np
 from pendsim_bridge.io.recording import read_recording
-from pendsim_bridge.run.validate import _per_node, align_recording, identify, recorded_params
+from pendsim_bridge.io.measured import align_recording, recorded_params
+from pendsim_bridge.run.validate import identify
 from pendsim_mj.estimation.identification import fit_damping
 path, which = sys.argv[1], sys.argv[2]
 start = time.process_time()
@@ -33,10 +34,7 @@ else:  # the previous path: sysid over MuJoCo rollouts, the release state taken 
     rec = read_recording(path)
     params = recorded_params(rec)
     run = align_recording(rec, params)
-    t, omega = _per_node(run, ("omega1", "omega2"))
-    at = np.full_like(t, np.nan)
-    for k, node in enumerate(run.nodes):
-        at[: len(node.value_t_s), k] = node.value_t_s
+    omega, at = run.both_nodes("omega_rad_s"), run.both_nodes("value_t_s")
     fit = fit_damping(params, run.start.phi_rad, np.clip(at, 0, None), omega,
                       gyro_sigma_rad_s=run.gyro_sigma_rad_s, fusion_rate_hz=None)
 cpu = time.process_time() - start

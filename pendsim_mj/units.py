@@ -19,12 +19,12 @@ NS_PER_S: Final = 1_000_000_000
 @overload
 def seconds(t_ns: int | float) -> float: ...
 @overload
-def seconds(t_ns: NDArray[np.generic]) -> NDArray[np.floating]: ...
-def seconds(t_ns: int | float | NDArray[np.generic]) -> float | NDArray[np.floating]:
-    """Nanoseconds (int, float or an array of either) in seconds: a float, or an array of float64
-    (float32 stays float32)."""
+def seconds(t_ns: NDArray[np.integer] | NDArray[np.float64]) -> NDArray[np.float64]: ...
+def seconds(t_ns: int | float | NDArray[np.integer] | NDArray[np.float64]) -> float | NDArray[np.float64]:
+    """Nanoseconds (int, float, or an array of integers or float64) in seconds: a float, or an
+    array of float64."""
     if isinstance(t_ns, np.ndarray):
-        in_s: NDArray[np.floating] = np.multiply(t_ns, 1e-9)
+        in_s: NDArray[np.float64] = np.multiply(t_ns, 1e-9)
         return in_s
     return float(t_ns * 1e-9)
 

@@ -46,6 +46,7 @@ from pendsim_mj.errors import ParameterError, RecordingError
 from pendsim_mj.estimation.timing import nominal_rate_hz
 from pendsim_mj.rig.params import DEFAULT_PARAMS, RigParams
 from pendsim_mj.sensors.bno055 import STANDARD_GRAVITY_M_S2
+from pendsim_mj.units import nanoseconds
 
 from ..io.outputs import atomic_output
 from ..io.recording_layout import UNIX_2000_S, utc_iso
@@ -572,7 +573,7 @@ def import_file(
         "pendsim/imu": {"sample_rate_hz": repr(rate), **BNO055_NDOF},
     }
     mjcf = spec.mjcf_xml if spec.mjcf_xml is not None else exact_mjcf(spec.params)
-    log_ns = {node: base_ns + np.rint((t + shift_s) * 1e9).astype(np.int64) for node, (t, _, _) in per_node.items()}
+    log_ns = {node: base_ns + nanoseconds(t + shift_s) for node, (t, _, _) in per_node.items()}
     with atomic_output(output, replace=replace) as tmp:
         sink = RecordingSink(
             tmp,

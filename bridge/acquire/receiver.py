@@ -44,6 +44,7 @@ from numpy.typing import NDArray
 from pendsim_mj import __version__
 from pendsim_mj.errors import ParameterError, RecordingError
 from pendsim_mj.rig.params import DEFAULT_PARAMS, RigParams
+from pendsim_mj.units import NS_PER_S, nanoseconds, seconds
 
 from ..errors import OutputError
 from ..io import ros2
@@ -177,7 +178,7 @@ class _Node:
             return False
         if self.stream.offer(packet, arrival_ns) != "accepted":
             return False
-        device_s, arrival_s = packet.device_time_us * 1e-6, (arrival_ns - start_ns) * 1e-9
+        device_s, arrival_s = packet.device_time_us * 1e-6, seconds(arrival_ns - start_ns)
         self.clock.add(device_s, arrival_s)
         self.device_s.append(device_s)
         self.arrival_s.append(arrival_s)
@@ -246,7 +247,7 @@ def _stop_signals() -> Iterator[list[str]]:
 
 
 def _utc_iso(t_ns: int) -> str:
-    return datetime.datetime.fromtimestamp(t_ns / 1e9, tz=datetime.UTC).isoformat(timespec="microseconds")
+    return datetime.datetime.fromtimestamp(seconds(t_ns), tz=datetime.UTC).isoformat(timespec="microseconds")
 
 
 def acquisition_metadata(spec: AcquireSpec, start_utc_ns: int) -> dict[str, dict[str, str]]:
@@ -331,7 +332,7 @@ def acquire(
     output = Path(output)
     if not replace and (output.exists() or output.is_symlink()):
         raise OutputError(f"output {str(output)!r} exists; choose another name or pass --force to replace it")
-    window_ns = round(spec.reorder_window_s * 1e9)
+    window_ns = nanoseconds(spec.reorder_window_s)
     nodes = [_Node(n, spec.stream, spec.rate_hz, window_ns) for n in spec.nodes]
     selector = selectors.DefaultSelector()
     try:
@@ -388,10 +389,10 @@ def _run(
     if not _is_loopback(spec.bind):
         say(f"note: bound to {spec.bind}: these ports are reachable from the network")
     status_line = _StatusLine(status)
-    deadline = start_ns + round(spec.duration_s * 1e9) if spec.duration_s is not None else None
+    deadline = start_ns + nanoseconds(spec.duration_s) if spec.duration_s is not None else None
     next_tick = start_ns
-    next_flush = start_ns + round(FLUSH_S * 1e9)
-    next_diag = start_ns + round(DIAGNOSTICS_S * 1e9)
+    next_flush = start_ns + nanoseconds(FLUSH_S)
+    next_diag = start_ns + nanoseconds(DIAGNOSTICS_S)
     diag_marks = [0] * len(nodes)
     stop_reason = "duration"
     try:
@@ -404,21 +405,21 @@ def _run(
                 if deadline is not None and now >= deadline:
                     break
                 wake = min(next_tick, deadline) if deadline is not None else next_tick
-                for key, _ in selector.select(max(0.0, (wake - now) * 1e-9)):
+                for key, _ in selector.select(max(0.0, seconds(wake - now))):
                     _drain(key.data, start_ns)
                 now = time.monotonic_ns()
                 if now >= next_tick:
-                    next_tick = now + round(TICK_S * 1e9)
+                    next_tick = now + nanoseconds(TICK_S)
                     _release(nodes, now, sink, live, utc_ns, start_ns, final=False)
                     if live is not None:
                         live.send()
                 if now >= next_diag:
-                    next_diag += round(DIAGNOSTICS_S * 1e9)
+                    next_diag += nanoseconds(DIAGNOSTICS_S)
                     statuses = _diagnostics(nodes, diag_marks, now)
                     sink.add_diagnostics(now + utc_ns, statuses)
-                    status_line.show(_status_text(nodes, (now - start_ns) * 1e-9), (now - start_ns) * 1e-9)
+                    status_line.show(_status_text(nodes, seconds(now - start_ns)), seconds(now - start_ns))
                 if now >= next_flush:
-                    next_flush = now + round(FLUSH_S * 1e9)
+                    next_flush = now + nanoseconds(FLUSH_S)
                     sink.flush(_settled_ns(nodes, now, start_ns))
             now = time.monotonic_ns()
             _release(nodes, now, sink, live, utc_ns, start_ns, final=True)
@@ -426,12 +427,12 @@ def _run(
             sink.add_diagnostics(now + utc_ns, _diagnostics(nodes, diag_marks, now))
             results = tuple(_node_result(n, start_utc_ns) for n in nodes)
             sink.add_metadata(
-                "pendsim/acquisition_result", _result_metadata(results, (now - start_ns) * 1e-9, stop_reason)
+                "pendsim/acquisition_result", _result_metadata(results, seconds(now - start_ns), stop_reason)
             )
             sink.close()
             if sink.messages == 0:  # nothing a recording could hold: no file, one line saying why
                 partial.unlink(missing_ok=True)
-                raise RecordingError(_nothing_arrived(results, spec, (now - start_ns) * 1e-9))
+                raise RecordingError(_nothing_arrived(results, spec, seconds(now - start_ns)))
             if live is not None:
                 live.send()
             publish(partial, output, replace=replace)
@@ -444,7 +445,7 @@ def _run(
         ) from None
     return AcquireResult(
         path=output,
-        duration_s=(now - start_ns) * 1e-9,
+        duration_s=seconds(now - start_ns),
         stop_reason=stop_reason,
         nodes=results,
         messages=sink.messages,
@@ -470,7 +471,7 @@ def _drain(node: _Node, start_ns: int) -> None:
         for level, kind, value in ancillary:
             if level == socket.SOL_SOCKET and kind == SO_TIMESTAMPNS and len(value) >= 16:
                 sec, nsec = TIMESPEC.unpack_from(value)
-                arrival_ns = sec * 1_000_000_000 + nsec + realtime_to_monotonic
+                arrival_ns = sec * NS_PER_S + nsec + realtime_to_monotonic
             elif level == socket.SOL_SOCKET and kind == SO_RXQ_OVFL and len(value) >= 4:
                 node.host_dropped = int.from_bytes(value[:4], sys.byteorder)
         accepted = node.receive(data, arrival_ns or time.monotonic_ns(), start_ns)
@@ -500,7 +501,7 @@ def _release(
         assert line is not None
         device_us = np.array([a.packet.device_time_us for a in released], dtype=np.int64)
         host_s = np.asarray(line.to_recorder(device_us.astype(np.float64) * 1e-6))
-        t_ns = start_ns + utc_ns + np.rint(host_s * 1e9).astype(np.int64)
+        t_ns = start_ns + utc_ns + nanoseconds(host_s)
         # One time base, monotonic per node: the fit moves a little as it learns.
         # t'_i = max(t_i, t'_(i-1) + 1): strictly increasing, with t'_(-1) the last one released.
         steps = np.arange(len(t_ns), dtype=np.int64)
@@ -535,7 +536,7 @@ def _device_stamps(node: _Node, device_us: NDArray[np.int64], t_ns: NDArray[np.i
         origin_us, origin_ns = node.stamp_anchor
         run = origin_ns + (device_us[i:] - origin_us) * 1000
         # The log times may part from rate-1 stamps by the fitted drift (at most MAX_DRIFT_PPM).
-        tolerance_ns = STAMP_REANCHOR_S * 1e9 + 2e-6 * MAX_DRIFT_PPM * np.abs(t_ns[i:] - origin_ns)
+        tolerance_ns = nanoseconds(STAMP_REANCHOR_S) + 2e-6 * MAX_DRIFT_PPM * np.abs(t_ns[i:] - origin_ns)
         bad = (np.diff(run, prepend=node.last_stamp_ns) <= 0) | (np.abs(run - t_ns[i:]) > tolerance_ns)
         good = int(np.argmax(bad)) if bad.any() else len(run)
         good = max(good, 1) if fresh else good  # a new origin always takes its own sample
@@ -558,7 +559,7 @@ def _settled_ns(nodes: list[_Node], now_ns: int, start_ns: int) -> int | None:
     settled = None
     for node in nodes:
         heard_ns = node.last_sample_ns or start_ns
-        if now_ns - heard_ns > STALE_S * 1e9:
+        if now_ns - heard_ns > nanoseconds(STALE_S):
             continue
         if node.last_log_ns < 0:
             return -1
@@ -576,7 +577,7 @@ def _diagnostics(nodes: list[_Node], marks: list[int], now_ns: int) -> list[ros2
         jitter = node.jitter_ms(marks[i])
         marks[i] = len(node.device_s)
         line = node.line()
-        silent_s = (now_ns - node.last_read_ns) * 1e-9 if node.last_read_ns else math.inf
+        silent_s = seconds(now_ns - node.last_read_ns) if node.last_read_ns else math.inf
         if silent_s > DIAGNOSTICS_S:
             level, message = 3, "no packets" if not counters.received else f"silent for {silent_s:.1f} s"
         elif new["lost"] or new["late"] or new["malformed"] or new["duplicated"]:
@@ -632,7 +633,7 @@ def _stamp_clock(node: _Node, start_utc_ns: int) -> ClockRelation | None:
     if line is None or node.stamp_origins != 1 or node.stamp_anchor is None or node.clock.span_s < WARMUP_S:
         return None
     origin_us, origin_ns = node.stamp_anchor  # stamp (s since start) = device_s - origin_us 1e-6 + origin_rel_s
-    origin_rel_s = (origin_ns - start_utc_ns) * 1e-9
+    origin_rel_s = seconds(origin_ns - start_utc_ns)
     return ClockRelation(line.offset_s, line.rate, line.stamp0_s - origin_us * 1e-6 + origin_rel_s)
 
 

@@ -27,6 +27,7 @@ from pendsim_mj import __version__
 from pendsim_mj.rig.params import RigParams
 from pendsim_mj.sensors import rotations
 from pendsim_mj.sensors.bno055 import Bno055
+from pendsim_mj.units import NS_PER_S
 
 from ..errors import OutputError
 from ..io import ros2
@@ -165,7 +166,7 @@ class RecordingSink:
         """Calibration at 1 Hz (the first sample of each second) and whenever it changes."""
         keep = []
         for i, (t, row) in enumerate(zip(t_ns, levels, strict=True)):
-            value, second = tuple(int(v) for v in row), int(t) // 1_000_000_000
+            value, second = tuple(int(v) for v in row), int(t) // NS_PER_S
             if value != self._last_calib.get(node) or second != self._last_calib_second.get(node):
                 keep.append(i)
                 self._last_calib[node], self._last_calib_second[node] = value, second

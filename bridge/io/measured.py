@@ -19,6 +19,7 @@ from pendsim_mj.estimation.alignment import MeasuredRun, NodeSamples, align
 from pendsim_mj.estimation.timing import DEFAULT_MAX_GAP_S, MAX_DRIFT_PPM, ClockRelation
 from pendsim_mj.rig.drives import Drive
 from pendsim_mj.rig.params import DEFAULT_PARAMS, RigParams
+from pendsim_mj.units import seconds
 
 from .recording import Recording
 from .recording_layout import NODES, imu_topic
@@ -40,7 +41,7 @@ def recorded_stamp_clock(metadata: dict[str, dict[str, str]], node: str, start_t
         return None
     if not all(map(math.isfinite, (offset_s, rate, stamp0_s))) or abs(rate - 1.0) > MAX_DRIFT_PPM * 2e-6:
         return None
-    shift_s = (int(start) - start_time_ns) * 1e-9  # acquisition start on the recording's time axis
+    shift_s = seconds(int(start) - start_time_ns)  # acquisition start on the recording's time axis
     return ClockRelation(offset_s + shift_s, rate, stamp0_s + shift_s)
 
 
@@ -59,11 +60,11 @@ def node_samples(rec: Recording) -> tuple[NodeSamples, NodeSamples]:
         clock = recorded_stamp_clock(rec.metadata, n, rec.start_time_ns)  # acquire's fit over the arrivals
         out.append(
             NodeSamples(
-                log_t_s=topic.t_ns * 1e-9 if clock is None else clock.to_recorder_in_place(stamps * 1e-9),
+                log_t_s=seconds(topic.t_ns) if clock is None else clock.to_recorder_in_place(seconds(stamps)),
                 quat_wxyz=topic.quat_wxyz,
                 gyro_rad_s=topic.gyro_rad_s,
                 accel_m_s2=topic.accel_m_s2,
-                stamp_s=stamps * 1e-9 if np.any(stamps != stamps[0]) else None,  # constant stamps: none
+                stamp_s=seconds(stamps) if np.any(stamps != stamps[0]) else None,  # constant stamps: none
                 gyro_covariance=topic.gyro_covariance[0] if len(topic.gyro_covariance) else None,
             )
         )

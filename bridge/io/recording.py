@@ -46,6 +46,7 @@ from pendsim_mj.rig.params import RigParams
 from pendsim_mj.sensors import rotations
 from pendsim_mj.sensors.bno055 import Bno055, ImuNoise, ImuSamples
 from pendsim_mj.sensors.imperfections import Imperfections
+from pendsim_mj.units import NS_PER_S, seconds
 
 from . import ros2
 from .mcap.reader import ChannelData, McapFile, scan_mcap
@@ -121,7 +122,7 @@ class ImuTopic:
 
     @property
     def t_s(self) -> np.ndarray:
-        return self.t_ns * 1e-9
+        return seconds(self.t_ns)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -135,7 +136,7 @@ class JointStates:
 
     @property
     def t_s(self) -> np.ndarray:
-        return self.t_ns * 1e-9
+        return seconds(self.t_ns)
 
 
 Series = tuple[NDArray[np.int64], NDArray[Any]]  # (t_ns since the start, values)
@@ -171,7 +172,7 @@ class Recording:
         if self.drive_input is None or len(self.drive_input[0]) < 2:
             return None
         t_ns, held = self.drive_input
-        return np.asarray(t_ns * 1e-9, dtype=np.float64), np.asarray(held, dtype=np.float64)
+        return np.asarray(seconds(t_ns), dtype=np.float64), np.asarray(held, dtype=np.float64)
 
     def without_imu(self) -> Recording:
         """This recording without its IMU topics (the rest as it is): a caller that has taken
@@ -517,7 +518,7 @@ class _TopicDecoder:
         if self.keep is not None:
             fields = {k: v for k, v in fields.items() if k in self.keep or (k == "nanosec" and "sec" in self.keep)}
         if "sec" in fields:  # the header stamp in ns, chunk by chunk (no whole-run temporaries)
-            fields["stamp"] = fields.pop("sec").astype(np.int64) * 1_000_000_000 + fields.pop("nanosec")
+            fields["stamp"] = fields.pop("sec").astype(np.int64) * NS_PER_S + fields.pop("nanosec")
         if "orientation" in fields:
             fields["orientation"] = rotations.xyzw_to_wxyz(fields["orientation"])
         for name, values in fields.items():

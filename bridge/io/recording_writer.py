@@ -32,6 +32,7 @@ from pendsim_mj.rig.drives import NCHANNEL, Drive
 from pendsim_mj.rig.params import RigParams
 from pendsim_mj.sensors import rotations
 from pendsim_mj.sensors.bno055 import Bno055, ImuSamples
+from pendsim_mj.units import nanoseconds, split_ns
 
 from . import ros2
 from .mcap.writer import BulkMcapWriter
@@ -63,13 +64,13 @@ TRANSIENT_LOCAL_QOS = (
 
 def utc_text(t_ns: int) -> str:
     """ISO 8601 UTC text of a time in ns since the Unix epoch."""
-    seconds, ns = divmod(int(t_ns), 1_000_000_000)
-    moment = datetime.datetime.fromtimestamp(seconds, tz=datetime.UTC)
+    sec, ns = split_ns(t_ns)
+    moment = datetime.datetime.fromtimestamp(sec, tz=datetime.UTC)
     return moment.strftime("%Y-%m-%dT%H:%M:%S") + f".{ns:09d}Z"
 
 
 def _ns(t_s: np.ndarray, start_time_ns: int) -> NDArray[np.int64]:
-    return start_time_ns + np.rint(np.asarray(t_s) * 1e9).astype(np.int64)
+    return start_time_ns + nanoseconds(np.asarray(t_s))
 
 
 def _unit(quat: NDArray[np.float64]) -> NDArray[np.float64]:

@@ -30,6 +30,7 @@ from pendsim_mj.allan.deviation import (
 )
 from pendsim_mj.errors import RecordingError
 from pendsim_mj.estimation.timing import nominal_rate_hz
+from pendsim_mj.units import seconds
 
 from ..io.outputs import atomic_directory
 from ..io.recording import read_recording
@@ -219,7 +220,7 @@ def _static_stretches(path: Path, longest_segment: bool, progress: Callable[[int
     for node, topic in rec.imu.items():
         motions[node] = motion = gyro_motion(topic.gyro_rad_s, rates[node])
         if not motion.static and not longest_segment:
-            at_s = (topic.t_ns[motion.largest_index] - topic.t_ns[0]) * 1e-9
+            at_s = seconds(int(topic.t_ns[motion.largest_index] - topic.t_ns[0]))
             raise RecordingError(
                 f"{path}: {imu_topic(node)} is not static: it turns at up to {motion.largest_rad_s:.3g} rad/s "
                 f"({at_s:.1f} s into the recording; a node at rest stays below {MIN_MOTION_RAD_S} rad/s); Allan "
@@ -228,7 +229,7 @@ def _static_stretches(path: Path, longest_segment: bool, progress: Callable[[int
             )
     # every node's motion, on the recording's clock: no node is static while another one moves
     moving_s = np.concatenate(
-        [motion_intervals_s(rec.imu[node].t_ns * 1e-9, m.moving) for node, m in motions.items()]
+        [motion_intervals_s(seconds(rec.imu[node].t_ns), m.moving) for node, m in motions.items()]
     ).reshape(-1, 2)
     segments, columns, largest = {}, {}, {}
     for node in list(rec.imu):
@@ -243,7 +244,7 @@ def _static_stretches(path: Path, longest_segment: bool, progress: Callable[[int
             )
         part = slice(None)
         if not report.uniform or len(moving_s):
-            still = still_samples(topic.t_ns * 1e-9, moving_s)
+            still = still_samples(seconds(topic.t_ns), moving_s)
             part = longest_uniform_segment(instants[node], rates[node], usable=still)
             if part.stop - part.start < 20:
                 raise RecordingError(f"{path}: {imu_topic(node)} has no static, uniformly sampled stretch to analyse")

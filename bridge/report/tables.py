@@ -7,6 +7,7 @@ from pathlib import Path
 
 from pendsim_mj.estimation.analysis import RunSummary
 from pendsim_mj.estimation.comparison import Comparison3D
+from pendsim_mj.units import seconds
 
 from ..io.mcap.reader import McapContents
 from ..io.recording_layout import UNIX_2000_S, utc_iso
@@ -41,7 +42,7 @@ def contents_table(contents: McapContents) -> str:
     starts = [int(m.log_time_ns[0]) for m in contents.messages.values() if len(m)]
     ends = [int(m.log_time_ns[-1]) for m in contents.messages.values() if len(m)]
     if starts:
-        t0, t1 = min(starts) / 1e9, max(ends) / 1e9
+        t0, t1 = seconds(min(starts)), seconds(max(ends))
         lines.append(f"duration {t1 - t0:.3f} s (log time {t0:.3f} to {t1:.3f} s)")
         if t0 >= UNIX_2000_S:
             lines.append(f"starts {utc_iso(min(starts))} (log times are UTC)")
@@ -54,7 +55,7 @@ def contents_table(contents: McapContents) -> str:
     for cid, ch in sorted(contents.channels.items(), key=lambda kv: kv[1].topic):
         data = contents.messages.get(cid)
         count = len(data) if data is not None else 0
-        span = (data.log_time_ns[-1] - data.log_time_ns[0]) / 1e9 if data is not None and count > 1 else 0.0
+        span = seconds(int(data.log_time_ns[-1] - data.log_time_ns[0])) if data is not None and count > 1 else 0.0
         rate = f"{(count - 1) / span:10.2f}" if span > 0 else f"{'-':>10}"
         schema = contents.schemas[ch.schema_id].name if ch.schema_id in contents.schemas else "?"
         lines.append(f"{ch.topic:32} {schema:30} {count:9d} {rate}")

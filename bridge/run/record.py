@@ -30,6 +30,7 @@ from pendsim_mj.rig.drives import Drive
 from pendsim_mj.rig.model import PLANAR, SPATIAL, exact_mjcf
 from pendsim_mj.rig.params import DEFAULT_PARAMS, RigParams
 from pendsim_mj.sensors.bno055 import Bno055, ImuSampler, sample_imu, static_imu, streamable
+from pendsim_mj.units import NS_PER_S
 
 from ..io.mcap.writer import BulkMcapWriter
 from ..io.outputs import atomic_output
@@ -179,7 +180,7 @@ def record(
     """
     output = Path(output)
     start = time.time_ns() if start_time_ns is None else int(start_time_ns)
-    if not (0 <= start < 2**31 * 1_000_000_000):
+    if not (0 <= start < 2**31 * NS_PER_S):
         raise ParameterError(f"start_time_ns must be a UTC time in ns between 1970 and 2038, got {start}")
     if not (math.isfinite(block_s) and block_s > 0):
         raise ParameterError(f"block_s must be a finite number > 0 s, got {block_s!r}")

@@ -24,6 +24,7 @@ from typing import Any
 import numpy as np
 
 from pendsim_mj.errors import ParameterError, RecordingError
+from pendsim_mj.units import nanoseconds, seconds
 
 from ..io import ros2
 from ..io.mcap.reader import ChannelData, McapContents, read_mcap, scan_mcap
@@ -45,7 +46,7 @@ class ReplayMessage:
     @property
     def t_s(self) -> float:
         """Seconds since the recording's start."""
-        return (self.log_time_ns - self.recording_start_ns) * 1e-9
+        return seconds(self.log_time_ns - self.recording_start_ns)
 
     @functools.cached_property
     def decoded(self) -> Any:
@@ -119,9 +120,9 @@ def _check_topics(path: Path, known: set[str], topics: Collection[str] | None) -
 def _in_window(t_ns: np.ndarray, start_s: float | None, end_s: float | None, start_ns: int) -> np.ndarray:
     keep = np.ones(len(t_ns), bool)
     if start_s is not None:
-        keep &= t_ns >= start_ns + round(start_s * 1e9)
+        keep &= t_ns >= start_ns + nanoseconds(start_s)
     if end_s is not None:
-        keep &= t_ns <= start_ns + round(end_s * 1e9)
+        keep &= t_ns <= start_ns + nanoseconds(end_s)
     return keep
 
 
@@ -185,7 +186,7 @@ def replay(
             if wall0 is None:
                 wall0, log0 = clock(), message.log_time_ns
             if math.isfinite(speed):
-                due = wall0 + (message.log_time_ns - log0) * 1e-9 / speed
+                due = wall0 + seconds(message.log_time_ns - log0) / speed
                 wait = due - clock()
                 if wait > 0:
                     sleep(wait)
@@ -283,7 +284,7 @@ def replay_to_mcap(
     first = min((int(d.log_time_ns[0]) for d in contents.messages.values() if len(d)), default=0)
     start_ns = recording_start_ns(contents.metadata, first)
     ids, rows, times = _select(contents, topics, start_s, end_s, start_ns)
-    window_ns = start_ns + round(start_s * 1e9) if start_s is not None else None
+    window_ns = start_ns + nanoseconds(start_s) if start_s is not None else None
     shift = int(times[0]) if shift_to_zero and len(times) else 0
     if shift_to_zero and window_ns is not None:
         shift = window_ns
