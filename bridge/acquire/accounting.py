@@ -27,6 +27,8 @@ import heapq
 from collections import Counter
 from typing import NamedTuple
 
+from pendsim_mj.sensors.bno055 import SAMPLE_RATE_HZ
+
 from .packets import MALFORMED_REASONS, Packet
 
 SEEN_HORIZON = 1 << 20  # sequence numbers remembered behind the released frontier (duplicates, late)
@@ -69,7 +71,7 @@ class NodeStream:
       rate_hz: nominal sample rate, to number samples of formats without sequence numbers.
     """
 
-    def __init__(self, *, window_ns: int, seq_modulus: int | None = None, rate_hz: float = 80.0) -> None:
+    def __init__(self, *, window_ns: int, seq_modulus: int | None = None, rate_hz: float = SAMPLE_RATE_HZ) -> None:
         self.window_ns = window_ns
         self.seq_modulus = seq_modulus
         self.rate_hz = rate_hz

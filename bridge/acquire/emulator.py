@@ -45,7 +45,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from pendsim_mj.errors import ParameterError
-from pendsim_mj.sensors.bno055 import ImuSamples, sample_imu
+from pendsim_mj.sensors.bno055 import SAMPLE_RATE_HZ, ImuSamples, sample_imu
 
 from ..io.outputs import atomic_output
 from ..run.record import RecordSpec, simulate_for
@@ -120,7 +120,7 @@ class EmulatorSpec:
     nodes: tuple[NodeSpec, ...] = DEFAULT_NODES
     host: str = "127.0.0.1"
     stream: StreamFormat = dataclasses.field(default_factory=StreamFormat)
-    rate_hz: float = 80.0
+    rate_hz: float = SAMPLE_RATE_HZ
     faults: Faults = Faults()
     clocks: tuple[tuple[str, NodeClock], ...] = ()
     seed: int = 0

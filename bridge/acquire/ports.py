@@ -6,10 +6,11 @@ from __future__ import annotations
 import dataclasses
 
 from pendsim_mj.errors import ParameterError
+from pendsim_mj.sensors.bno055 import FUSION_RATE_HZ
 
 NODE_NAMES = ("m1", "m2")
 # What the rig's nodes are, as pendsim/imu metadata: BNO055s in NDOF mode, fused at 100 Hz.
-BNO055_NDOF = {"fusion_timing": "true", "fusion_rate_hz": "100.0"}
+BNO055_NDOF = {"fusion_timing": "true", "fusion_rate_hz": str(FUSION_RATE_HZ)}
 
 
 @dataclasses.dataclass(frozen=True)

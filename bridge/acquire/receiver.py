@@ -44,6 +44,7 @@ from numpy.typing import NDArray
 from pendsim_mj import __version__
 from pendsim_mj.errors import ParameterError, RecordingError
 from pendsim_mj.rig.params import DEFAULT_PARAMS, RigParams
+from pendsim_mj.sensors.bno055 import SAMPLE_RATE_HZ
 from pendsim_mj.units import NS_PER_S, nanoseconds, seconds
 
 from ..errors import OutputError
@@ -92,7 +93,7 @@ class AcquireSpec:
     nodes: tuple[NodeSpec, ...] = DEFAULT_NODES
     bind: str = "127.0.0.1"
     stream: StreamFormat = dataclasses.field(default_factory=StreamFormat)
-    rate_hz: float = 80.0
+    rate_hz: float = SAMPLE_RATE_HZ
     duration_s: float | None = None
     reorder_window_s: float = 0.2
     params: RigParams = DEFAULT_PARAMS

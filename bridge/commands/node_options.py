@@ -12,6 +12,7 @@ import math
 import numpy as np
 
 from pendsim_mj.errors import ParameterError
+from pendsim_mj.sensors.bno055 import SAMPLE_RATE_HZ
 from pendsim_mj.sensors.imperfections import Imperfections, axis_remap_matrix, random_mount
 
 from .. import options
@@ -71,8 +72,8 @@ def add_stream_options(p: argparse.ArgumentParser, *, what: str) -> None:
     p.add_argument(
         "--rate-hz",
         type=options.float_in(0.0, 100_000.0, "Hz", low_open=True, name="rate_hz"),
-        default=80.0,
-        help="the nodes' sample rate, Hz (default 80, the paper's)",
+        default=SAMPLE_RATE_HZ,
+        help=f"the nodes' sample rate, Hz (default {SAMPLE_RATE_HZ:g}, the paper's)",
     )
 
 
