@@ -105,7 +105,7 @@ def adev_of_phase(x: np.ndarray, m: np.ndarray, *, threads: int = 2) -> np.ndarr
 def load_kernels() -> None:
     """Load the compiled kernels (``allan_kernel.warm_up``) into this process before they run on
     other threads (numba's first call in a process costs 0.3-0.5 s, less once numba is loaded)."""
-    from pendsim_mj.allan import kernel as allan_kernel
+    from pendsim_mj.allan import kernel as allan_kernel  # start-up: numba and its compiled kernels, once needed
 
     allan_kernel.warm_up()
 
@@ -191,7 +191,7 @@ def curves_of_deviations(
 def confidence_interval(dev: np.ndarray, edf: np.ndarray, confidence: float) -> tuple[np.ndarray, np.ndarray]:
     """``allantools.confidence_interval`` (chi-squared, NIST SP1065 eq. 45) for arrays: the
     (low, high) bounds of the deviations dev (k,) with edf (k,) degrees of freedom."""
-    from scipy.stats import chi2
+    from scipy.stats import chi2  # start-up: scipy, only for the intervals
 
     tail = min(abs(confidence), abs(confidence - 1)) / 2
     edf = np.asarray(edf, dtype=float)

@@ -33,8 +33,9 @@ import mujoco
 import numpy as np
 
 from pendsim_mj.errors import ParameterError
-from pendsim_mj.estimation.analysis import log_decrement_damping
+from pendsim_mj.estimation.analysis import log_decrement_damping, peak_amplitudes
 from pendsim_mj.estimation.least_squares import sysid_least_squares
+from pendsim_mj.nonlinear.linear import linear_modes
 from pendsim_mj.rig.drives import Drive
 from pendsim_mj.rig.model import HINGES, build_spec
 from pendsim_mj.rig.params import PARAMETER_LIMITS, RigParams
@@ -164,7 +165,7 @@ def planar_damping(
 
 
 def _sysid():
-    from mujoco import sysid
+    from mujoco import sysid  # start-up: MuJoCo
 
     if not hasattr(sysid, "optimize"):
         raise ParameterError("mujoco.sysid is missing its extras: pip install 'mujoco[sysid]'")
@@ -322,9 +323,6 @@ def modal_decrement(t_s: np.ndarray, phi_rad: np.ndarray, params: RigParams, win
       params: the rig (its inertias, masses, springs).
       window_s: span after the first modal peak, s.
     """
-    from pendsim_mj.estimation.analysis import peak_amplitudes
-    from pendsim_mj.nonlinear.linear import linear_modes
-
     if not (math.isfinite(window_s) and window_s > 0):
         raise ParameterError(f"window_s must be > 0 s, got {window_s}")
     columns = [_node_column(t_s, phi_rad, k) for k in range(2)]

@@ -184,7 +184,7 @@ def fit_tilt(
         raise ParameterError(f"names must be a non-empty subset of {NAMES}, got {names!r}")
     if tilt_start not in TILT_STARTS:
         raise ParameterError(f"tilt_start must be one of {TILT_STARTS}, got {tilt_start!r}")
-    from mujoco import sysid
+    from mujoco import sysid  # start-up: MuJoCo
 
     if not hasattr(sysid, "optimize"):
         raise ParameterError("mujoco.sysid is missing its extras: pip install 'mujoco[sysid]'")
@@ -262,7 +262,7 @@ def _bounds(names: tuple[str, ...], values: np.ndarray) -> dict[str, tuple[float
 def _fit_window(sysid, params, columns, sigma, start_values, names, bounds, tilt_start):
     """One sysid fit over the samples given; returns (values, covariance, residuals per node and
     component, iterations)."""
-    from scipy.interpolate import CubicSpline
+    from scipy.interpolate import CubicSpline  # start-up: scipy
 
     spec = sensors_only(build_spec(params, variant=SPATIAL), GYROS)
     model = spec.compile()

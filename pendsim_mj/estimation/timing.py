@@ -18,7 +18,7 @@ import math
 import numpy as np
 from numpy.typing import NDArray
 
-from pendsim_mj.errors import RecordingError
+from pendsim_mj.errors import ParameterError, RecordingError
 
 Floats = NDArray[np.float64]
 
@@ -276,8 +276,6 @@ def nominal_rate_hz(t_s: Floats) -> float:
 
 def check_max_gap(max_gap_s: float) -> None:
     if not (math.isfinite(max_gap_s) and 0 < max_gap_s <= 10):
-        from pendsim_mj.errors import ParameterError
-
         raise ParameterError(f"max_gap_s must be a finite number in (0, 10] s, got {max_gap_s!r}")
 
 

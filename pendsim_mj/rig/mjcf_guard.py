@@ -120,7 +120,7 @@ def compile_untrusted(xml: str) -> mujoco.MjModel:
     Raises:
       ModelError: refused, or MuJoCo could not compile it (its message on one line).
     """
-    import mujoco
+    import mujoco  # start-up: MuJoCo, once a file is checked
 
     from pendsim_mj.rig import mujoco_warnings
 
@@ -139,7 +139,7 @@ def compile_untrusted(xml: str) -> mujoco.MjModel:
 def _check_describes_the_rig(model: mujoco.MjModel) -> None:
     """The compiled model has every named element pendsim draws and reads (another, valid model
     is refused like a hostile one)."""
-    import mujoco
+    import mujoco  # start-up: MuJoCo
 
     from pendsim_mj.rig.model import BODIES, HINGES, IMU_SITES, SPRING_ENDS, SPRINGS
 

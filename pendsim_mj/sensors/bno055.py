@@ -290,7 +290,7 @@ def _trajectory_readings(traj: Trajectory, t_s: np.ndarray, first_row: int = 0) 
             "values between simulation steps are interpolated for the planar model only; the spatial model needs "
             "fusion timing, no fusion phase or clock drift, and a step dividing the 10 ms fusion period"
         )
-    from pendsim_mj.engines.simulation import evaluate_states
+    from pendsim_mj.engines.simulation import evaluate_states  # start-up: MuJoCo, only for a hold
 
     phi, omega = _hermite_states(traj, t_s, first_row)
     return evaluate_states(traj.single_params, phi, omega)
@@ -308,7 +308,7 @@ def _held_readings(traj: Trajectory, t_s: np.ndarray, config: Bno055, g_m_s2: fl
     if wobble > 0 and m:
         rng = np.random.default_rng([config.seed, 4])
         angle, rate, alpha = imp.hold_wobble(rng, t_s, wobble)
-        from pendsim_mj.rig.model import HINGE_AXIS_WORLD
+        from pendsim_mj.rig.model import HINGE_AXIS_WORLD  # start-up: MuJoCo
 
         turn = rotations.from_rotvec(angle[..., None] * HINGE_AXIS_WORLD)  # world side: about the hinge
         quat = rotations.multiply(turn, quat)
@@ -383,7 +383,7 @@ def static_imu(params: RigParams, duration_s: float, config: Bno055 = Bno055()) 
     sensors at the rest pose, repeated at every sample, then the same mount and noise model."""
     if not (math.isfinite(duration_s) and duration_s > 0):
         raise ParameterError(f"duration_s must be a finite number > 0 s, got {duration_s!r}")
-    from pendsim_mj.engines.simulation import evaluate_states
+    from pendsim_mj.engines.simulation import evaluate_states  # start-up: MuJoCo
 
     m = math.floor(duration_s * config.sample_rate_hz + 1e-9) + 1
     clock_t, sample_t, _ = node_instants(config, m, 0.0)
@@ -478,7 +478,7 @@ class ImuSampler:
         if not self.static:
             raise ParameterError("static_block is for static tests (ImuSampler(..., static=True))")
         if self._rest is None:
-            from pendsim_mj.engines.simulation import evaluate_states
+            from pendsim_mj.engines.simulation import evaluate_states  # start-up: MuJoCo
 
             self._rest = evaluate_states(self.params, np.zeros((1, 2)), np.zeros((1, 2)))
         m = min(count, self.total - self._next)

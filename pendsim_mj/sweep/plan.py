@@ -227,7 +227,7 @@ class SweepPlan:
             if self.method == "random":
                 unit = rng.random((self.samples, len(self.axes)))
             else:
-                from scipy.stats import qmc
+                from scipy.stats import qmc  # start-up: scipy, only for these samplers
 
                 unit = qmc.LatinHypercube(d=len(self.axes), seed=rng).random(self.samples)
             values = np.stack([a.scale_unit(unit[:, j]) for j, a in enumerate(self.axes)], axis=1)

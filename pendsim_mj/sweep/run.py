@@ -134,7 +134,7 @@ def _mujoco_motion(
 ) -> Motion:
     """Run the batch on ``mujoco.rollout``; where it diverges, run the cases one by one to flag
     exactly the ones that do (their motion is NaN)."""
-    from pendsim_mj.engines.simulation import simulate_batch
+    from pendsim_mj.engines.simulation import simulate_batch  # start-up: MuJoCo, only for its engines
     from pendsim_mj.rig.model import PLANAR, SPATIAL
 
     variant = SPATIAL if plan.engine == "spatial" else PLANAR
