@@ -20,12 +20,29 @@ import pytest
 import pendsim_bridge
 import pendsim_bridge.io
 import pendsim_mj
+import pendsim_mj.allan
+import pendsim_mj.estimation
 import pendsim_mj.rig
+import pendsim_mj.sensors
+import pendsim_mj.sweep
 
 ROOT = Path(__file__).resolve().parent.parent
 API_PAGE = ROOT / "docs" / "api.md"
-FACADES = (pendsim_mj, pendsim_mj.rig, pendsim_bridge, pendsim_bridge.io)
-HEAVY = ("mujoco", "numba", "matplotlib", "rerun", "scipy", "dask", "pyarrow")
+# every facade that imports its names on first use (pendsim_mj.lazy); the engines' and the MCAP
+# room's facades have tests of their own (tests/engines, tests/io)
+FACADES = (
+    pendsim_mj, pendsim_mj.rig, pendsim_mj.sensors, pendsim_mj.estimation, pendsim_mj.allan, pendsim_mj.sweep,
+    pendsim_bridge, pendsim_bridge.io,
+)  # fmt: skip
+ROOMS = (
+    pendsim_mj.rig,
+    pendsim_mj.sensors,
+    pendsim_mj.estimation,
+    pendsim_mj.allan,
+    pendsim_mj.sweep,
+    pendsim_bridge.io,
+)
+HEAVY = ("mujoco", "numba", "matplotlib", "rerun", "scipy", "dask", "pyarrow", "allantools")
 
 
 def python_blocks(text: str) -> list[tuple[int, str]]:
@@ -52,8 +69,12 @@ def test_the_recording_api_is_exported():
 
 
 @pytest.mark.parametrize("facade", FACADES, ids=lambda m: m.__name__)
-def test_every_name_in_all_resolves_and_dir_lists_it(facade):
+def test_every_name_in_all_is_its_defining_modules_object_and_dir_lists_it(facade):
     assert len(set(facade.__all__)) == len(facade.__all__)
+    for name, source in facade._LAZY.items():
+        module = importlib.import_module(importlib.util.resolve_name(source, facade.__name__))
+        expected = module if module.__name__ == f"{facade.__name__}.{name}" else getattr(module, name)
+        assert getattr(facade, name) is expected, name
     for name in facade.__all__:
         assert getattr(facade, name) is not None, name
     assert set(facade.__all__) <= set(dir(facade))
@@ -81,9 +102,20 @@ def test_what_mypy_sees_is_what_the_facade_gives(facade):
     assert set(lazy) <= set(facade.__all__)
 
 
+@pytest.mark.parametrize("room", ROOMS, ids=lambda m: m.__name__)
+def test_a_rooms_docstring_names_every_module_of_the_room(room):
+    folder = Path(room.__file__).parent
+    modules = sorted(p.stem if p.suffix else p.name for p in folder.iterdir() if _is_module(p))
+    assert [m for m in modules if f"``{m}``" not in (room.__doc__ or "")] == []
+
+
+def _is_module(path: Path) -> bool:
+    return (path.suffix == ".py" and path.stem != "__init__") or (path / "__init__.py").is_file()
+
+
 def test_importing_the_packages_imports_no_engine_kernel_or_plotting():
     code = (
-        "import sys, pendsim_mj, pendsim_mj.rig, pendsim_bridge, pendsim_bridge.io\n"
+        f"import sys, {', '.join(f.__name__ for f in FACADES)}\n"
         "from pendsim_mj import DEFAULT_PARAMS, Drive, RigParams, Sine\n"
         f"print(sorted(m for m in {HEAVY!r} if m in sys.modules))\n"
     )
