@@ -198,3 +198,17 @@ def test_no_folder_holds_more_than_15_modules():
         if (n := sum(1 for p in f.glob("*.py") if p.name != "__init__.py")) > MAX_MODULES_PER_FOLDER
     }
     assert not crowded, f"folders of more than {MAX_MODULES_PER_FOLDER} modules: {crowded}"
+
+
+def test_every_room_is_a_package_the_wheel_installs():
+    # pyproject.toml lists the packages one by one (bridge/ installs as pendsim_bridge): a room
+    # left out of the list would be missing from a wheel, though an editable install finds it
+    import tomllib
+
+    listed = set(tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["setuptools"]["packages"])
+    found = {
+        ".".join([name, *init.parent.relative_to(folder).parts])
+        for name, folder in PACKAGES.items()
+        for init in folder.rglob("__init__.py")
+    }
+    assert found - listed == set()
