@@ -48,6 +48,7 @@ COMMANDS: tuple[str, ...] = (
 _MASKS = (
     (re.compile(r"\d+(\.\d+)? ?(s|ms) (wall|CPU)"), "<time>"),
     (re.compile(r"in \d+(\.\d+)? ?s\b"), "in <time>"),
+    (re.compile(r"iterations, \d+(\.\d+)? s\)"), "iterations, <time>)"),
     (re.compile(r"\d+(\.\d+)?(it/s|s/it)"), "<rate>"),
     (re.compile(r"\[\d\d:\d\d<\d\d:\d\d[^\]]*\]"), "[<eta>]"),
     # when the run was made: UTC instants, log times, and sizes of files compressed with them
