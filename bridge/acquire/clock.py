@@ -12,9 +12,7 @@ from numpy.typing import NDArray
 
 from pendsim_mj.estimation.timing import MAX_DRIFT_PPM, ClockFit, ClockRelation
 
-from ..io.measured import recorded_stamp_clock
-
-__all__ = ["MAX_DRIFT_PPM", "ClockFit", "ClockRelation", "jitter_summary_ms", "recorded_stamp_clock", "residuals_s"]
+__all__ = ["MAX_DRIFT_PPM", "ClockFit", "ClockRelation", "jitter_summary_ms", "residuals_s"]
 
 
 def residuals_s(

@@ -19,12 +19,12 @@ import numpy as np
 import pytest
 from acquire_helpers import Pendsim, free_udp_ports
 
-from pendsim_bridge.acquire.clock import recorded_stamp_clock
 from pendsim_bridge.acquire.emulator import EmulatorSpec, Faults, plan
 from pendsim_bridge.acquire.emulator import run as run_nodes
 from pendsim_bridge.acquire.packets import GROUP_SLICES
 from pendsim_bridge.cli import build_parser
 from pendsim_bridge.commands.nodes import spec_from
+from pendsim_bridge.io.measured import recorded_stamp_clock
 from pendsim_bridge.io.recording import read_recording
 from pendsim_bridge.run.record import RecordSpec, record
 from pendsim_bridge.run.validate import align_recording, identify
