@@ -3,7 +3,7 @@
 What each node does, and how it is emulated:
 
 - **The measurement** comes from the simulated rig (the MuJoCo model or the planar reference,
-  ``bridge.record.simulate_for``) through pendsim's BNO055 model (``pendsim_mj.sensors.bno055``): the chip
+  ``run.record.simulate_for``) through pendsim's BNO055 model (``pendsim_mj.sensors.bno055``): the chip
   fuses at 100 Hz and the node reads the latest fused value (with its noise and quantisation)
   at each of its own sample instants. The pendulums are held still for ``hold_s`` before the
   release, as in a real recording.
