@@ -7,6 +7,7 @@ from . import (
     acquire,
     allan,
     analyze,
+    calibrate,
     compare,
     demo,
     identify,
@@ -24,7 +25,7 @@ from . import (
 )
 
 COMMANDS = (
-    demo, simulate, record, acquire, nodes, import_, inspect, validate, identify, view, replay, compare, analyze,
-    sweep, allan, recover, info,
+    demo, simulate, record, acquire, nodes, import_, inspect, validate, identify, calibrate, view, replay, compare,
+    analyze, sweep, allan, recover, info,
 )  # fmt: skip
 """In the order ``pendsim --help`` lists them."""

@@ -52,12 +52,13 @@ from pendsim_mj.engines.fast_planar.closed_form import (
 )
 from pendsim_mj.engines.fast_planar.kernel import sincos
 from pendsim_mj.engines.fast_planar.lyapunov_exponent import lyapunov
-from pendsim_mj.engines.fast_planar.rates import SENSITIVITY_NAMES, normal_equations_at, rates_at
+from pendsim_mj.engines.fast_planar.rates import COEF_SENSITIVITIES, SENSITIVITY_NAMES, normal_equations_at, rates_at
 from pendsim_mj.engines.fast_planar.trajectories import solve, solve_batch, solve_blocks
 
 __all__ = [
     "CHUNK",
     "COEFFICIENTS",
+    "COEF_SENSITIVITIES",
     "NCOEF",
     "NINPUT",
     "SENSITIVITY_NAMES",

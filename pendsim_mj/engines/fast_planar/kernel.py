@@ -279,6 +279,40 @@ def _accel_partials(
 
 
 @numba.njit(inline="always", cache=True)
+def _coef_partial(
+    p1: float, p2: float, w1: float, w2: float, c: tuple[float, ...], u: tuple[float, float, float, float], code: int
+) -> tuple[float, float]:
+    """The direct derivative of (phi1'', phi2'') by one force-law constant, ``wrt`` code 8 + its
+    index in COEF_SENSITIVITIES (J1, J2, m1 g OC1, m2 g OC2, K_s, K_c, F_s, F_c, m1 OC1, m2 OC2),
+    from the equations of ``closed_form`` (d = phi2 - phi1): d phi_n'' / d J_n = -phi_n'' / J_n;
+    the others enter phi_n'' linearly, divided by J_n."""
+    s1, c1 = sincos(p1)
+    s2, c2 = sincos(p2)
+    sd = s2 * c1 - c2 * s1
+    cd = c2 * c1 + s2 * s1
+    j1 = 1.0 / c[_J1]
+    j2 = 1.0 / c[_J2]
+    if code == 8 or code == 9:
+        a1, a2 = _accel(p1, p2, w1, w2, c, u)
+        return (-a1 * j1, 0.0) if code == 8 else (0.0, -a2 * j2)
+    if code == 10:
+        return -s1 * j1, 0.0
+    if code == 11:
+        return 0.0, -s2 * j2
+    if code == 12:
+        return sd * j1, -sd * j2
+    if code == 13:
+        return -cd * j1, cd * j2
+    if code == 14:
+        return 0.0, -s2 * j2
+    if code == 15:
+        return 0.0, c2 * j2
+    if code == 16:
+        return -(u[3] * s1 + u[2] * c1) * j1, 0.0
+    return 0.0, -(u[3] * s2 + u[2] * c2) * j2
+
+
+@numba.njit(inline="always", cache=True)
 def _sens_derivative(
     p1: float, p2: float, w1: float, w2: float, c: tuple[float, ...], u: tuple[float, float, float, float],
     wrt: NDArray[np.int64], s: FloatArray, out: FloatArray,
@@ -300,6 +334,10 @@ def _sens_derivative(
             out[2, col] += a1f1
         elif code == 7:
             out[3, col] += a2f2
+        elif code >= 8:  # a force-law constant (calibration): its direct derivative of the accelerations
+            d1, d2 = _coef_partial(p1, p2, w1, w2, c, u, code)
+            out[2, col] += d1
+            out[3, col] += d2
 
 
 @numba.njit(cache=True)

@@ -17,8 +17,22 @@ from pendsim_mj.errors import ParameterError
 
 _UNDRIVEN_STEPS = np.zeros((0, NINPUT))  # ``rates_at`` without inputs
 
+# The force-law constants (rows of ``COEFFICIENTS``) beside the hinge losses whose sensitivity the
+# kernel computes (``kernel._coef_partial``, codes 8...): what the calibration differentiates by.
+COEF_SENSITIVITIES = (
+    "j1_kg_m2",
+    "j2_kg_m2",
+    "gravity1_n_m",
+    "gravity2_n_m",
+    "coupling_sin_n_m",
+    "coupling_cos_n_m",
+    "frame_sin_n_m",
+    "frame_cos_n_m",
+    "moc1_kg_m",
+    "moc2_kg_m",
+)
 # Unknowns whose sensitivity ``rates_at`` can return (``wrt`` codes): the start state, then the
-# hinge losses (rows _B1, _B2, _F1, _F2 of the coefficients).
+# hinge losses (rows _B1, _B2, _F1, _F2 of the coefficients), then the other force-law constants.
 SENSITIVITY_NAMES = (
     "phi1_0",
     "phi2_0",
@@ -28,6 +42,7 @@ SENSITIVITY_NAMES = (
     "b2_n_m_s",
     "friction1_n_m",
     "friction2_n_m",
+    *COEF_SENSITIVITIES,
 )
 
 _NOTHING = np.zeros(0)  # the kernel's arrays a mode does not use

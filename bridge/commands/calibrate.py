@@ -1,0 +1,115 @@
+"""pendsim calibrate: the rig's physical parameters fitted to its recordings."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from pendsim_mj.errors import ParameterError
+
+from .. import options
+
+LAWS = ("viscous", "coulomb", "both")  # pendsim_mj.calibration.parameters.DAMPING_BY_LAW (not imported: fast start)
+OUTPUTS = ("params.json", "calibration.json", "calibration.md", "calibration.png")
+
+
+def register(sub: argparse._SubParsersAction[options.Parser]) -> None:
+    p = sub.add_parser(
+        "calibrate",
+        help="fit the rig's springs, inertias and centres of mass to one or several recordings",
+        description="Fit the rig's physical parameters (c1, c2, J1, J2, OC1, OC2, the anchors' asymmetries and the "
+        "hinge damping) to one or several recordings at once on the planar model, each recording with its own "
+        "start state. Only what the recordings determine is fitted (from the Fisher information: its directions "
+        "and intervals); the rest is held at the stated values and named. Writes DIR/params.json (for "
+        "--params-file of simulate, record, validate, identify, view and analyze), DIR/calibration.json, "
+        "DIR/calibration.md and DIR/calibration.png: what was determined, to what interval, what was not and "
+        "which recording would determine it, and the validation of each recording before and after (and left "
+        "out). Exit 1 when the residual stays far above the noise (model error, named).",
+    )
+    p.add_argument("paths", nargs="+", type=options.mcap_file, metavar="REC", help="the .mcap recordings")
+    p.add_argument("-o", "--out-dir", type=Path, help="output folder (default: REC_calibration beside the first)")
+    p.add_argument(
+        "--model",
+        type=options.choice(("planar", "spatial"), "unknown --model {value!r}; allowed: {allowed}"),
+        choices=("planar", "spatial"),
+        default="planar",
+        help="planar (default); spatial is not available yet for calibration",
+    )
+    p.add_argument(
+        "--law",
+        type=options.choice(LAWS, "unknown law {value!r}; allowed: {allowed}"),
+        choices=LAWS,
+        default="viscous",
+        help="the hinges' damping law fitted with the rig (default viscous)",
+    )
+    p.add_argument(
+        "--fix",
+        dest="fixed",
+        type=options.assignment,
+        action="append",
+        default=[],
+        metavar="NAME=VALUE",
+        help="hold a parameter at a known value in SI units (e.g. a weighed mass or a measured inertia: "
+        "--fix j1_kg_m2=0.0262); repeatable",
+    )
+    p.add_argument(
+        "--free",
+        action="append",
+        default=[],
+        metavar="NAME",
+        help="also fit this parameter (default: c1_n_m, c2_n_m, j1_kg_m2, j2_kg_m2, oc1_m, oc2_m, l24_m, l68_m "
+        "and the damping); repeatable",
+    )
+    options.add_parameter_options(p, what="the stated rig (the calibration's start and what it holds)")
+    options.add_alignment_options(p)
+    p.add_argument(
+        "--no-checks",
+        action="store_true",
+        help="skip the validations before and after and the cross-validation (the calibration alone)",
+    )
+    options.add_force_option(p, "the outputs")
+    p.set_defaults(handler=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    from pendsim_mj.calibration.parameters import DEFAULT_FREE, PLANAR_PARAMETERS  # start-up: light
+    from pendsim_mj.rig.params import RigParams
+
+    from ..report.calibration_report import write_outputs  # start-up: matplotlib, numba, when it runs
+    from ..run.calibrate import calibrate_recordings, report_text
+
+    if args.model == "spatial":
+        raise ParameterError(
+            "--model spatial: calibration on the spatial model is not available yet; calibrate with the planar "
+            "model (the default) and check the spatial effects with 'pendsim validate --model spatial'"
+        )
+    if args.release_s is not None and len(args.paths) > 1:
+        raise ParameterError("--release-s applies to one recording; with several, each one's release is found")
+    for name in args.free:
+        if name not in PLANAR_PARAMETERS:
+            raise ParameterError(
+                f"--free {name}: not a parameter of the planar model; allowed: {', '.join(PLANAR_PARAMETERS)}"
+            )
+    fixed = dict(args.fixed)
+    out_dir = args.out_dir or args.paths[0].with_name(f"{args.paths[0].stem}_calibration")
+    options.check_output_dir(out_dir, OUTPUTS, force=args.force)
+    params = RigParams().with_mapping(options.overrides_from(args))
+    report = calibrate_recordings(
+        args.paths,
+        params,
+        law=args.law,
+        free=[*DEFAULT_FREE, *args.free],
+        fixed=fixed,
+        release_s=args.release_s,
+        max_gap_s=args.max_gap_s,
+        checks=not args.no_checks,
+        progress=lambda line: print(line, file=sys.stderr),
+    )
+    print(report_text(report), end="")
+    written = write_outputs(report, out_dir, replace=args.force)
+    use = f"pendsim validate REC --params-file {out_dir / 'params.json'}"
+    print(f"wrote {', '.join(str(p) for p in written)} (use: {use})")
+    for line in report.model_error[:1]:
+        print(f"pendsim: calibration: {line}", file=sys.stderr)
+    return 1 if report.model_error else 0

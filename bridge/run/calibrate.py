@@ -1,0 +1,247 @@
+"""pendsim calibrate's work: recordings aligned, the rig calibrated on all of them, checked
+(before and after, each recording left out in turn, the residual's cause tested), and written.
+
+The calibration itself is ``pendsim_mj.calibration``; this module reads the recordings, runs the
+validations that show what it changed, and writes the parameter file and the report.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Callable, Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from pendsim_mj.calibration import Calibration, CalibrationRun, calibrate
+from pendsim_mj.calibration.design import Suggestion, suggest
+from pendsim_mj.calibration.information import describe_held
+from pendsim_mj.calibration.parameters import ParameterSpace
+from pendsim_mj.errors import ParameterError
+from pendsim_mj.estimation.alignment import DEFAULT_MAX_GAP_S
+from pendsim_mj.rig.params import RigParams
+
+from ..io.measured import align_recording, recording_drive
+from ..io.recording import DRIVE_TOPIC, NODES, imu_topic, read_recording
+from .validate import validate
+
+MODEL_ERROR_SIGMAS = 1.5  # a residual rms above this many noise sigmas after calibration is model error
+INCONSISTENT_RATIO = 1.3  # a recording whose joint-fit residual is this much above its own fit's: another rig
+
+
+@dataclasses.dataclass(frozen=True)
+class Metrics:
+    """A recording validated with one rig (MuJoCo from the estimated start, the whole run)."""
+
+    path: str
+    rig: str  # "stated", "calibrated", "left out"
+    max_abs_phi1_rad: float
+    max_abs_omega2_rad_s: float  # (phi2 is not validated: M2's angle is integrated from its gyro)
+    iae_phi1_rad_s: float
+    delta_f_phi1: float  # relative frequency error of phi1
+
+
+@dataclasses.dataclass(frozen=True)
+class CalibrationReport:
+    """What ``calibrate_recordings`` found: the calibration, the held directions in words, the
+    validations before and after (and left out), the model-error findings and the suggested
+    experiments."""
+
+    calibration: Calibration
+    paths: tuple[str, ...]
+    held_words: tuple[str, ...]
+    before: tuple[Metrics, ...]
+    after: tuple[Metrics, ...]
+    left_out: tuple[Metrics, ...]
+    model_error: tuple[str, ...]
+    suggestions: tuple[Suggestion, ...]
+
+
+def _metrics(path: Path, params: RigParams, rig: str, damping: str) -> Metrics:
+    report = validate(path, params=params, damping=damping)
+    case = report.case("mujoco", "estimated", "whole").comparisons
+    phi1, omega2 = case["phi1"], case["omega2"]
+    return Metrics(str(path), rig, phi1.max_abs, omega2.max_abs, phi1.iae, phi1.delta_f)
+
+
+def load_runs(
+    paths: Sequence[Path], params: RigParams, *, release_s: float | None = None, max_gap_s: float = DEFAULT_MAX_GAP_S
+) -> list[CalibrationRun]:
+    """Each recording aligned (as identify and validate align it) as a ``CalibrationRun``."""
+    runs = []
+    for path in paths:
+        rec = read_recording(path, topics=[*(imu_topic(n) for n in NODES), DRIVE_TOPIC])
+        run = align_recording(rec, params, release_s=release_s, max_gap_s=max_gap_s)
+        runs.append(CalibrationRun.from_measured(str(path), run, recording_drive(rec, run)))
+        del rec
+    return runs
+
+
+def _consistency(runs: Sequence[CalibrationRun], joint: Calibration, fit: Callable[..., Calibration]) -> None:
+    """Recordings of different rigs: one explained to the noise alone but not with the others."""
+    if len(runs) < 2:
+        return
+    for run, result in zip(runs, joint.runs, strict=True):
+        alone = fit([run]).residual_rms_sigma
+        if result.residual_rms_sigma > INCONSISTENT_RATIO * alone and alone < MODEL_ERROR_SIGMAS:
+            raise ParameterError(
+                f"{run.name} is not of the same rig as the other recordings: alone it is explained to "
+                f"{alone:.2f} noise sigmas, with them to {result.residual_rms_sigma:.2f}; calibrate each rig on its own"
+            )
+
+
+def _model_error(cal: Calibration, runs: Sequence[CalibrationRun], fit: Callable[..., Calibration]) -> list[str]:
+    """Name the cause of a residual far above the noise, by testing the alternatives the planar
+    model can test (the damping law); what it cannot is said as such."""
+    worst = max(r.residual_rms_sigma for r in cal.runs)
+    white = min(min(r.ljung_box_p) for r in cal.runs)
+    if worst <= MODEL_ERROR_SIGMAS:
+        return []
+    lines = [
+        f"model error: after calibration the residual is {worst:.1f} noise sigmas rms (Ljung-Box p {white:.2g}); "
+        "what the planar model with these parameters cannot explain"
+    ]
+    if cal.law != "both":
+        other = fit(runs, law="both")
+        if other.residual_rms_sigma < 0.8 * cal.residual_rms_sigma:
+            lines.append(
+                f"tested: dry friction at the hinges lowers it to {other.residual_rms_sigma:.1f} sigmas "
+                "(calibrate --law both)"
+            )
+        else:
+            lines.append(f"tested: dry friction does not explain it ({other.residual_rms_sigma:.1f} sigmas with it)")
+    lines.append(
+        "not tested here: spatial motion (out-of-plane swing: compare with 'pendsim validate --model spatial') and "
+        "spring nonlinearity (the model's springs are linear, zero free length)"
+    )
+    return lines
+
+
+def calibrate_recordings(
+    paths: Sequence[Path],
+    params: RigParams,
+    *,
+    law: str = "viscous",
+    free: Sequence[str] | None = None,
+    fixed: Mapping[str, float] | None = None,
+    release_s: float | None = None,
+    max_gap_s: float = DEFAULT_MAX_GAP_S,
+    checks: bool = True,
+    progress: Callable[[str], None] | None = None,
+) -> CalibrationReport:
+    """Calibrate the rig on the recordings and check the result (module docstring); ``checks``
+    False: no validations, no left-out fits (the calibration alone)."""
+    say = progress or (lambda line: None)
+    runs = load_runs(paths, params, release_s=release_s, max_gap_s=max_gap_s)
+
+    def fit(subset: Sequence[CalibrationRun], law: str = law) -> Calibration:
+        return calibrate(subset, params, law=law, free=free, fixed=fixed)
+
+    cal = calibrate(runs, params, law=law, free=free, fixed=fixed, progress=say)
+    _consistency(runs, cal, fit)
+    space = ParameterSpace(cal.stated, cal.free)
+    words = describe_held(cal.undetermined, cal.free, space.scale_direction(cal.x))
+    before: list[Metrics] = []
+    after: list[Metrics] = []
+    left_out: list[Metrics] = []
+    if checks:
+        for path in paths:
+            say(f"calibrate: validating {path} with the stated and the calibrated rig")
+            before.append(_metrics(path, cal.stated, "stated", "identified"))
+            after.append(_metrics(path, cal.params, "calibrated", "recorded"))
+        if len(runs) > 1:
+            for k, path in enumerate(paths):
+                say(f"calibrate: cross-validation, {path} left out")
+                other = fit([r for i, r in enumerate(runs) if i != k])
+                left_out.append(_metrics(path, other.params, "left out", "recorded"))
+    sigma = float(np.mean([np.mean(r.gyro_sigma_rad_s) for r in runs]))
+    duration = float(np.median([r.duration_s for r in runs]))
+    suggestions = suggest(cal, sigma_rad_s=sigma, duration_s=min(duration, 120.0)) if cal.undetermined else []
+    return CalibrationReport(
+        calibration=cal,
+        paths=tuple(str(p) for p in paths),
+        held_words=tuple(words),
+        before=tuple(before),
+        after=tuple(after),
+        left_out=tuple(left_out),
+        model_error=tuple(_model_error(cal, runs, fit)),
+        suggestions=tuple(suggestions),
+    )
+
+
+def _clean(v: float) -> float | None:
+    return v if math.isfinite(v) else None
+
+
+def report_json(report: CalibrationReport) -> dict[str, Any]:
+    """calibration.json: everything the text report says, for machines."""
+    cal = report.calibration
+    return {
+        "recordings": list(report.paths),
+        "law": cal.law,
+        "free": list(cal.free),
+        "parameters": cal.overrides(),
+        "stated": {name: cal.stated.as_dict()[name] for name in cal.free},
+        "quantities": [{**dataclasses.asdict(q), "half_width95": _clean(q.half_width95)} for q in cal.quantities],
+        "directions": [
+            {
+                "components": dict(zip(cal.free, map(float, d.vector), strict=True)),
+                "half_width95_relative": _clean(d.half_width95),
+                "determined": d.determined,
+            }
+            for d in cal.directions
+        ],
+        "not_determined": list(report.held_words),
+        "runs": [dataclasses.asdict(r) for r in cal.runs],
+        "residual_rms_sigma": cal.residual_rms_sigma,
+        "iterations": cal.iterations,
+        "seconds": cal.seconds,
+        "validation": {
+            "before": [dataclasses.asdict(m) for m in report.before],
+            "after": [dataclasses.asdict(m) for m in report.after],
+            "left_out": [dataclasses.asdict(m) for m in report.left_out],
+        },
+        "model_error": list(report.model_error),
+        "suggested_experiments": [s.to_json() for s in report.suggestions],
+    }
+
+
+def report_text(report: CalibrationReport) -> str:
+    """The plain-words report (printed, and calibration.md)."""
+    cal = report.calibration
+    out = [f"# Calibration of {len(report.paths)} recording(s), planar model, {cal.law} damping", ""]
+    out.append(
+        f"Residual after calibration: {cal.residual_rms_sigma:.2f} gyro noise sigmas rms "
+        f"({cal.iterations} iterations, {cal.seconds:.1f} s)."
+    )
+    out += ["", "## Determined (95 % intervals)", ""]
+    for q in cal.quantities:
+        if q.determined:
+            change = 100 * (q.value / q.stated - 1) if q.stated else math.nan
+            shown = f"{change:+.2f} % from stated" if math.isfinite(change) else f"stated {q.stated:.6g}"
+            out.append(f"- {q.label} = {q.value:.6g} +- {q.half_width95:.2g} {q.unit} ({shown})")
+    out += ["", "## Not determined by these recordings (held at the stated values)", ""]
+    out += [f"- {w}" for w in report.held_words] or ["- nothing: every free parameter is determined"]
+    undetermined = [q for q in cal.quantities if not q.determined]
+    if undetermined:
+        out.append("- so these are not determined alone: " + ", ".join(q.label for q in undetermined))
+    if report.suggestions:
+        out += ["", "## Which recording would determine more", ""]
+        out += [f"- {s.describe()}" for s in report.suggestions]
+    if report.before:
+        out += ["", "## Validation (MuJoCo from the estimated start, whole run)", ""]
+        out.append(
+            "| recording | rig | max abs dphi1 (rad) | max abs domega2 (rad/s) | IAE phi1 (rad s) | df phi1 (%) |"
+        )
+        out.append("|---|---|---|---|---|---|")
+        for m in (*report.before, *report.after, *report.left_out):
+            out.append(
+                f"| {Path(m.path).name} | {m.rig} | {m.max_abs_phi1_rad:.4f} | {m.max_abs_omega2_rad_s:.4f} | "
+                f"{m.iae_phi1_rad_s:.4f} | {100 * m.delta_f_phi1:+.3f} |"
+            )
+    if report.model_error:
+        out += ["", "## Model error", ""]
+        out += [f"- {line}" for line in report.model_error]
+    return "\n".join(out) + "\n"
