@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 from pathlib import Path
 
 from pendsim_mj.errors import ParameterError
@@ -52,6 +53,7 @@ def register(sub: argparse._SubParsersAction[options.Parser]) -> None:
         help="planar (default) or spatial: also the support's tilt stiffness and damping, fitted with "
         "the spatial model to all three gyro axes of both nodes (viscous hinge damping)",
     )
+    options.add_parameter_options(p, what="the recording's rig (e.g. calibrate's params.json)")
     p.add_argument(
         "--write", type=Path, metavar="FILE.json", help="write the fitted values (b1_n_m_s, b2_n_m_s, ...) as JSON"
     )
@@ -67,15 +69,25 @@ def run(args: argparse.Namespace) -> int:
     if args.model == "spatial":
         from ..run.spatial_validate import identify_and_write  # start-up: MuJoCo and scipy
 
+        if options.overrides_from(args):
+            raise ParameterError("--params-file and --set apply to the planar fit; --model spatial fits the recorded rig")
         if args.law not in ("auto", "viscous"):
             raise ParameterError(f"--law {args.law} applies to the planar fit; --model spatial fits viscous damping")
         print(identify_and_write(args.path, release_s=args.release_s, max_gap_s=args.max_gap_s, write=args.write,
                                  replace=args.force))  # fmt: skip
         return 0
     result = identify(
-        args.path, window_s=args.window_s, release_s=args.release_s, max_gap_s=args.max_gap_s, law=args.law
+        args.path,
+        window_s=args.window_s,
+        release_s=args.release_s,
+        max_gap_s=args.max_gap_s,
+        law=args.law,
+        overrides=options.overrides_from(args),
     )
     print(identification_table(args.path, result))
+    if result.fit.misfit:
+        print(f"pendsim: identify: {result.fit.misfit_note()}", file=sys.stderr)
+        return 1
     if args.write is not None:
         values = result.fit.overrides()
         with atomic_output(args.write, replace=args.force) as tmp:

@@ -98,6 +98,8 @@ def run(args: argparse.Namespace) -> int:
         model=args.model,
     )
     print(table(report))
+    if report.identification is not None and report.identification.fit.misfit:
+        print(f"pendsim: validate: {report.identification.fit.misfit_note()}", file=sys.stderr)
     written = write_outputs(report, out_dir, plots=not args.no_plots, replace=args.force)
     print(f"wrote {', '.join(str(p) for p in written)}")
     failures = gate_failures(report, Gates(args.max_delta, args.max_iae, args.max_error_phi1))

@@ -40,6 +40,7 @@ def register(sub: argparse._SubParsersAction[options.Parser]) -> None:
         default=9090,
         help="web viewer port for --serve; the data port is PORT + 1 (default 9090)",
     )
+    options.add_parameter_options(p, what="the recording's rig (the model drawn beside it)")
     p.set_defaults(handler=run)
 
 
@@ -59,6 +60,7 @@ def run(args: argparse.Namespace) -> int:
         release_s=args.release_s,
         max_gap_s=args.max_gap_s,
         drive=options.drive_from(args),
+        overrides=options.overrides_from(args),
     )
     print(f"wrote {rrd} (open it with: rerun {rrd})", flush=True)
     if args.spawn:

@@ -18,7 +18,7 @@ import shutil
 import sys
 import tempfile
 import threading
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Mapping
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -542,6 +542,7 @@ def view_recording(
     drive: Drive | None = None,
     replace: bool = False,
     warn: Callable[[str], None] = _warn_stderr,
+    overrides: Mapping[str, float] | None = None,
 ) -> Path:
     """A recording and the model's prediction (re-simulated from the recording's parameters, from
     the estimated start) to an .rrd file, the rig drawn from its MJCF attachment where that is
@@ -556,10 +557,11 @@ def view_recording(
         first second (``pendsim_mj.estimation.alignment``).
       replace: replace an existing .rrd file (``--force``).
       warn: receives a warning line (an MJCF attachment ignored).
+      overrides: parameter changes on the recording's rig (``--params-file``, e.g. calibrate's).
     """
     # a truncated or damaged file fails here, before Rerun sees it (only the topics shown are decoded)
     rec = read_recording(path, topics=[*(imu_topic(n) for n in NODES), DRIVE_TOPIC])
-    params = recorded_params(rec)
+    params = recorded_params(rec).with_mapping(overrides or {})
     gap = DEFAULT_MAX_GAP_S if max_gap_s is None else max_gap_s
     run = align_recording(rec, params, release_s=release_s, max_gap_s=gap)
     duration = whole_steps_s(run.duration_s + 0.02)

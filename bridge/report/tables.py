@@ -109,7 +109,8 @@ def identification_table(path: str | Path, result: Identification) -> str:
     fit = result.fit
     lines.append(
         f"least squares on both gyros ({fit.method}, start state fitted too; {fit.iterations} iterations, "
-        f"{fit.seconds:.1f} s), {fit.law} law:"
+        f"{fit.seconds:.1f} s), {fit.law} law"
+        + (" (NOT chosen: the model does not fit, see below):" if fit.misfit else ":")
     )
     if fit.law != "coulomb":
         for n in range(2):
@@ -128,7 +129,7 @@ def identification_table(path: str | Path, result: Identification) -> str:
     if fit.laws:
         lines.append("damping law by BIC (smallest wins), residual whiteness by Ljung-Box (p > 0.05: white):")
         for f in fit.laws:
-            mark = "  <- chosen" if f.law == fit.law else ""
+            mark = "  <- chosen" if f.law == fit.law and not fit.misfit else ""
             lines.append(
                 f"  {f.law:8} BIC {f.bic:12.1f}  rms {f.residual_rms_sigma:.3f} sigma  "
                 f"Ljung-Box p {f.ljung_box_p[0]:.2g} (m1), {f.ljung_box_p[1]:.2g} (m2){mark}"

@@ -102,11 +102,12 @@ def identify(
     release_s: float | None = None,
     max_gap_s: float = DEFAULT_MAX_GAP_S,
     law: str = "auto",
+    overrides: Mapping[str, float] | None = None,
 ) -> Identification:
     """Both damping estimates from a recording's free decay (``law``: the planar fit's damping
-    law, "auto" chooses by BIC)."""
+    law, "auto" chooses by BIC; ``overrides``: parameter changes on the rig, e.g. a calibration's)."""
     rec = read_recording(path, topics=[*(imu_topic(n) for n in NODES), DRIVE_TOPIC])
-    params = params or recorded_params(rec)
+    params = (params or recorded_params(rec)).with_mapping(overrides or {})
     run = align_recording(rec, params, release_s=release_s, max_gap_s=max_gap_s)
     drive = recording_drive(rec, run)
     del rec  # the decoded recording is not needed by the fit (a 1 h record: about 120 MB)

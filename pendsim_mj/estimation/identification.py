@@ -77,6 +77,9 @@ def _node_column(t_s: np.ndarray, values: np.ndarray, k: int) -> tuple[np.ndarra
     return t[ok], v[ok]
 
 
+MISFIT_SIGMAS = 3.0  # a damping fit whose residual rms is above this many noise sigmas chooses no law
+
+
 @dataclasses.dataclass(frozen=True)
 class DampingFit:
     """Least-squares damping.
@@ -110,6 +113,22 @@ class DampingFit:
     laws: tuple[LawFit, ...] = ()
     timing2_s: float | None = None
     timing2_ci95_s: float = 0.0
+
+    @property
+    def misfit(self) -> bool:
+        """The residual is far above the noise (MISFIT_SIGMAS): the model, not the damping law, is
+        what is wrong (the rig's parameters most often: ``pendsim calibrate``), so no law is chosen."""
+        return not self.residual_rms_sigma <= MISFIT_SIGMAS
+
+    def misfit_note(self) -> str:
+        """One line naming the misfit and what to do, or "" when the fit explains the data."""
+        if not self.misfit:
+            return ""
+        return (
+            f"the damping fit leaves {self.residual_rms_sigma:.1f} gyro noise sigmas rms (a fitting model: about 1): "
+            "the rig's parameters, not the damping law, are off; no law chosen. Run 'pendsim calibrate REC' and "
+            "use its params.json with --params-file"
+        )
 
     def overrides(self) -> dict[str, float]:
         """The fitted hinge losses as RigParams fields (b and friction of both hinges); a value
