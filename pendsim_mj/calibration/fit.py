@@ -44,8 +44,8 @@ from pendsim_mj.rig.params import RigParams
 
 Floats = NDArray[np.float64]
 
-FIRST_WINDOW_S = 8.0  # the first stage's window; doubled until the whole record is in
-MAX_ITERATIONS = 40  # Gauss-Newton iterations over all stages
+FIRST_WINDOW_S = 3.0  # the first stage's window (a 5 % frequency error: 0.8 rad of phase at its end); doubled until the whole record is in
+MAX_ITERATIONS = 100  # Gauss-Newton iterations over all stages
 CHI2_TOLERANCE = 1e-3  # a stage ends when an iteration moves the sum of squared residuals (sigmas^2) by less
 MIN_DURATION_S = 5.0  # a recording shorter than this after its start cannot calibrate anything
 _SENSITIVE = ("b1_n_m_s", "b2_n_m_s", "friction1_n_m", "friction2_n_m", *fast_planar.COEF_SENSITIVITIES)
