@@ -44,7 +44,9 @@ def truth(rig: RigParams) -> dict[str, float]:
 
 
 def test_a_rig_a_few_per_cent_off_is_recovered_in_every_quantity_reported_as_determined():
-    rig = PAPER.with_mapping({"c1_n_m": 1.03 * PAPER.c1_n_m, "j1_kg_m2": 1.02 * PAPER.j1_kg_m2, "oc2_m": 0.99 * PAPER.oc2_m})
+    rig = PAPER.with_mapping(
+        {"c1_n_m": 1.03 * PAPER.c1_n_m, "j1_kg_m2": 1.02 * PAPER.j1_kg_m2, "oc2_m": 0.99 * PAPER.oc2_m}
+    )
     (run,) = runs_of([rig], (30.0, 5.0), 60.0, seed=1)
     cal = calibrate([run], PAPER)
     true = truth(rig)

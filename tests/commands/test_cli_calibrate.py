@@ -1,0 +1,79 @@
+"""pendsim calibrate from the command line: a recording of a rig a few per cent off the paper's
+(recorded with pendsim's MuJoCo model and BNO055 sensor model), calibrated on the paper's
+parameters; the calibrated file then validates the recording and identify picks the right law."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from pendsim_bridge.cli import main
+from pendsim_mj.rig.params import RigParams
+
+PAPER = RigParams()
+RIG = {"c1_n_m": 1.03 * PAPER.c1_n_m, "j1_kg_m2": 1.02 * PAPER.j1_kg_m2, "oc2_m": 0.99 * PAPER.oc2_m}
+STATED = {name: PAPER.as_dict()[name] for name in RIG}  # the paper's values, as a user's file would say
+
+
+@pytest.fixture(scope="module")
+def recording(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("calibrate")
+    rig = folder / "rig.json"
+    rig.write_text(json.dumps(RIG))
+    rec = folder / "rec.mcap"
+    assert main(["record", "-o", str(rec), "--params-file", str(rig), "--duration-s", "60", "--seed", "4"]) == 0
+    paper = folder / "paper.json"
+    paper.write_text(json.dumps(STATED))
+    return rec, paper
+
+
+def test_calibrate_closes_the_gap_the_papers_parameters_leave(recording, tmp_path, capsys):
+    rec, paper = recording
+    out = tmp_path / "cal"
+    assert main(["calibrate", str(rec), "-o", str(out)]) == 0
+    text = capsys.readouterr().out
+    assert "Not determined by these recordings" in text and "scaled together by one factor" in text
+    report = json.loads((out / "calibration.json").read_text())
+    before, after = report["validation"]["before"][0], report["validation"]["after"][0]
+    assert before["max_abs_phi1_rad"] > 0.3  # the paper's rig: about 0.45 rad off by the end
+    assert after["max_abs_phi1_rad"] < 0.02
+    assert sorted(p.name for p in out.iterdir()) == [
+        "calibration.json",
+        "calibration.md",
+        "calibration.png",
+        "params.json",
+    ]
+    params = json.loads((out / "params.json").read_text())
+    # the recording carries its own rig; the paper's values on top make it the paper's rig again
+    assert main(["identify", str(rec), "--params-file", str(paper)]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "pendsim calibrate" in err[0] and "no law chosen" in err[0]
+    calibrated = tmp_path / "calibrated.json"
+    calibrated.write_text(json.dumps(STATED | params))
+    fitted = tmp_path / "fitted.json"
+    assert main(["identify", str(rec), "--params-file", str(calibrated), "--write", str(fitted)]) == 0
+    assert "viscous law:" in capsys.readouterr().out
+    b = json.loads(fitted.read_text())
+    # b / J is what a swing determines (the scale of all moments is held at the paper's)
+    for n, j_true in ((1, RIG["j1_kg_m2"]), (2, PAPER.j2_kg_m2)):
+        true = PAPER.as_dict()[f"b{n}_n_m_s"] / j_true
+        got = b[f"b{n}_n_m_s"] / params.get(f"j{n}_kg_m2", PAPER.as_dict()[f"j{n}_kg_m2"])
+        assert got == pytest.approx(true, rel=0.02)
+
+
+@pytest.mark.parametrize(
+    ("extra", "message"),
+    [
+        (["--fix", "j3_kg_m2=0.02"], "unknown parameter 'j3_kg_m2'"),
+        (["--free", "rod_length_m"], "not a parameter of the planar model"),
+        (["--model", "spatial"], "not available yet"),
+    ],
+)
+def test_calibrate_refuses_bad_input_in_one_line_and_writes_nothing(recording, tmp_path, capsys, extra, message):
+    rec, _ = recording
+    out = tmp_path / "cal"
+    assert main(["calibrate", str(rec), "-o", str(out), "--no-checks", *extra]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("pendsim: error: ") and message in err[0]
+    assert not out.exists()
