@@ -76,8 +76,8 @@ def run(args: argparse.Namespace) -> int:
     from pendsim_mj.calibration.parameters import DEFAULT_FREE, PLANAR_PARAMETERS  # start-up: light
     from pendsim_mj.rig.params import RigParams
 
-    from ..report.calibration_report import write_outputs  # start-up: matplotlib, numba, when it runs
-    from ..run.calibrate import calibrate_recordings, report_text
+    from ..report.calibration_report import report_text, write_outputs  # start-up: numba, when it runs
+    from ..run.calibrate import calibrate_recordings
 
     if args.model == "spatial":
         raise ParameterError(

@@ -70,7 +70,9 @@ def run(args: argparse.Namespace) -> int:
         from ..run.spatial_validate import identify_and_write  # start-up: MuJoCo and scipy
 
         if options.overrides_from(args):
-            raise ParameterError("--params-file and --set apply to the planar fit; --model spatial fits the recorded rig")
+            raise ParameterError(
+                "--params-file and --set apply to the planar fit; --model spatial fits the recorded rig"
+            )
         if args.law not in ("auto", "viscous"):
             raise ParameterError(f"--law {args.law} applies to the planar fit; --model spatial fits viscous damping")
         print(identify_and_write(args.path, release_s=args.release_s, max_gap_s=args.max_gap_s, write=args.write,

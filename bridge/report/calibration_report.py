@@ -1,13 +1,123 @@
-"""calibrate's outputs: the parameter file, the JSON and text reports, and one figure (what the
-calibration changed, with intervals, and each recording's validation before and after)."""
+"""calibrate's outputs: the report's contents (``CalibrationReport``), its JSON and text forms,
+and the files (the parameter file, both reports and one figure: what the calibration changed,
+with intervals, and each recording's validation before and after)."""
 
 from __future__ import annotations
 
+import dataclasses
 import json
+import math
 from pathlib import Path
+from typing import Any
+
+from pendsim_mj.calibration import Calibration
+from pendsim_mj.calibration.design import Suggestion
 
 from ..io.outputs import atomic_directory
-from ..run.calibrate import CalibrationReport, report_json, report_text
+
+
+@dataclasses.dataclass(frozen=True)
+class Metrics:
+    """A recording validated with one rig (MuJoCo from the estimated start, the whole run)."""
+
+    path: str
+    rig: str  # "stated", "calibrated", "left out"
+    max_abs_phi1_rad: float
+    max_abs_omega2_rad_s: float  # (phi2 is not validated: M2's angle is integrated from its gyro)
+    iae_phi1_rad_s: float
+    delta_f_phi1: float  # relative frequency error of phi1
+
+
+@dataclasses.dataclass(frozen=True)
+class CalibrationReport:
+    """What ``calibrate_recordings`` found: the calibration, the held directions in words, the
+    validations before and after (and left out), the model-error findings and the suggested
+    experiments."""
+
+    calibration: Calibration
+    paths: tuple[str, ...]
+    held_words: tuple[str, ...]
+    before: tuple[Metrics, ...]
+    after: tuple[Metrics, ...]
+    left_out: tuple[Metrics, ...]
+    model_error: tuple[str, ...]
+    suggestions: tuple[Suggestion, ...]
+
+
+def _clean(v: float) -> float | None:
+    return v if math.isfinite(v) else None
+
+
+def report_json(report: CalibrationReport) -> dict[str, Any]:
+    """calibration.json: everything the text report says, for machines."""
+    cal = report.calibration
+    return {
+        "recordings": list(report.paths),
+        "law": cal.law,
+        "free": list(cal.free),
+        "parameters": cal.overrides(),
+        "stated": {name: cal.stated.as_dict()[name] for name in cal.free},
+        "quantities": [{**dataclasses.asdict(q), "half_width95": _clean(q.half_width95)} for q in cal.quantities],
+        "directions": [
+            {
+                "components": dict(zip(cal.free, map(float, d.vector), strict=True)),
+                "half_width95_relative": _clean(d.half_width95),
+                "determined": d.determined,
+            }
+            for d in cal.directions
+        ],
+        "not_determined": list(report.held_words),
+        "runs": [dataclasses.asdict(r) for r in cal.runs],
+        "residual_rms_sigma": cal.residual_rms_sigma,
+        "iterations": cal.iterations,
+        "seconds": cal.seconds,
+        "validation": {
+            "before": [dataclasses.asdict(m) for m in report.before],
+            "after": [dataclasses.asdict(m) for m in report.after],
+            "left_out": [dataclasses.asdict(m) for m in report.left_out],
+        },
+        "model_error": list(report.model_error),
+        "suggested_experiments": [s.to_json() for s in report.suggestions],
+    }
+
+
+def report_text(report: CalibrationReport) -> str:
+    """The plain-words report (printed, and calibration.md)."""
+    cal = report.calibration
+    out = [f"# Calibration of {len(report.paths)} recording(s), planar model, {cal.law} damping", ""]
+    out.append(
+        f"Residual after calibration: {cal.residual_rms_sigma:.2f} gyro noise sigmas rms "
+        f"({cal.iterations} iterations, {cal.seconds:.1f} s)."
+    )
+    out += ["", "## Determined (95 % intervals)", ""]
+    for q in cal.quantities:
+        if q.determined:
+            change = 100 * (q.value / q.stated - 1) if q.stated else math.nan
+            shown = f"{change:+.2f} % from stated" if math.isfinite(change) else f"stated {q.stated:.6g}"
+            out.append(f"- {q.label} = {q.value:.6g} +- {q.half_width95:.2g} {q.unit} ({shown})")
+    out += ["", "## Not determined by these recordings (held at the stated values)", ""]
+    out += [f"- {w}" for w in report.held_words] or ["- nothing: every free parameter is determined"]
+    undetermined = [q for q in cal.quantities if not q.determined]
+    if undetermined:
+        out.append("- so these are not determined alone: " + ", ".join(q.label for q in undetermined))
+    if report.suggestions:
+        out += ["", "## Which recording would determine more", ""]
+        out += [f"- {s.describe()}" for s in report.suggestions]
+    if report.before:
+        out += ["", "## Validation (MuJoCo from the estimated start, whole run)", ""]
+        out.append(
+            "| recording | rig | max abs dphi1 (rad) | max abs domega2 (rad/s) | IAE phi1 (rad s) | df phi1 (%) |"
+        )
+        out.append("|---|---|---|---|---|---|")
+        for m in (*report.before, *report.after, *report.left_out):
+            out.append(
+                f"| {Path(m.path).name} | {m.rig} | {m.max_abs_phi1_rad:.4f} | {m.max_abs_omega2_rad_s:.4f} | "
+                f"{m.iae_phi1_rad_s:.4f} | {100 * m.delta_f_phi1:+.3f} |"
+            )
+    if report.model_error:
+        out += ["", "## Model error", ""]
+        out += [f"- {line}" for line in report.model_error]
+    return "\n".join(out) + "\n"
 
 
 def write_outputs(report: CalibrationReport, out_dir: str | Path, *, replace: bool = False) -> list[Path]:

@@ -44,7 +44,7 @@ from pendsim_mj.rig.params import RigParams
 
 Floats = NDArray[np.float64]
 
-FIRST_WINDOW_S = 3.0  # the first stage's window (a 5 % frequency error: 0.8 rad of phase at its end); doubled until the whole record is in
+FIRST_WINDOW_S = 3.0  # the first window (a 5 % frequency error: 0.8 rad of phase at its end), then doubled
 MAX_ITERATIONS = 100  # Gauss-Newton iterations over all stages
 CHI2_TOLERANCE = 1e-3  # a stage ends when an iteration moves the sum of squared residuals (sigmas^2) by less
 MIN_DURATION_S = 5.0  # a recording shorter than this after its start cannot calibrate anything
@@ -301,9 +301,8 @@ class _Problem:
             rates, _, _ = fast_planar.rates_at(
                 coef, phi0, omega0, at, FIT_DT_S, release_s=release, inputs=self.inputs[r], slopes=False
             )
-            out.append(
-                tuple((rate - g) / s for rate, g, s in zip(rates, gyro, run.gyro_sigma_rad_s, strict=True))  # type: ignore[misc]
-            )
+            sigma = run.gyro_sigma_rad_s
+            out.append(((rates[0] - gyro[0]) / sigma[0], (rates[1] - gyro[1]) / sigma[1]))
         return out
 
 
