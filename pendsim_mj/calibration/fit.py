@@ -443,6 +443,13 @@ def _result(problem: _Problem, y: Floats, stated: RigParams, law: str, iteration
     variance = rr / max(1, n - problem.size)
     x = y[: problem.nfree]
     dirs, cov_x, quantities = determine(space, x, schur, variance)
+    held = [d.vector for d in dirs if not d.determined]
+    scale = space.scale_direction(x)
+    if scale is not None:
+        held.insert(0, scale / np.linalg.norm(scale))
+    x = space.valid_along(x, held)  # along directions no recording sees: nothing determined moves
+    if not np.array_equal(x, y[: problem.nfree]):
+        dirs, cov_x, quantities = determine(space, x, schur, variance)
     if not any(d.determined for d in dirs):
         raise ParameterError(
             "the recordings determine none of the rig's parameters to 1 %: too short or too still (record a "

@@ -24,7 +24,7 @@ from numpy.typing import NDArray
 
 from pendsim_mj.engines.fast_planar.closed_form import COEFFICIENTS, coefficients
 from pendsim_mj.errors import ParameterError
-from pendsim_mj.rig.params import FIELD_NAMES, RigParams
+from pendsim_mj.rig.params import FIELD_NAMES, ParamColumns, RigParams
 
 Floats = NDArray[np.float64]
 
@@ -143,6 +143,7 @@ class ParameterSpace:
         self.free = tuple(free)
         values = stated.as_dict()
         self.stated_values = np.array([values[n] for n in self.free])
+        self._index = [FIELD_NAMES.index(n) for n in self.free]
         self.scale = np.array(
             [
                 abs(v) if v != 0 else FALLBACK_SCALE.get(n, 1.0)
@@ -160,8 +161,12 @@ class ParameterSpace:
         return self.stated.with_mapping(self.values(x))
 
     def coefficients(self, x: Floats) -> Floats:
-        """The force-law constants at x, (NCOEF,)."""
-        return coefficients([self.params(x)])[:, 0]
+        """The force-law constants at x, (NCOEF,), without the rig's checks: along a direction no
+        swing sees, a fit may pass through parameters no rig has (an inertia below m OC^2) and
+        still be right in everything it determines (``valid_along`` brings it back)."""
+        row = np.array([self.stated.as_dict()[n] for n in FIELD_NAMES])
+        row[self._index] = self.stated_values + self.scale * np.asarray(x, dtype=float)
+        return coefficients(ParamColumns(row[None, :]))[:, 0]
 
     def coefficient_jacobian(self, x: Floats) -> Floats:
         """d constants / d x, (NCOEF, nfree): central differences of ``coefficients`` (products of
@@ -185,6 +190,26 @@ class ParameterSpace:
             return None
         return np.asarray(solution, dtype=float)
 
+    def valid_along(self, x: Floats, directions: Sequence[Floats]) -> Floats:
+        """x itself if it is a rig (``params`` accepts it), else the nearest x + sum s_k d_k along
+        the given directions (those the data do not see: nothing determined changes) that is,
+        searched over up to +-20 % per direction; a ParameterError naming the check if none is."""
+        x = np.asarray(x, dtype=float)
+        try:
+            self.params(x)
+            return x
+        except ParameterError as exc:
+            first = exc
+        steps = sorted(np.linspace(-0.2, 0.2, 81), key=abs)
+        for step in steps:
+            for d in directions:
+                try:
+                    self.params(x + step * d)
+                    return x + step * d
+                except ParameterError:
+                    continue
+        raise ParameterError(f"the calibrated parameters are no rig ({first}); fix a measured inertia with --fix")
+
     def quantity_gradient(self, quantity: Quantity, x: Floats) -> Floats:
         """d quantity / d x, (nfree,)."""
         x = np.asarray(x, dtype=float)
@@ -205,7 +230,7 @@ class ParameterSpace:
 
     def quantity_value(self, quantity: Quantity, x: Floats) -> float:
         if quantity.parameter:
-            return float(self.params(x).as_dict()[quantity.parameter])
+            return self.values(x).get(quantity.parameter, self.stated.as_dict()[quantity.parameter])
         return quantity.of(self.coefficients(x))
 
 
