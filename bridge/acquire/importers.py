@@ -454,9 +454,9 @@ def node_samples(
         raise RecordingError(f"{path}: {table.where(bad_t[0])}: the time is not a finite number")
     back = np.flatnonzero(np.diff(t) <= 0)
     if len(back):
+        where = table.where(back[0] + 1)
         raise RecordingError(
-            f"{path}: time does not increase at {table.where(back[0] + 1)} ({t[back[0]]:g} s, then "
-            f"{t[back[0] + 1]:g} s)"
+            f"{path}: time does not increase at {where}: {times_going_back(*t[back[0] : back[0] + 2])}"
         )
     if "quat" in columns.groups:
         norm = np.linalg.norm(rows[:, GROUP_SLICES["quat"]], axis=1)
@@ -468,6 +468,21 @@ def node_samples(
         if np.any(~np.isin(levels, (0.0, 1.0, 2.0, 3.0))):
             raise RecordingError(f"{path}: calibration levels must be 0-3")
     return t, rows, timing
+
+
+def times_going_back(before_s: float, after_s: float) -> str:
+    """Two times that do not increase, readable: "t = 1712345678.123456 s, then 1712345678.100000 s
+    (23.456 ms back)", with as many decimals as show the difference (microseconds at least)."""
+    step = before_s - after_s
+    shown = step * 1.001  # a step of 1 us read from a millisecond column is 0.999999 us in binary
+    decimals = 6 if step == 0 else min(12, max(6, 1 - math.floor(math.log10(shown))))
+    if step == 0:
+        how = "the same time twice"
+    else:
+        units = (("s", 1.0), ("ms", 1e-3), ("us", 1e-6))
+        unit, scale = next(((u, f) for u, f in units if shown >= f), ("ns", 1e-9))
+        how = f"{step / scale:.5g} {unit} back"
+    return f"t = {before_s:.{decimals}f} s, then {after_s:.{decimals}f} s ({how})"
 
 
 ACCEL_G_RANGE = (0.5, 2.0)

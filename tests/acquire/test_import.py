@@ -166,7 +166,21 @@ def _error(capsys) -> str:
         ("boot ok\nt_s,m1.gx,m1.gy,m1.gz\n1,2,3\n", [], "no complete data line"),
         ("t_s,m1.gx,m1.gy,m1.gz\n0,1,2,3\n", ["--start-utc", "2026-11-25T10:00"], "has no time zone: end it in Z"),
         ("t_s,m1.gx,m1.gy,m1.gz\n0,1,2,3\n", ["--start-utc", "noon"], "is not an ISO 8601 time"),
-        ("t_s,m1.gx,m1.gy,m1.gz\n1,1,2,3\n0,1,2,3\n", [], "time does not increase at line 3 (1 s, then 0 s)"),
+        (
+            "t_s,m1.gx,m1.gy,m1.gz\n1,1,2,3\n0,1,2,3\n",
+            [],
+            "time does not increase at line 3: t = 1.000000 s, then 0.000000 s (1 s back)",
+        ),
+        (
+            "t_s,m1.gx,m1.gy,m1.gz\n1712345678.1,1,2,3\n1712345678.123456,1,2,3\n1712345678.1,1,2,3\n",
+            [],
+            "time does not increase at line 4: t = 1712345678.123456 s, then 1712345678.100000 s (23.456 ms back)",
+        ),
+        (
+            "t_ms,m1.gx,m1.gy,m1.gz\n1000,1,2,3\n1012.5,1,2,3\n1012.499,1,2,3\n",
+            [],
+            "time does not increase at line 4: t = 1.0125000 s, then 1.0124990 s (1 us back)",
+        ),
         ("t_s,m1.gx,m1.gy,m1.gz\n0,nan,2,3\n1,1,2,3\n", [], "line 2, column 'm1.gx': not a finite number"),
         ("m1.gx,m1.gy,m1.gz\n0,1,2\n", [], "no time column"),
         ("t_s,m1.gx,m1.gy,m1.gz\n0,1,2,3\n", ["--units", "gyro=rpm"], "unknown gyro unit 'rpm'"),
@@ -174,7 +188,7 @@ def _error(capsys) -> str:
         (  # file lines, not data rows: the comment, the blank line and the header count
             "# lab run\n\nt_s,m1.gx,m1.gy,m1.gz\n0,1,2,3\n1,1,2,3\n1,1,2,3\n",
             [],
-            "time does not increase at line 6 (1 s, then 1 s)",
+            "time does not increase at line 6: t = 1.000000 s, then 1.000000 s (the same time twice)",
         ),
     ],
 )
