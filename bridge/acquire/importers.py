@@ -37,6 +37,7 @@ import logging
 import math
 import re
 from pathlib import Path
+from typing import BinaryIO
 
 import numpy as np
 from numpy.typing import NDArray
@@ -68,6 +69,9 @@ from .sink import RecordingSink
 IMPORT_FORMATS = ("csv", "lvm", "tdms")
 SUFFIXES = {".csv": "csv", ".txt": "csv", ".lvm": "lvm", ".tdms": "tdms"}
 TDMS_VERSIONS = (4712, 4713)  # the lead-in's version number: TDMS 1.0 and 2.0
+MAX_TIME_S = 4.0e9
+"""The largest time (s, either sign) a file may hold: Unix time in the year 2096; recordings keep
+int64 nanoseconds, which end at 9.2e9 s."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -262,10 +266,36 @@ def _lvm_data_lines(path: Path, rows: int) -> tuple[int, ...] | None:
     return tuple(found) if len(found) == rows else None
 
 
+def _lvm_line_end(path: Path) -> None:
+    """LabVIEW ends every line of an .lvm file: a file whose last line has no line end was cut
+    while it was written or copied (its last number may be cut short, e.g. 0.6046 to 0.60).
+
+    Raises:
+      RecordingError: the file does not end in a line end.
+    """
+    try:
+        with open(path, "rb") as f:
+            f.seek(0, 2)
+            size = f.tell()
+            f.seek(max(0, size - 1))
+            last = f.read(1)
+    except OSError as exc:
+        raise RecordingError(f"{path}: cannot read: {exc.strerror}") from None
+    if size and last not in (b"\n", b"\r"):
+        with open(path, "rb") as f:
+            count = sum(block.count(b"\n") for block in iter(lambda: f.read(1 << 20), b"")) + 1
+        raise RecordingError(
+            f"{path}: truncated LVM file: its last line ({count}) has no line end, as LabVIEW writes every line: the "
+            "file was cut while it was written or copied, and its last values may be cut short"
+        )
+
+
 def read_lvm(path: Path) -> Table:
-    """A LabVIEW measurement file's first segment as a Table."""
+    """A LabVIEW measurement file's first segment as a Table; a file cut short (its last line
+    without a line end, or fewer rows than its header's Samples) is refused."""
     import lvm_read  # only for .lvm files
 
+    _lvm_line_end(path)
     try:
         # Never the pickle cache beside the user's file: read the text, write nothing.
         lvm = lvm_read.read(str(path), read_from_pickle=False, dump_file=False)
@@ -293,32 +323,126 @@ def read_lvm(path: Path) -> Table:
         x0 = [x for x in segment.get("X0", [0.0]) if isinstance(x, (int, float)) and math.isfinite(x)]
         if deltas and deltas[0] > 0:
             timing = (float(deltas[0]), float(x0[0]) if x0 else 0.0)
+    declared = [n for n in segment.get("Samples", []) if isinstance(n, (int, float)) and math.isfinite(n) and n > 0]
+    if declared and len(data) < min(declared):  # a header written with its data declares at least those rows
+        raise RecordingError(
+            f"{path}: truncated LVM file: the header declares {int(min(declared))} samples per channel, the file "
+            f"holds {len(data)} rows (cut short, or rows removed by hand)"
+        )
     notes = tuple((f"lvm_{key.lower()}", str(lvm[key])) for key in ("Date", "Time", "Operator") if key in lvm)
-    return Table(tuple(names), data, timing, notes, lines=_lvm_data_lines(path, len(data)))
+    segments = lvm.get("Segments", 1)
+    skipped = (
+        (f"imported the first of the file's {segments} segments",) if isinstance(segments, int) and segments > 1 else ()
+    )
+    return Table(tuple(names), data, timing, notes, skipped, lines=_lvm_data_lines(path, len(data)))
+
+
+TDMS_BIG_ENDIAN = 1 << 6  # kTocBigEndian in a lead-in's table of contents (always little-endian itself)
+TDMS_UNFINISHED = 2**64 - 1  # the next-segment offset a writer leaves while the segment is being written
+
+
+def check_tdms_segments(path: Path) -> int:
+    """Walk a TDMS file's segments by their lead-ins (28 bytes each: "TDSm", the table of contents,
+    then in the segment's byte order the version, the next segment's offset and the raw data's
+    offset; big-endian where the contents say so) and return how many there are.
+
+    Raises:
+      RecordingError: not a TDMS file, or a segment cut short, never finished or damaged.
+    """
+    try:
+        with open(path, "rb") as f:
+            return _walk_tdms_segments(path, f, path.stat().st_size)
+    except OSError as exc:
+        raise RecordingError(f"{path}: cannot read: {exc.strerror}") from None
+
+
+def _walk_tdms_segments(path: Path, f: BinaryIO, size: int) -> int:
+    """``check_tdms_segments`` on the open file ``f`` of ``size`` bytes."""
+    position, count = 0, 0
+    while position < size:
+        f.seek(position)
+        lead = f.read(28)
+        where = f"segment {count + 1} at byte {position}"
+        before = f" ({count} complete segment{'s' if count > 1 else ''} before it)" if count else ""
+        if lead[:4] != b"TDSm":
+            if count == 0:
+                raise RecordingError(f"{path}: not a TDMS file (it does not start with a TDMS lead-in, 'TDSm')")
+            raise RecordingError(f"{path}: damaged TDMS file: {where} has no 'TDSm' lead-in{before}")
+        toc = int.from_bytes(lead[4:8], "little")
+        order = "big" if toc & TDMS_BIG_ENDIAN else "little"
+        version = int.from_bytes(lead[8:12], order)
+        if len(lead) >= 12 and version not in TDMS_VERSIONS:
+            what = "not a TDMS file" if count == 0 else "damaged TDMS file"
+            raise RecordingError(
+                f"{path}: {what}: {where} has version {version} (TDMS 1.0 is 4712, 2.0 is 4713, {order}-endian here)"
+            )
+        if len(lead) < 28:
+            raise RecordingError(
+                f"{path}: truncated TDMS file: {where} ends after {len(lead)} of its lead-in's 28 bytes{before}"
+            )
+        following, raw = int.from_bytes(lead[12:20], order), int.from_bytes(lead[20:28], order)
+        if following == TDMS_UNFINISHED:
+            raise RecordingError(
+                f"{path}: unfinished TDMS file: {where} was never closed (its length is unset: the writer stopped "
+                f"while writing it){before}"
+            )
+        if raw > following:
+            raise RecordingError(
+                f"{path}: damaged TDMS file: {where} puts its data {raw} bytes in, past its own end ({following})"
+            )
+        if position + 28 + following > size:
+            raise RecordingError(
+                f"{path}: truncated TDMS file: {where} claims {following} bytes after its lead-in; the file ends "
+                f"{position + 28 + following - size} bytes short{before}"
+            )
+        position += 28 + following
+        count += 1
+    if count == 0:
+        raise RecordingError(f"{path}: an empty file, not a TDMS file")
+    return count
+
+
+class _Warnings(logging.Handler):
+    """npTDMS's warnings while it reads (a damaged segment, data cropped): each one a reason to refuse."""
+
+    def __init__(self) -> None:
+        super().__init__(logging.WARNING)
+        self.messages: list[str] = []
+
+    def emit(self, record: logging.LogRecord) -> None:
+        self.messages.append(record.getMessage())
 
 
 def read_tdms(path: Path) -> Table:
-    """Every channel of a TDMS file (``GROUP/CHANNEL``) as a Table."""
+    """Every channel of a TDMS file (``GROUP/CHANNEL``) as a Table; little- or big-endian, every
+    segment checked whole first (``check_tdms_segments``), and anything npTDMS warns about (data
+    it would crop or guess) refused."""
     from nptdms import TdmsFile  # only for .tdms files
 
-    try:
-        with open(path, "rb") as f:
-            lead_in = f.read(12)
-    except OSError as exc:
-        raise RecordingError(f"{path}: cannot read: {exc.strerror}") from None
-    if len(lead_in) < 12 or lead_in[:4] != b"TDSm" or int.from_bytes(lead_in[8:12], "little") not in TDMS_VERSIONS:
-        raise RecordingError(f"{path}: not a TDMS file (no TDMS 2.0 lead-in)")
-    quiet = logging.getLogger("nptdms")
-    level = quiet.level
-    quiet.setLevel(logging.ERROR)  # its warnings about damaged segments become our one-line error
+    check_tdms_segments(path)
+    caught = _Warnings()
+    # npTDMS logs per module (nptdms.reader, ...), each logger with its own console handler: ours
+    # replaces them while it reads, so nothing reaches stderr and every warning is seen
+    loggers = [logging.getLogger(name) for name in list(logging.root.manager.loggerDict) if name.startswith("nptdms")]
+    saved = [(log, log.handlers[:], log.propagate, log.level) for log in loggers]
+    for log in loggers:
+        log.handlers, log.propagate = [caught], False
+        log.setLevel(logging.WARNING)
     try:
         tdms = TdmsFile.read(str(path))
     except OSError as exc:
         raise RecordingError(f"{path}: cannot read: {exc.strerror or exc}") from None
     except Exception as exc:  # npTDMS raises ValueError, KeyError, struct.error ... on foreign input
-        raise RecordingError(f"{path}: not a TDMS file ({type(exc).__name__}: {exc})") from None
+        raise RecordingError(f"{path}: not a TDMS file npTDMS can read ({type(exc).__name__}: {exc})") from None
     finally:
-        quiet.setLevel(level)
+        for log, handlers, propagate, level in saved:
+            log.handlers, log.propagate = handlers, propagate
+            log.setLevel(level)
+    if caught.messages:
+        said = re.sub(r"[.,]?\s*will attempt .*$", "", caught.messages[0], flags=re.I | re.S)  # we do not guess
+        raise RecordingError(
+            f"{path}: damaged TDMS file: its data do not match what its metadata declares (npTDMS: {said!r})"
+        )
     names, columns, timing = [], [], None
     for group in tdms.groups():
         for channel in group.channels():
@@ -329,7 +453,7 @@ def read_tdms(path: Path) -> Table:
             columns.append(data.astype(float))
             increment = channel.properties.get("wf_increment")
             if timing is None and increment:
-                timing = (float(increment), float(channel.properties.get("wf_start_offset", 0.0)))
+                timing = _waveform_timing(path, f"{group.name}/{channel.name}", channel.properties)
     if not columns:
         raise RecordingError(f"{path}: a TDMS file with no channels")
     lengths = {len(c) for c in columns}
@@ -339,6 +463,21 @@ def read_tdms(path: Path) -> Table:
         (f"tdms_{k}", str(v)) for k, v in tdms.properties.items() if isinstance(v, (str, int, float, np.datetime64))
     )
     return Table(tuple(names), np.stack(columns, axis=1), timing, notes)
+
+
+def _waveform_timing(path: Path, name: str, properties: dict[str, object]) -> tuple[float, float]:
+    """(wf_increment, wf_start_offset) of a TDMS channel, s, checked: a step > 0 and a start that
+    place every sample within the times pendsim keeps (``MAX_TIME_S``)."""
+    try:
+        step, start = float(properties["wf_increment"]), float(properties.get("wf_start_offset", 0.0))  # type: ignore[arg-type]
+    except (TypeError, ValueError):
+        raise RecordingError(f"{path}: channel {name}: wf_increment and wf_start_offset must be numbers") from None
+    if not (math.isfinite(step) and 0 < step <= MAX_TIME_S and math.isfinite(start) and abs(start) <= MAX_TIME_S):
+        raise RecordingError(
+            f"{path}: channel {name}: waveform timing wf_increment = {step!r} s, wf_start_offset = {start!r} s; "
+            f"allowed: a step in (0, {MAX_TIME_S:g}] s and a start within +-{MAX_TIME_S:g} s"
+        )
+    return step, start
 
 
 READERS = {"csv": read_csv, "lvm": read_lvm, "tdms": read_tdms}
