@@ -37,7 +37,6 @@ import logging
 import math
 import re
 from pathlib import Path
-from typing import BinaryIO
 
 import numpy as np
 from numpy.typing import NDArray
@@ -46,7 +45,7 @@ from pendsim_mj import __version__
 from pendsim_mj.errors import ParameterError, RecordingError
 from pendsim_mj.estimation.timing import nominal_rate_hz
 from pendsim_mj.rig.params import DEFAULT_PARAMS, RigParams
-from pendsim_mj.sensors.bno055 import STANDARD_GRAVITY_M_S2
+from pendsim_mj.sensors.bno055 import ACCEL_LSB_M_S2
 from pendsim_mj.units import nanoseconds
 
 from ..io.outputs import atomic_output
@@ -55,6 +54,8 @@ from .packets import (
     ACCEL_UNITS,
     COLUMN_NAMES,
     GROUP_SLICES,
+    GROUPS,
+    GYRO_UNITS,
     QUAT_NORM_RANGE,
     ROW_FIELDS,
     ROW_INDEX,
@@ -65,10 +66,11 @@ from .packets import (
 )
 from .ports import BNO055_NDOF, NODE_NAMES
 from .sink import RecordingSink
+from .tdms_check import NptdmsWarnings, check_tdms_segments
+from .unit_check import check_units
 
 IMPORT_FORMATS = ("csv", "lvm", "tdms")
 SUFFIXES = {".csv": "csv", ".txt": "csv", ".lvm": "lvm", ".tdms": "tdms"}
-TDMS_VERSIONS = (4712, 4713)  # the lead-in's version number: TDMS 1.0 and 2.0
 MAX_TIME_S = 4.0e9
 """The largest time (s, either sign) a file may hold: Unix time in the year 2096; recordings keep
 int64 nanoseconds, which end at 9.2e9 s."""
@@ -104,6 +106,8 @@ class ImportSpec:
       units: units of the values.
       node: the file holds this one node (names without the ``m1.`` prefix).
       rate_hz: sample rate when the file has no time column and no timing of its own.
+      trust_units: import with ``units`` even where the data's physics contradict them (a unit
+        mix-up becomes a warning, recorded in the metadata, instead of an error).
       start_utc_ns: the UTC time of the file's first sample, ns since 1970 (None: the file's own
         times, taken as UTC when they are Unix times from 2000 on, else as relative: counted from
         the node's boot or the file's zero).
@@ -117,6 +121,7 @@ class ImportSpec:
     node: str | None = None
     rate_hz: float | None = None
     start_utc_ns: int | None = None
+    trust_units: bool = False
     params: RigParams = DEFAULT_PARAMS
     mjcf_xml: str | None = None
     mjcf_source: str = "built by pendsim from the rig parameters"
@@ -142,6 +147,7 @@ class ImportResult:
     duration_s: float
     size_bytes: int
     notes: tuple[str, ...] = ()  # for the user: what was left out, how the times were read
+    warnings: tuple[str, ...] = ()  # what the data contradict and was imported as given (--trust-units)
 
 
 def format_of(path: Path, given: str | None) -> str:
@@ -337,82 +343,6 @@ def read_lvm(path: Path) -> Table:
     return Table(tuple(names), data, timing, notes, skipped, lines=_lvm_data_lines(path, len(data)))
 
 
-TDMS_BIG_ENDIAN = 1 << 6  # kTocBigEndian in a lead-in's table of contents (always little-endian itself)
-TDMS_UNFINISHED = 2**64 - 1  # the next-segment offset a writer leaves while the segment is being written
-
-
-def check_tdms_segments(path: Path) -> int:
-    """Walk a TDMS file's segments by their lead-ins (28 bytes each: "TDSm", the table of contents,
-    then in the segment's byte order the version, the next segment's offset and the raw data's
-    offset; big-endian where the contents say so) and return how many there are.
-
-    Raises:
-      RecordingError: not a TDMS file, or a segment cut short, never finished or damaged.
-    """
-    try:
-        with open(path, "rb") as f:
-            return _walk_tdms_segments(path, f, path.stat().st_size)
-    except OSError as exc:
-        raise RecordingError(f"{path}: cannot read: {exc.strerror}") from None
-
-
-def _walk_tdms_segments(path: Path, f: BinaryIO, size: int) -> int:
-    """``check_tdms_segments`` on the open file ``f`` of ``size`` bytes."""
-    position, count = 0, 0
-    while position < size:
-        f.seek(position)
-        lead = f.read(28)
-        where = f"segment {count + 1} at byte {position}"
-        before = f" ({count} complete segment{'s' if count > 1 else ''} before it)" if count else ""
-        if lead[:4] != b"TDSm":
-            if count == 0:
-                raise RecordingError(f"{path}: not a TDMS file (it does not start with a TDMS lead-in, 'TDSm')")
-            raise RecordingError(f"{path}: damaged TDMS file: {where} has no 'TDSm' lead-in{before}")
-        toc = int.from_bytes(lead[4:8], "little")
-        order = "big" if toc & TDMS_BIG_ENDIAN else "little"
-        version = int.from_bytes(lead[8:12], order)
-        if len(lead) >= 12 and version not in TDMS_VERSIONS:
-            what = "not a TDMS file" if count == 0 else "damaged TDMS file"
-            raise RecordingError(
-                f"{path}: {what}: {where} has version {version} (TDMS 1.0 is 4712, 2.0 is 4713, {order}-endian here)"
-            )
-        if len(lead) < 28:
-            raise RecordingError(
-                f"{path}: truncated TDMS file: {where} ends after {len(lead)} of its lead-in's 28 bytes{before}"
-            )
-        following, raw = int.from_bytes(lead[12:20], order), int.from_bytes(lead[20:28], order)
-        if following == TDMS_UNFINISHED:
-            raise RecordingError(
-                f"{path}: unfinished TDMS file: {where} was never closed (its length is unset: the writer stopped "
-                f"while writing it){before}"
-            )
-        if raw > following:
-            raise RecordingError(
-                f"{path}: damaged TDMS file: {where} puts its data {raw} bytes in, past its own end ({following})"
-            )
-        if position + 28 + following > size:
-            raise RecordingError(
-                f"{path}: truncated TDMS file: {where} claims {following} bytes after its lead-in; the file ends "
-                f"{position + 28 + following - size} bytes short{before}"
-            )
-        position += 28 + following
-        count += 1
-    if count == 0:
-        raise RecordingError(f"{path}: an empty file, not a TDMS file")
-    return count
-
-
-class _Warnings(logging.Handler):
-    """npTDMS's warnings while it reads (a damaged segment, data cropped): each one a reason to refuse."""
-
-    def __init__(self) -> None:
-        super().__init__(logging.WARNING)
-        self.messages: list[str] = []
-
-    def emit(self, record: logging.LogRecord) -> None:
-        self.messages.append(record.getMessage())
-
-
 def read_tdms(path: Path) -> Table:
     """Every channel of a TDMS file (``GROUP/CHANNEL``) as a Table; little- or big-endian, every
     segment checked whole first (``check_tdms_segments``), and anything npTDMS warns about (data
@@ -420,7 +350,7 @@ def read_tdms(path: Path) -> Table:
     from nptdms import TdmsFile  # only for .tdms files
 
     check_tdms_segments(path)
-    caught = _Warnings()
+    caught = NptdmsWarnings()
     # npTDMS logs per module (nptdms.reader, ...), each logger with its own console handler: ours
     # replaces them while it reads, so nothing reaches stderr and every warning is seen
     loggers = [logging.getLogger(name) for name in list(logging.root.manager.loggerDict) if name.startswith("nptdms")]
@@ -591,6 +521,12 @@ def node_samples(
     bad_t = np.flatnonzero(~np.isfinite(t))
     if len(bad_t):
         raise RecordingError(f"{path}: {table.where(bad_t[0])}: the time is not a finite number")
+    far = np.flatnonzero(np.abs(t) > MAX_TIME_S)
+    if len(far):
+        raise RecordingError(
+            f"{path}: {table.where(far[0])}: the time {t[far[0]]:.6g} s is out of range (allowed: within "
+            f"+-{MAX_TIME_S:g} s, Unix time up to the year 2096); is the time column's unit right (t_s, t_ms, t_us)?"
+        )
     back = np.flatnonzero(np.diff(t) <= 0)
     if len(back):
         where = table.where(back[0] + 1)
@@ -624,40 +560,96 @@ def times_going_back(before_s: float, after_s: float) -> str:
     return f"t = {before_s:.{decimals}f} s, then {after_s:.{decimals}f} s ({how})"
 
 
-ACCEL_G_RANGE = (0.5, 2.0)
-"""A file's median acceleration magnitude outside this range of g is noted as a likely unit mix-up
-(a node at rest reads 1 g; a swinging pendulum stays within it over most of a run)."""
+GYRO_LIMIT_RAD_S = math.radians(32767 / 16)
+"""The largest rate a BNO055 reports: its int16 register at 16 LSB per dps (2048 dps, 35.7 rad/s)."""
+ACCEL_LIMIT_M_S2 = 32767 * ACCEL_LSB_M_S2
+"""The largest acceleration a BNO055 reports: its int16 register at 100 LSB per m/s2 (327.67 m/s2, 33 g)."""
 
 
-def data_notes(groups: tuple[str, ...], rows: list[NDArray[np.float64]], units: Units) -> list[str]:
-    """Notes on what the imported values cannot serve or look wrong: no orientation (validate,
-    identify and view need it), or a median acceleration far from g (the --units wrong).
-
-    Args:
-      groups: the quantities the file carries (``packets.GROUPS`` names).
-      rows: per node (n, len(ROW_FIELDS)) values in SI units.
-      units: the units the values were read in.
-    """
-    notes = []
-    if "quat" not in groups:
-        notes.append(
-            "no orientation (quaternion columns qw,qx,qy,qz): validate, identify and view need it; "
-            "inspect and allan read the recording"
-        )
-    group = "accel" if "accel" in groups else "gravity" if "gravity" in groups else None
-    if group is not None:
-        magnitude = np.concatenate([np.linalg.norm(r[:, GROUP_SLICES[group]], axis=1) for r in rows])
-        median = float(np.median(magnitude))
-        low, high = (f * STANDARD_GRAVITY_M_S2 for f in ACCEL_G_RANGE)
-        if not low <= median <= high:
-            raw = median / ACCEL_UNITS[units.accel]  # in the file's own numbers
-            fits = [u for u, scale in ACCEL_UNITS.items() if low <= raw * scale <= high and u != units.accel]
-            hint = f"are the values in {fits[0]}? give --units accel={fits[0]}" if fits else "check --units accel"
-            notes.append(
-                f"the median {'acceleration' if group == 'accel' else 'gravity'} magnitude is {median:.3g} m/s2 "
-                f"(read as accel={units.accel}), far from g = {STANDARD_GRAVITY_M_S2:.2f} m/s2 as at rest: {hint}"
+def out_of_range(
+    path: Path, table: Table, columns: NodeColumns, rows: NDArray[np.float64], units: Units
+) -> tuple[str, str, float] | None:
+    """(message, quantity, its largest magnitude) for the first gyro or acceleration value beyond
+    what a BNO055 can report (``GYRO_LIMIT_RAD_S``, ``ACCEL_LIMIT_M_S2``), naming its line and
+    column; None if every value is within range."""
+    for name, index in columns.quantities.items():
+        if name == "calib":
+            continue
+        group = next(g for g, members in GROUPS.items() if name in members)
+        if group == "quat":
+            continue
+        gyro = group == "gyro"
+        limit = GYRO_LIMIT_RAD_S if gyro else ACCEL_LIMIT_M_S2
+        values = np.abs(rows[:, ROW_INDEX[name]])
+        over = np.flatnonzero(values > limit)
+        if len(over):
+            value, unit = float(rows[over[0], ROW_INDEX[name]]), "rad/s" if gyro else "m/s2"
+            read = f"gyro={units.gyro}" if gyro else f"accel={units.accel}"
+            chip = "2048 dps = 35.7 rad/s" if gyro else "327.67 m/s2 = 33.4 g"
+            return (
+                f"{path}: {table.where(over[0])}, column {table.names[index]!r}: {value:.6g} {unit} (read as {read}) "
+                f"is beyond what a BNO055 can report ({chip})",
+                "gyro" if gyro else "accel",
+                float(np.max(values)),
             )
-    return notes
+    return None
+
+
+def _units_in_range(quantity: str, largest_si: float, units: Units) -> list[str]:
+    """The units that would put ``largest_si`` (as read in ``units``) within the chip's range."""
+    table, given = (GYRO_UNITS, units.gyro) if quantity == "gyro" else (ACCEL_UNITS, units.accel)
+    limit = GYRO_LIMIT_RAD_S if quantity == "gyro" else ACCEL_LIMIT_M_S2
+    return [u for u, scale in table.items() if u != given and largest_si / table[given] * scale <= limit]
+
+
+def check_values(
+    path: Path,
+    table: Table,
+    mapped: list[NodeColumns],
+    per_node: dict[str, tuple[NDArray[np.float64], NDArray[np.float64], str]],
+    units: Units,
+    *,
+    trust_units: bool = False,
+) -> tuple[list[str], list[str], dict[str, str]]:
+    """The physics of the values against their units (``unit_check.check_units``) and the chip's
+    ranges: (notes, warnings, metadata entries).
+
+    Raises:
+      RecordingError: a unit mix-up (unless ``trust_units``: then a warning), or a value beyond what a
+        BNO055 can report (always).
+    """
+    groups = mapped[0].groups
+    with np.errstate(all="ignore"):  # absurd values are named by the range check below
+        found = check_units({n: (t, rows) for n, (t, rows, _) in per_node.items()}, groups, units)
+    notes, warnings = list(found.notes), []
+    if "quat" not in groups:
+        notes.insert(
+            0,
+            "no orientation (quaternion columns qw,qx,qy,qz): validate, identify and view need it; "
+            "inspect and allan read the recording",
+        )
+    advice = found.advice(units)
+    if found.mismatches and not trust_units:
+        raise RecordingError(
+            f"{path}: the units do not fit the data: {found.describe(units)}: {advice} (or --trust-units to "
+            "import with the units given)"
+        )
+    for columns in mapped:
+        rows = per_node[columns.node][1]
+        problem = out_of_range(path, table, columns, rows, units)
+        if problem is not None:
+            message, quantity, largest = problem
+            fits = _units_in_range(quantity, largest, units)
+            hint = f"; in {' or '.join(fits)} every value would be within it: check --units" if fits else ""
+            raise RecordingError(message + hint)
+    if found.mismatches:
+        warnings.append(
+            f"the units do not fit the data: {found.describe(units)}; imported as given (--trust-units; {advice})"
+        )
+    metadata = {"units_check": "; ".join(found.checks) or "nothing to check"}
+    if found.mismatches:
+        metadata["units_trusted_over"] = found.describe(units)
+    return notes, warnings, metadata
 
 
 def _sha256(path: Path) -> str:
@@ -704,7 +696,8 @@ def import_file(
             f"one node ({next(iter(per_node))}): inspect and allan read the recording; validate, identify and view "
             "need both nodes"
         )
-    notes += data_notes(mapped[0].groups, [rows for _, rows, _ in per_node.values()], spec.units)
+    found, warnings, checked = check_values(source, table, mapped, per_node, spec.units, trust_units=spec.trust_units)
+    notes += found
     first_t = next(iter(per_node.values()))[0]
     rate = round(nominal_rate_hz(first_t), 6) if len(first_t) > 1 else 0.0
     metadata = {
@@ -720,6 +713,7 @@ def import_file(
             "time_shift_s": repr(shift_s),
             "time_base": time_base,
             **({"notes": "; ".join(notes)} if notes else {}),
+            **checked,
             "pendsim_version": __version__,
             "mjcf": spec.mjcf_source,
             **dict(table.notes),
@@ -751,6 +745,7 @@ def import_file(
         duration,
         output.stat().st_size,
         tuple(notes),
+        tuple(warnings),
     )
 
 

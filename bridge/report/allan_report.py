@@ -387,8 +387,10 @@ def table(report: AllanReport) -> str:
     return "\n".join(lines)
 
 
-ABSENT_KEYS = ("sigma", "mean", "cv_percent", "std", "white_N", "bias_instability_B", "bias_instability_tau_s")
-ABSENT_KEYS += ("rate_random_walk_K", "curve")
+ABSENT_KEYS = (
+    *("sigma", "mean", "cv_percent", "std", "white_N", "bias_instability_B", "bias_instability_tau_s"),
+    *("rate_random_walk_K", "curve"),
+)
 
 
 def as_json(report: AllanReport) -> dict:

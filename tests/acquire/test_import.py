@@ -357,19 +357,43 @@ def test_a_file_without_quaternions_is_noted_as_unfit_for_validate(tmp_path, cap
 
 
 @pytest.mark.parametrize(
-    ("accel_m_s2", "units", "median", "hint"),
+    ("accel_m_s2", "units", "measured", "fix"),
     [
-        ((0.0, 0.0, 9.81), "accel=g", "96.2 m/s2 (read as accel=g)", "are the values in m/s2? give --units accel=m/s2"),
-        ((0.0, 0.0, 1.0), "accel=m/s2", "1 m/s2 (read as accel=m/s2)", "are the values in g? give --units accel=g"),
-        ((0.0, 0.0, 1000.0), "accel=m/s2", "1e+03 m/s2 (read as accel=m/s2)", "give --units accel=mg"),
+        ((0.0, 0.0, 9.81), "accel=g", "read as accel=g, measures 96.2 m/s2", "the values are in m/s2: give --units "
+         "accel=m/s2,gyro=dps"),
+        ((0.0, 0.0, 1.0), "accel=m/s2", "read as accel=m/s2, measures 1 m/s2", "the values are in g: give --units "
+         "accel=g,gyro=dps"),
+        ((0.0, 0.0, 1000.0), "accel=m/s2", "read as accel=m/s2, measures 1000 m/s2", "the values are in mg (also the "
+         "BNO055's raw counts in its mg mode) (or the BNO055's raw counts in its m/s2 mode (100 per m/s2), "
+         "accel=raw-m/s2: too close to tell apart): give --units accel=mg,gyro=dps"),
     ],
-)
-def test_an_acceleration_far_from_g_is_noted_as_a_unit_mix_up(tmp_path, capsys, accel_m_s2, units, median, hint):
+)  # fmt: skip
+def test_an_acceleration_far_from_g_is_a_unit_mix_up_named_with_its_fix(
+    tmp_path, capsys, accel_m_s2, units, measured, fix
+):
     _arduino_csv(tmp_path / "node.csv", 200, accel_m_s2=accel_m_s2)
     args = ["import", str(tmp_path / "node.csv"), "-o", str(tmp_path / "n.mcap"), "--node", "m1", "--units", units]
-    assert main(args) == 0
-    notes = [line for line in capsys.readouterr().err.splitlines() if "far from g" in line]
-    assert len(notes) == 1 and f"magnitude is {median}, far from g = 9.81 m/s2" in notes[0] and hint in notes[0]
+    assert main(args) == 2
+    line = _error(capsys)
+    assert f"the units do not fit the data: m1: gravity, {measured}" in line and "by the accelerometer" in line
+    assert line.endswith(f"{fix} (or --trust-units to import with the units given)")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["node.csv"]
+    if accel_m_s2[2] > 327.67:  # beyond what the chip can report: refused even so
+        assert main([*args, "--trust-units"]) == 2
+        line = _error(capsys)
+        assert (
+            "(read as accel=m/s2) is beyond what a BNO055 can report (327.67 m/s2 = 33.4 g); in mg or raw-m/s2" in line
+        )
+        return
+    assert main([*args, "--trust-units"]) == 0  # the user insists: a warning, and the metadata says so
+    warnings = [line for line in capsys.readouterr().err.splitlines() if line.startswith("warning: ")]
+    assert (
+        len(warnings) == 1
+        and measured in warnings[0]
+        and "imported as given (--trust-units; give --units" in warnings[0]
+    )
+    meta = read_recording(tmp_path / "n.mcap").metadata["pendsim/import"]
+    assert measured in meta["units_trusted_over"] and meta["units"] == units + ",gyro=dps"
 
 
 @pytest.mark.parametrize("name", ["lab.csv", "run.LVM", "run.tdms"])
