@@ -9,6 +9,9 @@ their emulation (``pendsim nodes``) and lab files (``pendsim import``).
 - ``receiver``: the sockets, the loop, signals, the status line and the summary.
 - ``live``: the Rerun live view, in batches.
 - ``importers``: lab files (CSV, LabVIEW .lvm, TDMS) into a recording, through the same sink.
+- ``tdms_check``: a TDMS file's segments walked (either byte order) before npTDMS reads it.
+- ``unit_check``: the units of imported values checked against their physics (the gyro against
+  the orientation's rotation, gravity's magnitude).
 - ``emulator``: the two nodes emulated from a simulated run (``pendsim nodes``).
 
 Docs: docs/acquisition.md (with the pendsim-v1 byte table).

@@ -45,7 +45,7 @@ from pendsim_mj import __version__
 from pendsim_mj.errors import ParameterError, RecordingError
 from pendsim_mj.estimation.timing import nominal_rate_hz
 from pendsim_mj.rig.params import DEFAULT_PARAMS, RigParams
-from pendsim_mj.sensors.bno055 import STANDARD_GRAVITY_M_S2
+from pendsim_mj.sensors.bno055 import ACCEL_LSB_M_S2
 from pendsim_mj.units import nanoseconds
 
 from ..io.outputs import atomic_output
@@ -54,6 +54,8 @@ from .packets import (
     ACCEL_UNITS,
     COLUMN_NAMES,
     GROUP_SLICES,
+    GROUPS,
+    GYRO_UNITS,
     QUAT_NORM_RANGE,
     ROW_FIELDS,
     ROW_INDEX,
@@ -64,10 +66,14 @@ from .packets import (
 )
 from .ports import BNO055_NDOF, NODE_NAMES
 from .sink import RecordingSink
+from .tdms_check import NptdmsWarnings, check_tdms_segments
+from .unit_check import check_units
 
 IMPORT_FORMATS = ("csv", "lvm", "tdms")
 SUFFIXES = {".csv": "csv", ".txt": "csv", ".lvm": "lvm", ".tdms": "tdms"}
-TDMS_VERSIONS = (4712, 4713)  # the lead-in's version number: TDMS 1.0 and 2.0
+MAX_TIME_S = 4.0e9
+"""The largest time (s, either sign) a file may hold: Unix time in the year 2096; recordings keep
+int64 nanoseconds, which end at 9.2e9 s."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -100,6 +106,8 @@ class ImportSpec:
       units: units of the values.
       node: the file holds this one node (names without the ``m1.`` prefix).
       rate_hz: sample rate when the file has no time column and no timing of its own.
+      trust_units: import with ``units`` even where the data's physics contradict them (a unit
+        mix-up becomes a warning, recorded in the metadata, instead of an error).
       start_utc_ns: the UTC time of the file's first sample, ns since 1970 (None: the file's own
         times, taken as UTC when they are Unix times from 2000 on, else as relative: counted from
         the node's boot or the file's zero).
@@ -113,6 +121,7 @@ class ImportSpec:
     node: str | None = None
     rate_hz: float | None = None
     start_utc_ns: int | None = None
+    trust_units: bool = False
     params: RigParams = DEFAULT_PARAMS
     mjcf_xml: str | None = None
     mjcf_source: str = "built by pendsim from the rig parameters"
@@ -138,6 +147,7 @@ class ImportResult:
     duration_s: float
     size_bytes: int
     notes: tuple[str, ...] = ()  # for the user: what was left out, how the times were read
+    warnings: tuple[str, ...] = ()  # what the data contradict and was imported as given (--trust-units)
 
 
 def format_of(path: Path, given: str | None) -> str:
@@ -262,10 +272,36 @@ def _lvm_data_lines(path: Path, rows: int) -> tuple[int, ...] | None:
     return tuple(found) if len(found) == rows else None
 
 
+def _lvm_line_end(path: Path) -> None:
+    """LabVIEW ends every line of an .lvm file: a file whose last line has no line end was cut
+    while it was written or copied (its last number may be cut short, e.g. 0.6046 to 0.60).
+
+    Raises:
+      RecordingError: the file does not end in a line end.
+    """
+    try:
+        with open(path, "rb") as f:
+            f.seek(0, 2)
+            size = f.tell()
+            f.seek(max(0, size - 1))
+            last = f.read(1)
+    except OSError as exc:
+        raise RecordingError(f"{path}: cannot read: {exc.strerror}") from None
+    if size and last not in (b"\n", b"\r"):
+        with open(path, "rb") as f:
+            count = sum(block.count(b"\n") for block in iter(lambda: f.read(1 << 20), b"")) + 1
+        raise RecordingError(
+            f"{path}: truncated LVM file: its last line ({count}) has no line end, as LabVIEW writes every line: the "
+            "file was cut while it was written or copied, and its last values may be cut short"
+        )
+
+
 def read_lvm(path: Path) -> Table:
-    """A LabVIEW measurement file's first segment as a Table."""
+    """A LabVIEW measurement file's first segment as a Table; a file cut short (its last line
+    without a line end, or fewer rows than its header's Samples) is refused."""
     import lvm_read  # only for .lvm files
 
+    _lvm_line_end(path)
     try:
         # Never the pickle cache beside the user's file: read the text, write nothing.
         lvm = lvm_read.read(str(path), read_from_pickle=False, dump_file=False)
@@ -293,32 +329,50 @@ def read_lvm(path: Path) -> Table:
         x0 = [x for x in segment.get("X0", [0.0]) if isinstance(x, (int, float)) and math.isfinite(x)]
         if deltas and deltas[0] > 0:
             timing = (float(deltas[0]), float(x0[0]) if x0 else 0.0)
+    declared = [n for n in segment.get("Samples", []) if isinstance(n, (int, float)) and math.isfinite(n) and n > 0]
+    if declared and len(data) < min(declared):  # a header written with its data declares at least those rows
+        raise RecordingError(
+            f"{path}: truncated LVM file: the header declares {int(min(declared))} samples per channel, the file "
+            f"holds {len(data)} rows (cut short, or rows removed by hand)"
+        )
     notes = tuple((f"lvm_{key.lower()}", str(lvm[key])) for key in ("Date", "Time", "Operator") if key in lvm)
-    return Table(tuple(names), data, timing, notes, lines=_lvm_data_lines(path, len(data)))
+    segments = lvm.get("Segments", 1)
+    skipped = (
+        (f"imported the first of the file's {segments} segments",) if isinstance(segments, int) and segments > 1 else ()
+    )
+    return Table(tuple(names), data, timing, notes, skipped, lines=_lvm_data_lines(path, len(data)))
 
 
 def read_tdms(path: Path) -> Table:
-    """Every channel of a TDMS file (``GROUP/CHANNEL``) as a Table."""
+    """Every channel of a TDMS file (``GROUP/CHANNEL``) as a Table; little- or big-endian, every
+    segment checked whole first (``check_tdms_segments``), and anything npTDMS warns about (data
+    it would crop or guess) refused."""
     from nptdms import TdmsFile  # only for .tdms files
 
-    try:
-        with open(path, "rb") as f:
-            lead_in = f.read(12)
-    except OSError as exc:
-        raise RecordingError(f"{path}: cannot read: {exc.strerror}") from None
-    if len(lead_in) < 12 or lead_in[:4] != b"TDSm" or int.from_bytes(lead_in[8:12], "little") not in TDMS_VERSIONS:
-        raise RecordingError(f"{path}: not a TDMS file (no TDMS 2.0 lead-in)")
-    quiet = logging.getLogger("nptdms")
-    level = quiet.level
-    quiet.setLevel(logging.ERROR)  # its warnings about damaged segments become our one-line error
+    check_tdms_segments(path)
+    caught = NptdmsWarnings()
+    # npTDMS logs per module (nptdms.reader, ...), each logger with its own console handler: ours
+    # replaces them while it reads, so nothing reaches stderr and every warning is seen
+    loggers = [logging.getLogger(name) for name in list(logging.root.manager.loggerDict) if name.startswith("nptdms")]
+    saved = [(log, log.handlers[:], log.propagate, log.level) for log in loggers]
+    for log in loggers:
+        log.handlers, log.propagate = [caught], False
+        log.setLevel(logging.WARNING)
     try:
         tdms = TdmsFile.read(str(path))
     except OSError as exc:
         raise RecordingError(f"{path}: cannot read: {exc.strerror or exc}") from None
     except Exception as exc:  # npTDMS raises ValueError, KeyError, struct.error ... on foreign input
-        raise RecordingError(f"{path}: not a TDMS file ({type(exc).__name__}: {exc})") from None
+        raise RecordingError(f"{path}: not a TDMS file npTDMS can read ({type(exc).__name__}: {exc})") from None
     finally:
-        quiet.setLevel(level)
+        for log, handlers, propagate, level in saved:
+            log.handlers, log.propagate = handlers, propagate
+            log.setLevel(level)
+    if caught.messages:
+        said = re.sub(r"[.,]?\s*will attempt .*$", "", caught.messages[0], flags=re.I | re.S)  # we do not guess
+        raise RecordingError(
+            f"{path}: damaged TDMS file: its data do not match what its metadata declares (npTDMS: {said!r})"
+        )
     names, columns, timing = [], [], None
     for group in tdms.groups():
         for channel in group.channels():
@@ -329,7 +383,7 @@ def read_tdms(path: Path) -> Table:
             columns.append(data.astype(float))
             increment = channel.properties.get("wf_increment")
             if timing is None and increment:
-                timing = (float(increment), float(channel.properties.get("wf_start_offset", 0.0)))
+                timing = _waveform_timing(path, f"{group.name}/{channel.name}", channel.properties)
     if not columns:
         raise RecordingError(f"{path}: a TDMS file with no channels")
     lengths = {len(c) for c in columns}
@@ -339,6 +393,21 @@ def read_tdms(path: Path) -> Table:
         (f"tdms_{k}", str(v)) for k, v in tdms.properties.items() if isinstance(v, (str, int, float, np.datetime64))
     )
     return Table(tuple(names), np.stack(columns, axis=1), timing, notes)
+
+
+def _waveform_timing(path: Path, name: str, properties: dict[str, object]) -> tuple[float, float]:
+    """(wf_increment, wf_start_offset) of a TDMS channel, s, checked: a step > 0 and a start that
+    place every sample within the times pendsim keeps (``MAX_TIME_S``)."""
+    try:
+        step, start = float(properties["wf_increment"]), float(properties.get("wf_start_offset", 0.0))  # type: ignore[arg-type]
+    except (TypeError, ValueError):
+        raise RecordingError(f"{path}: channel {name}: wf_increment and wf_start_offset must be numbers") from None
+    if not (math.isfinite(step) and 0 < step <= MAX_TIME_S and math.isfinite(start) and abs(start) <= MAX_TIME_S):
+        raise RecordingError(
+            f"{path}: channel {name}: waveform timing wf_increment = {step!r} s, wf_start_offset = {start!r} s; "
+            f"allowed: a step in (0, {MAX_TIME_S:g}] s and a start within +-{MAX_TIME_S:g} s"
+        )
+    return step, start
 
 
 READERS = {"csv": read_csv, "lvm": read_lvm, "tdms": read_tdms}
@@ -452,11 +521,17 @@ def node_samples(
     bad_t = np.flatnonzero(~np.isfinite(t))
     if len(bad_t):
         raise RecordingError(f"{path}: {table.where(bad_t[0])}: the time is not a finite number")
+    far = np.flatnonzero(np.abs(t) > MAX_TIME_S)
+    if len(far):
+        raise RecordingError(
+            f"{path}: {table.where(far[0])}: the time {t[far[0]]:.6g} s is out of range (allowed: within "
+            f"+-{MAX_TIME_S:g} s, Unix time up to the year 2096); is the time column's unit right (t_s, t_ms, t_us)?"
+        )
     back = np.flatnonzero(np.diff(t) <= 0)
     if len(back):
+        where = table.where(back[0] + 1)
         raise RecordingError(
-            f"{path}: time does not increase at {table.where(back[0] + 1)} ({t[back[0]]:g} s, then "
-            f"{t[back[0] + 1]:g} s)"
+            f"{path}: time does not increase at {where}: {times_going_back(*t[back[0] : back[0] + 2])}"
         )
     if "quat" in columns.groups:
         norm = np.linalg.norm(rows[:, GROUP_SLICES["quat"]], axis=1)
@@ -470,40 +545,111 @@ def node_samples(
     return t, rows, timing
 
 
-ACCEL_G_RANGE = (0.5, 2.0)
-"""A file's median acceleration magnitude outside this range of g is noted as a likely unit mix-up
-(a node at rest reads 1 g; a swinging pendulum stays within it over most of a run)."""
+def times_going_back(before_s: float, after_s: float) -> str:
+    """Two times that do not increase, readable: "t = 1712345678.123456 s, then 1712345678.100000 s
+    (23.456 ms back)", with as many decimals as show the difference (microseconds at least)."""
+    step = before_s - after_s
+    shown = step * 1.001  # a step of 1 us read from a millisecond column is 0.999999 us in binary
+    decimals = 6 if step == 0 else min(12, max(6, 1 - math.floor(math.log10(shown))))
+    if step == 0:
+        how = "the same time twice"
+    else:
+        units = (("s", 1.0), ("ms", 1e-3), ("us", 1e-6))
+        unit, scale = next(((u, f) for u, f in units if shown >= f), ("ns", 1e-9))
+        how = f"{step / scale:.5g} {unit} back"
+    return f"t = {before_s:.{decimals}f} s, then {after_s:.{decimals}f} s ({how})"
 
 
-def data_notes(groups: tuple[str, ...], rows: list[NDArray[np.float64]], units: Units) -> list[str]:
-    """Notes on what the imported values cannot serve or look wrong: no orientation (validate,
-    identify and view need it), or a median acceleration far from g (the --units wrong).
+GYRO_LIMIT_RAD_S = math.radians(32767 / 16)
+"""The largest rate a BNO055 reports: its int16 register at 16 LSB per dps (2048 dps, 35.7 rad/s)."""
+ACCEL_LIMIT_M_S2 = 32767 * ACCEL_LSB_M_S2
+"""The largest acceleration a BNO055 reports: its int16 register at 100 LSB per m/s2 (327.67 m/s2, 33 g)."""
 
-    Args:
-      groups: the quantities the file carries (``packets.GROUPS`` names).
-      rows: per node (n, len(ROW_FIELDS)) values in SI units.
-      units: the units the values were read in.
-    """
-    notes = []
-    if "quat" not in groups:
-        notes.append(
-            "no orientation (quaternion columns qw,qx,qy,qz): validate, identify and view need it; "
-            "inspect and allan read the recording"
-        )
-    group = "accel" if "accel" in groups else "gravity" if "gravity" in groups else None
-    if group is not None:
-        magnitude = np.concatenate([np.linalg.norm(r[:, GROUP_SLICES[group]], axis=1) for r in rows])
-        median = float(np.median(magnitude))
-        low, high = (f * STANDARD_GRAVITY_M_S2 for f in ACCEL_G_RANGE)
-        if not low <= median <= high:
-            raw = median / ACCEL_UNITS[units.accel]  # in the file's own numbers
-            fits = [u for u, scale in ACCEL_UNITS.items() if low <= raw * scale <= high and u != units.accel]
-            hint = f"are the values in {fits[0]}? give --units accel={fits[0]}" if fits else "check --units accel"
-            notes.append(
-                f"the median {'acceleration' if group == 'accel' else 'gravity'} magnitude is {median:.3g} m/s2 "
-                f"(read as accel={units.accel}), far from g = {STANDARD_GRAVITY_M_S2:.2f} m/s2 as at rest: {hint}"
+
+def out_of_range(
+    path: Path, table: Table, columns: NodeColumns, rows: NDArray[np.float64], units: Units
+) -> tuple[str, str, float] | None:
+    """(message, quantity, its largest magnitude) for the first gyro or acceleration value beyond
+    what a BNO055 can report (``GYRO_LIMIT_RAD_S``, ``ACCEL_LIMIT_M_S2``), naming its line and
+    column; None if every value is within range."""
+    for name, index in columns.quantities.items():
+        if name == "calib":
+            continue
+        group = next(g for g, members in GROUPS.items() if name in members)
+        if group == "quat":
+            continue
+        gyro = group == "gyro"
+        limit = GYRO_LIMIT_RAD_S if gyro else ACCEL_LIMIT_M_S2
+        values = np.abs(rows[:, ROW_INDEX[name]])
+        over = np.flatnonzero(values > limit)
+        if len(over):
+            value, unit = float(rows[over[0], ROW_INDEX[name]]), "rad/s" if gyro else "m/s2"
+            read = f"gyro={units.gyro}" if gyro else f"accel={units.accel}"
+            chip = "2048 dps = 35.7 rad/s" if gyro else "327.67 m/s2 = 33.4 g"
+            return (
+                f"{path}: {table.where(over[0])}, column {table.names[index]!r}: {value:.6g} {unit} (read as {read}) "
+                f"is beyond what a BNO055 can report ({chip})",
+                "gyro" if gyro else "accel",
+                float(np.max(values)),
             )
-    return notes
+    return None
+
+
+def _units_in_range(quantity: str, largest_si: float, units: Units) -> list[str]:
+    """The units that would put ``largest_si`` (as read in ``units``) within the chip's range."""
+    table, given = (GYRO_UNITS, units.gyro) if quantity == "gyro" else (ACCEL_UNITS, units.accel)
+    limit = GYRO_LIMIT_RAD_S if quantity == "gyro" else ACCEL_LIMIT_M_S2
+    return [u for u, scale in table.items() if u != given and largest_si / table[given] * scale <= limit]
+
+
+def check_values(
+    path: Path,
+    table: Table,
+    mapped: list[NodeColumns],
+    per_node: dict[str, tuple[NDArray[np.float64], NDArray[np.float64], str]],
+    units: Units,
+    *,
+    trust_units: bool = False,
+) -> tuple[list[str], list[str], dict[str, str]]:
+    """The physics of the values against their units (``unit_check.check_units``) and the chip's
+    ranges: (notes, warnings, metadata entries).
+
+    Raises:
+      RecordingError: a unit mix-up (unless ``trust_units``: then a warning), or a value beyond what a
+        BNO055 can report (always).
+    """
+    groups = mapped[0].groups
+    with np.errstate(all="ignore"):  # absurd values are named by the range check below
+        found = check_units({n: (t, rows) for n, (t, rows, _) in per_node.items()}, groups, units)
+    notes, warnings = list(found.notes), []
+    if "quat" not in groups:
+        notes.insert(
+            0,
+            "no orientation (quaternion columns qw,qx,qy,qz): validate, identify and view need it; "
+            "inspect and allan read the recording",
+        )
+    advice = found.advice(units)
+    if found.mismatches and not trust_units:
+        raise RecordingError(
+            f"{path}: the units do not fit the data: {found.describe(units)}: {advice} (or --trust-units to "
+            "import with the units given)"
+        )
+    for columns in mapped:
+        rows = per_node[columns.node][1]
+        problem = out_of_range(path, table, columns, rows, units)
+        if problem is not None:
+            message, quantity, largest = problem
+            fits = _units_in_range(quantity, largest, units)
+            hint = f"; in {' or '.join(fits)} every value would be within it: check --units" if fits else ""
+            raise RecordingError(message + hint)
+    if found.mismatches:
+        warnings.append(
+            f"the units do not fit the data: {found.describe(units)}; imported as given (--trust-units; {advice})"
+        )
+    metadata = {"units_check": "; ".join(found.checks) or "nothing to check"}
+    if found.mismatches:
+        metadata["units_trusted_over"] = found.describe(units)
+    return notes, warnings, metadata
 
 
 def _sha256(path: Path) -> str:
@@ -550,7 +696,8 @@ def import_file(
             f"one node ({next(iter(per_node))}): inspect and allan read the recording; validate, identify and view "
             "need both nodes"
         )
-    notes += data_notes(mapped[0].groups, [rows for _, rows, _ in per_node.values()], spec.units)
+    found, warnings, checked = check_values(source, table, mapped, per_node, spec.units, trust_units=spec.trust_units)
+    notes += found
     first_t = next(iter(per_node.values()))[0]
     rate = round(nominal_rate_hz(first_t), 6) if len(first_t) > 1 else 0.0
     metadata = {
@@ -566,6 +713,7 @@ def import_file(
             "time_shift_s": repr(shift_s),
             "time_base": time_base,
             **({"notes": "; ".join(notes)} if notes else {}),
+            **checked,
             "pendsim_version": __version__,
             "mjcf": spec.mjcf_source,
             **dict(table.notes),
@@ -597,6 +745,7 @@ def import_file(
         duration,
         output.stat().st_size,
         tuple(notes),
+        tuple(warnings),
     )
 
 

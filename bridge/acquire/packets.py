@@ -58,8 +58,10 @@ MALFORMED_REASONS = (
     "truncated", "oversized", "bad_header", "crc", "wrong_node", "non_finite", "out_of_range", "unparsable",
 )  # fmt: skip
 
+# SI per unit. "raw-...": the BNO055's register counts in that UNIT_SEL mode (its mg mode's are mg).
 ACCEL_UNITS = {"m/s2": 1.0, "g": STANDARD_GRAVITY_M_S2, "mg": STANDARD_GRAVITY_M_S2 / 1000.0}
-GYRO_UNITS = {"rad/s": 1.0, "dps": math.pi / 180.0}
+ACCEL_UNITS["raw-m/s2"] = ACCEL_LSB_M_S2
+GYRO_UNITS = {"rad/s": 1.0, "dps": math.pi / 180.0, "raw-dps": math.pi / 180.0 / 16.0, "raw-rad/s": GYRO_LSB_RAD_S}
 DEFAULT_CSV_COLUMNS = ("t_ms", "ax", "ay", "az", "gx", "gy", "gz", "qw", "qx", "qy", "qz")
 DEFAULT_JSON_FIELDS: tuple[tuple[str, str], ...] = (
     ("node", "node"),

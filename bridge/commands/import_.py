@@ -45,8 +45,16 @@ def register(sub: argparse._SubParsersAction[options.Parser]) -> None:
         "--units",
         type=options.argument(parse_units, "units"),
         metavar="MAP",
-        help="units of the values, e.g. accel=m/s2,gyro=dps (accel: m/s2, g, mg; gyro: dps, rad/s; "
-        "default accel=m/s2,gyro=dps)",
+        help="units of the values, e.g. accel=m/s2,gyro=dps (accel: m/s2, g, mg, raw-m/s2; gyro: dps, rad/s, "
+        "raw-dps, raw-rad/s; raw-: the BNO055's register counts; default accel=m/s2,gyro=dps). The data's own "
+        "physics check them (the gyro against the quaternions' rotation, gravity's magnitude): a mix-up is an error "
+        "that names the right units",
+    )
+    p.add_argument(
+        "--trust-units",
+        action="store_true",
+        help="import with the --units given even where the data contradict them: the mix-up becomes a warning, "
+        "recorded in the metadata",
     )
     p.add_argument(
         "--node",
@@ -89,6 +97,7 @@ def run(args: argparse.Namespace) -> int:
         node=args.node,
         rate_hz=args.rate_hz,
         start_utc_ns=args.start_utc,
+        trust_units=args.trust_units,
         params=options.params_from(args),
         mjcf_xml=mjcf,
         mjcf_source=mjcf_source,
@@ -97,6 +106,8 @@ def run(args: argparse.Namespace) -> int:
     result = import_file(args.source, args.output, spec, replace=args.force)
     for note in result.notes:
         print(f"note: {note}", file=sys.stderr)
+    for warning in result.warnings:
+        print(f"warning: {warning}", file=sys.stderr)
     counts = ", ".join(f"{n}: {k} samples" for n, k in result.samples.items())
     print(
         f"wrote {result.path}: {result.format} file {result.source.name}, {result.duration_s:.3f} s, {counts}, "

@@ -59,8 +59,8 @@ def add_stream_options(p: argparse.ArgumentParser, *, what: str) -> None:
         "--units",
         type=options.argument(parse_units, "units"),
         metavar="MAP",
-        help="csv/json: units, e.g. accel=m/s2,gyro=dps (accel: m/s2, g, mg; gyro: dps, rad/s; "
-        "default accel=m/s2,gyro=dps)",
+        help="csv/json: units, e.g. accel=m/s2,gyro=dps (accel: m/s2, g, mg, raw-m/s2; gyro: dps, rad/s, raw-dps, "
+        "raw-rad/s; raw-: the BNO055's register counts; default accel=m/s2,gyro=dps)",
     )
     p.add_argument(
         "--fields",

@@ -33,18 +33,23 @@ from pendsim_mj.estimation.timing import nominal_rate_hz
 from pendsim_mj.units import seconds
 
 from ..io.outputs import atomic_directory
-from ..io.recording import read_recording
+from ..io.recording import ImuTopic, read_recording
 from ..io.recording_layout import NODES, imu_topic
 from ..signals import interrupts_deferred
 
 SENSORS = (("accel", "m/s^2", "accelerometer"), ("gyro", "rad/s", "gyroscope"))
+NOT_PROVIDED = -1.0
+"""REP-145: covariance element 0 = -1 says a message does not carry that quantity (its values are
+placeholders: a lab file imported without an accelerometer column, ``acquire.sink``)."""
 # Units of the noise terms per sensor: N, B, K.
 TERM_UNITS = {"accel": ("m/s/sqrt(s)", "m/s^2", "m/s^2/sqrt(s)"), "gyro": ("rad/sqrt(s)", "rad/s", "rad/s/sqrt(s)")}
 
 
 @dataclasses.dataclass(frozen=True)
 class AxisResult:
-    """One sensor axis: the paper's table row, its curve and its noise terms."""
+    """One sensor axis: the paper's table row, its curve and its noise terms. An axis the
+    recording does not provide (``provided`` False: its messages mark the quantity not provided)
+    has NaN numbers, no curve values and no terms; the table and JSON say "not provided"."""
 
     node: str
     sensor: str  # "accel" or "gyro"
@@ -56,6 +61,7 @@ class AxisResult:
     cv_percent: float  # sigma / |mean| * 100
     curve: AllanCurve
     terms: NoiseTerms
+    provided: bool = True
 
 
 @dataclasses.dataclass(frozen=True)
@@ -69,6 +75,7 @@ class AllanReport:
     axes: list[AxisResult]
     largest_motion_rad_s: dict[str, float] = dataclasses.field(default_factory=dict)  # node -> turning rate
     clocks: dict[str, SampleClock] = dataclasses.field(default_factory=dict)  # node -> its sampling's clock
+    absent: dict[str, tuple[str, ...]] = dataclasses.field(default_factory=dict)  # node -> sensors not provided
 
     def moved(self, node: str) -> bool:
         """The node turned (somewhere outside the analysed stretch: ``pendsim_mj.allan.deviation.gyro_motion``)."""
@@ -122,12 +129,14 @@ def analyse(
     axes = []
     for node, (accel, _) in stretches.columns.items():
         curves = curves_of_deviations(deviations[node], len(accel), stretches.rates[node])
-        axes += _axis_results(node, moments[node], curves)
+        axes += _axis_results(node, moments[node], curves, stretches.absent.get(node, ()))
     found = stretches
     counts = {node: len(accel) for node, (accel, _) in found.columns.items()}
     duration = max(end - start for start, end in found.segments.values())
     rate = found.rates[next(iter(found.rates))]
-    return AllanReport(path, rate, duration, counts, found.sampling, found.segments, axes, found.largest, found.clocks)
+    return AllanReport(
+        path, rate, duration, counts, found.sampling, found.segments, axes, found.largest, found.clocks, found.absent
+    )
 
 
 def _deviations(columns: dict[str, tuple[np.ndarray, np.ndarray]]) -> dict[str, np.ndarray]:
@@ -153,6 +162,7 @@ class _Stretches:
     columns: dict[str, tuple[np.ndarray, np.ndarray]]
     largest: dict[str, float]
     clocks: dict[str, SampleClock]
+    absent: dict[str, tuple[str, ...]]  # node -> the sensors its messages mark not provided
 
 
 @dataclasses.dataclass(frozen=True)
@@ -202,11 +212,18 @@ def _header_stamps(path: Path, nodes: list[str]) -> dict[str, np.ndarray]:
 def _static_stretches(path: Path, longest_segment: bool, progress: Callable[[int], None] | None) -> _Stretches:
     """Read the IMU topics and choose each node's static, uniformly sampled stretch (``analyse``)."""
     # only what the analysis uses: the log times, gyros and accelerometers (no orientations, stamps)
+    # and their covariances (constant: kept once), which say whether a sensor is provided at all
     topics = [imu_topic(n) for n in NODES]
-    fields = ("gyro_rad_s", "accel_m_s2")
+    fields = ("gyro_rad_s", "accel_m_s2", "gyro_covariance", "accel_covariance")
     rec = read_recording(path, topics=topics, progress=progress, imu_fields=fields, compiled=True)
     if not rec.imu:
         raise RecordingError(f"{path}: no /imu/m1 or /imu/m2 topic to analyse")
+    absent = {node: not_provided(topic) for node, topic in rec.imu.items()}
+    if all(len(a) == len(SENSORS) for a in absent.values()):
+        raise RecordingError(
+            f"{path}: no accelerometer or gyro to analyse: every IMU message marks both as not provided "
+            "(covariance -1, REP-145); e.g. a lab file imported with orientation columns only"
+        )
     rate = float(rec.metadata.get("pendsim/imu", {}).get("sample_rate_hz", "0") or 0)
     rates, motions, instants, clocks, sampling = {}, {}, {}, {}, {}
     for node, topic in rec.imu.items():
@@ -254,15 +271,35 @@ def _static_stretches(path: Path, longest_segment: bool, progress: Callable[[int
         del topic, t
         del instants[node]
     del rec
-    return _Stretches(rates, sampling, segments, columns, largest, clocks)
+    return _Stretches(rates, sampling, segments, columns, largest, clocks, {n: a for n, a in absent.items() if a})
 
 
-def _axis_results(node: str, moments: list[tuple[float, float]], curves: list[AllanCurve]) -> list[AxisResult]:
+def not_provided(topic: ImuTopic) -> tuple[str, ...]:
+    """The sensors ("accel", "gyro") that messages of this topic mark as not provided (REP-145:
+    covariance element 0 = -1 in any message): their values are placeholders, never data."""
+    covariances = {"accel": topic.accel_covariance, "gyro": topic.gyro_covariance}
+    return tuple(
+        sensor
+        for sensor, _, _ in SENSORS
+        if len(covariances[sensor]) and bool(np.any(covariances[sensor][:, 0, 0] == NOT_PROVIDED))
+    )
+
+
+def _axis_results(
+    node: str, moments: list[tuple[float, float]], curves: list[AllanCurve], absent: tuple[str, ...] = ()
+) -> list[AxisResult]:
     """The six rows of one node (accelerometer x, y, z, then gyro x, y, z) from each column's
-    (mean, standard deviation) and its curve."""
+    (mean, standard deviation) and its curve; the sensors in ``absent`` (not provided) get NaN
+    numbers, an empty curve and no terms."""
     axes = []
     for j, ((mean, std), curve) in enumerate(zip(moments, curves, strict=True)):
         sensor, unit, _ = SENSORS[j // 3]
+        if sensor in absent:
+            nan, none = math.nan, np.empty(0)
+            empty = dataclasses.replace(curve, tau_s=none, adev=none, low=none, high=none, edf=none, alpha=none)
+            terms = NoiseTerms(None, None, None, None)
+            axes.append(AxisResult(node, sensor, "xyz"[j % 3], unit, nan, nan, nan, nan, empty, terms, False))
+            continue
         sigma = float(curve.adev[0])
         axes.append(
             AxisResult(
@@ -273,7 +310,7 @@ def _axis_results(node: str, moments: list[tuple[float, float]], curves: list[Al
                 sigma=sigma,
                 std=std,
                 mean=mean,
-                cv_percent=sigma / abs(mean) * 100 if mean != 0 else math.inf,
+                cv_percent=sigma / abs(mean) * 100 if mean != 0 else math.nan,  # no mean: no CV
                 curve=curve,
                 terms=noise_terms(curve),
             )
@@ -310,15 +347,22 @@ def table(report: AllanReport) -> str:
             )
         elif not s.uniform:
             lines.append(f"{node}: {s.describe()}; analysed the longest uniform stretch {start:.3f}-{end:.3f} s")
+    for node, sensors in report.absent.items():
+        names = " and ".join(name for key, _, name in SENSORS if key in sensors)
+        unchecked = "; whether it was static cannot be checked without a gyro" if "gyro" in sensors else ""
+        lines.append(f"{node}: no {names} in the recording (its messages say not provided){unchecked}")
     lines.append("")
     head = f"{'node':4} {'sensor':13} {'axis':4}"
     lines.append(f"{head} {'sigma (tau=1/fs)':>17} {'mean':>12} {'CV %':>9} {'std':>11}  unit")
     for a in report.axes:
         sensor = dict((k, name) for k, _, name in SENSORS)[a.sensor]
-        lines.append(
-            f"{a.node:4} {sensor:13} {a.axis:4} {a.sigma:17.5g} {a.mean:12.5g} {a.cv_percent:9.3g} "
-            f"{a.std:11.5g}  {a.unit}"
-        )
+        if not a.provided:
+            lines.append(
+                f"{a.node:4} {sensor:13} {a.axis:4} {'not provided':>17} {'-':>12} {'-':>9} {'-':>11}  {a.unit}"
+            )
+            continue
+        cv = f"{a.cv_percent:9.3g}" if math.isfinite(a.cv_percent) else f"{'-':>9}"
+        lines.append(f"{a.node:4} {sensor:13} {a.axis:4} {a.sigma:17.5g} {a.mean:12.5g} {cv} {a.std:11.5g}  {a.unit}")
     lines.append("")
     lines.append(f"{head} {'N (white)':>12} {'B (bias inst.)':>15} {'at tau (s)':>10} {'K (rate RW)':>12}")
     for a in report.axes:
@@ -328,6 +372,9 @@ def table(report: AllanReport) -> str:
         def fmt(v: float | None, width: int) -> str:
             return f"{v:{width}.4g}" if v is not None else f"{'-':>{width}}"
 
+        if not a.provided:
+            lines.append(f"{a.node:4} {sensor:13} {a.axis:4} {'not provided':>12}")
+            continue
         lines.append(
             f"{a.node:4} {sensor:13} {a.axis:4} {fmt(t.white, 12)} {fmt(t.bias_instability, 15)} "
             f"{fmt(t.bias_instability_tau_s, 10)} {fmt(t.rate_random_walk, 12)}"
@@ -338,6 +385,12 @@ def table(report: AllanReport) -> str:
         + "; B: the sensor's unit; K: unit/sqrt(s)"
     )
     return "\n".join(lines)
+
+
+ABSENT_KEYS = (
+    *("sigma", "mean", "cv_percent", "std", "white_N", "bias_instability_B", "bias_instability_tau_s"),
+    *("rate_random_walk_K", "curve"),
+)
 
 
 def as_json(report: AllanReport) -> dict:
@@ -359,15 +412,20 @@ def as_json(report: AllanReport) -> dict:
                 "analysed_s": list(report.segment[n]),
                 "largest_motion_rad_s": report.largest_motion_rad_s.get(n),
                 "clock": report.clocks[n].name if n in report.clocks else "log times",
+                "not_provided": list(report.absent.get(n, ())),
             }
             for n, s in report.sampling.items()
         },
         "axes": [
-            {
+            {"node": a.node, "sensor": a.sensor, "axis": a.axis, "unit": a.unit, "provided": False}
+            | dict.fromkeys(ABSENT_KEYS)  # never a number for what the recording does not carry
+            if not a.provided
+            else {
                 "node": a.node,
                 "sensor": a.sensor,
                 "axis": a.axis,
                 "unit": a.unit,
+                "provided": True,
                 "sigma": a.sigma,
                 "mean": a.mean,
                 "cv_percent": num(a.cv_percent),
@@ -402,7 +460,9 @@ def plots(report: AllanReport, directory: str | Path, *, replace: bool = False) 
         jobs = []
         for node in report.n_samples:
             for sensor, unit, name in SENSORS:
-                chosen = [a for a in report.axes if a.node == node and a.sensor == sensor]
+                chosen = [a for a in report.axes if a.node == node and a.sensor == sensor and a.provided]
+                if not chosen:  # not provided: no plot
+                    continue
                 names.append(f"allan_{node}_{sensor}.png")
                 jobs.append(
                     (

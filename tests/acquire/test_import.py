@@ -166,7 +166,21 @@ def _error(capsys) -> str:
         ("boot ok\nt_s,m1.gx,m1.gy,m1.gz\n1,2,3\n", [], "no complete data line"),
         ("t_s,m1.gx,m1.gy,m1.gz\n0,1,2,3\n", ["--start-utc", "2026-11-25T10:00"], "has no time zone: end it in Z"),
         ("t_s,m1.gx,m1.gy,m1.gz\n0,1,2,3\n", ["--start-utc", "noon"], "is not an ISO 8601 time"),
-        ("t_s,m1.gx,m1.gy,m1.gz\n1,1,2,3\n0,1,2,3\n", [], "time does not increase at line 3 (1 s, then 0 s)"),
+        (
+            "t_s,m1.gx,m1.gy,m1.gz\n1,1,2,3\n0,1,2,3\n",
+            [],
+            "time does not increase at line 3: t = 1.000000 s, then 0.000000 s (1 s back)",
+        ),
+        (
+            "t_s,m1.gx,m1.gy,m1.gz\n1712345678.1,1,2,3\n1712345678.123456,1,2,3\n1712345678.1,1,2,3\n",
+            [],
+            "time does not increase at line 4: t = 1712345678.123456 s, then 1712345678.100000 s (23.456 ms back)",
+        ),
+        (
+            "t_ms,m1.gx,m1.gy,m1.gz\n1000,1,2,3\n1012.5,1,2,3\n1012.499,1,2,3\n",
+            [],
+            "time does not increase at line 4: t = 1.0125000 s, then 1.0124990 s (1 us back)",
+        ),
         ("t_s,m1.gx,m1.gy,m1.gz\n0,nan,2,3\n1,1,2,3\n", [], "line 2, column 'm1.gx': not a finite number"),
         ("m1.gx,m1.gy,m1.gz\n0,1,2\n", [], "no time column"),
         ("t_s,m1.gx,m1.gy,m1.gz\n0,1,2,3\n", ["--units", "gyro=rpm"], "unknown gyro unit 'rpm'"),
@@ -174,7 +188,7 @@ def _error(capsys) -> str:
         (  # file lines, not data rows: the comment, the blank line and the header count
             "# lab run\n\nt_s,m1.gx,m1.gy,m1.gz\n0,1,2,3\n1,1,2,3\n1,1,2,3\n",
             [],
-            "time does not increase at line 6 (1 s, then 1 s)",
+            "time does not increase at line 6: t = 1.000000 s, then 1.000000 s (the same time twice)",
         ),
     ],
 )
@@ -343,19 +357,43 @@ def test_a_file_without_quaternions_is_noted_as_unfit_for_validate(tmp_path, cap
 
 
 @pytest.mark.parametrize(
-    ("accel_m_s2", "units", "median", "hint"),
+    ("accel_m_s2", "units", "measured", "fix"),
     [
-        ((0.0, 0.0, 9.81), "accel=g", "96.2 m/s2 (read as accel=g)", "are the values in m/s2? give --units accel=m/s2"),
-        ((0.0, 0.0, 1.0), "accel=m/s2", "1 m/s2 (read as accel=m/s2)", "are the values in g? give --units accel=g"),
-        ((0.0, 0.0, 1000.0), "accel=m/s2", "1e+03 m/s2 (read as accel=m/s2)", "give --units accel=mg"),
+        ((0.0, 0.0, 9.81), "accel=g", "read as accel=g, measures 96.2 m/s2", "the values are in m/s2: give --units "
+         "accel=m/s2,gyro=dps"),
+        ((0.0, 0.0, 1.0), "accel=m/s2", "read as accel=m/s2, measures 1 m/s2", "the values are in g: give --units "
+         "accel=g,gyro=dps"),
+        ((0.0, 0.0, 1000.0), "accel=m/s2", "read as accel=m/s2, measures 1000 m/s2", "the values are in mg (also the "
+         "BNO055's raw counts in its mg mode) (or the BNO055's raw counts in its m/s2 mode (100 per m/s2), "
+         "accel=raw-m/s2: too close to tell apart): give --units accel=mg,gyro=dps"),
     ],
-)
-def test_an_acceleration_far_from_g_is_noted_as_a_unit_mix_up(tmp_path, capsys, accel_m_s2, units, median, hint):
+)  # fmt: skip
+def test_an_acceleration_far_from_g_is_a_unit_mix_up_named_with_its_fix(
+    tmp_path, capsys, accel_m_s2, units, measured, fix
+):
     _arduino_csv(tmp_path / "node.csv", 200, accel_m_s2=accel_m_s2)
     args = ["import", str(tmp_path / "node.csv"), "-o", str(tmp_path / "n.mcap"), "--node", "m1", "--units", units]
-    assert main(args) == 0
-    notes = [line for line in capsys.readouterr().err.splitlines() if "far from g" in line]
-    assert len(notes) == 1 and f"magnitude is {median}, far from g = 9.81 m/s2" in notes[0] and hint in notes[0]
+    assert main(args) == 2
+    line = _error(capsys)
+    assert f"the units do not fit the data: m1: gravity, {measured}" in line and "by the accelerometer" in line
+    assert line.endswith(f"{fix} (or --trust-units to import with the units given)")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["node.csv"]
+    if accel_m_s2[2] > 327.67:  # beyond what the chip can report: refused even so
+        assert main([*args, "--trust-units"]) == 2
+        line = _error(capsys)
+        assert (
+            "(read as accel=m/s2) is beyond what a BNO055 can report (327.67 m/s2 = 33.4 g); in mg or raw-m/s2" in line
+        )
+        return
+    assert main([*args, "--trust-units"]) == 0  # the user insists: a warning, and the metadata says so
+    warnings = [line for line in capsys.readouterr().err.splitlines() if line.startswith("warning: ")]
+    assert (
+        len(warnings) == 1
+        and measured in warnings[0]
+        and "imported as given (--trust-units; give --units" in warnings[0]
+    )
+    meta = read_recording(tmp_path / "n.mcap").metadata["pendsim/import"]
+    assert measured in meta["units_trusted_over"] and meta["units"] == units + ",gyro=dps"
 
 
 @pytest.mark.parametrize("name", ["lab.csv", "run.LVM", "run.tdms"])

@@ -376,3 +376,65 @@ def test_a_ros_bag_whose_log_times_jitter_is_analysed_on_its_header_stamps(tmp_p
     for k, node in enumerate(("m1", "m2")):
         _, reference, _, _ = allantools.oadev(gyro[k, :, 2], rate=FS, data_type="freq", taus=[1 / FS])
         assert sigma[(node, "gyro", "z")] == pytest.approx(reference[0], rel=1e-9)
+
+
+def _bag_without_accelerometers(path, n: int = 4800) -> np.ndarray:
+    """A ROS bag (mcap_ros2's writer) of two nodes at rest whose messages carry no accelerometer:
+    zeros with covariance element 0 = -1, REP-145's "not provided"."""
+    rng = np.random.default_rng(8)
+    gyro = rng.normal(0.0, 1e-3, size=(2, n, 3))
+    with open(path, "wb") as f:
+        w = Ros2Writer(f, chunk_size=200_000)
+        schema = w.register_msgdef("sensor_msgs/msg/Imu", ros2.SCHEMAS["sensor_msgs/msg/Imu"].decode())
+        for i in range(n):
+            stamp = 1_700_000_000 * 10**9 + i * 12_500_000
+            for k, node in enumerate(("m1", "m2")):
+                msg = {
+                    "header": {"stamp": {"sec": stamp // 10**9, "nanosec": stamp % 10**9}, "frame_id": node},
+                    "angular_velocity": dict(zip("xyz", map(float, gyro[k, i]), strict=True)),
+                    "linear_acceleration_covariance": [-1.0] + [0.0] * 8,
+                }
+                w.write_message(f"/imu/{node}", schema, msg, log_time=stamp, publish_time=stamp)
+        w.finish()
+    return gyro
+
+
+def test_sensors_a_recording_does_not_provide_say_not_provided_never_a_number(tmp_path, capsys):
+    path = tmp_path / "gyro_only.mcap"
+    gyro = _bag_without_accelerometers(path)
+    capsys.readouterr()
+    assert main(["allan", str(path), "--plot-dir", str(tmp_path / "plots")]) == 0
+    text = capsys.readouterr().out
+    rows = [line for line in text.splitlines() if line.startswith(("m1 ", "m2 "))]
+    accel_rows = [line for line in rows if " accelerometer " in line]
+    assert len(accel_rows) == 12 and all("not provided" in line for line in accel_rows)  # both tables
+    assert not any(re.search(r"\binf\b|\bnan\b", line) for line in rows)
+    assert "m1: no accelerometer in the recording (its messages say not provided)" in text
+    assert sorted(p.name for p in (tmp_path / "plots").iterdir()) == ["allan_m1_gyro.png", "allan_m2_gyro.png"]
+    assert main(["allan", str(path), "--no-plots", "--json"]) == 0
+    result = json.loads(capsys.readouterr().out)
+    assert result["sampling"]["m1"]["not_provided"] == ["accel"]
+    for a in result["axes"]:
+        if a["sensor"] == "accel":
+            assert a["provided"] is False and a["sigma"] is None and a["cv_percent"] is None and a["curve"] is None
+        else:
+            assert a["provided"] is True and a["sigma"] > 0
+    _, reference, _, _ = allantools.oadev(gyro[1, :, 0], rate=FS, data_type="freq", taus=[1 / FS])
+    m2_gx = next(a for a in result["axes"] if (a["node"], a["sensor"], a["axis"]) == ("m2", "gyro", "x"))
+    assert m2_gx["sigma"] == pytest.approx(reference[0], rel=1e-9)
+
+
+def test_a_lab_log_without_an_accelerometer_column_gets_not_provided_rows(tmp_path, capsys):
+    rng = np.random.default_rng(9)
+    lines = ["t_ms,gx,gy,gz"] + [f"{12.5 * k},{g[0]:.4f},{g[1]:.4f},{g[2]:.4f}" for k, g in enumerate(
+        rng.normal(0.0, 0.06, size=(4800, 3)))]  # fmt: skip
+    (tmp_path / "front.csv").write_text("\n".join(lines) + "\n")
+    out = tmp_path / "front.mcap"
+    assert main(["import", str(tmp_path / "front.csv"), "-o", str(out), "--node", "m1"]) == 0
+    capsys.readouterr()
+    assert main(["allan", str(out), "--no-plots"]) == 0
+    rows = [line.split() for line in capsys.readouterr().out.splitlines() if line.startswith("m1 ")]
+    accel = [r for r in rows if r[1] == "accelerometer"]
+    assert len(accel) == 6 and all(r[3:5] == ["not", "provided"] for r in accel)
+    gyro_x = next(r for r in rows if r[1:3] == ["gyroscope", "x"])
+    assert float(gyro_x[3]) == pytest.approx(math.radians(0.06), rel=0.05)  # the file's 0.06 dps, in rad/s
