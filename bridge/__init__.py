@@ -20,6 +20,8 @@ docs/api.md)::
   any MCAP file: ``read_mcap`` (-> ``McapContents``), write one: ``BulkMcapWriter``;
 - validate and identify: ``validate`` (-> ``ValidationReport``), ``identify`` (->
   ``Identification``);
+- calibrate: ``calibrate_recordings`` (-> ``CalibrationReport``: the rig's parameters fitted to
+  recordings, what they determine, before and after);
 - replay: ``replay`` (messages in log-time order), ``replay_to_mcap`` (a cut to a new file);
 - sweep: ``run_sweep`` (a ``pendsim_mj.SweepPlan`` into a results folder), ``read_results``;
 - the whole chain: ``run_demo``.
@@ -53,6 +55,8 @@ _LAZY = {
     "ValidationReport": ".run.validate",
     "identify": ".run.validate",
     "validate": ".run.validate",
+    "CalibrationReport": ".report.calibration_report",
+    "calibrate_recordings": ".run.calibrate",
     "ReplayMessage": ".run.replay",
     "replay": ".run.replay",
     "replay_to_mcap": ".run.replay",
@@ -68,6 +72,8 @@ if TYPE_CHECKING:
     from .io.mcap.writer import BulkMcapWriter
     from .io.recording import ImuTopic, JointStates, Recording, read_recording
     from .io.trajectory_file import save_trajectory
+    from .report.calibration_report import CalibrationReport
+    from .run.calibrate import calibrate_recordings
     from .run.demo import DemoResult, run_demo
     from .run.record import RecordInterrupted, RecordResult, RecordSpec, record
     from .run.replay import ReplayMessage, replay, replay_to_mcap
@@ -78,6 +84,7 @@ else:
 
 __all__ = [
     "BulkMcapWriter",
+    "CalibrationReport",
     "DemoResult",
     "Identification",
     "ImuTopic",
@@ -92,6 +99,7 @@ __all__ = [
     "ReplayMessage",
     "SweepSummary",
     "ValidationReport",
+    "calibrate_recordings",
     "identify",
     "read_mcap",
     "read_recording",

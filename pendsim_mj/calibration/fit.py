@@ -39,7 +39,7 @@ from pendsim_mj.calibration.parameters import QUANTITIES, ParameterSpace, Quanti
 from pendsim_mj.engines import fast_planar
 from pendsim_mj.errors import ParameterError
 from pendsim_mj.estimation.planar_fit import FIT_DT_S, MAX_RELEASE_OFFSET_S, ljung_box_p
-from pendsim_mj.rig.drives import Drive, held_inputs
+from pendsim_mj.rig.drives import Drive, TimeSeries, held_inputs
 from pendsim_mj.rig.params import RigParams
 
 Floats = NDArray[np.float64]
@@ -47,6 +47,7 @@ Floats = NDArray[np.float64]
 FIRST_WINDOW_S = 3.0  # the first window (a 5 % frequency error: 0.8 rad of phase at its end), then doubled
 MAX_ITERATIONS = 100  # Gauss-Newton iterations over all stages
 CHI2_TOLERANCE = 1e-3  # a stage ends when an iteration moves the sum of squared residuals (sigmas^2) by less
+DRIVE_MARGIN_S = 0.15  # the instants a recorded drive's last samples leave for the release offset and timing shift
 MIN_DURATION_S = 5.0  # a recording shorter than this after its start cannot calibrate anything
 _SENSITIVE = ("b1_n_m_s", "b2_n_m_s", "friction1_n_m", "friction2_n_m", *fast_planar.COEF_SENSITIVITIES)
 _UNITS = {"N/m": "N/m"}
@@ -104,14 +105,23 @@ class CalibrationRun:
             order = np.argsort(t[ok], kind="stable")
             at.append(np.ascontiguousarray(t[ok][order]))
             gyro.append(np.ascontiguousarray(y[ok][order]))
+        covered = _drive_end_s(drive) - DRIVE_MARGIN_S
+        if covered < math.inf:  # a recorded drive ends with the recording: the last instants' steps need it
+            for k in range(2):
+                n = int(np.searchsorted(at[k], covered, side="right"))
+                at[k], gyro[k] = at[k][:n], gyro[k][:n]
         start = run.start  # type: ignore[attr-defined]
+        phi0, omega0 = tuple(start.phi_rad), tuple(start.omega_rad_s)
+        if start.kind != "release":  # in motion: the measured state at the start, not a model's guess of it
+            phi0 = tuple(float(np.interp(0.0, node.t_s, node.phi_rad)) for node in nodes)
+            omega0 = tuple(float(np.interp(0.0, at[k], gyro[k])) for k in range(2))
         return CalibrationRun(
             name=name,
             value_t_s=(at[0], at[1]),
             gyro_z_rad_s=(gyro[0], gyro[1]),
             gyro_sigma_rad_s=tuple(run.gyro_sigma_rad_s),  # type: ignore[attr-defined]
-            phi0_rad=tuple(start.phi_rad),
-            omega0_rad_s=tuple(start.omega_rad_s),
+            phi0_rad=phi0,  # type: ignore[arg-type]
+            omega0_rad_s=omega0,  # type: ignore[arg-type]
             moving=start.kind != "release",
             drive=drive,
             timing_range_s=run.relative_timing_range_s,  # type: ignore[attr-defined]
@@ -210,12 +220,7 @@ class _Problem:
         for run in self.runs:
             self.offsets.append(self.offsets[-1] + len(run.local_names))
         self.size = self.offsets[-1]
-        self.inputs = [
-            None
-            if not run.drive
-            else held_inputs(run.drive, math.ceil((run.duration_s + 0.1) / FIT_DT_S) + 2, FIT_DT_S)
-            for run in self.runs
-        ]
+        self.inputs = [None if not run.drive else _held(run) for run in self.runs]
 
     def start(self) -> Floats:
         y = np.zeros(self.size)
@@ -306,6 +311,20 @@ class _Problem:
         return out
 
 
+def _drive_end_s(drive: Drive | None) -> float:
+    """Where a drive's recorded samples end (time 0 at the release), s; inf for signals."""
+    ends = [float(s.t_s[-1]) for t in (drive.targets if drive else ()) if isinstance(s := drive.signal(t), TimeSeries)]  # type: ignore[union-attr]
+    return min(ends, default=math.inf)
+
+
+def _held(run: CalibrationRun) -> Floats:
+    """The run's drive held over the steps the latest release offset and timing shift need (as
+    ``planar_fit``), from the release on."""
+    assert run.drive is not None
+    end_s = run.duration_s + MAX_RELEASE_OFFSET_S + max(0.0, *(run.timing_range_s or ()))
+    return held_inputs(run.drive, math.ceil(end_s / FIT_DT_S) + 2, FIT_DT_S)
+
+
 def _windows(duration_s: float) -> list[float]:
     out = []
     w = FIRST_WINDOW_S
@@ -376,6 +395,11 @@ def calibrate(
     windows = _windows(max(run.duration_s for run in runs))
     iterations = 0
     normal, gradient, rr, n, schur = problem.normal_equations(y, windows[0])
+    # the stated rig as a weak prior: each free parameter within PLAUSIBLE_CHANGE of it (1 sigma); it
+    # keeps what no recording sees at the stated values and weighs nothing against what one determines
+    prior = np.zeros((problem.size, problem.size))
+    prior[: problem.nfree, : problem.nfree] = np.eye(problem.nfree) / info.PLAUSIBLE_CHANGE**2
+    everything = np.eye(problem.size)
     for window in windows:
         if iterations:
             normal, gradient, rr, n, schur = problem.normal_equations(y, window)
@@ -383,17 +407,13 @@ def calibrate(
         for _ in range(12):
             if iterations >= MAX_ITERATIONS:
                 break
-            variance = rr / max(1, n - problem.size)
-            determined = [d for d in info.directions(schur, variance) if d.determined]
-            basis = _basis(problem, determined)
-            trial = problem.clip(y + _step(normal, gradient, basis, mu))
-            try:
-                t_normal, t_gradient, t_rr, t_n, t_schur = problem.normal_equations(trial, window)
-            except ParameterError:
-                t_rr = math.inf
+            cost = rr + float(y @ prior @ y)
+            trial = problem.clip(y + _step(normal + prior, gradient + prior @ y, everything, mu))
+            t_normal, t_gradient, t_rr, t_n, t_schur = problem.normal_equations(trial, window)
             iterations += 1
-            if t_rr < rr:
-                done = rr - t_rr < max(CHI2_TOLERANCE, 1e-12 * rr)
+            t_cost = t_rr + float(trial @ prior @ trial)
+            if t_cost < cost:
+                done = cost - t_cost < max(CHI2_TOLERANCE, 1e-12 * cost)
                 y, normal, gradient, rr, n, schur = trial, t_normal, t_gradient, t_rr, t_n, t_schur
                 mu = max(mu / 10.0, 1e-9)
                 if done:
