@@ -2,6 +2,11 @@
 ``closed_form``, the batch kernel behind ``integrate`` and ``lyapunov``, and the kernel of
 ``rates_at`` / ``normal_equations_at`` with its exact sensitivities.
 
+Drives: every RK4 step reads its inputs at its three stage instants, (H, NSTAGE, NINPUT, ...)
+(start for k1, midpoint for k2 and k3, end for k4: ``drives.stage_inputs``, fourth order; an
+input held over the step is three equal rows, MuJoCo's rule). The rates kernel's variational
+step uses the same stage inputs, so its sensitivities stay the exact derivative of the step.
+
 alone, in a SIMD lane or in the scalar remainder, so a member's result does not depend on the
 batch it is in (bit for bit). A member that diverges (non-finite state) keeps NaN; ``integrate``
 never raises for it, ``solve_batch`` does (as the reference).
