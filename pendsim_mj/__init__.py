@@ -9,8 +9,8 @@ What a script needs is exported here (``__all__``; reference with examples: docs
 
 SI units and radians throughout; arrays are numpy, shapes in each docstring. The rooms:
 
-- ``rig``: the parameters (``RigParams``, ``DEFAULT_PARAMS``), the drives (``Drive`` and the
-  signals ``Sine``, ``SteppedSine``, ``Chirp``, ``TimeSeries``), the MuJoCo model (``build_model``);
+- ``rig``: the parameters (``RigParams``, ``DEFAULT_PARAMS``), the drives (``Drive``, the
+  signals ``Sine``, ``SteppedSine``, ``Chirp``, ``TimeSeries``, and ``Sampling``), the MuJoCo model (``build_model``);
 - ``engines``: MuJoCo (``simulate``, ``simulate_batch``), the independent planar reference
   (``solve``, ``solve_batch``), the compiled planar engine, and the ``Trajectory`` they return;
 - ``sensors``: the BNO055 node model (``Bno055``, ``sample_imu``);
@@ -33,7 +33,16 @@ from typing import TYPE_CHECKING
 
 from pendsim_mj import lazy
 from pendsim_mj.errors import ModelError, ParameterError, PendsimError, RecordingError, SimulationDiverged
-from pendsim_mj.rig.drives import Chirp, Drive, Sine, SteppedSine, Target, TimeSeries, read_time_series_csv
+from pendsim_mj.rig.drives import (
+    Chirp,
+    Drive,
+    Sampling,
+    Sine,
+    SteppedSine,
+    Target,
+    TimeSeries,
+    read_time_series_csv,
+)
 from pendsim_mj.rig.params import DEFAULT_PARAMS, RigParams
 
 __version__ = "0.1.0"
@@ -119,6 +128,7 @@ __all__ = [
     "RecordingError",
     "RigParams",
     "RunSummary",
+    "Sampling",
     "SimulationDiverged",
     "Sine",
     "SteppedSine",

@@ -44,7 +44,8 @@ class Engine(Protocol):
           duration_s: simulated time, s.
           dt_s: the fixed step, s.
           drive: one Drive for every run, one per run, or None (``pendsim_mj.rig.drives``): hinge
-            torques and support accelerations, each held over a step at its midpoint value.
+            torques and support accelerations: at each RK4 stage's time in the planar engines
+            (fourth order), held over a step at its midpoint value in MuJoCo (second order).
 
         Returns:
           A batch Trajectory: arrays of shape (nbatch, n, ...), n = steps + 1, t = 0 first;

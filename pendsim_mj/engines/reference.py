@@ -20,7 +20,10 @@ The state integrated is (phi1, phi2, omega1, omega2, D) with D' = (b1 omega1 + F
 + (b2 omega2 + F2 s(omega2)) omega2, the energy dissipated so far, integrated by the same RK4
 step. Everything is vectorised over a leading batch axis.
 
-Drives (``pendsim_mj.rig.drives``), held constant over each step exactly as MuJoCo holds ``ctrl``:
+Drives (``pendsim_mj.rig.drives``) enter each RK4 stage at the stage's own time (t, t + h/2,
+t + h: ``drives.Sampling.STAGES``, the default): the drive is part of the ODE and a driven run
+converges at fourth order, as a free one. ``sampling=Sampling.HELD`` holds the step's midpoint
+value over the step instead, exactly as MuJoCo holds ``ctrl`` (second order; the check of MuJoCo):
 
 - a motor torque tau_n at hinge n adds + tau_n to the right-hand side of pendulum n;
 - the support (pivot axis and fixed points 6, 7) accelerating by a_h horizontally (paper +y)
@@ -60,7 +63,15 @@ from pendsim_mj.rig.checks import (
     check_params,
     check_step,
 )
-from pendsim_mj.rig.drives import Drive, inputs_at_samples, stack_inputs, support_initial_velocity, support_motion
+from pendsim_mj.rig.drives import (
+    NSTAGE,
+    Drive,
+    Sampling,
+    drive_stage_inputs,
+    stage_inputs_at_samples,
+    stage_support_motion,
+    stages_of_held,
+)
 from pendsim_mj.rig.params import DEFAULT_PARAMS, RigParams, friction_direction
 
 
@@ -166,7 +177,7 @@ def spring_moments(phi1: np.ndarray, phi2: np.ndarray, k: _Coefficients) -> tupl
 
 
 def derivative(y: np.ndarray, k: _Coefficients, u: np.ndarray | None = None) -> np.ndarray:
-    """d/dt of the state (5, ...) = (phi1, phi2, omega1, omega2, dissipated), with the held
+    """d/dt of the state (5, ...) = (phi1, phi2, omega1, omega2, dissipated), with the
     inputs u (4, ...) = (tau1, tau2 in N m, a_h, a_v in m/s^2; module docstring) or none."""
     phi1, phi2, omega1, omega2 = y[0], y[1], y[2], y[3]
     moment1, moment2, _ = spring_moments(phi1, phi2, k)
@@ -197,7 +208,10 @@ def integrate(
       phi0_rad, omega0_rad_s: (nbatch, 2) initial conditions.
       nstep: number of steps.
       dt_s: step, s.
-      inputs: (nbatch, nstep, 4) inputs held over each step (``drives.held_inputs``), or None.
+      inputs: (nbatch, nstep, NSTAGE, 4) the inputs at each step's start, midpoint and end
+        (``drives.stage_inputs``: k1 sees the start's, k2 and k3 the midpoint's, k4 the end's), or
+        (nbatch, nstep, 4) inputs held over each step (``drives.held_inputs``, MuJoCo's rule), or
+        None.
 
     Returns:
       (nstep + 1, 5, nbatch) states (phi1, phi2, omega1, omega2, dissipated_j) at t = k dt.
@@ -213,13 +227,19 @@ def integrate(
     y[2:4] = omega0_rad_s.T
     out[0] = y
     h = dt_s
-    held = None if inputs is None else np.ascontiguousarray(np.transpose(inputs, (1, 2, 0)))  # (nstep, 4, nbatch)
+    stages = None
+    if inputs is not None:
+        u_in = np.asarray(inputs, dtype=float)
+        u_in = stages_of_held(u_in) if u_in.shape == (nbatch, nstep, 4) else u_in
+        if u_in.shape != (nbatch, nstep, NSTAGE, 4):
+            raise ParameterError(f"inputs must have shape ({nbatch}, {nstep}, {NSTAGE}, 4) or ({nbatch}, {nstep}, 4)")
+        stages = np.ascontiguousarray(np.transpose(u_in, (1, 2, 3, 0)))  # (nstep, NSTAGE, 4, nbatch)
     for step in range(1, nstep + 1):  # the reference's own loop: numpy over the batch each step
-        u = None if held is None else held[step - 1]  # one value for all four stages, as MuJoCo
-        k1 = derivative(y, k, u)
-        k2 = derivative(y + (0.5 * h) * k1, k, u)
-        k3 = derivative(y + (0.5 * h) * k2, k, u)
-        k4 = derivative(y + h * k3, k, u)
+        u0, um, u1 = (None, None, None) if stages is None else stages[step - 1]  # start, midpoint, end
+        k1 = derivative(y, k, u0)
+        k2 = derivative(y + (0.5 * h) * k1, k, um)
+        k3 = derivative(y + (0.5 * h) * k2, k, um)
+        k4 = derivative(y + h * k3, k, u1)
         y = y + (h / 6.0) * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
         out[step] = y
         if step % 256 == 0 and not np.all(np.isfinite(y)):
@@ -237,9 +257,11 @@ def solve(
     dt_s: float = 0.01,
     *,
     drive: Drive | None = None,
+    sampling: Sampling = Sampling.STAGES,
 ) -> Trajectory:
-    """Solve one initial condition; same arguments and Trajectory as ``simulation.simulate``."""
-    return solve_batch(params, phi0_rad, omega0_rad_s, duration_s, dt_s, drive=drive).member(0)
+    """Solve one initial condition; same arguments and Trajectory as ``simulation.simulate``
+    (``sampling``: as ``solve_batch``)."""
+    return solve_batch(params, phi0_rad, omega0_rad_s, duration_s, dt_s, drive=drive, sampling=sampling).member(0)
 
 
 def solve_batch(
@@ -250,17 +272,22 @@ def solve_batch(
     dt_s: float = 0.01,
     *,
     drive: Drive | Sequence[Drive | None] | None = None,
+    sampling: Sampling = Sampling.STAGES,
 ) -> Trajectory:
     """Solve a batch; arguments and result as ``simulation.simulate_batch`` (the drives of one
-    batch may drive different targets here: an undriven channel is a zero input)."""
+    batch may drive different targets here: an undriven channel is a zero input).
+
+    ``sampling``: how the RK4 stages see the drive (``drives.Sampling``): STAGES (default) each
+    stage at its own time, fourth order; HELD the step's midpoint value over the whole step, as
+    MuJoCo (second order; equals ``simulate_batch`` to 1e-9 rad)."""
     nstep = check_step(duration_s, dt_s)
     plist = check_params(params)
     phi0, omega0 = check_initial(phi0_rad, omega0_rad_s, len(plist) if len(plist) > 1 else None)
     plist = broadcast_params(plist, len(phi0))
     drives, targets = check_drives(drive, len(phi0), same_targets=False)
-    held = stack_inputs(drives, nstep, dt_s) if targets else None  # (nbatch, nstep, 4)
-    states = integrate(plist, phi0, omega0, nstep, dt_s, held)  # (n, 5, nbatch)
-    return _trajectory(plist, states, dt_s, held, drives if targets else None)
+    stages = drive_stage_inputs(drives, nstep, dt_s, sampling) if targets else None  # (nbatch, nstep, NSTAGE, 4)
+    states = integrate(plist, phi0, omega0, nstep, dt_s, stages)  # (n, 5, nbatch)
+    return _trajectory(plist, states, dt_s, stages, drives if targets else None, sampling=sampling)
 
 
 def solve_blocks(
@@ -295,19 +322,20 @@ def _trajectory(
     plist: list[RigParams],
     states: np.ndarray,
     dt_s: float,
-    held: np.ndarray | None = None,
+    stages: np.ndarray | None = None,
     drives: list[Drive | None] | None = None,
     *,
     first_row: int = 0,
+    sampling: Sampling = Sampling.STAGES,
 ) -> Trajectory:
-    """Build the Trajectory from integrated states (n, 5, nbatch) and held inputs (nbatch, nstep, 4);
-    the rows are the run's from ``first_row`` on."""
+    """Build the Trajectory from integrated states (n, 5, nbatch) and stage inputs
+    (nbatch, nstep, NSTAGE, 4); the rows are the run's from ``first_row`` on."""
     k = _coefficients(plist)
     y = states.transpose(1, 0, 2)  # (5, n, nbatch): every quantity below is (n, nbatch)
     moment1, moment2, springs = spring_moments(y[0], y[1], k)
     nbatch, n = len(plist), states.shape[0]
-    inputs = np.zeros((nbatch, n, 4)) if held is None else inputs_at_samples(held)  # (nbatch, n, 4)
-    u = None if held is None else inputs.transpose(2, 1, 0)  # (4, n, nbatch)
+    inputs = np.zeros((nbatch, n, 4)) if stages is None else stage_inputs_at_samples(stages)  # (nbatch, n, 4)
+    u = None if stages is None else inputs.transpose(2, 1, 0)  # (4, n, nbatch)
     deriv = derivative(y, k, u)
     _, _, rest = spring_moments(np.zeros(len(plist)), np.zeros(len(plist)), k)
 
@@ -320,7 +348,7 @@ def _trajectory(
     alpha = per_run(deriv[2], deriv[3])
     radius = np.array([[p.om1_m, p.om2_m] for p in plist])[:, None, :]  # (nbatch, 1, 2)
     g = np.array([p.g_m_s2 for p in plist])[:, None, None]
-    base_accel = (None, None) if held is None else (inputs[..., 2:3], inputs[..., 3:4])  # a_h, a_v (nbatch, n, 1)
+    base_accel = (None, None) if stages is None else (inputs[..., 2:3], inputs[..., 3:4])  # a_h, a_v (nbatch, n, 1)
     accel, gyro, quat, angacc = planar_imu_readings(
         phi, omega, alpha, radius, g, support_h_m_s2=base_accel[0], support_v_m_s2=base_accel[1]
     )
@@ -333,9 +361,8 @@ def _trajectory(
     if drives is None:  # a driven rig may gain energy from its input
         check_energy_bounded((kinetic + potential).T, k.gravity1, dt_s)
     support = np.zeros((nbatch, n, 2))
-    if held is not None and np.any(held[..., 2:]):
-        acc = held[..., 2:]
-        support, _ = support_motion(acc, dt_s, support_initial_velocity(acc, dt_s))
+    if stages is not None and np.any(stages[..., 2:]):
+        support, _ = stage_support_motion(stages[..., 2:], dt_s)
 
     return Trajectory(
         t_s=np.arange(first_row, first_row + states.shape[0]) * dt_s,
@@ -359,4 +386,5 @@ def _trajectory(
         drive_input=inputs,
         support_m=support,
         drive=tuple(drives) if drives is not None else None,
+        drive_sampling=sampling.value,
     )

@@ -128,7 +128,9 @@ def simulate_batch(
       tilt0_rad: (2,) or (nbatch, 2) initial tilts (spatial variant).
       drive: one Drive for all runs, or nbatch of them driving the same targets (``drives``):
         motors at the hinges and the support on slides, each input held over a step at its
-        value at the step's midpoint. The support starts at 0 with the velocity that gives its
+        value at the step's midpoint (``rollout`` holds ``ctrl`` over the four RK4 stages: second
+        order in dt, where the planar engines' stage rule is fourth; ``drives``, "Sampling"). The
+        support starts at 0 with the velocity that gives its
         motion no drift (``drives.support_initial_velocity``).
 
     Returns:

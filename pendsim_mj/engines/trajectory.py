@@ -53,12 +53,16 @@ class Trajectory:
       params: the RigParams used (a tuple of them for a batch).
       tilt_rate_rad_s: (..., n, 2) tilt rates of the spatial variant, rad/s (None where the
         engine has no tilt freedoms).
-      drive_input: (..., n, 4) the input held over the step that starts at each sample (the last
-        sample repeats the last step's): torque_m1, torque_m2 (N m), support_x, pivot_z (m/s^2),
-        see ``pendsim_mj.rig.drives``; zeros without a drive.
+      drive_input: (..., n, 4) the input at each sample: torque_m1, torque_m2 (N m), support_x,
+        pivot_z (m/s^2), see ``pendsim_mj.rig.drives``; zeros without a drive. Under the "stages"
+        sampling the signal at the sample's instant; under "held" the input held over the step
+        that starts there (the last sample repeats the last step's).
       support_m: (..., n, 2) displacement of the support (the frame and pivot axis) from its
         start, horizontal (world x, paper +y) and vertical (world z, up), m; zeros unless driven.
       drive: the Drive of the run (a tuple of them for a batch), or None.
+      drive_sampling: how the RK4 stages saw the drive (``drives.Sampling`` value): "stages" (the
+        signal at each stage's time, fourth order: the planar engines' default) or "held" (each
+        step's midpoint value over the step, second order: MuJoCo).
 
     Energies are relative to the support: kinetic energy in the support's frame, potential energy
     with heights measured from the pivot (the same as in the reference, driven or not).
@@ -86,6 +90,7 @@ class Trajectory:
     drive_input: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(0))
     support_m: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(0))
     drive: Drive | tuple[Drive | None, ...] | None = None
+    drive_sampling: str = "held"
 
     def __post_init__(self) -> None:
         shape = self.phi_rad.shape[:-1]

@@ -445,20 +445,23 @@ def input_work_j(traj: Trajectory) -> np.ndarray:
 
     In the support's frame the power is sum_n tau_n omega_n - m_n OC_n omega_n (a_v sin phi_n +
     a_h cos phi_n) (torques, and the inertial force of the support's acceleration at each centre
-    of mass; see ``pendsim_mj.engines.reference``). Each step's held input is integrated with the
-    trapezoid rule over the states at both ends of the step: second order in dt (the planar
-    rig; the spatial variant's tilt is not counted).
+    of mass; see ``pendsim_mj.engines.reference``). Each step's power is integrated with the
+    trapezoid rule over the states at both ends of the step, with the input at each end (the
+    trajectory's ``drive_sampling`` "stages": the signal there) or the input held over the step
+    ("held", MuJoCo): second order in dt (the planar rig; the spatial variant's tilt is not
+    counted).
     """
     if traj.drive is None:
         return np.zeros(len(traj.t_s))
     p = traj.single_params
-    u = traj.drive_input[:-1]
+    u_start = traj.drive_input[:-1]
+    u_end = traj.drive_input[1:] if traj.drive_sampling == "stages" else u_start
     moc = np.array([p.m1_kg * p.oc1_m, p.m2_kg * p.oc2_m])
 
-    def power(w: np.ndarray, phi: np.ndarray) -> np.ndarray:
+    def power(w: np.ndarray, phi: np.ndarray, u: np.ndarray) -> np.ndarray:
         support = u[:, 3:4] * np.sin(phi) + u[:, 2:3] * np.cos(phi)
         return np.asarray(np.sum(u[:, :2] * w - moc * w * support, axis=1))
 
     w, phi = traj.omega_rad_s, traj.phi_rad
-    step = 0.5 * traj.dt_s * (power(w[:-1], phi[:-1]) + power(w[1:], phi[1:]))
+    step = 0.5 * traj.dt_s * (power(w[:-1], phi[:-1], u_start) + power(w[1:], phi[1:], u_end))
     return np.concatenate([[0.0], np.cumsum(step)])

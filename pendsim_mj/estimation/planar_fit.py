@@ -30,8 +30,9 @@ optimum (BIC, Ljung-Box, rms: the rates alone, ``fast_planar.rates_at``). The su
 instants' order, not BLAS's: equal to the explicit J^T J to rounding (tests: 1e-12 relative).
 
 Drives: a driven run's inputs (``pendsim_mj.rig.drives``, its time 0 at the release: a shifted release
-shifts the drive with it) are held over the kernel's steps as in every engine; the Jacobian stays
-exact (the kernel with ``inputs``).
+shifts the drive with it) enter each RK4 stage of the kernel at the stage's own time
+(``drives.stage_inputs``: fourth order, as the fit's undriven model); the Jacobian stays exact
+(the kernel with ``inputs``).
 
 Intervals: covariance s^2 (J^T J)^-1 of the normalised residuals with s^2 = RSS/(n - P) (the
 residual variance, so a misjudged noise sigma does not narrow them), 95 % half-widths
@@ -55,7 +56,7 @@ from scipy import optimize, stats
 
 from pendsim_mj.engines import fast_planar
 from pendsim_mj.errors import ParameterError
-from pendsim_mj.rig.drives import Drive, held_inputs
+from pendsim_mj.rig.drives import Drive, stage_inputs
 from pendsim_mj.rig.params import RigParams
 
 Floats = NDArray[np.float64]
@@ -119,7 +120,7 @@ class _Data:
     at: tuple[Floats, Floats]  # each node's value instants since the start, s (finite only)
     gyro: tuple[Floats, Floats]  # its measured rate, rad/s
     sigma: Floats  # (2,)
-    inputs: Floats | None = None  # (H, NINPUT) held over the steps from the release on, or None
+    inputs: Floats | None = None  # (H, NSTAGE, NINPUT) at each step's stages from the release on, or None
     timing_range_s: tuple[float, float] | None = None  # M2's instants may shift within it, s (None: fixed)
 
 
@@ -371,7 +372,7 @@ def fit_planar(
     inputs = None
     if drive:  # the steps the latest release offset needs (``fast_planar.rates_at``), and one more
         end_s = max(float(at[0][-1]), float(at[1][-1])) + MAX_RELEASE_OFFSET_S + max(0.0, *(timing_range_s or ()))
-        inputs = held_inputs(drive, math.ceil(end_s / FIT_DT_S) + 2, FIT_DT_S)
+        inputs = stage_inputs(drive, math.ceil(end_s / FIT_DT_S) + 2, FIT_DT_S)
     if timing_range_s is not None and not timing_range_s[0] <= 0.0 <= timing_range_s[1]:
         raise ParameterError(f"timing_range_s must hold 0 (the instants as given), got {timing_range_s!r}")
     sigma = np.asarray(gyro_sigma_rad_s, dtype=float)

@@ -5,7 +5,8 @@
   each field, SI);
 - ``drives``: ``Drive`` (one optional signal per target: ``torque_m1``, ``torque_m2`` in N m,
   ``support_x``, ``pivot_z`` in m/s^2) and its signals ``Sine``, ``SteppedSine``, ``Chirp``,
-  ``TimeSeries`` (``read_time_series_csv``); imports no physics engine;
+  ``TimeSeries`` (``read_time_series_csv``), ``Sampling`` (how an RK4 step sees the drive: at its
+  stage times, fourth order, or held over the step as MuJoCo); imports no physics engine;
 - ``model``: ``build_model`` (an ``mujoco.MjModel`` of the rig for a ``RigParams``), the
   variants ``PLANAR`` and ``SPATIAL``, ``Clamp``, the MJCF files; imports MuJoCo;
 - ``checks`` (argument checks of the engines), ``mjcf_guard`` (MJCF from a recording, checked
@@ -24,6 +25,7 @@ from pendsim_mj.rig.drives import (
     CHANNEL_LABELS,
     Chirp,
     Drive,
+    Sampling,
     Signal,
     Sine,
     SteppedSine,
@@ -73,6 +75,7 @@ __all__ = [
     "Clamp",
     "Drive",
     "RigParams",
+    "Sampling",
     "Signal",
     "Sine",
     "SteppedSine",

@@ -25,15 +25,28 @@ Signals: ``Sine``, ``SteppedSine`` (frequency held for a dwell, then stepped, th
 continuous), ``Chirp`` (linear or logarithmic sweep) and ``TimeSeries`` (samples, e.g. from a
 CSV file by ``read_time_series_csv``, linearly interpolated).
 
-**Sampling (both engines, by design).** MuJoCo's ``mujoco.rollout`` holds ``ctrl`` constant over
-a step: all four RK4 stages see one value. The planar reference does exactly the same, so the two
-engines integrate the same equations. The value held over step k, from t_k = t0 + k dt to
-t_k + dt, is the signal at the step's **midpoint** t_k + dt/2 (``held_inputs``): the midpoint
-rule, second order in dt and without the half-step delay (a phase lag of pi f dt) that sampling at
-the step's start would add. For a sine the held staircase's fundamental has the amplitude
-A sin(pi f dt)/(pi f dt) (1.6e-4 low at 100 steps per period) and no phase error. Quantities
-reported at an instant t_k (accelerations, IMU readings) use the input held over the step that
-starts there; the last sample of a run repeats the last step's input.
+**Sampling.** Each engine's RK4 step evaluates the right-hand side at four stages: k1 at the
+step's start t_k, k2 and k3 at its midpoint t_k + dt/2, k4 at its end t_k + dt. Two rules give the
+drive's value at the stages (``Sampling``):
+
+- ``Sampling.STAGES`` (the planar reference and the fast engine, by default): the signal at each
+  stage's own time, (u(t_k), u(t_k + dt/2), u(t_k + dt)) (``stage_inputs``): the drive is
+  integrated as part of the ODE, and a driven run converges at the fourth order of RK4, as a free
+  run does (tests/engines/test_drive_order.py: error ratio 16 per halving of dt against
+  ``scipy.integrate.solve_ivp`` at rtol 1e-12).
+- ``Sampling.HELD`` (MuJoCo: ``mujoco.rollout`` holds ``ctrl`` constant over a step, all four
+  stages see one value): the signal at the step's **midpoint** t_k + dt/2 held over the step
+  (``held_inputs``): the midpoint rule, second order in dt, without the half-step delay (a phase
+  lag of pi f dt) that sampling at the step's start would add. For a sine the held staircase's
+  fundamental has the amplitude A sin(pi f dt)/(pi f dt) (1.6e-4 low at 100 steps per period) and
+  no phase error. The planar engines follow it on request (``sampling=Sampling.HELD``), and then
+  equal MuJoCo to 1e-9 rad.
+
+Stage inputs are arrays (..., nstep, NSTAGE, 4): for step k the inputs at its start, midpoint and
+end (``STAGE_FRACTIONS``); held inputs (..., nstep, 4) are the special case of three equal rows
+(``stages_of_held``). Quantities reported at an instant t_k (accelerations, IMU readings) use the
+input at t_k: the signal there (stages), or the input held over the step that starts there (held;
+the last sample repeats the last step's input) (``inputs_at_samples``).
 """
 
 from __future__ import annotations
@@ -75,6 +88,18 @@ class Target(enum.Enum):
 NCHANNEL = len(Target)
 # Column labels of held inputs (recordings, CSV): the channel name with its unit.
 CHANNEL_LABELS = ("torque_m1_n_m", "torque_m2_n_m", "support_x_m_s2", "pivot_z_m_s2")
+
+
+class Sampling(enum.Enum):
+    """How an engine's RK4 step sees the drive (module docstring, "Sampling")."""
+
+    STAGES = "stages"  # the signal at each stage's time: fourth order (reference, fast engine)
+    HELD = "held"  # the step's midpoint value held over the step: second order (MuJoCo's ctrl)
+
+
+# The stage instants of one RK4 step as fractions of the step: start (k1), midpoint (k2, k3), end (k4).
+STAGE_FRACTIONS = (0.0, 0.5, 1.0)
+NSTAGE = len(STAGE_FRACTIONS)
 
 
 def _check_number(name: str, value: object, *, positive: bool = False, non_negative: bool = False) -> float:
@@ -332,6 +357,78 @@ def inputs_at_samples(held: NDArray[np.float64]) -> NDArray[np.float64]:
     """(..., nstep, 4) held inputs to (..., nstep + 1, 4) per sample: row k is the input held over
     the step that starts at t_k; the last sample repeats the last step's input."""
     return np.concatenate([held, held[..., -1:, :]], axis=-2)
+
+
+def stage_inputs(drive: Drive | None, nstep: int, dt_s: float, *, t0_s: float = 0.0) -> NDArray[np.float64]:
+    """The inputs at each step's RK4 stages (``Sampling.STAGES``): (nstep, NSTAGE, 4).
+
+    Row [k, j] is every driven signal at t0 + (k + STAGE_FRACTIONS[j]) dt: the step's start,
+    midpoint and end (the end of step k is the start of step k + 1, the same value); undriven
+    channels are 0. The midpoints equal ``held_inputs``' values bit for bit.
+
+    Raises:
+      ParameterError: a time series does not cover [t0, t0 + nstep dt].
+    """
+    out = np.zeros((nstep, NSTAGE, NCHANNEL))
+    if drive is None or not drive:
+        return out
+    t_half = t0_s + np.arange(2 * nstep + 1) * (0.5 * dt_s)  # (2 nstep + 1,): t0 + j dt/2
+    for target in drive.targets:
+        signal = drive.signal(target)
+        assert signal is not None
+        grid = signal_values(signal, t_half)
+        out[:, 0, target.index] = grid[0:-1:2]
+        out[:, 1, target.index] = grid[1::2]
+        out[:, 2, target.index] = grid[2::2]
+    return out
+
+
+def stages_of_held(held: NDArray[np.float64]) -> NDArray[np.float64]:
+    """(..., nstep, 4) held inputs as stage inputs (..., nstep, NSTAGE, 4): each step's value at
+    all three stages (``Sampling.HELD``: what MuJoCo's RK4 sees)."""
+    return np.repeat(np.asarray(held, dtype=np.float64)[..., None, :], NSTAGE, axis=-2)
+
+
+def drive_stage_inputs(
+    drives: Sequence[Drive | None], nstep: int, dt_s: float, sampling: Sampling = Sampling.STAGES
+) -> NDArray[np.float64]:
+    """(nbatch, nstep, NSTAGE, 4) stage inputs of several drives under ``sampling``:
+    ``stage_inputs`` of each, or their ``held_inputs`` at every stage."""
+    if not isinstance(sampling, Sampling):
+        raise ParameterError(f"sampling must be a drives.Sampling, got {sampling!r}")
+    if sampling is Sampling.HELD:
+        return stages_of_held(stack_inputs(drives, nstep, dt_s))
+    return np.stack([stage_inputs(d, nstep, dt_s) for d in drives])
+
+
+def stage_inputs_at_samples(stages: NDArray[np.float64]) -> NDArray[np.float64]:
+    """(..., nstep, NSTAGE, 4) stage inputs to (..., nstep + 1, 4) per sample: row k is the input
+    at t_k, the start of step k (the last sample: the end of the last step). For held stages this
+    is ``inputs_at_samples`` of the held values."""
+    return np.concatenate([stages[..., 0, :], stages[..., -1:, NSTAGE - 1, :]], axis=-2)
+
+
+def stage_support_motion(
+    stage_accel_m_s2: NDArray[np.float64], dt_s: float
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Position and velocity of a support driven by the stage accelerations, integrated as RK4
+    integrates x'' = a(t) (Simpson's rule per step: v += dt (a0 + 4 am + a1) / 6,
+    x += dt v + dt^2 (a0 + 2 am) / 6; exact for held stages), from 0 with the drift-free initial
+    velocity (``support_initial_velocity``'s rule: the velocity's mean over the samples is 0).
+
+    Args:
+      stage_accel_m_s2: (..., nstep, NSTAGE, m) accelerations, m/s^2.
+
+    Returns:
+      (position (..., nstep + 1, m) in m, velocity (..., nstep + 1, m) in m/s).
+    """
+    a0, am, a1 = (stage_accel_m_s2[..., j, :] for j in range(NSTAGE))  # each (..., nstep, m)
+    dv = dt_s * (a0 + 4.0 * am + a1) / 6.0
+    v_rel = np.concatenate([np.zeros_like(dv[..., :1, :]), np.cumsum(dv, axis=-2)], axis=-2)
+    v = v_rel - np.mean(v_rel, axis=-2, keepdims=True)
+    dx = v[..., :-1, :] * dt_s + dt_s * dt_s * (a0 + 2.0 * am) / 6.0
+    x = np.concatenate([np.zeros_like(v[..., :1, :]), np.cumsum(dx, axis=-2)], axis=-2)
+    return x, v
 
 
 def support_initial_velocity(held_accel_m_s2: NDArray[np.float64], dt_s: float) -> NDArray[np.float64]:

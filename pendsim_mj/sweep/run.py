@@ -21,7 +21,7 @@ from numpy.typing import NDArray
 from pendsim_mj.engines import fast_planar
 from pendsim_mj.errors import SimulationDiverged
 from pendsim_mj.rig.checks import energy_grew
-from pendsim_mj.rig.drives import Drive, inputs_at_samples, stack_inputs
+from pendsim_mj.rig.drives import Drive, drive_stage_inputs, stage_inputs_at_samples
 from pendsim_mj.rig.params import ParamColumns
 from pendsim_mj.sweep.features import Features, Motion, compute
 from pendsim_mj.sweep.plan import CaseTable, SweepPlan
@@ -67,7 +67,9 @@ def run_task(
     rows = np.arange(len(cases))
     params, phi0, omega0 = plan.case_inputs(cases, rows)
     drives = plan.case_drives(cases, rows)
-    held = stack_inputs(drives, plan.nstep, plan.dt_s) if drives[0] is not None else None  # (k, nstep, 4)
+    # (k, nstep, NSTAGE, 4): the drive at each RK4 stage's time (the fast engine, fourth order; MuJoCo
+    # holds each step's midpoint value: only whether a case is driven is read from these there)
+    held = drive_stage_inputs(drives, plan.nstep, plan.dt_s) if drives[0] is not None else None
     if plan.engine == "fast":
         motion, lyapunov = _fast_motion(plan, params, phi0, omega0, held, nthread)
     else:
@@ -81,7 +83,7 @@ def run_task(
 
 def _driven(held: FloatArray | None, k: int) -> NDArray[np.bool_]:
     """(k,) cases with a non-zero input: their energy may grow, so only non-finite is divergence."""
-    return np.zeros(k, dtype=bool) if held is None else np.any(held != 0, axis=(1, 2))
+    return np.zeros(k, dtype=bool) if held is None else np.any(held != 0, axis=(1, 2, 3))
 
 
 def _fast_motion(
@@ -98,7 +100,9 @@ def _fast_motion(
     )
     diverged = fast_planar.diverged(states, coef, _driven(held, len(phi0)))
     phi1, phi2, omega1, omega2, dissipated = (states[:, i, :] for i in range(5))  # (nsave, k) each
-    u = None if held is None else inputs_at_samples(held)[:, :: plan.save_every].transpose(2, 1, 0)  # (4, nsave, k)
+    u = (
+        None if held is None else stage_inputs_at_samples(held)[:, :: plan.save_every].transpose(2, 1, 0)
+    )  # (4, nsave, k)
     alpha1, alpha2 = fast_planar.accelerations(phi1, phi2, omega1, omega2, coef, u)
     energy = fast_planar.kinetic_energy(omega1, omega2, coef) + fast_planar.potential_energy(phi1, phi2, coef)
 

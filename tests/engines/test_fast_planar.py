@@ -316,7 +316,7 @@ def _explicit_normal_equations(coef, phi0, omega0, at, observed, sigma, release_
     return jac.T @ jac, jac.T @ r, float(r @ r)
 
 
-@pytest.mark.parametrize("start", ["release with timing", "moving", "driven release"])
+@pytest.mark.parametrize("start", ["release with timing", "moving", "driven release", "driven at the stages"])
 def test_normal_equations_at_equal_the_explicit_jacobians_products(start):
     """normal_equations_at sums J^T J, J^T r and r.r in one pass; they equal the products of the
     n x P Jacobian assembled from rates_at (sensitivities, release slope, M2's timing column) to
@@ -334,6 +334,9 @@ def test_normal_equations_at_equal_the_explicit_jacobians_products(start):
     if start == "driven release":
         steps = np.arange(700) * 0.01
         inputs = np.stack([0.2 * np.sin(5 * steps), 0.1 * np.cos(3 * steps), 0.4 * np.sin(2 * steps), 0 * steps], 1)
+    if start == "driven at the stages":  # (700, NSTAGE, 4): each step's start, midpoint and end
+        t = np.arange(700)[:, None] * 0.01 + np.array([0.0, 0.005, 0.01])
+        inputs = np.stack([0.2 * np.sin(5 * t), 0.1 * np.cos(3 * t), 0.4 * np.sin(2 * t), 0.5 * np.cos(t)], -1)
     truth = fast_planar.rates_at(coef, (0.49, 0.11), omega0, at, 0.01, release_s=0.03, inputs=inputs)[0]
     observed = tuple(r + rng.normal(0.0, s, len(r)) for r, s in zip(truth, sigma, strict=True))
     args = (coef, phi0, omega0, at, observed, sigma)

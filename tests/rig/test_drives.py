@@ -20,6 +20,7 @@ from pendsim_mj.rig.drives import (
     CHANNEL_LABELS,
     Chirp,
     Drive,
+    Sampling,
     Sine,
     SteppedSine,
     Target,
@@ -64,7 +65,10 @@ def test_every_drive_agrees_between_mujoco_and_the_reference_to_1e_9_rad_over_12
     phi0 = (30 * DEG, 0.0)
     # one reference batch: every case and, last, the undriven run
     drives = [*cases.values(), None]
-    ref = reference.solve_batch(DEFAULT_PARAMS, [phi0] * len(drives), (0.0, 0.0), 120.0, drive=drives)
+    # the reference with MuJoCo's rule (each step's midpoint value held over it: Sampling.HELD)
+    ref = reference.solve_batch(
+        DEFAULT_PARAMS, [phi0] * len(drives), (0.0, 0.0), 120.0, drive=drives, sampling=Sampling.HELD
+    )
     free = ref.member(len(cases))
     for i, (name, drive) in enumerate(cases.items()):
         mj = simulate(DEFAULT_PARAMS, phi0, (0.0, 0.0), 120.0, drive=drive)
@@ -152,13 +156,17 @@ def _energy_balance(run, params, drive, dt_s: float) -> tuple[float, float]:
     """(largest |E - E0 + D - W|, largest |W|) over 15 s, W the drive's work on the pendulums."""
     p = params
     tr = run(p, (20 * DEG, -5 * DEG), (0.0, 0.0), 15.0, dt_s, drive=drive)
-    u, phi, w = tr.drive_input[:-1], tr.phi_rad, tr.omega_rad_s
+    phi, w = tr.phi_rad, tr.omega_rad_s
+    # the input at either end of each step: the signal there (stages) or the value held over it
+    u0 = tr.drive_input[:-1]
+    u1 = tr.drive_input[1:] if tr.drive_sampling == "stages" else u0
     moc = np.array([p.m1_kg * p.oc1_m, p.m2_kg * p.oc2_m])
 
-    def power(w, phi):  # with the input held over each step, at either end of the step
+    def power(w, phi, u):
         return np.sum(u[:, :2] * w, axis=1) - np.sum(moc * w * (u[:, 3:4] * np.sin(phi) + u[:, 2:3] * np.cos(phi)), 1)
 
-    work = np.concatenate([[0.0], np.cumsum(0.5 * dt_s * (power(w[:-1], phi[:-1]) + power(w[1:], phi[1:])))])
+    step = 0.5 * dt_s * (power(w[:-1], phi[:-1], u0) + power(w[1:], phi[1:], u1))
+    work = np.concatenate([[0.0], np.cumsum(step)])
     balance = tr.total_energy_j - tr.total_energy_j[0] + tr.dissipated_j - work
     return float(np.max(np.abs(balance))), float(np.max(np.abs(work)))
 

@@ -105,14 +105,15 @@ def test_plain_validate_of_a_driven_record_exits_0(records, monkeypatch):
 
 
 def test_driven_rates_and_sensitivities_equal_solve_and_central_differences():
-    """fast_planar.rates_at with held inputs (a hinge torque and a sideways support acceleration):
-    its rates at the steps are solve's, its sensitivities the central differences of its rates."""
+    """fast_planar.rates_at with stage inputs (a hinge torque and a sideways support acceleration
+    at each RK4 stage's time): its rates at the steps are solve's, its sensitivities the central
+    differences of its rates (the variational step stays the exact derivative of the step)."""
     t = np.arange(0.0, 4.0, 0.01)
     held = np.zeros((len(t), 4))
     held[:, 0] = 0.3 * np.sin(2 * np.pi * 1.2 * (t + 0.005))
     held[:, 2] = 0.5 * np.cos(3.0 * t)
     drive = drives.recorded_drive(t, held, 0.0)
-    inputs = drives.held_inputs(drive, 400, 0.01)
+    inputs = drives.stage_inputs(drive, 400, 0.01)
     coef = fast_planar.coefficients([DEFAULT_PARAMS])
     phi0, omega0 = np.array([0.5, 0.1]), np.array([0.2, -0.3])
     steps = np.arange(0.0, 3.9, 0.01)

@@ -1,5 +1,5 @@
 """``integrate``: the batch driver of the compiled RK4 kernel (``kernel._integrate_kernel``), its
-chunks spread over the threads, with the held inputs of drives."""
+chunks spread over the threads, with the stage (or held) inputs of drives."""
 
 from __future__ import annotations
 
@@ -11,6 +11,7 @@ import numpy as np
 from pendsim_mj.engines.fast_planar.closed_form import NINPUT, FloatArray, _check_coef
 from pendsim_mj.engines.fast_planar.kernel import _integrate_kernel
 from pendsim_mj.errors import ParameterError
+from pendsim_mj.rig.drives import NSTAGE
 
 # Members integrated side by side in one chunk (a multiple of the 8-wide AVX-512 vector); chunks
 # are spread over the cores.
@@ -40,7 +41,7 @@ def _threads(nthread: int | None) -> int:
     return min(nthread, limit)
 
 
-_UNDRIVEN = np.zeros((0, NINPUT, 0))
+_UNDRIVEN = np.zeros((0, NSTAGE, NINPUT, 0))
 
 
 def _run(
@@ -54,7 +55,7 @@ def _run(
     nthread: int | None,
 ) -> FloatArray:
     """The kernel on min(chunks, threads) threads, from state y0 (5, nbatch) at t = step0 h with
-    the held inputs (H, NINPUT, nbatch) (H = 0: undriven): a batch that fits one chunk runs on the
+    the stage inputs (H, NSTAGE, NINPUT, nbatch) (``_held``; H = 0: undriven): a batch that fits one chunk runs on the
     calling thread alone (no pool wake-up: batch size 1 costs only the integration). Returns
     (nstep // every + 1, 5, nbatch)."""
     nbatch = y0.shape[1]
@@ -71,15 +72,19 @@ def _run(
 
 
 def _held(inputs: FloatArray | None, nbatch: int, nstep: int) -> FloatArray:
-    """Held inputs (nbatch, nstep, NINPUT) as the kernel reads them, (nstep, NINPUT, nbatch)."""
+    """Stage inputs (nbatch, nstep, NSTAGE, NINPUT), or held inputs (nbatch, nstep, NINPUT) (each
+    step's value at its three stages), as the kernel reads them: (nstep, NSTAGE, NINPUT, nbatch)."""
     if inputs is None:
         return _UNDRIVEN
     u = np.asarray(inputs, dtype=np.float64)
-    if u.shape != (nbatch, nstep, NINPUT):
+    if u.shape == (nbatch, nstep, NINPUT):
+        u = np.repeat(u[:, :, None, :], NSTAGE, axis=2)
+    if u.shape != (nbatch, nstep, NSTAGE, NINPUT):
         raise ParameterError(
-            f"inputs must have shape ({nbatch}, {nstep}, {NINPUT}) (drives.held_inputs), got {u.shape}"
+            f"inputs must have shape ({nbatch}, {nstep}, {NSTAGE}, {NINPUT}) (drives.stage_inputs) or "
+            f"({nbatch}, {nstep}, {NINPUT}) (drives.held_inputs), got {u.shape}"
         )
-    return np.ascontiguousarray(u.transpose(1, 2, 0))
+    return np.ascontiguousarray(u.transpose(1, 2, 3, 0))
 
 
 def integrate(
@@ -100,8 +105,10 @@ def integrate(
       phi0_rad, omega0_rad_s: (nbatch, 2) initial conditions.
       nstep: number of RK4 steps.
       dt_s: step, s.
-      inputs: (nbatch, nstep, NINPUT) inputs held over each step (``drives.stack_inputs``), or
-        None (undriven); the layout of ``reference.integrate``'s ``inputs``.
+      inputs: (nbatch, nstep, NSTAGE, NINPUT) the inputs at each step's start, midpoint and end
+        (``drives.drive_stage_inputs``: fourth order), or (nbatch, nstep, NINPUT) inputs held over
+        each step (``drives.stack_inputs``: MuJoCo's rule, second order), or None (undriven); the
+        layouts of ``reference.integrate``'s ``inputs``.
       save_every: keep the state every this many steps (nstep must be a multiple of it).
       nthread: threads (default: every core numba may use).
 

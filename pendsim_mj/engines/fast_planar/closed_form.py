@@ -45,8 +45,10 @@ and -dV/dphi_n gives M1, M2 back. The state integrated is (phi1, phi2, omega1, o
 D' = the hinges' dissipated power, exactly as in ``reference``: one RK4 step of the kernel (``kernel``)
 equals the reference's to about 1e-16 rad (tests: 1e-12).
 
-Drives (``pendsim_mj.rig.drives``) enter as in ``reference``, held constant over each step (the
-value at the step's midpoint, as MuJoCo holds ``ctrl``): hinge torques tau_n, and the support's
+Drives (``pendsim_mj.rig.drives``) enter as in ``reference``, each RK4 stage with the drive at
+the stage's own time (start, midpoint, end of the step: ``drives.Sampling.STAGES``, fourth order),
+or, on request (``Sampling.HELD``), with the step's midpoint value held over the whole step as
+MuJoCo holds ``ctrl`` (second order): hinge torques tau_n, and the support's
 horizontal and upward accelerations a_h, a_v as the inertial moment
 -m_n OC_n (a_v sin phi_n + a_h cos phi_n) on pendulum n (derivation in ``reference``):
 

@@ -2,6 +2,11 @@
 ``closed_form``, the batch kernel behind ``integrate`` and ``lyapunov``, and the kernel of
 ``rates_at`` / ``normal_equations_at`` with its exact sensitivities.
 
+Drives: every RK4 step reads its inputs at its three stage instants, (H, NSTAGE, NINPUT, ...)
+(start for k1, midpoint for k2 and k3, end for k4: ``drives.stage_inputs``, fourth order; an
+input held over the step is three equal rows, MuJoCo's rule). The rates kernel's variational
+step uses the same stage inputs, so its sensitivities stay the exact derivative of the step.
+
 alone, in a SIMD lane or in the scalar remainder, so a member's result does not depend on the
 batch it is in (bit for bit). A member that diverges (non-finite state) keeps NaN; ``integrate``
 never raises for it, ``solve_batch`` does (as the reference).
@@ -120,7 +125,7 @@ def _resist(w1: float, w2: float, c: tuple[float, ...]) -> tuple[float, float]:
 def _accel(
     p1: float, p2: float, w1: float, w2: float, c: tuple[float, ...], u: tuple[float, float, float, float]
 ) -> tuple[float, float]:
-    """phi1'', phi2'' with constants c (``_member``) and the held inputs u = (tau1, tau2, a_h, a_v)
+    """phi1'', phi2'' with constants c (``_member``) and the inputs u = (tau1, tau2, a_h, a_v)
     (zeros when undriven: the drive terms then add exactly 0), in the reference's order of
     operations."""
     s1, c1 = sincos(p1)
@@ -153,21 +158,25 @@ def _rk4(
     d: float,
     h: float,
     c: tuple[float, ...],
-    u: tuple[float, float, float, float],
+    u0: tuple[float, float, float, float],
+    um: tuple[float, float, float, float],
+    u1: tuple[float, float, float, float],
 ) -> tuple[float, float, float, float, float]:
-    """One classical RK4 step of (phi1, phi2, omega1, omega2, D) with the inputs u held over it, in
-    the reference's order of operations: y + (h/2) k1, ..., y + (h/6)(k1 + 2 k2 + 2 k3 + k4)."""
+    """One classical RK4 step of (phi1, phi2, omega1, omega2, D) with the inputs u0 at the step's
+    start (k1), um at its midpoint (k2, k3) and u1 at its end (k4) (all three equal: an input held
+    over the step), in the reference's order of operations: y + (h/2) k1, ...,
+    y + (h/6)(k1 + 2 k2 + 2 k3 + k4)."""
     hh = 0.5 * h
-    a1, a2 = _accel(p1, p2, w1, w2, c, u)
+    a1, a2 = _accel(p1, p2, w1, w2, c, u0)
     e1 = _power(w1, w2, c)
     q1, q2, v1, v2 = p1 + hh * w1, p2 + hh * w2, w1 + hh * a1, w2 + hh * a2
-    f1, f2 = _accel(q1, q2, v1, v2, c, u)
+    f1, f2 = _accel(q1, q2, v1, v2, c, um)
     e2 = _power(v1, v2, c)
     r1, r2, x1, x2 = p1 + hh * v1, p2 + hh * v2, w1 + hh * f1, w2 + hh * f2
-    g1, g2 = _accel(r1, r2, x1, x2, c, u)
+    g1, g2 = _accel(r1, r2, x1, x2, c, um)
     e3 = _power(x1, x2, c)
     s1, s2, y1, y2 = p1 + h * x1, p2 + h * x2, w1 + h * g1, w2 + h * g2
-    i1, i2 = _accel(s1, s2, y1, y2, c, u)
+    i1, i2 = _accel(s1, s2, y1, y2, c, u1)
     e4 = _power(y1, y2, c)
     h6 = h / 6.0
     return (
@@ -193,8 +202,9 @@ def _integrate_kernel(
 ) -> None:
     """Chunks of ``chunk`` members over the threads, the members of a chunk side by side (SIMD).
 
-    y0 (5, nbatch) is the state at t = step0 h; held (H, NINPUT, nbatch) the inputs held over
-    steps 0..H-1 (H = 0: undriven); out[r] = the state after r * every steps, (nsave, 5, nbatch).
+    y0 (5, nbatch) is the state at t = step0 h; held (H, NSTAGE, NINPUT, nbatch) the inputs at the
+    start, midpoint and end of steps 0..H-1 (``_rk4``; H = 0: undriven); out[r] = the state after
+    r * every steps, (nsave, 5, nbatch).
     """
     n = y0.shape[1]
     driven = held.shape[0] > 0
@@ -208,23 +218,21 @@ def _integrate_kernel(
         w1 = y0[2, lo:hi].copy()
         w2 = y0[3, lo:hi].copy()
         d = y0[4, lo:hi].copy()
-        tau1 = np.zeros(m)
-        tau2 = np.zeros(m)
-        acc_h = np.zeros(m)
-        acc_v = np.zeros(m)
+        u = np.zeros((3, 4, m))  # this step's inputs: stage (start, midpoint, end), channel, member
         for i in range(m):
             for q in range(5):
                 out[0, q, lo + i] = y0[q, lo + i]
         for step in range(nstep):
             if driven:
-                for i in range(m):
-                    tau1[i] = held[step0 + step, 0, lo + i]
-                    tau2[i] = held[step0 + step, 1, lo + i]
-                    acc_h[i] = held[step0 + step, 2, lo + i]
-                    acc_v[i] = held[step0 + step, 3, lo + i]
+                for j in range(3):
+                    for q in range(4):
+                        for i in range(m):
+                            u[j, q, i] = held[step0 + step, j, q, lo + i]
             for i in range(m):
-                u = (tau1[i], tau2[i], acc_h[i], acc_v[i])
-                a, b, c, e, f = _rk4(p1[i], p2[i], w1[i], w2[i], d[i], h, _member(kc, i), u)
+                u0 = (u[0, 0, i], u[0, 1, i], u[0, 2, i], u[0, 3, i])
+                um = (u[1, 0, i], u[1, 1, i], u[1, 2, i], u[1, 3, i])
+                u1 = (u[2, 0, i], u[2, 1, i], u[2, 2, i], u[2, 3, i])
+                a, b, c, e, f = _rk4(p1[i], p2[i], w1[i], w2[i], d[i], h, _member(kc, i), u0, um, u1)
                 p1[i] = a
                 p2[i] = b
                 w1[i] = c
@@ -367,9 +375,10 @@ def _rates_kernel(
     rr: FloatArray,
 ) -> None:
     """One member (k: (NCOEF, 1)) from y0 = (phi1, phi2, omega1, omega2) at rest until ``tau``,
-    then RK4 steps of h, step j holding the inputs held[j] (held: (H >= nstep, NINPUT), or H = 0:
-    undriven; the drive's time 0 is tau): each node's rate at its instants at_n (ascending, s) by
-    cubic Hermite through omega and alpha at the step ends (alpha of the step's own inputs), its
+    then RK4 steps of h, step j with the inputs held[j] at its start, midpoint and end (``_rk4``;
+    held: (H >= nstep, NSTAGE, NINPUT), or H = 0: undriven; the drive's time 0 is tau): each node's
+    rate at its instants at_n (ascending, s) by cubic Hermite through omega and alpha at the step
+    ends (alpha with the inputs at the step's start and end), its
     sensitivities (m_n, P) to the ``wrt`` unknowns (RK4 on the variational equations: the exact
     derivative of the discrete solution), and d rate / d tau (m_n,). Instants before tau: rate 0
     (at rest), no sensitivity. An empty slope_n (0,): node n's slopes are not written.
@@ -385,7 +394,9 @@ def _rates_kernel(
     row = np.zeros(nq)
     c = _member(_chunk_coefficients(k, 0, 1), 0)
     zero = (0.0, 0.0, 0.0, 0.0)
-    inp = zero
+    inp = zero  # the inputs at the step's start, midpoint (inp) and end
+    inp0 = zero
+    inp1 = zero
     driven = held.shape[0] > 0
     npar = len(wrt)
     s = np.zeros((4, npar))
@@ -412,22 +423,25 @@ def _rates_kernel(
     ends = np.zeros((2, 2, npar))  # at the step's start: each node's s of omega and of alpha
     for step in range(nstep):
         if driven:  # this step's inputs: the start's alpha and the variational slope with them
-            inp = (held[step, 0], held[step, 1], held[step, 2], held[step, 3])
-            a1, a2 = _accel(p1, p2, w1, w2, c, inp)
+            inp0 = (held[step, 0, 0], held[step, 0, 1], held[step, 0, 2], held[step, 0, 3])
+            inp = (held[step, 1, 0], held[step, 1, 1], held[step, 1, 2], held[step, 1, 3])
+            inp1 = (held[step, 2, 0], held[step, 2, 1], held[step, 2, 2], held[step, 2, 3])
+            a1, a2 = _accel(p1, p2, w1, w2, c, inp0)
             if npar:
-                _sens_derivative(p1, p2, w1, w2, c, inp, wrt, s, ks[0])
-        # RK4 of the state, in _rk4's order of operations, and of s alongside
+                _sens_derivative(p1, p2, w1, w2, c, inp0, wrt, s, ks[0])
+        # RK4 of the state, in _rk4's order of operations, and of s alongside (each stage with
+        # the inputs at its time: the variational step is the exact derivative of this step)
         q1, q2, v1, v2 = p1 + hh * w1, p2 + hh * w2, w1 + hh * a1, w2 + hh * a2
         f1, f2 = _accel(q1, q2, v1, v2, c, inp)
         r1, r2, x1, x2 = p1 + hh * v1, p2 + hh * v2, w1 + hh * f1, w2 + hh * f2
         g1, g2 = _accel(r1, r2, x1, x2, c, inp)
         t1, t2, y1, y2 = p1 + h * x1, p2 + h * x2, w1 + h * g1, w2 + h * g2
-        i1, i2 = _accel(t1, t2, y1, y2, c, inp)
+        i1, i2 = _accel(t1, t2, y1, y2, c, inp1)
         np1 = p1 + h6 * (((w1 + 2.0 * v1) + 2.0 * x1) + y1)
         np2 = p2 + h6 * (((w2 + 2.0 * v2) + 2.0 * x2) + y2)
         nw1 = w1 + h6 * (((a1 + 2.0 * f1) + 2.0 * g1) + i1)
         nw2 = w2 + h6 * (((a2 + 2.0 * f2) + 2.0 * g2) + i2)
-        na1, na2 = _accel(np1, np2, nw1, nw2, c, inp)
+        na1, na2 = _accel(np1, np2, nw1, nw2, c, inp1)
         if npar:
             for col in range(npar):
                 for r in range(4):
@@ -440,7 +454,7 @@ def _rates_kernel(
             for col in range(npar):
                 for r in range(4):
                     st[r, col] = s[r, col] + h * ks[2, r, col]
-            _sens_derivative(t1, t2, y1, y2, c, inp, wrt, st, ks[3])
+            _sens_derivative(t1, t2, y1, y2, c, inp1, wrt, st, ks[3])
             for col in range(npar):
                 for n in range(2):
                     ends[n, 0, col] = s[2 + n, col]
@@ -449,7 +463,7 @@ def _rates_kernel(
                     s[r, col] = s[r, col] + h6 * (
                         ((ks[0, r, col] + 2.0 * ks[1, r, col]) + 2.0 * ks[2, r, col]) + ks[3, r, col]
                     )
-            _sens_derivative(np1, np2, nw1, nw2, c, inp, wrt, s, ks[0])
+            _sens_derivative(np1, np2, nw1, nw2, c, inp1, wrt, s, ks[0])
         last = step == nstep - 1
         for node in range(2):
             at = at1 if node == 0 else at2

@@ -48,7 +48,7 @@ def lyapunov(
         raise ParameterError(f"separation must be > 0, got {separation!r}")
     pair = np.concatenate([k, k], axis=1)  # members, then their shadows
     held = _held(inputs, nbatch, nstep)
-    held = np.ascontiguousarray(np.concatenate([held, held], axis=2)) if held.shape[0] else _UNDRIVEN
+    held = np.ascontiguousarray(np.concatenate([held, held], axis=3)) if held.shape[0] else _UNDRIVEN
     y = np.concatenate([_initial_state(phi0, omega0), _initial_state(phi0, omega0)], axis=1)
     y[:4, nbatch:] += 0.5 * separation
     out = np.empty((nstep // every, nbatch))

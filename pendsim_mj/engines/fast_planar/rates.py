@@ -14,8 +14,9 @@ from numpy.typing import NDArray
 from pendsim_mj.engines.fast_planar.closed_form import NINPUT, FloatArray, _check_coef
 from pendsim_mj.engines.fast_planar.kernel import _rates_kernel
 from pendsim_mj.errors import ParameterError
+from pendsim_mj.rig.drives import NSTAGE
 
-_UNDRIVEN_STEPS = np.zeros((0, NINPUT))  # ``rates_at`` without inputs
+_UNDRIVEN_STEPS = np.zeros((0, NSTAGE, NINPUT))  # ``rates_at`` without inputs
 
 # The force-law constants (rows of ``COEFFICIENTS``) beside the hinge losses whose sensitivity the
 # kernel computes (``kernel._coef_partial``, codes 8...): what the calibration differentiates by.
@@ -72,9 +73,15 @@ def _rates_setup(
     y0 = np.array([*np.asarray(phi0_rad, dtype=float), *np.asarray(omega0_rad_s, dtype=float)])
     held = _UNDRIVEN_STEPS
     if inputs is not None:
-        held = np.ascontiguousarray(inputs, dtype=np.float64)
-        if held.ndim != 2 or held.shape[1] != NINPUT or held.shape[0] < nstep:
-            raise ParameterError(f"rates_at: inputs must have shape (>= {nstep}, {NINPUT}), got {held.shape}")
+        held = np.asarray(inputs, dtype=np.float64)
+        if held.ndim == 2 and held.shape[1] == NINPUT:  # held over each step: at its three stages
+            held = np.repeat(held[:, None, :], NSTAGE, axis=1)
+        if held.ndim != 3 or held.shape[1:] != (NSTAGE, NINPUT) or held.shape[0] < nstep:
+            raise ParameterError(
+                f"rates_at: inputs must have shape (>= {nstep}, {NSTAGE}, {NINPUT}) or (>= {nstep}, {NINPUT}), "
+                f"got {np.shape(inputs)}"
+            )
+        held = np.ascontiguousarray(held)
     return k, y0, nstep, held, codes, at
 
 
@@ -165,9 +172,10 @@ def rates_at(
       wrt: names from ``SENSITIVITY_NAMES``: the unknowns to differentiate by.
       sensitivities_out: two (m_n, P) float64 arrays (views allowed) to write the sensitivities
         into, e.g. the columns of a Jacobian (no copy); returned as the sensitivities.
-      inputs: (H, NINPUT) the inputs held over the steps from the release on (``drives.held_inputs``
-        with the drive's time 0 at ``release_s``; H at least the steps the instants need), or
-        None (undriven).
+      inputs: (H, NSTAGE, NINPUT) the inputs at the start, midpoint and end of each step from the
+        release on (``drives.stage_inputs`` with the drive's time 0 at ``release_s``: fourth
+        order), or (H, NINPUT) inputs held over each step (``drives.held_inputs``, MuJoCo's rule);
+        H at least the steps the instants need; or None (undriven).
       slopes: compute d rate / d release_s (False: empty slopes, no (m_n,) arrays for them).
 
     Returns:

@@ -32,7 +32,7 @@ from pendsim_mj.rig.checks import (
     check_params,
     check_step,
 )
-from pendsim_mj.rig.drives import Drive, inputs_at_samples, stack_inputs, support_initial_velocity, support_motion
+from pendsim_mj.rig.drives import Drive, Sampling, drive_stage_inputs, stage_inputs_at_samples, stage_support_motion
 from pendsim_mj.rig.params import DEFAULT_PARAMS, RigParams
 
 
@@ -44,9 +44,10 @@ def solve(
     dt_s: float = 0.01,
     *,
     drive: Drive | None = None,
+    sampling: Sampling = Sampling.STAGES,
 ) -> Trajectory:
     """Solve one initial condition; arguments and Trajectory as ``reference.solve``."""
-    return solve_batch(params, phi0_rad, omega0_rad_s, duration_s, dt_s, drive=drive).member(0)
+    return solve_batch(params, phi0_rad, omega0_rad_s, duration_s, dt_s, drive=drive, sampling=sampling).member(0)
 
 
 def solve_batch(
@@ -58,9 +59,11 @@ def solve_batch(
     *,
     drive: Drive | Sequence[Drive | None] | None = None,
     nthread: int | None = None,
+    sampling: Sampling = Sampling.STAGES,
 ) -> Trajectory:
     """Solve a batch; arguments and Trajectory as ``reference.solve_batch`` (engine "fast"),
-    drives included (the drives of one batch may drive different targets).
+    drives included (the drives of one batch may drive different targets; ``sampling`` as there:
+    each RK4 stage sees the drive at its own time, fourth order, or HELD as MuJoCo).
 
     Raises:
       ParameterError: bad arguments (the reference's messages).
@@ -71,12 +74,12 @@ def solve_batch(
     phi0, omega0 = check_initial(phi0_rad, omega0_rad_s, len(plist) if len(plist) > 1 else None)
     plist = broadcast_params(plist, len(phi0))
     drives, targets = check_drives(drive, len(phi0), same_targets=False)
-    held = stack_inputs(drives, nstep, dt_s) if targets else None  # (nbatch, nstep, NINPUT)
+    stages = drive_stage_inputs(drives, nstep, dt_s, sampling) if targets else None  # (nbatch, nstep, NSTAGE, NINPUT)
     k = coefficients(plist)
-    states = integrate(k, phi0, omega0, nstep, dt_s, inputs=held, nthread=nthread)
+    states = integrate(k, phi0, omega0, nstep, dt_s, inputs=stages, nthread=nthread)
     if not np.all(np.isfinite(states)):
         raise SimulationDiverged(f"fast planar solver diverged (non-finite values); reduce dt_s (now {dt_s} s)")
-    return _trajectory(plist, k, states, dt_s, held, drives if targets else None)
+    return _trajectory(plist, k, states, dt_s, stages, drives if targets else None, sampling)
 
 
 def solve_blocks(
@@ -114,15 +117,17 @@ def _trajectory(
     k: FloatArray,
     states: FloatArray,
     dt_s: float,
-    held: FloatArray | None,
+    stages: FloatArray | None,
     drives: list[Drive | None] | None,
+    sampling: Sampling = Sampling.STAGES,
 ) -> Trajectory:
-    """The Trajectory of integrated states (n, 5, nbatch) and held inputs (nbatch, nstep, NINPUT),
-    every derived array in closed form; instants use the input of the step that starts there."""
+    """The Trajectory of integrated states (n, 5, nbatch) and stage inputs
+    (nbatch, nstep, NSTAGE, NINPUT), every derived array in closed form; instants use the input at
+    their own time (``drives.stage_inputs_at_samples``)."""
     phi1, phi2, omega1, omega2, dissipated = (states[:, i, :] for i in range(5))  # each (n, nbatch)
     nbatch, n = len(plist), states.shape[0]
-    inputs = np.zeros((nbatch, n, NINPUT)) if held is None else inputs_at_samples(held)  # (nbatch, n, NINPUT)
-    u = None if held is None else inputs.transpose(2, 1, 0)  # (NINPUT, n, nbatch)
+    inputs = np.zeros((nbatch, n, NINPUT)) if stages is None else stage_inputs_at_samples(stages)  # (nbatch, n, NINPUT)
+    u = None if stages is None else inputs.transpose(2, 1, 0)  # (NINPUT, n, nbatch)
     alpha1, alpha2 = accelerations(phi1, phi2, omega1, omega2, k, u)
     moment1, moment2 = spring_moments(phi1, phi2, k)
     lengths = spring_lengths(phi1, phi2, plist)  # (4, n, nbatch)
@@ -132,8 +137,8 @@ def _trajectory(
     if drives is None:  # a driven rig may gain energy from its input
         check_energy_bounded((kinetic + potential).T, k[_G1], dt_s)
     support = np.zeros((nbatch, n, 2))
-    if held is not None and np.any(held[..., 2:]):
-        support, _ = support_motion(held[..., 2:], dt_s, support_initial_velocity(held[..., 2:], dt_s))
+    if stages is not None and np.any(stages[..., 2:]):
+        support, _ = stage_support_motion(stages[..., 2:], dt_s)
 
     def per_run(*arrays: FloatArray) -> FloatArray:
         """(n, nbatch) arrays stacked on a last axis, batch first: (nbatch, n, len(arrays))."""
@@ -144,7 +149,7 @@ def _trajectory(
     alpha = per_run(alpha1, alpha2)
     radius = np.array([[p.om1_m, p.om2_m] for p in plist])[:, None, :]
     g = np.array([p.g_m_s2 for p in plist])[:, None, None]
-    base_accel = (None, None) if held is None else (inputs[..., 2:3], inputs[..., 3:4])  # a_h, a_v
+    base_accel = (None, None) if stages is None else (inputs[..., 2:3], inputs[..., 3:4])  # a_h, a_v
     accel, gyro, quat, angacc = planar_imu_readings(
         phi, omega, alpha, radius, g, support_h_m_s2=base_accel[0], support_v_m_s2=base_accel[1]
     )
@@ -170,4 +175,5 @@ def _trajectory(
         drive_input=inputs,
         support_m=support,
         drive=tuple(drives) if drives is not None else None,
+        drive_sampling=sampling.value,
     )
