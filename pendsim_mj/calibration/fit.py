@@ -394,7 +394,7 @@ def calibrate(
     y = problem.start()
     windows = _windows(max(run.duration_s for run in runs))
     iterations = 0
-    normal, gradient, rr, n, schur = problem.normal_equations(y, windows[0])
+    normal, gradient, rr, n, _ = problem.normal_equations(y, windows[0])
     # the stated rig as a weak prior: each free parameter within PLAUSIBLE_CHANGE of it (1 sigma); it
     # keeps what no recording sees at the stated values and weighs nothing against what one determines
     prior = np.zeros((problem.size, problem.size))
@@ -402,19 +402,19 @@ def calibrate(
     everything = np.eye(problem.size)
     for window in windows:
         if iterations:
-            normal, gradient, rr, n, schur = problem.normal_equations(y, window)
+            normal, gradient, rr, n, _ = problem.normal_equations(y, window)
         mu = 1e-3
         for _ in range(12):
             if iterations >= MAX_ITERATIONS:
                 break
             cost = rr + float(y @ prior @ y)
             trial = problem.clip(y + _step(normal + prior, gradient + prior @ y, everything, mu))
-            t_normal, t_gradient, t_rr, t_n, t_schur = problem.normal_equations(trial, window)
+            t_normal, t_gradient, t_rr, t_n, _ = problem.normal_equations(trial, window)
             iterations += 1
             t_cost = t_rr + float(trial @ prior @ trial)
             if t_cost < cost:
                 done = cost - t_cost < max(CHI2_TOLERANCE, 1e-12 * cost)
-                y, normal, gradient, rr, n, schur = trial, t_normal, t_gradient, t_rr, t_n, t_schur
+                y, normal, gradient, rr, n = trial, t_normal, t_gradient, t_rr, t_n
                 mu = max(mu / 10.0, 1e-9)
                 if done:
                     break
