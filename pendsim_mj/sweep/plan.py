@@ -48,7 +48,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from pendsim_mj.errors import ParameterError
-from pendsim_mj.rig.checks import check_step
+from pendsim_mj.rig.checks import check_input, check_step
 from pendsim_mj.rig.drives import Drive, Sine, Target
 from pendsim_mj.rig.params import DEFAULT_PARAMS, ParamColumns, RigParams
 from pendsim_mj.sweep.features import DEFAULT_GROUPS, check_groups
@@ -164,6 +164,8 @@ class SweepPlan:
             raise ParameterError(f"unknown method {self.method!r}; allowed: {', '.join(METHODS)}")
         if self.engine not in ENGINES:
             raise ParameterError(f"unknown engine {self.engine!r}; allowed: {', '.join(ENGINES)}")
+        for name in ("duration_s", "dt_s"):
+            check_input(name, getattr(self, name))
         nstep = check_step(self.duration_s, self.dt_s)
         if isinstance(self.save_every, bool) or not isinstance(self.save_every, int) or self.save_every < 1:
             raise ParameterError(f"save_every must be a whole number >= 1, got {self.save_every!r}")
@@ -177,9 +179,15 @@ class SweepPlan:
         for name, value in self.base:
             _check_input(name, "base")
             _check_number(value, f"base {name}")
+            _check_range(name, value, "base")
         names = [a.name for a in self.axes]
         for axis in self.axes:
             _check_input(axis.name, "vary")
+            for what, value in (("from", axis.low), ("to", axis.high)):
+                if value is not None:
+                    _check_range(axis.name, value, f"vary {axis.name} {what}:")
+            for value in axis.values or ():
+                _check_range(axis.name, value, f"vary {axis.name}:")
         if len(set(names)) != len(names):
             raise ParameterError(f"an input is varied twice: {', '.join(names)}")
         if self.method in ("random", "lhs") and (
@@ -470,6 +478,8 @@ def _table(names: object, values: object, where: str) -> CaseTable:
         raise ParameterError(f"{where}: expected rows of {len(names)} numbers, got shape {arr.shape}")
     if not np.all(np.isfinite(arr)):
         raise ParameterError(f"{where}: values must be finite")
+    for j, name in enumerate(names):
+        _check_range(name, arr[:, j], f"{where}:")
     return CaseTable(names=names, values=arr)
 
 
@@ -516,6 +526,16 @@ def _check_input(name: str, where: str) -> None:
             f"{', '.join(STATE_INPUTS)}, or a drive's TARGET_amplitude_UNIT, TARGET_frequency_hz, TARGET_phase_rad "
             f"(TARGET: {', '.join(t.value for t in Target)})"
         )
+
+
+def _check_range(name: str, value: float | FloatArray, where: str) -> None:
+    """An input's values within its range (``pendsim_mj.rig.checks.INPUT_RANGES``, or a
+    parameter's own), the message prefixed with ``where``; in an array (a cases file's column)
+    each value's position is named as its case."""
+    try:
+        check_input(name, value)
+    except ParameterError as exc:
+        raise ParameterError(f"{where} {exc}") from None
 
 
 def _check_number(value: object, what: str) -> float:
