@@ -33,6 +33,7 @@ import json
 import logging
 import math
 import os
+import shutil
 import signal
 import socket
 import threading
@@ -131,6 +132,25 @@ def run_sweep(
     plan.case_inputs(table, np.arange(len(table)))  # every case's parameters and drive are valid, before any work
     plan.case_drives(table, np.arange(len(table)))
     store = SweepStore.open(Path(out_dir), plan, table)
+    try:
+        return _run_into(store, plan, table, start, workers, scheduler, cases_per_task, progress, plots, on_task_done)
+    except Exception:  # a failure (a full disk, ...): what this run started goes; Ctrl-C keeps it to resume
+        store.withdraw()
+        raise
+
+
+def _run_into(
+    store: SweepStore,
+    plan: SweepPlan,
+    table: CaseTable,
+    start: float,
+    workers: int | None,
+    scheduler: str | None,
+    cases_per_task: int | None,
+    progress: bool,
+    plots: bool,
+    on_task_done: Callable[[int], None] | None,
+) -> SweepSummary:
     remaining = np.setdiff1d(np.arange(len(table)), store.finished_ids())
     resumed = len(table) - len(remaining)
     parallel = workers or 1
@@ -158,8 +178,10 @@ def run_sweep(
         from ..report import sweep_plots  # start-up: matplotlib, only for the maps
 
         if plan.method == "sensitivity":
+            store.will_create(store.root / "sensitivity.json")
             sensitivity = sweep_plots.write_sensitivity(results, table, out_dir=store.root)
         if plots:
+            store.will_create(store.root / "maps")
             maps = tuple(sweep_plots.draw_maps(results, plan, table, store.root / "maps"))
     diverged = int(pq.read_table(results, columns=["diverged"]).column("diverged").to_numpy().sum())
     return SweepSummary(
@@ -224,15 +246,41 @@ class SweepStore:
             "cases_sha256": table.digest(),
         }
         self._zarr: Any = None
+        self._created: list[Path] = []  # what this run created, in order (``withdraw`` removes it)
+
+    def will_create(self, path: Path) -> None:
+        """Note ``path`` as this run's own if it does not exist yet (``withdraw`` removes it)."""
+        if not (path.exists() or path.is_symlink()):
+            self._created.append(path)
+
+    def withdraw(self) -> None:
+        """After a failure: remove what this run created (its parts, a zarr store, sweep.json, the
+        results, maps and folders it made), newest first; what existed before is left untouched."""
+        for path in reversed(self._created):
+            if path.is_dir() and not path.is_symlink():
+                shutil.rmtree(path, ignore_errors=True)
+            else:
+                path.unlink(missing_ok=True)
+        self._created.clear()
 
     @classmethod
     def open(cls, root: Path, plan: SweepPlan, table: CaseTable) -> SweepStore:
-        """Create the folder, or check that an existing one holds this sweep.
+        """Create the folder, or check that an existing one holds this sweep. On failure, what
+        it created is removed again.
 
         Raises:
           OutputError: ``root`` is a file, holds a different sweep, or cannot be written.
         """
         store = cls(root, plan, table)
+        try:
+            store._open()
+        except BaseException:
+            store.withdraw()
+            raise
+        return store
+
+    def _open(self) -> None:
+        store, root, plan = self, self.root, self.plan
         meta = root / "sweep.json"
         if root.exists() and not root.is_dir():
             raise OutputError(f"output {str(root)!r} is a file; give a folder for the sweep's results")
@@ -249,15 +297,17 @@ class SweepStore:
         elif root.exists() and any(root.iterdir()):
             raise OutputError(f"{str(root)!r} exists and is not a sweep's results folder; give a new or empty folder")
         try:
+            for folder in (*reversed(root.parents), root, store.parts):  # outermost first
+                store.will_create(folder)
             store.parts.mkdir(parents=True, exist_ok=True)
             if not meta.exists():
+                store.will_create(meta)
                 with atomic_output(meta) as tmp:
                     tmp.write_text(json.dumps(store.definition, indent=1) + "\n")
         except OSError as exc:
             raise output_error(root, exc) from None
         if plan.trajectories:
             store._open_zarr()
-        return store
 
     def finished_ids(self) -> NDArray[np.int64]:
         """Case ids recorded in the parts so far (sorted).
@@ -272,9 +322,13 @@ class SweepStore:
         """Record one finished task: its trajectories (if kept), then its part, atomically."""
         ids = result.case_ids
         if self._zarr is not None and result.trajectories is not None:
-            self._zarr["phi_rad"].oindex[ids] = result.trajectories[..., :2]
-            self._zarr["omega_rad_s"].oindex[ids] = result.trajectories[..., 2:]
+            try:
+                self._zarr["phi_rad"].oindex[ids] = result.trajectories[..., :2]
+                self._zarr["omega_rad_s"].oindex[ids] = result.trajectories[..., 2:]
+            except OSError as exc:
+                raise output_error(self.root / "trajectories.zarr", exc) from None
         path = self.parts / f"part-{int(ids[0]):09d}.parquet"
+        self.will_create(path)
         with atomic_output(path) as tmp:
             pq.write_table(self._arrow(result, table), tmp)
         return path
@@ -299,6 +353,7 @@ class SweepStore:
             )
         merged = merged.replace_schema_metadata({META_KEY: json.dumps(self.definition).encode()})
         path = self.root / "results.parquet"
+        self.will_create(path)
         with atomic_output(path, replace=True) as tmp:
             pq.write_table(merged, tmp)
         return path
@@ -338,6 +393,7 @@ class SweepStore:
         nsave = self.plan.nstep // self.plan.save_every + 1
         shape = (len(self.table), nsave, 2)
         chunk_cases = max(1, min(len(self.table), (8 * 2**20) // (16 * nsave)))
+        self.will_create(path)
         try:
             group = zarr.open_group(str(path), mode="a")
             for name in ("phi_rad", "omega_rad_s"):
