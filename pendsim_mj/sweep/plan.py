@@ -34,6 +34,7 @@ Definition file (TOML shown; JSON has the same keys)::
 
 from __future__ import annotations
 
+import array
 import csv
 import dataclasses
 import hashlib
@@ -439,27 +440,54 @@ def parse_vary(text: str) -> Axis:
     return _axis(name, [_float_text(v, name) for v in spec.split(",")])
 
 
+MAX_CASES_LINE_CHARS = 1 << 16
+"""The longest line of a cases file: a row of a few dozen numbers is a few hundred characters."""
+
+
+def _case_lines(f: Any, where: str) -> Any:
+    """(line number, fields) of each non-empty line, read one at a time with a bounded length."""
+    number = 0
+    while True:
+        text = f.readline(MAX_CASES_LINE_CHARS + 1)
+        if not text:
+            return
+        number += 1
+        if len(text) > MAX_CASES_LINE_CHARS:
+            raise ParameterError(f"{where} line {number} is over {MAX_CASES_LINE_CHARS} characters; not a cases file")
+        row = next(csv.reader([text]), [])
+        if any(cell.strip() for cell in row):
+            yield number, row
+
+
 def read_cases_csv(path: Path) -> CaseTable:
-    """Cases from a CSV file: a header of input names, then one row of numbers per case."""
+    """Cases from a CSV file: a header of input names, then one row of numbers per case. Read
+    line by line into an array (memory: the cases' numbers, not the file's text); a file that is
+    not text (a NUL byte in its first block) or has an overlong line is refused when met."""
+    where = f"cases file {str(path)!r}"
+    header: list[str] | None = None
+    values = array.array("d")
     try:
-        with open(path, newline="") as f:
-            rows = [r for r in csv.reader(f) if any(cell.strip() for cell in r)]
+        with open(path, "rb") as raw:
+            if b"\0" in raw.read(4096):
+                raise ParameterError(f"{where} is not text (NUL bytes); give a CSV of a header and rows of numbers")
+        with open(path, newline="", encoding="utf-8") as f:
+            for line, row in _case_lines(f, where):
+                if header is None:
+                    header = [h.strip() for h in row]
+                    continue
+                if len(row) != len(header):
+                    raise ParameterError(f"{where} line {line}: {len(row)} values for {len(header)} columns")
+                try:
+                    values.extend(float(v) for v in row)
+                except ValueError:
+                    raise ParameterError(f"{where} line {line}: not all numbers: {row!r}") from None
     except OSError as exc:
         raise ParameterError(f"cannot read cases file {str(path)!r}: {exc.strerror or exc}") from None
     except (UnicodeDecodeError, csv.Error) as exc:
-        raise ParameterError(f"cases file {str(path)!r} is not a readable CSV file: {exc}") from None
-    if len(rows) < 2:
-        raise ParameterError(f"cases file {str(path)!r} needs a header row and at least one case")
-    header = [h.strip() for h in rows[0]]
-    values = []
-    for line, row in enumerate(rows[1:], start=2):
-        if len(row) != len(header):
-            raise ParameterError(f"cases file {str(path)!r} line {line}: {len(row)} values for {len(header)} columns")
-        try:
-            values.append([float(v) for v in row])
-        except ValueError:
-            raise ParameterError(f"cases file {str(path)!r} line {line}: not all numbers: {row!r}") from None
-    return _table(header, values, f"cases file {str(path)!r}")
+        raise ParameterError(f"{where} is not a readable CSV file: {exc}") from None
+    if header is None or not values:
+        raise ParameterError(f"{where} needs a header row and at least one case")
+    return _table(header, np.frombuffer(values, dtype=float).reshape(-1, len(header)), where)
 
 
 def _table(names: object, values: object, where: str) -> CaseTable:
