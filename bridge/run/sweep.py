@@ -27,8 +27,10 @@ Ctrl-C), so the cluster's context manager and the temporary files' clean-up run 
 
 from __future__ import annotations
 
+import asyncio
 import contextlib
 import dataclasses
+import errno
 import json
 import logging
 import math
@@ -36,6 +38,7 @@ import os
 import shutil
 import signal
 import socket
+import struct
 import threading
 import time
 from collections.abc import Callable, Iterator
@@ -199,20 +202,87 @@ def _run_into(
     )
 
 
+DASK_GREETING_MAX_BYTES = 1 << 20  # a Dask comm's handshake is a few hundred bytes
+
+
 def check_scheduler(address: str, *, timeout_s: float = 5.0) -> None:
-    """A Dask scheduler address tcp://HOST:PORT that accepts a connection, checked before anything
-    is written.
+    """A Dask scheduler at tcp://HOST:PORT, checked within ``timeout_s`` before anything is
+    written: something listens there, greets as a Dask comm does (a listener writes its handshake
+    first: an 8-byte length, then a msgpack map with "pickle-protocol"), and answers the "identity"
+    request as a scheduler (not a worker). A plain TCP server, a web server (the dashboard's port)
+    or a silent listener fails in one line instead of a traceback or a hang.
 
     Raises:
-      ParameterError: a malformed address, or nothing listening there.
+      ParameterError: a malformed address, nothing listening there, or not a Dask scheduler.
     """
     host, sep, port = address.removeprefix("tcp://").rpartition(":")
-    if not address.startswith("tcp://") or not sep or not host or not port.isdigit():
-        raise ParameterError(f"scheduler must be tcp://HOST:PORT, got {address!r}")
+    if not address.startswith("tcp://") or not sep or not host or not port.isdigit() or not 0 < int(port) < 65536:
+        raise ParameterError(f"scheduler must be tcp://HOST:PORT (PORT 1-65535), got {address!r}")
+    deadline = time.monotonic() + timeout_s
     try:
-        socket.create_connection((host.strip("[]"), int(port)), timeout=timeout_s).close()
+        sock = socket.create_connection((host.strip("[]"), int(port)), timeout=timeout_s)
     except OSError as exc:
         raise ParameterError(f"cannot reach the Dask scheduler at {address!r}: {exc.strerror or exc}") from None
+    not_dask = f"{address!r} is not a Dask scheduler"
+    with sock:
+        try:
+            head = _receive(sock, 8, deadline)
+            (size,) = struct.unpack("<Q", head)
+            if not 0 < size <= DASK_GREETING_MAX_BYTES:
+                raise ParameterError(f"{not_dask}: it answered {head!r}..., not a Dask handshake")
+            if b"pickle-protocol" not in _receive(sock, size, deadline):
+                raise ParameterError(f"{not_dask}: its greeting is not a Dask handshake")
+        except TimeoutError:
+            raise ParameterError(
+                f"{not_dask}: it sent no Dask handshake within {timeout_s:g} s (a web server, such as the "
+                "dashboard's port, waits for a request); give the scheduler's port (default 8786)"
+            ) from None
+        except OSError as exc:
+            raise ParameterError(f"{not_dask}: the connection failed ({exc.strerror or exc})") from None
+    kind = _identity(address, max(0.5, deadline - time.monotonic()))
+    if kind != "Scheduler":
+        raise ParameterError(f"{not_dask}: it is a Dask {kind or 'endpoint of unknown type'}; give the scheduler's")
+
+
+def _receive(sock: socket.socket, n: int, deadline: float) -> bytes:
+    """Exactly ``n`` bytes before ``deadline`` (TimeoutError after it; OSError if the peer closes)."""
+    data = bytearray()
+    while len(data) < n:
+        left = deadline - time.monotonic()
+        if left <= 0:
+            raise TimeoutError
+        sock.settimeout(left)
+        piece = sock.recv(n - len(data))
+        if not piece:
+            raise ConnectionResetError(errno.ECONNRESET, "closed by the other side")
+        data += piece
+    return bytes(data)
+
+
+def _identity(address: str, timeout_s: float) -> str | None:
+    """The "type" a Dask server gives for itself ("Scheduler", "Worker", ...), asked within
+    ``timeout_s``.
+
+    Raises:
+      ParameterError: no answer in time, or the answer is not a Dask identity.
+    """
+    from distributed.comm import connect  # start-up: Dask, only for a scheduler's check
+
+    async def ask() -> Any:
+        comm = await connect(address, timeout=timeout_s)
+        try:
+            await comm.write({"op": "identity"})
+            return await comm.read()
+        finally:
+            comm.abort()
+
+    try:
+        answer = asyncio.run(asyncio.wait_for(ask(), timeout_s))
+    except Exception as exc:  # anything a foreign server can make the protocol raise
+        raise ParameterError(
+            f"{address!r} is not a Dask scheduler: it did not answer Dask's identity request ({type(exc).__name__})"
+        ) from None
+    return answer.get("type") if isinstance(answer, dict) else None
 
 
 def default_cases_per_task(plan: SweepPlan, ncases: int, parallel: int) -> int:
