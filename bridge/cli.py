@@ -14,7 +14,7 @@ from pendsim_mj import __version__
 from pendsim_mj.errors import PendsimError
 
 from . import heap
-from .io.outputs import describe_os_error
+from .io.outputs import describe_os_error, replace_hint_as
 from .options import Parser, UsageError
 from .signals import interrupts_deferred
 
@@ -76,7 +76,7 @@ def _termination_unwinds() -> Iterator[None]:
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``pendsim`` console script; returns the exit code."""
     try:
-        with _termination_unwinds():
+        with _termination_unwinds(), replace_hint_as("--force"):
             with interrupts_deferred():  # Ctrl-C while the commands' modules import: acted on after
                 parser = build_parser()
             args = parser.parse_args(argv)

@@ -12,7 +12,6 @@ from .chunks import inflate, read_chunk_ref
 from .mapping import release
 from .records import record_frame
 
-
 WINDOW_BYTES = 1 << 24
 """The search goes through the file in windows of 16 MB, each window's pages released once
 searched, so that a long stretch of damage (a file of zeros) does not become resident memory."""
