@@ -10,7 +10,7 @@ import sys
 import threading
 from collections.abc import Iterator, Sequence
 
-from pendsim_mj import __version__
+from pendsim_mj import __version__, compile_notice
 from pendsim_mj.errors import PendsimError
 
 from . import heap
@@ -73,8 +73,16 @@ def _termination_unwinds() -> Iterator[None]:
             signal.signal(s, handler)
 
 
+def _say_compiling(line: str) -> None:
+    """The one line of a cold numba compile, on a terminal only (as the progress bars)."""
+    with contextlib.suppress(AttributeError, ValueError, OSError):
+        if sys.stderr.isatty():
+            print(f"pendsim: {line}", file=sys.stderr, flush=True)
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``pendsim`` console script; returns the exit code."""
+    compile_notice.set_notice(_say_compiling)
     try:
         with _termination_unwinds(), replace_hint_as("--force"):
             with interrupts_deferred():  # Ctrl-C while the commands' modules import: acted on after

@@ -184,11 +184,11 @@ class SweepPlan:
         names = [a.name for a in self.axes]
         for axis in self.axes:
             _check_input(axis.name, "vary")
-            for what, value in (("from", axis.low), ("to", axis.high)):
-                if value is not None:
-                    _check_range(axis.name, value, f"vary {axis.name} {what}:")
-            for value in axis.values or ():
-                _check_range(axis.name, value, f"vary {axis.name}:")
+            for what, bound in (("from", axis.low), ("to", axis.high)):
+                if bound is not None:
+                    _check_range(axis.name, bound, f"vary {axis.name} {what}:")
+            for listed in axis.values or ():
+                _check_range(axis.name, listed, f"vary {axis.name}:")
         if len(set(names)) != len(names):
             raise ParameterError(f"an input is varied twice: {', '.join(names)}")
         if self.method in ("random", "lhs") and (
