@@ -329,8 +329,9 @@ def read_lvm(path: Path) -> Table:
     head = text_head(path, "LabVIEW measurement file")
     if not head.removeprefix(b"\xef\xbb\xbf").lstrip().startswith(b"LabVIEW Measurement"):
         raise RecordingError(
-            f"{path}: not a LabVIEW measurement file (it does not start with 'LabVIEW Measurement'); a plain table "
-            "is --format csv"
+            f"{path}: not a LabVIEW measurement file (it does not start with 'LabVIEW Measurement'); import reads "
+            ".lvm files as LabVIEW writes them: a 'LabVIEW Measurement' header whose Separator (Tab or Comma) splits "
+            "the data; a plain table is --format csv"
         )
     try:
         # Never the pickle cache beside the user's file: read the text, write nothing.
