@@ -10,10 +10,11 @@ import sys
 import threading
 from collections.abc import Iterator, Sequence
 
-from pendsim_mj import __version__
+from pendsim_mj import __version__, compile_notice
 from pendsim_mj.errors import PendsimError
 
 from . import heap
+from .io.outputs import describe_os_error, replace_hint_as
 from .options import Parser, UsageError
 from .signals import interrupts_deferred
 
@@ -72,10 +73,18 @@ def _termination_unwinds() -> Iterator[None]:
             signal.signal(s, handler)
 
 
+def _say_compiling(line: str) -> None:
+    """The one line of a cold numba compile, on a terminal only (as the progress bars)."""
+    with contextlib.suppress(AttributeError, ValueError, OSError):
+        if sys.stderr.isatty():
+            print(f"pendsim: {line}", file=sys.stderr, flush=True)
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``pendsim`` console script; returns the exit code."""
+    compile_notice.set_notice(_say_compiling)
     try:
-        with _termination_unwinds():
+        with _termination_unwinds(), replace_hint_as("--force"):
             with interrupts_deferred():  # Ctrl-C while the commands' modules import: acted on after
                 parser = build_parser()
             args = parser.parse_args(argv)
@@ -86,6 +95,13 @@ def main(argv: Sequence[str] | None = None) -> int:
             return code
     except (UsageError, PendsimError) as exc:
         print(f"pendsim: error: {_one_line(exc)}", file=sys.stderr)
+        return EXIT_USAGE
+    except OSError as exc:
+        if exc.filename is None or isinstance(exc, BrokenPipeError):  # standard output, perhaps: see _run
+            raise
+        print(
+            f"pendsim: error: {_one_line(repr(os.fsdecode(exc.filename)))}: {describe_os_error(exc)}", file=sys.stderr
+        )
         return EXIT_USAGE
     except KeyboardInterrupt:
         print("pendsim: interrupted", file=sys.stderr)
@@ -108,10 +124,15 @@ def _run() -> None:  # pragma: no cover - console script wrapper
         devnull = os.open(os.devnull, os.O_WRONLY)
         os.dup2(devnull, sys.stdout.fileno())
         code = 0
-    except OSError as exc:  # standard output itself failed (a full disk, ...)
+    except OSError as exc:  # no file named: standard output itself failed (a full disk, ...)?
+        try:
+            sys.stdout.flush()
+            blamed = exc.strerror or str(exc)  # it writes: the error came from elsewhere
+        except OSError as again:
+            blamed = f"cannot write to standard output: {again.strerror}"
         devnull = os.open(os.devnull, os.O_WRONLY)
         os.dup2(devnull, sys.stdout.fileno())
-        print(f"pendsim: error: cannot write to standard output: {exc.strerror}", file=sys.stderr)
+        print(f"pendsim: error: {blamed}", file=sys.stderr)
         code = EXIT_USAGE
     heap.skip_exit_collection()  # everything is written and published: nothing left to collect for
     sys.exit(code)

@@ -22,6 +22,7 @@ from typing import NoReturn, TypeVar
 from pendsim_mj.engines.dispatch import ENGINE_NAMES
 from pendsim_mj.errors import ParameterError
 from pendsim_mj.rig import drives
+from pendsim_mj.rig.checks import INPUT_RANGES, check_input, drive_amplitude_limit
 from pendsim_mj.rig.params import DEFAULT_PARAMS, PARAMETER_LIMITS, RigParams
 
 from .errors import OutputError
@@ -108,6 +109,13 @@ def float_in(
     return parse
 
 
+def ranged(name: str, flag: str) -> Callable[[str], float]:
+    """An argument type for the input ``name`` of the one table of ranges
+    (``pendsim_mj.rig.checks.INPUT_RANGES``), its messages naming the option ``flag``."""
+    r = INPUT_RANGES[name]
+    return float_in(r.low, r.high, r.unit, low_open=r.low_open, name=flag)
+
+
 def int_in(low: int, high: int) -> Callable[[str], int]:
     """An argument type: an integer in [low, high] (decimal digits only, at most 20)."""
 
@@ -164,11 +172,21 @@ def argument(parse: Callable[[str], T], name: str) -> Callable[[str], T]:
 
 
 def assignment(text: str) -> tuple[str, float]:
-    """NAME=VALUE with a finite number (its range is the parameter's, see ``RigParams``)."""
+    """NAME=VALUE with a finite number in the range of NAME (a rig parameter's, ``RigParams``, or
+    an input's, ``pendsim_mj.rig.checks.INPUT_RANGES``); an unknown NAME is left to the command."""
     name, sep, value = text.partition("=")
     if not sep:
         raise argparse.ArgumentTypeError(f"expected NAME=VALUE, got {text!r}")
-    return name.strip(), finite_float(value)
+    name = name.strip()
+    try:
+        number = finite_float(value)
+    except argparse.ArgumentTypeError as exc:
+        raise argparse.ArgumentTypeError(f"{name}: {exc}") from None
+    try:
+        check_input(name, number)
+    except ParameterError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+    return name, number
 
 
 def input_file(text: str) -> Path:
@@ -213,21 +231,23 @@ def mcap_file(text: str) -> Path:
 
 def add_run_options(p: argparse.ArgumentParser) -> None:
     """Initial conditions, duration, step, engine and parameter overrides (``run_from_args``)."""
-    angle = float_in(-180.0, 180.0, "deg")
-    rate = float_in(-3600.0, 3600.0, "deg/s")
-    p.add_argument("--phi1-deg", type=angle, default=30.0, help="initial angle of M1, deg (default 30)")
-    p.add_argument("--phi2-deg", type=angle, default=0.0, help="initial angle of M2, deg (default 0)")
-    p.add_argument("--omega1-deg-s", type=rate, default=0.0, help="initial rate of M1, deg/s (default 0)")
-    p.add_argument("--omega2-deg-s", type=rate, default=0.0, help="initial rate of M2, deg/s (default 0)")
+    p.add_argument("--phi1-deg", type=ranged("phi1_deg", "--phi1-deg"), default=30.0,
+                   help="initial angle of M1, deg (default 30)")  # fmt: skip
+    p.add_argument("--phi2-deg", type=ranged("phi2_deg", "--phi2-deg"), default=0.0,
+                   help="initial angle of M2, deg (default 0)")  # fmt: skip
+    p.add_argument("--omega1-deg-s", type=ranged("omega1_deg_s", "--omega1-deg-s"), default=0.0,
+                   help="initial rate of M1, deg/s (default 0)")  # fmt: skip
+    p.add_argument("--omega2-deg-s", type=ranged("omega2_deg_s", "--omega2-deg-s"), default=0.0,
+                   help="initial rate of M2, deg/s (default 0)")  # fmt: skip
     p.add_argument(
         "--duration-s",
-        type=float_in(0.0, 86400.0, "s", low_open=True, name="duration_s"),
+        type=ranged("duration_s", "--duration-s"),
         default=120.0,
         help="simulated time, s (default 120, at most 1 day)",
     )
     p.add_argument(
         "--dt-s",
-        type=float_in(0.0, 0.1, "s", low_open=True, name="dt_s"),
+        type=ranged("dt_s", "--dt-s"),
         default=0.01,
         help="integration step, s (default 0.01)",
     )
@@ -244,7 +264,7 @@ def add_run_options(p: argparse.ArgumentParser) -> None:
         _, b_max = PARAMETER_LIMITS[f"b{n}_n_m_s"]
         p.add_argument(
             f"--b{n}",
-            type=float_in(0.0, b_max, "N m s/rad", name=f"b{n}_n_m_s"),
+            type=float_in(0.0, b_max, "N m s/rad", name=f"--b{n}"),
             help=f"hinge damping of M{n}, N m s/rad (default {default_b:.4g})",
         )
     add_parameter_options(p)
@@ -429,11 +449,9 @@ SIGNAL_FORMS = (
     "csv:FILE[:COLUMN]",
 )
 _SIGNAL_ARITY = {"sine": (2, 3), "stepped": (5, 5), "chirp": (4, 4), "logchirp": (4, 4)}
-DRIVE_LIMITS = {"torque_m1": (10.0, "N m"), "torque_m2": (10.0, "N m"), "support_x": (100.0, "m/s^2"),
-                "pivot_z": (100.0, "m/s^2")}  # fmt: skip
-"""Largest drive amplitude per input: far beyond the rig (its pendulums' gravity torque is about
-0.7 N m) yet where the integration stays meaningful."""
-MAX_DRIVE_FREQUENCY_HZ = 1000.0
+DRIVE_LIMITS = {t.value: (drive_amplitude_limit(t), t.unit) for t in drives.Target}
+"""Largest drive amplitude per input (from ``pendsim_mj.rig.checks.INPUT_RANGES``)."""
+MAX_DRIVE_FREQUENCY_HZ = INPUT_RANGES["torque_m1_frequency_hz"].high
 MAX_DRIVE_TIME_S = 86400.0
 
 

@@ -30,12 +30,15 @@ time base, notes).
 
 from __future__ import annotations
 
+import array
 import dataclasses
 import datetime
 import hashlib
+import itertools
 import logging
 import math
 import re
+from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
@@ -187,74 +190,131 @@ def _first_data_line(lines: list[tuple[int, str]]) -> tuple[int, str] | None:
     return None
 
 
-def read_csv(path: Path) -> Table:
-    """A CSV file as a Table: a header row optional; lines before the header that are not data
-    (a node's boot messages) skipped, an empty field after the last delimiter of a line ignored, a
-    last line cut short (a logger stopped mid-line) dropped, each with a note."""
+MAX_LINE_CHARS = 1 << 16
+"""The longest line of a text file import reads (a row of a few dozen numbers is a few hundred
+characters): a longer one (a file of zeros, a binary file) is refused when met, not read whole."""
+MAX_LINES_BEFORE_DATA = 10_000
+"""Lines of boot messages or comments allowed before the first line of numbers."""
+SNIFF_BYTES = 1 << 16
+
+
+def text_head(path: Path, what: str) -> bytes:
+    """The first ``SNIFF_BYTES`` of a file that must be text; a NUL byte there refuses it (a
+    binary file, or a file of zeros) before anything else is read."""
     try:
-        text = path.read_text(encoding="utf-8-sig")
+        with open(path, "rb") as f:
+            head = f.read(SNIFF_BYTES)
+    except OSError as exc:
+        raise RecordingError(f"{path}: cannot read: {exc.strerror}") from None
+    nul = head.find(0)
+    if nul >= 0:
+        raise RecordingError(f"{path}: not a text file (a NUL byte at byte {nul}); is it a {what}?")
+    return head
+
+
+def _text_lines(path: Path) -> Iterator[tuple[int, str]]:
+    """(line number, line) of each line that is neither empty nor a comment (#), read one at a
+    time, each at most ``MAX_LINE_CHARS`` long."""
+    text_head(path, "CSV file")
+    try:
+        with open(path, encoding="utf-8-sig") as f:
+            number = 0
+            while True:
+                text = f.readline(MAX_LINE_CHARS + 1)
+                if not text:
+                    return
+                number += 1
+                if len(text) > MAX_LINE_CHARS:
+                    raise RecordingError(
+                        f"{path}: line {number} is over {MAX_LINE_CHARS} characters; is it a CSV file of numbers?"
+                    )
+                line = text.rstrip("\r\n")
+                if line.strip() and not line.startswith("#"):
+                    yield number, line
     except UnicodeDecodeError:
         raise RecordingError(f"{path}: not UTF-8 text; is it a CSV file?") from None
     except OSError as exc:
         raise RecordingError(f"{path}: cannot read: {exc.strerror}") from None
-    lines = [(i + 1, line) for i, line in enumerate(text.splitlines()) if line.strip() and not line.startswith("#")]
-    if not lines:
+
+
+def read_csv(path: Path) -> Table:
+    """A CSV file as a Table: a header row optional; lines before the header that are not data
+    (a node's boot messages) skipped, an empty field after the last delimiter of a line ignored, a
+    last line cut short (a logger stopped mid-line) dropped, each with a note. Read line by line
+    into an array: memory grows with the numbers, not with the file's text."""
+    lines = _text_lines(path)
+    before: list[tuple[int, str]] = []  # up to and including the first line of numbers
+    found = None
+    for number, line in lines:
+        before.append((number, line))
+        found = _first_data_line([(number, line)])
+        if found is not None:
+            break
+        if len(before) > MAX_LINES_BEFORE_DATA:
+            raise RecordingError(f"{path}: no line of numbers in the first {MAX_LINES_BEFORE_DATA} lines")
+    if not before:
         raise RecordingError(f"{path}: no data lines")
-    found = _first_data_line(lines)
     if found is None:
         raise RecordingError(f"{path}: no data lines (no line of numbers separated by commas, semicolons or tabs)")
-    first, delimiter = found
+    first, delimiter = len(before) - 1, found[1]
     notes: list[str] = []
     start = first
-    if first > 0 and delimiter in lines[first - 1][1]:
+    if first > 0 and delimiter in before[first - 1][1]:
         start = first - 1  # the header
     if start > 0:
-        numbers = f"line {lines[0][0]}" if start == 1 else f"lines {lines[0][0]}-{lines[start - 1][0]}"
+        numbers = f"line {before[0][0]}" if start == 1 else f"lines {before[0][0]}-{before[start - 1][0]}"
         notes.append(f"skipped {numbers} before the {'header' if start < first else 'data'}: not data")
-    rows: list[tuple[int, list[str]]] = []
     trailing = 0
-    for number, line in lines[start:]:
+
+    def fields(line: str, *, count: bool = True) -> list[str]:
+        nonlocal trailing
         body = line.rstrip()
         if body.endswith(delimiter) and delimiter.strip():
-            body, trailing = body[: -len(delimiter)], trailing + 1
-        rows.append((number, _fields(body, delimiter)))
+            body, trailing = body[: -len(delimiter)], trailing + count
+        return _fields(body, delimiter)
+
+    header = start < first
+    head = fields(before[start][1], count=header)  # without a header, the line is counted as data below
+    names = tuple(head) if header else tuple(f"column{i + 1}" for i in range(len(head)))
+    values = array.array("d")
+    numbers_of_lines = array.array("q")
+
+    def keep(number: int, parts: list[str]) -> None:
+        if len(parts) != len(names):
+            first_line = "header" if header else "first line"
+            raise RecordingError(f"{path}: line {number} has {len(parts)} fields, the {first_line} {len(names)}")
+        try:
+            values.extend(float(p) for p in parts)
+        except ValueError:
+            del values[len(numbers_of_lines) * len(names) :]
+            k = next(i for i, p in enumerate(parts) if not _is_number(p))
+            what = f"column {k + 1} ({names[k]!r})" if header else f"column {k + 1}"
+            raise RecordingError(f"{path}: line {number}, {what}: {parts[k]!r} is not a number") from None
+        numbers_of_lines.append(number)
+
+    pending: tuple[int, list[str]] | None = None  # the last line is kept only once known to be whole
+    for number, line in itertools.chain([before[first]], lines):
+        if pending is not None:
+            keep(*pending)
+        pending = (number, fields(line))
     if trailing:
         notes.append(f"{trailing} line(s) end in {delimiter!r}: the empty field after it is not a column")
-    head = rows[0][1]
-    header = start < first
-    names = tuple(head) if header else tuple(f"column{i + 1}" for i in range(len(head)))
-    data = rows[1:] if header else rows
-    if data:  # a last line cut short: fewer fields, or its last field not (yet) a number
-        number, parts = data[-1]
+    if pending is not None:  # a last line cut short: fewer fields, or its last field not (yet) a number
+        number, parts = pending
         short = len(parts) < len(names) or (
             len(parts) == len(names) and not _is_number(parts[-1]) and all(_is_number(p) for p in parts[:-1])
         )
         if short:
             why = f"{len(parts)} of {len(names)} fields" if len(parts) < len(names) else f"ends in {parts[-1]!r}"
-            if len(data) == 1:
+            if not numbers_of_lines:
                 raise RecordingError(f"{path}: no complete data line (line {number} is cut short: {why})")
             notes.append(f"dropped the last line {number}: cut short ({why})")
-            data = data[:-1]
-    if not data:
+        else:
+            keep(number, parts)
+    if not numbers_of_lines:
         raise RecordingError(f"{path}: a header but no data lines")
-    try:  # numpy's conversion; the loop below finds the line to blame when it fails
-        values = np.array([parts for _, parts in data], dtype=float)
-        if values.shape == (len(data), len(names)):
-            return Table(names, values, skipped=tuple(notes), lines=tuple(number for number, _ in data))
-    except ValueError:
-        pass
-    values = np.empty((len(data), len(names)))
-    for r, (number, parts) in enumerate(data):
-        if len(parts) != len(names):
-            first_line = "header" if header else "first line"
-            raise RecordingError(f"{path}: line {number} has {len(parts)} fields, the {first_line} {len(names)}")
-        try:
-            values[r] = [float(p) for p in parts]
-        except ValueError:
-            k = next(i for i, p in enumerate(parts) if not _is_number(p))
-            what = f"column {k + 1} ({names[k]!r})" if header else f"column {k + 1}"
-            raise RecordingError(f"{path}: line {number}, {what}: {parts[k]!r} is not a number") from None
-    return Table(names, values, skipped=tuple(notes), lines=tuple(number for number, _ in data))
+    data = np.frombuffer(values, dtype=float).reshape(-1, len(names)).copy()
+    return Table(names, data, skipped=tuple(notes), lines=tuple(numbers_of_lines))
 
 
 def _lvm_data_lines(path: Path, rows: int) -> tuple[int, ...] | None:
@@ -301,6 +361,13 @@ def read_lvm(path: Path) -> Table:
     without a line end, or fewer rows than its header's Samples) is refused."""
     import lvm_read  # only for .lvm files
 
+    head = text_head(path, "LabVIEW measurement file")
+    if not head.removeprefix(b"\xef\xbb\xbf").lstrip().startswith(b"LabVIEW Measurement"):
+        raise RecordingError(
+            f"{path}: not a LabVIEW measurement file (it does not start with 'LabVIEW Measurement'); import reads "
+            ".lvm files as LabVIEW writes them: a 'LabVIEW Measurement' header whose Separator (Tab or Comma) splits "
+            "the data; a plain table is --format csv"
+        )
     _lvm_line_end(path)
     try:
         # Never the pickle cache beside the user's file: read the text, write nothing.

@@ -49,7 +49,7 @@ from pendsim_mj.units import NS_PER_S, nanoseconds, seconds
 
 from ..errors import OutputError
 from ..io import ros2
-from ..io.outputs import describe_os_error, publish, temporary_sibling
+from ..io.outputs import describe_os_error, publish, replace_hint, temporary_sibling
 from .accounting import NodeCounters, NodeStream
 from .clock import MAX_DRIFT_PPM, ClockFit, ClockRelation, jitter_summary_ms, residuals_s
 from .packets import PacketError, StreamFormat
@@ -332,7 +332,7 @@ def acquire(
     """
     output = Path(output)
     if not replace and (output.exists() or output.is_symlink()):
-        raise OutputError(f"output {str(output)!r} exists; choose another name or pass --force to replace it")
+        raise OutputError(f"output {str(output)!r} exists; choose another name or pass {replace_hint()} to replace it")
     window_ns = nanoseconds(spec.reorder_window_s)
     nodes = [_Node(n, spec.stream, spec.rate_hz, window_ns) for n in spec.nodes]
     selector = selectors.DefaultSelector()

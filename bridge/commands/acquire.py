@@ -32,7 +32,7 @@ def register(sub: argparse._SubParsersAction[options.Parser]) -> None:
     )
     p.add_argument(
         "--duration-s",
-        type=options.float_in(0.0, 7 * 86400.0, "s", low_open=True, name="duration_s"),
+        type=options.float_in(0.0, 7 * 86400.0, "s", low_open=True, name="--duration-s"),
         help="stop after this long, s (default: on Ctrl-C or SIGTERM)",
     )
     p.add_argument(

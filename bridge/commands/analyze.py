@@ -86,8 +86,11 @@ def _add_bifurcation(p: argparse.ArgumentParser) -> None:
     p.add_argument("--parameter", type=options.choice(("frequency", "level"), "unknown parameter {value!r}"),
                    choices=("frequency", "level"), default="level",
                    help="sweep the drive frequency (Hz) or level (the first sine's amplitude)")  # fmt: skip
-    p.add_argument("--from", dest="low", type=options.finite_float, help="first value (default: the drive's / 3)")
-    p.add_argument("--to", dest="high", type=options.finite_float, help="last value (default: the drive's)")
+    # the widest range of either parameter here; the parameter's own range is checked in _bifurcation
+    widest = max(options.MAX_DRIVE_FREQUENCY_HZ, *(limit for limit, _ in options.DRIVE_LIMITS.values()))
+    bound = options.float_in(-widest, widest)
+    p.add_argument("--from", dest="low", type=bound, help="first value (default: the drive's / 3)")
+    p.add_argument("--to", dest="high", type=bound, help="last value (default: the drive's)")
     p.add_argument("--values", type=options.int_in(2, 2000), default=31, help="values swept (default 31)")
     p.add_argument("--transient-periods", type=options.int_in(0, 100000), default=300, help="default 300")
     p.add_argument("--sample-periods", type=options.int_in(1, 10000), default=40, help="default 40")
@@ -239,6 +242,15 @@ def _bifurcation(args: argparse.Namespace) -> int:
     high = args.high if args.high is not None else base
     if not high > low or (args.parameter == "frequency" and low <= 0):
         raise options.UsageError(f"--to ({high:g}) must exceed --from ({low:g}), frequencies > 0")
+    if args.parameter == "frequency":
+        top, unit = options.MAX_DRIVE_FREQUENCY_HZ, "Hz"
+    else:
+        top, unit = options.DRIVE_LIMITS[drive.targets[0].value]
+    for flag, value in (("--from", low), ("--to", high)):
+        if abs(value) > top:
+            raise options.UsageError(
+                f"{flag} must be within +-{top:g} {unit} for the drive {args.parameter}, got {value:g}"
+            )
     values = np.linspace(low, high, args.values)
     with _bar(len(values), f"sweep of the drive {args.parameter}") as bar:
         diagram = poincare_sweep(

@@ -64,7 +64,7 @@ def register(sub: argparse._SubParsersAction[options.Parser]) -> None:
     )
     p.add_argument(
         "--rate-hz",
-        type=options.float_in(0.0, 100_000.0, "Hz", low_open=True, name="rate_hz"),
+        type=options.float_in(0.0, 100_000.0, "Hz", low_open=True, name="--rate-hz"),
         help="sample rate, for a file with no time column and no timing of its own, Hz",
     )
     p.add_argument(

@@ -71,7 +71,7 @@ def add_stream_options(p: argparse.ArgumentParser, *, what: str) -> None:
     )
     p.add_argument(
         "--rate-hz",
-        type=options.float_in(0.0, 100_000.0, "Hz", low_open=True, name="rate_hz"),
+        type=options.float_in(0.0, 100_000.0, "Hz", low_open=True, name="--rate-hz"),
         default=SAMPLE_RATE_HZ,
         help=f"the nodes' sample rate, Hz (default {SAMPLE_RATE_HZ:g}, the paper's)",
     )

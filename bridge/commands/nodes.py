@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import math
+from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -17,13 +18,21 @@ if TYPE_CHECKING:
     from ..acquire.emulator import EmulatorSpec
 
 
-def per_node(text: str) -> tuple[str | None, float]:
-    """``m1=20`` (one node) or ``20`` (every node) to (name or None, value)."""
-    name, sep, value = text.rpartition("=")
-    number = options.finite_float(value)
-    if sep and name.strip() not in ("m1", "m2"):
-        raise ParameterError(f"unknown node {name.strip()!r}; allowed: m1, m2")
-    return (name.strip() if sep else None), number
+def per_node(flag: str, low: float, high: float, unit: str) -> Callable[[str], tuple[str | None, float]]:
+    """An argument type: ``m1=20`` (one node) or ``20`` (every node) to (name or None, value), the
+    value in [low, high] ``unit`` (messages name ``flag``)."""
+    number = options.float_in(low, high, unit, name=flag)
+
+    def parse(text: str) -> tuple[str | None, float]:
+        name, sep, value = text.rpartition("=")
+        if sep and name.strip() not in ("m1", "m2"):
+            raise ParameterError(f"{flag}: unknown node {name.strip()!r}; allowed: m1, m2")
+        try:
+            return (name.strip() if sep else None), number(value)
+        except argparse.ArgumentTypeError as exc:
+            raise ParameterError(str(exc)) from None
+
+    return parse
 
 
 def register(sub: argparse._SubParsersAction[options.Parser]) -> None:
@@ -68,7 +77,7 @@ def register(sub: argparse._SubParsersAction[options.Parser]) -> None:
     p.add_argument("--malformed", type=rate, default=0.0, help="rate of extra malformed datagrams, 0-1 (default 0)")
     p.add_argument(
         "--clock-drift-ppm",
-        type=options.argument(per_node, "[NAME=]PPM"),
+        type=options.argument(per_node("--clock-drift-ppm", -1000.0, 1000.0, "ppm"), "[NAME=]PPM"),
         action="append",
         default=[],
         metavar="[NAME=]PPM",
@@ -76,7 +85,7 @@ def register(sub: argparse._SubParsersAction[options.Parser]) -> None:
     )
     p.add_argument(
         "--clock-offset-s",
-        type=options.argument(per_node, "[NAME=]S"),
+        type=options.argument(per_node("--clock-offset-s", 0.0, 1e8, "s"), "[NAME=]S"),
         action="append",
         default=[],
         metavar="[NAME=]S",

@@ -94,12 +94,12 @@ def register(sub: argparse._SubParsersAction[options.Parser]) -> None:
     p.add_argument(
         "--duration-s",
         metavar="S",
-        type=options.float_in(0.0, 86400.0, "s", low_open=True, name="duration_s"),
+        type=options.ranged("duration_s", "--duration-s"),
         help="simulated time per case, s (default 30)",
     )
     p.add_argument(
         "--dt-s",
-        type=options.float_in(0.0, 0.1, "s", low_open=True, name="dt_s"),
+        type=options.ranged("dt_s", "--dt-s"),
         metavar="S",
         help="step, s (default 0.01)",
     )

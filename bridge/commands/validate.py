@@ -59,22 +59,22 @@ def register(sub: argparse._SubParsersAction[options.Parser]) -> None:
     )
     p.add_argument("--no-plots", action="store_true", help="write report.json only")
     options.add_force_option(p, "report.json and the figures in the output folder")
-    gate = options.non_negative_float
+    # Gates beyond these pass every run: a relative error of 100, 1e4 rad s over 5 s, a full turn.
     p.add_argument(
         "--max-delta",
-        type=gate,
+        type=options.float_in(0.0, 100.0),
         metavar="X",
         help="fail if any quantity's relative frequency error (MuJoCo, estimated release, whole run) exceeds X",
     )
     p.add_argument(
         "--max-iae",
-        type=gate,
+        type=options.float_in(0.0, 1e4, "rad s"),
         metavar="X",
         help="fail if the IAE of phi1 over the first 5 s (MuJoCo, estimated release) exceeds X rad s",
     )
     p.add_argument(
         "--max-error-phi1",
-        type=gate,
+        type=options.float_in(0.0, 2 * math.pi, "rad"),
         metavar="RAD",
         help="fail if max |Delta phi1| over the whole run (MuJoCo, estimated release) exceeds RAD",
     )

@@ -20,7 +20,15 @@ def register(sub: argparse._SubParsersAction[options.Parser]) -> None:
     p.add_argument("path", type=options.mcap_file, help="the .mcap recording")
     options.add_alignment_options(p)
     options.add_drive_options(p, what="the model's re-simulation (default: the recording's own /drive topic)")
-    p.add_argument("--save", type=Path, metavar="FILE.rrd", help="the .rrd file to write (default NAME.rrd)")
+    p.add_argument(
+        "-o",
+        "--output",
+        "--save",  # its name before -o, as every other command has it; kept so that scripts still work
+        dest="save",
+        type=Path,
+        metavar="FILE.rrd",
+        help="the .rrd file to write (default NAME.rrd; --save is the same option)",
+    )
     options.add_force_option(p, "the .rrd file")
     p.add_argument("--spawn", action="store_true", help="open the Rerun desktop viewer on the result")
     p.add_argument(

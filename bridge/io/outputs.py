@@ -23,6 +23,7 @@ Imports no physics engine.
 from __future__ import annotations
 
 import contextlib
+import contextvars
 import ctypes
 import errno
 import os
@@ -35,6 +36,25 @@ from typing import Any
 
 from ..errors import OutputError
 
+_REPLACE_HINT: contextvars.ContextVar[str] = contextvars.ContextVar("replace_hint", default="replace=True")
+
+
+def replace_hint() -> str:
+    """How the caller replaces an existing output: ``replace=True`` for a script, ``--force`` on
+    the command line (``replace_hint_as``), named in the message of an output that exists."""
+    return _REPLACE_HINT.get()
+
+
+@contextlib.contextmanager
+def replace_hint_as(text: str) -> Iterator[None]:
+    """Within the block, messages about existing outputs name ``text`` (the CLI: "--force")."""
+    token = _REPLACE_HINT.set(text)
+    try:
+        yield
+    finally:
+        _REPLACE_HINT.reset(token)
+
+
 _CAUSES = {
     errno.ENOSPC: "no space left on the device",
     errno.EDQUOT: "disk quota exceeded",
@@ -45,7 +65,6 @@ _CAUSES = {
     errno.EISDIR: "is a directory",
     errno.ENOTDIR: "a part of the path is not a directory",
     errno.ENOENT: "the folder does not exist",
-    errno.EEXIST: "it exists (pass --force to replace it)",
     errno.ENOTEMPTY: "a folder of that name exists and is not empty",
     errno.ENAMETOOLONG: "the name is too long",
     errno.ELOOP: "too many symbolic links in the path",
@@ -63,6 +82,8 @@ _RENAME_NOREPLACE = 1
 
 def describe_os_error(exc: OSError) -> str:
     """A short cause for an OSError, without the path (callers name the path)."""
+    if exc.errno == errno.EEXIST:
+        return f"it exists (pass {replace_hint()} to replace it)"
     return _CAUSES.get(exc.errno or 0, exc.strerror or type(exc).__name__)
 
 
@@ -117,7 +138,7 @@ def check_file_target(path: str | os.PathLike[str], *, replace: bool = False) ->
     if not (stat.S_ISREG(mode) or stat.S_ISLNK(mode)):
         raise OutputError(f"output {str(target)!r} is {_kind(mode)}; give a file name")
     if not replace:
-        raise OutputError(f"output {str(target)!r} exists; choose another name or pass --force to replace it")
+        raise OutputError(f"output {str(target)!r} exists; choose another name or pass {replace_hint()} to replace it")
     return target
 
 
@@ -322,7 +343,7 @@ def atomic_directory(path: str | os.PathLike[str], *, replace: bool = False) -> 
             if taken and not replace:
                 more = f" (and {len(taken) - 1} more)" if len(taken) > 1 else ""
                 raise OutputError(
-                    f"output {str(taken[0])!r}{more} exists; choose another folder or pass --force to replace"
+                    f"output {str(taken[0])!r}{more} exists; choose another folder or pass {replace_hint()} to replace"
                 )
             for item in items:
                 publish(item, target / item.name, replace=replace)

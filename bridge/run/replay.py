@@ -139,6 +139,16 @@ def is_latched(channel: Any) -> bool:
     return "durability: 1" in qos or "durability: transient_local" in qos
 
 
+def _check_start_within(path: str | Path, start_s: float | None, start_ns: int, last_ns: int) -> None:
+    """A window that starts after the recording's last message is an error naming its length."""
+    if start_s is not None and start_ns + nanoseconds(start_s) > last_ns:
+        lasts = seconds(max(0, last_ns - start_ns))
+        raise ParameterError(
+            f"the window starts at {start_s:g} s, after the end of {path}: its messages run from 0 to {lasts:.3f} s "
+            "after its start"
+        )
+
+
 def _check_window(start_s: float | None, end_s: float | None, speed: float) -> None:
     for name, value in (("start_s", start_s), ("end_s", end_s)):
         if value is not None and not math.isfinite(value):
@@ -209,6 +219,7 @@ def _messages(
         refs = mcap.chunk_refs
         _check_topics(Path(path), {ch.topic for ch in mcap.channels.values()}, topics)
         start_ns = recording_start_ns(mcap.metadata, min((r.start_ns for r in refs), default=0))
+        _check_start_within(path, start_s, start_ns, max((r.end_ns for r in refs), default=start_ns))
         overlapping = any(b.start_ns < a.end_ns for a, b in itertools.pairwise(refs))
         decoders = _decoders(mcap.schemas)
         if overlapping:
@@ -283,6 +294,8 @@ def replay_to_mcap(
     contents = read_mcap(path, strict=True)
     first = min((int(d.log_time_ns[0]) for d in contents.messages.values() if len(d)), default=0)
     start_ns = recording_start_ns(contents.metadata, first)
+    last = max((int(d.log_time_ns.max()) for d in contents.messages.values() if len(d)), default=start_ns)
+    _check_start_within(path, start_s, start_ns, last)
     ids, rows, times = _select(contents, topics, start_s, end_s, start_ns)
     window_ns = start_ns + nanoseconds(start_s) if start_s is not None else None
     shift = int(times[0]) if shift_to_zero and len(times) else 0

@@ -27,14 +27,18 @@ Ctrl-C), so the cluster's context manager and the temporary files' clean-up run 
 
 from __future__ import annotations
 
+import asyncio
 import contextlib
 import dataclasses
+import errno
 import json
 import logging
 import math
 import os
+import shutil
 import signal
 import socket
+import struct
 import threading
 import time
 from collections.abc import Callable, Iterator
@@ -131,6 +135,25 @@ def run_sweep(
     plan.case_inputs(table, np.arange(len(table)))  # every case's parameters and drive are valid, before any work
     plan.case_drives(table, np.arange(len(table)))
     store = SweepStore.open(Path(out_dir), plan, table)
+    try:
+        return _run_into(store, plan, table, start, workers, scheduler, cases_per_task, progress, plots, on_task_done)
+    except Exception:  # a failure (a full disk, ...): what this run started goes; Ctrl-C keeps it to resume
+        store.withdraw()
+        raise
+
+
+def _run_into(
+    store: SweepStore,
+    plan: SweepPlan,
+    table: CaseTable,
+    start: float,
+    workers: int | None,
+    scheduler: str | None,
+    cases_per_task: int | None,
+    progress: bool,
+    plots: bool,
+    on_task_done: Callable[[int], None] | None,
+) -> SweepSummary:
     remaining = np.setdiff1d(np.arange(len(table)), store.finished_ids())
     resumed = len(table) - len(remaining)
     parallel = workers or 1
@@ -158,8 +181,10 @@ def run_sweep(
         from ..report import sweep_plots  # start-up: matplotlib, only for the maps
 
         if plan.method == "sensitivity":
+            store.will_create(store.root / "sensitivity.json")
             sensitivity = sweep_plots.write_sensitivity(results, table, out_dir=store.root)
         if plots:
+            store.will_create(store.root / "maps")
             maps = tuple(sweep_plots.draw_maps(results, plan, table, store.root / "maps"))
     diverged = int(pq.read_table(results, columns=["diverged"]).column("diverged").to_numpy().sum())
     return SweepSummary(
@@ -177,20 +202,87 @@ def run_sweep(
     )
 
 
+DASK_GREETING_MAX_BYTES = 1 << 20  # a Dask comm's handshake is a few hundred bytes
+
+
 def check_scheduler(address: str, *, timeout_s: float = 5.0) -> None:
-    """A Dask scheduler address tcp://HOST:PORT that accepts a connection, checked before anything
-    is written.
+    """A Dask scheduler at tcp://HOST:PORT, checked within ``timeout_s`` before anything is
+    written: something listens there, greets as a Dask comm does (a listener writes its handshake
+    first: an 8-byte length, then a msgpack map with "pickle-protocol"), and answers the "identity"
+    request as a scheduler (not a worker). A plain TCP server, a web server (the dashboard's port)
+    or a silent listener fails in one line instead of a traceback or a hang.
 
     Raises:
-      ParameterError: a malformed address, or nothing listening there.
+      ParameterError: a malformed address, nothing listening there, or not a Dask scheduler.
     """
     host, sep, port = address.removeprefix("tcp://").rpartition(":")
-    if not address.startswith("tcp://") or not sep or not host or not port.isdigit():
-        raise ParameterError(f"scheduler must be tcp://HOST:PORT, got {address!r}")
+    if not address.startswith("tcp://") or not sep or not host or not port.isdigit() or not 0 < int(port) < 65536:
+        raise ParameterError(f"scheduler must be tcp://HOST:PORT (PORT 1-65535), got {address!r}")
+    deadline = time.monotonic() + timeout_s
     try:
-        socket.create_connection((host.strip("[]"), int(port)), timeout=timeout_s).close()
+        sock = socket.create_connection((host.strip("[]"), int(port)), timeout=timeout_s)
     except OSError as exc:
         raise ParameterError(f"cannot reach the Dask scheduler at {address!r}: {exc.strerror or exc}") from None
+    not_dask = f"{address!r} is not a Dask scheduler"
+    with sock:
+        try:
+            head = _receive(sock, 8, deadline)
+            (size,) = struct.unpack("<Q", head)
+            if not 0 < size <= DASK_GREETING_MAX_BYTES:
+                raise ParameterError(f"{not_dask}: it answered {head!r}..., not a Dask handshake")
+            if b"pickle-protocol" not in _receive(sock, size, deadline):
+                raise ParameterError(f"{not_dask}: its greeting is not a Dask handshake")
+        except TimeoutError:
+            raise ParameterError(
+                f"{not_dask}: it sent no Dask handshake within {timeout_s:g} s (a web server, such as the "
+                "dashboard's port, waits for a request); give the scheduler's port (default 8786)"
+            ) from None
+        except OSError as exc:
+            raise ParameterError(f"{not_dask}: the connection failed ({exc.strerror or exc})") from None
+    kind = _identity(address, max(0.5, deadline - time.monotonic()))
+    if kind != "Scheduler":
+        raise ParameterError(f"{not_dask}: it is a Dask {kind or 'endpoint of unknown type'}; give the scheduler's")
+
+
+def _receive(sock: socket.socket, n: int, deadline: float) -> bytes:
+    """Exactly ``n`` bytes before ``deadline`` (TimeoutError after it; OSError if the peer closes)."""
+    data = bytearray()
+    while len(data) < n:
+        left = deadline - time.monotonic()
+        if left <= 0:
+            raise TimeoutError
+        sock.settimeout(left)
+        piece = sock.recv(n - len(data))
+        if not piece:
+            raise ConnectionResetError(errno.ECONNRESET, "closed by the other side")
+        data += piece
+    return bytes(data)
+
+
+def _identity(address: str, timeout_s: float) -> str | None:
+    """The "type" a Dask server gives for itself ("Scheduler", "Worker", ...), asked within
+    ``timeout_s``.
+
+    Raises:
+      ParameterError: no answer in time, or the answer is not a Dask identity.
+    """
+    from distributed.comm import connect  # start-up: Dask, only for a scheduler's check
+
+    async def ask() -> Any:
+        comm = await connect(address, timeout=timeout_s)
+        try:
+            await comm.write({"op": "identity"})
+            return await comm.read()
+        finally:
+            comm.abort()
+
+    try:
+        answer = asyncio.run(asyncio.wait_for(ask(), timeout_s))
+    except Exception as exc:  # anything a foreign server can make the protocol raise
+        raise ParameterError(
+            f"{address!r} is not a Dask scheduler: it did not answer Dask's identity request ({type(exc).__name__})"
+        ) from None
+    return answer.get("type") if isinstance(answer, dict) else None
 
 
 def default_cases_per_task(plan: SweepPlan, ncases: int, parallel: int) -> int:
@@ -224,15 +316,41 @@ class SweepStore:
             "cases_sha256": table.digest(),
         }
         self._zarr: Any = None
+        self._created: list[Path] = []  # what this run created, in order (``withdraw`` removes it)
+
+    def will_create(self, path: Path) -> None:
+        """Note ``path`` as this run's own if it does not exist yet (``withdraw`` removes it)."""
+        if not (path.exists() or path.is_symlink()):
+            self._created.append(path)
+
+    def withdraw(self) -> None:
+        """After a failure: remove what this run created (its parts, a zarr store, sweep.json, the
+        results, maps and folders it made), newest first; what existed before is left untouched."""
+        for path in reversed(self._created):
+            if path.is_dir() and not path.is_symlink():
+                shutil.rmtree(path, ignore_errors=True)
+            else:
+                path.unlink(missing_ok=True)
+        self._created.clear()
 
     @classmethod
     def open(cls, root: Path, plan: SweepPlan, table: CaseTable) -> SweepStore:
-        """Create the folder, or check that an existing one holds this sweep.
+        """Create the folder, or check that an existing one holds this sweep. On failure, what
+        it created is removed again.
 
         Raises:
           OutputError: ``root`` is a file, holds a different sweep, or cannot be written.
         """
         store = cls(root, plan, table)
+        try:
+            store._open()
+        except BaseException:
+            store.withdraw()
+            raise
+        return store
+
+    def _open(self) -> None:
+        store, root, plan = self, self.root, self.plan
         meta = root / "sweep.json"
         if root.exists() and not root.is_dir():
             raise OutputError(f"output {str(root)!r} is a file; give a folder for the sweep's results")
@@ -249,15 +367,17 @@ class SweepStore:
         elif root.exists() and any(root.iterdir()):
             raise OutputError(f"{str(root)!r} exists and is not a sweep's results folder; give a new or empty folder")
         try:
+            for folder in (*reversed(root.parents), root, store.parts):  # outermost first
+                store.will_create(folder)
             store.parts.mkdir(parents=True, exist_ok=True)
             if not meta.exists():
+                store.will_create(meta)
                 with atomic_output(meta) as tmp:
                     tmp.write_text(json.dumps(store.definition, indent=1) + "\n")
         except OSError as exc:
             raise output_error(root, exc) from None
         if plan.trajectories:
             store._open_zarr()
-        return store
 
     def finished_ids(self) -> NDArray[np.int64]:
         """Case ids recorded in the parts so far (sorted).
@@ -272,9 +392,13 @@ class SweepStore:
         """Record one finished task: its trajectories (if kept), then its part, atomically."""
         ids = result.case_ids
         if self._zarr is not None and result.trajectories is not None:
-            self._zarr["phi_rad"].oindex[ids] = result.trajectories[..., :2]
-            self._zarr["omega_rad_s"].oindex[ids] = result.trajectories[..., 2:]
+            try:
+                self._zarr["phi_rad"].oindex[ids] = result.trajectories[..., :2]
+                self._zarr["omega_rad_s"].oindex[ids] = result.trajectories[..., 2:]
+            except OSError as exc:
+                raise output_error(self.root / "trajectories.zarr", exc) from None
         path = self.parts / f"part-{int(ids[0]):09d}.parquet"
+        self.will_create(path)
         with atomic_output(path) as tmp:
             pq.write_table(self._arrow(result, table), tmp)
         return path
@@ -299,6 +423,7 @@ class SweepStore:
             )
         merged = merged.replace_schema_metadata({META_KEY: json.dumps(self.definition).encode()})
         path = self.root / "results.parquet"
+        self.will_create(path)
         with atomic_output(path, replace=True) as tmp:
             pq.write_table(merged, tmp)
         return path
@@ -338,6 +463,7 @@ class SweepStore:
         nsave = self.plan.nstep // self.plan.save_every + 1
         shape = (len(self.table), nsave, 2)
         chunk_cases = max(1, min(len(self.table), (8 * 2**20) // (16 * nsave)))
+        self.will_create(path)
         try:
             group = zarr.open_group(str(path), mode="a")
             for name in ("phi_rad", "omega_rad_s"):

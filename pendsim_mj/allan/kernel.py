@@ -7,6 +7,10 @@ from __future__ import annotations
 import numba
 import numpy as np
 
+from pendsim_mj import compile_notice
+
+compile_notice.watch()  # one line on a cold compile (the command line prints it)
+
 
 @numba.njit(cache=True)
 def _oadev_at(x: np.ndarray, k: int) -> np.ndarray:  # pragma: no cover - compiled

@@ -5,6 +5,7 @@ Imports no physics engine, so the reference solver can use it.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Sequence
 
@@ -13,9 +14,82 @@ from numpy.typing import ArrayLike
 
 from pendsim_mj.errors import ParameterError, SimulationDiverged
 from pendsim_mj.rig.drives import Drive, Target
-from pendsim_mj.rig.params import RigParams
+from pendsim_mj.rig.params import PARAMETER_LIMITS, RigParams, check_field
 
 MAX_STEPS = 10_000_000  # about 10 GB of trajectory arrays; a day of simulated time at 10 ms is 8.6e6
+
+
+@dataclasses.dataclass(frozen=True)
+class Range:
+    """The allowed values of one input: ``low <= value <= high`` (``low < value`` with
+    ``low_open``), in ``unit``."""
+
+    low: float
+    high: float
+    unit: str = ""
+    low_open: bool = False
+
+    def describe(self) -> str:
+        """The range as text, e.g. "[-180, 180] deg" or "(0, 86400] s"."""
+        return f"{'(' if self.low_open else '['}{self.low:g}, {self.high:g}]{' ' + self.unit if self.unit else ''}"
+
+    def check(self, name: str, value: ArrayLike, *, case_ids: Sequence[int] | None = None) -> None:
+        """Raise ParameterError naming ``name`` (and the case, for an array) unless every value is
+        finite and in the range."""
+        arr = np.asarray(value, dtype=float)
+        bad = ~np.isfinite(arr) | (arr > self.high) | (arr < self.low) | ((arr == self.low) & self.low_open)
+        if not np.any(bad):
+            return
+        i = int(np.flatnonzero(bad.ravel())[0])
+        where = "" if arr.ndim == 0 else f"case {i if case_ids is None else case_ids[i]}: "
+        raise ParameterError(f"{where}{name} must be a finite number in {self.describe()}, got {arr.flat[i]:g}")
+
+
+def _input_ranges() -> dict[str, Range]:
+    ranges = {
+        "duration_s": Range(0.0, 86400.0, "s", low_open=True),  # a day of simulated time
+        "dt_s": Range(0.0, 0.1, "s", low_open=True),  # RK4 on the rig is unstable long before 0.1 s
+    }
+    for n in (1, 2):
+        ranges[f"phi{n}_deg"] = Range(-180.0, 180.0, "deg")
+        ranges[f"phi{n}_rad"] = Range(-math.pi, math.pi, "rad")
+        ranges[f"omega{n}_deg_s"] = Range(-3600.0, 3600.0, "deg/s")  # ten turns a second
+        ranges[f"omega{n}_rad_s"] = Range(-math.radians(3600.0), math.radians(3600.0), "rad/s")
+    for target in Target:
+        # far beyond the rig (its pendulums' gravity torque is about 0.7 N m) yet where the
+        # integration stays meaningful
+        limit = 10.0 if target.unit == "N m" else 100.0
+        unit = "n_m" if target.unit == "N m" else "m_s2"
+        ranges[f"{target.value}_amplitude_{unit}"] = Range(-limit, limit, target.unit)
+        ranges[f"{target.value}_frequency_hz"] = Range(0.0, 1000.0, "Hz", low_open=True)
+        ranges[f"{target.value}_phase_rad"] = Range(-2 * math.pi, 2 * math.pi, "rad")
+    return ranges
+
+
+INPUT_RANGES: dict[str, Range] = _input_ranges()
+"""The one table of allowed values of every input of a run other than the rig's parameters
+(those are ``params.PARAMETER_LIMITS``): the release state (``phi1_deg``, ..., ``omega2_rad_s``),
+duration and step, and each drive target's sine (``TARGET_amplitude_UNIT``, ``TARGET_frequency_hz``,
+``TARGET_phase_rad``). The command line's options and the sweeps' inputs are checked against it."""
+
+
+def drive_amplitude_limit(target: Target) -> float:
+    """The largest drive amplitude on ``target`` (in its unit) that ``INPUT_RANGES`` allows."""
+    unit = "n_m" if target.unit == "N m" else "m_s2"
+    return INPUT_RANGES[f"{target.value}_amplitude_{unit}"].high
+
+
+def check_input(name: str, value: ArrayLike, *, case_ids: Sequence[int] | None = None) -> None:
+    """Check an input against its range: ``INPUT_RANGES``, or for a rig parameter its own rules
+    (``params.check_field``); names in neither are left to their owner.
+
+    Raises:
+      ParameterError: naming the input, the allowed range and the value (and the case, for arrays).
+    """
+    if name in INPUT_RANGES:
+        INPUT_RANGES[name].check(name, value, case_ids=case_ids)
+    elif name in PARAMETER_LIMITS:
+        check_field(name, value, case_ids=case_ids)
 
 
 def check_step(duration_s: float, dt_s: float) -> int:

@@ -263,24 +263,8 @@ def check_values(values: Mapping[str, ArrayLike], *, case_ids: Sequence[int] | N
         i = int(np.flatnonzero(bad)[0])
         return i, f"case {i if case_ids is None else case_ids[i]}: "
 
-    for name, unit in _UNITS.items():
-        value = arrays[name]
-        allowed_zero = name in _MAY_BE_ZERO
-        for bad, rule in (
-            (~np.isfinite(value), "must be finite"),
-            ((value < 0) | ((value == 0) & (not allowed_zero)), f"must be {'>= 0' if allowed_zero else '> 0'} {unit}"),
-        ):
-            if np.any(bad):
-                i, prefix = first(bad)
-                raise ParameterError(f"{prefix}{name} {rule}, got {value.flat[i]}")
-        low, high = PARAMETER_LIMITS[name]
-        bad = (value > high) | ((value != 0) & (value < low))
-        if np.any(bad):
-            i, prefix = first(bad)
-            raise ParameterError(
-                f"{prefix}{name} must be {'0 or ' if allowed_zero else ''}between {low:g} and {high:g} {unit}, "
-                f"got {value.flat[i]:g}"
-            )
+    for name in _UNITS:
+        check_field(name, arrays[name], case_ids=case_ids)
     for n in (1, 2):
         m, oc, j = arrays[f"m{n}_kg"], arrays[f"oc{n}_m"], arrays[f"j{n}_kg_m2"]
         shape = np.broadcast_shapes(m.shape, oc.shape, j.shape)
@@ -292,6 +276,40 @@ def check_values(values: Mapping[str, ArrayLike], *, case_ids: Sequence[int] | N
                 f"{prefix}j{n}_kg_m2 = {np.broadcast_to(j, shape).flat[i]} must exceed m{n}_kg * oc{n}_m^2 = "
                 f"{point.flat[i]:.6g} (inertia about the pivot includes the point-mass term)"
             )
+
+
+def check_field(name: str, value: ArrayLike, *, case_ids: Sequence[int] | None = None) -> None:
+    """The rules of one RigParams field alone (finite, sign, ``PARAMETER_LIMITS``); ``value`` may
+    be an array of cases (named by ``case_ids``, default positions).
+
+    Raises:
+      ParameterError: the first rule broken, naming the field, the allowed values and the value.
+    """
+    unit = _UNITS[name]
+    value = np.asarray(value, dtype=float)
+
+    def first(bad: NDArray[np.bool_]) -> tuple[int, str]:
+        if bad.ndim == 0:
+            return 0, ""
+        i = int(np.flatnonzero(bad)[0])
+        return i, f"case {i if case_ids is None else case_ids[i]}: "
+
+    allowed_zero = name in _MAY_BE_ZERO
+    for bad, rule in (
+        (~np.isfinite(value), "must be finite"),
+        ((value < 0) | ((value == 0) & (not allowed_zero)), f"must be {'>= 0' if allowed_zero else '> 0'} {unit}"),
+    ):
+        if np.any(bad):
+            i, prefix = first(bad)
+            raise ParameterError(f"{prefix}{name} {rule}, got {value.flat[i]}")
+    low, high = PARAMETER_LIMITS[name]
+    bad = (value > high) | ((value != 0) & (value < low))
+    if np.any(bad):
+        i, prefix = first(bad)
+        raise ParameterError(
+            f"{prefix}{name} must be {'0 or ' if allowed_zero else ''}between {low:g} and {high:g} {unit}, "
+            f"got {value.flat[i]:g}"
+        )
 
 
 PLANE_OFFSET_PRESETS_M = (0.023, 0.050)  # paper: both values appear

@@ -34,6 +34,7 @@ Definition file (TOML shown; JSON has the same keys)::
 
 from __future__ import annotations
 
+import array
 import csv
 import dataclasses
 import hashlib
@@ -48,7 +49,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from pendsim_mj.errors import ParameterError
-from pendsim_mj.rig.checks import check_step
+from pendsim_mj.rig.checks import check_input, check_step
 from pendsim_mj.rig.drives import Drive, Sine, Target
 from pendsim_mj.rig.params import DEFAULT_PARAMS, ParamColumns, RigParams
 from pendsim_mj.sweep.features import DEFAULT_GROUPS, check_groups
@@ -164,6 +165,8 @@ class SweepPlan:
             raise ParameterError(f"unknown method {self.method!r}; allowed: {', '.join(METHODS)}")
         if self.engine not in ENGINES:
             raise ParameterError(f"unknown engine {self.engine!r}; allowed: {', '.join(ENGINES)}")
+        for name in ("duration_s", "dt_s"):
+            check_input(name, getattr(self, name))
         nstep = check_step(self.duration_s, self.dt_s)
         if isinstance(self.save_every, bool) or not isinstance(self.save_every, int) or self.save_every < 1:
             raise ParameterError(f"save_every must be a whole number >= 1, got {self.save_every!r}")
@@ -177,9 +180,15 @@ class SweepPlan:
         for name, value in self.base:
             _check_input(name, "base")
             _check_number(value, f"base {name}")
+            _check_range(name, value, "base")
         names = [a.name for a in self.axes]
         for axis in self.axes:
             _check_input(axis.name, "vary")
+            for what, bound in (("from", axis.low), ("to", axis.high)):
+                if bound is not None:
+                    _check_range(axis.name, bound, f"vary {axis.name} {what}:")
+            for listed in axis.values or ():
+                _check_range(axis.name, listed, f"vary {axis.name}:")
         if len(set(names)) != len(names):
             raise ParameterError(f"an input is varied twice: {', '.join(names)}")
         if self.method in ("random", "lhs") and (
@@ -431,27 +440,54 @@ def parse_vary(text: str) -> Axis:
     return _axis(name, [_float_text(v, name) for v in spec.split(",")])
 
 
+MAX_CASES_LINE_CHARS = 1 << 16
+"""The longest line of a cases file: a row of a few dozen numbers is a few hundred characters."""
+
+
+def _case_lines(f: Any, where: str) -> Any:
+    """(line number, fields) of each non-empty line, read one at a time with a bounded length."""
+    number = 0
+    while True:
+        text = f.readline(MAX_CASES_LINE_CHARS + 1)
+        if not text:
+            return
+        number += 1
+        if len(text) > MAX_CASES_LINE_CHARS:
+            raise ParameterError(f"{where} line {number} is over {MAX_CASES_LINE_CHARS} characters; not a cases file")
+        row = next(csv.reader([text]), [])
+        if any(cell.strip() for cell in row):
+            yield number, row
+
+
 def read_cases_csv(path: Path) -> CaseTable:
-    """Cases from a CSV file: a header of input names, then one row of numbers per case."""
+    """Cases from a CSV file: a header of input names, then one row of numbers per case. Read
+    line by line into an array (memory: the cases' numbers, not the file's text); a file that is
+    not text (a NUL byte in its first block) or has an overlong line is refused when met."""
+    where = f"cases file {str(path)!r}"
+    header: list[str] | None = None
+    values = array.array("d")
     try:
-        with open(path, newline="") as f:
-            rows = [r for r in csv.reader(f) if any(cell.strip() for cell in r)]
+        with open(path, "rb") as raw:
+            if b"\0" in raw.read(4096):
+                raise ParameterError(f"{where} is not text (NUL bytes); give a CSV of a header and rows of numbers")
+        with open(path, newline="", encoding="utf-8") as f:
+            for line, row in _case_lines(f, where):
+                if header is None:
+                    header = [h.strip() for h in row]
+                    continue
+                if len(row) != len(header):
+                    raise ParameterError(f"{where} line {line}: {len(row)} values for {len(header)} columns")
+                try:
+                    values.extend(float(v) for v in row)
+                except ValueError:
+                    raise ParameterError(f"{where} line {line}: not all numbers: {row!r}") from None
     except OSError as exc:
         raise ParameterError(f"cannot read cases file {str(path)!r}: {exc.strerror or exc}") from None
     except (UnicodeDecodeError, csv.Error) as exc:
-        raise ParameterError(f"cases file {str(path)!r} is not a readable CSV file: {exc}") from None
-    if len(rows) < 2:
-        raise ParameterError(f"cases file {str(path)!r} needs a header row and at least one case")
-    header = [h.strip() for h in rows[0]]
-    values = []
-    for line, row in enumerate(rows[1:], start=2):
-        if len(row) != len(header):
-            raise ParameterError(f"cases file {str(path)!r} line {line}: {len(row)} values for {len(header)} columns")
-        try:
-            values.append([float(v) for v in row])
-        except ValueError:
-            raise ParameterError(f"cases file {str(path)!r} line {line}: not all numbers: {row!r}") from None
-    return _table(header, values, f"cases file {str(path)!r}")
+        raise ParameterError(f"{where} is not a readable CSV file: {exc}") from None
+    if header is None or not values:
+        raise ParameterError(f"{where} needs a header row and at least one case")
+    return _table(header, np.frombuffer(values, dtype=float).reshape(-1, len(header)), where)
 
 
 def _table(names: object, values: object, where: str) -> CaseTable:
@@ -470,6 +506,8 @@ def _table(names: object, values: object, where: str) -> CaseTable:
         raise ParameterError(f"{where}: expected rows of {len(names)} numbers, got shape {arr.shape}")
     if not np.all(np.isfinite(arr)):
         raise ParameterError(f"{where}: values must be finite")
+    for j, name in enumerate(names):
+        _check_range(name, arr[:, j], f"{where}:")
     return CaseTable(names=names, values=arr)
 
 
@@ -516,6 +554,16 @@ def _check_input(name: str, where: str) -> None:
             f"{', '.join(STATE_INPUTS)}, or a drive's TARGET_amplitude_UNIT, TARGET_frequency_hz, TARGET_phase_rad "
             f"(TARGET: {', '.join(t.value for t in Target)})"
         )
+
+
+def _check_range(name: str, value: float | FloatArray, where: str) -> None:
+    """An input's values within its range (``pendsim_mj.rig.checks.INPUT_RANGES``, or a
+    parameter's own), the message prefixed with ``where``; in an array (a cases file's column)
+    each value's position is named as its case."""
+    try:
+        check_input(name, value)
+    except ParameterError as exc:
+        raise ParameterError(f"{where} {exc}") from None
 
 
 def _check_number(value: object, what: str) -> float:

@@ -249,7 +249,7 @@ def _error(capsys) -> str:
         (["--format", "json", "--fields", "t_us=time,gx"], "expected NAME=PATH"),
         (["--columns", "t_ms,gx,gy,gz"], "--columns is for --format csv"),
         (["--format", "xml"], "unknown format 'xml'; allowed: pendsim-v1, csv, json"),
-        (["--duration-s", "0"], "duration_s must be a finite number > 0 s"),
+        (["--duration-s", "0"], "--duration-s must be a finite number > 0 s"),
         (["--set", "c1_n_m=-1"], "c1_n_m"),
     ],
 )

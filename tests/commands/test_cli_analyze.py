@@ -57,7 +57,7 @@ def test_simulate_reads_a_drive_from_a_csv_file(tmp_path, capsys):
         (["--pivot-z-m-s2", "chirp:1,0.5,2,-3"], "duration_s must be > 0"),
         (["--support-x-m-s2", "sine:1,nan"], "must be finite"),
         (["--torque1-n-m", "csv:missing.csv"], "csv drive file missing.csv: no such file"),
-        (["--torque1-n-m", "sine:0.001,1", "--duration-s", "5", "--dt-s", "0.3"], "dt_s"),
+        (["--torque1-n-m", "sine:0.001,1", "--duration-s", "5", "--dt-s", "0.3"], "--dt-s must be at most 0.1 s"),
     ],
 )
 def test_bad_drive_options_are_one_line_exit_2(capsys, args, message):

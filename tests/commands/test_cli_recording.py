@@ -65,7 +65,7 @@ def test_record_refuses_to_overwrite_an_existing_file_unless_forced(tmp_path, ca
     ("args", "message"),
     [
         (["--compression", "bzip2"], "unknown compression 'bzip2'; allowed: zstd, lz4, none"),
-        (["--duration-s", "-5"], "duration_s must be a finite number > 0 s"),
+        (["--duration-s", "-5"], "--duration-s must be a finite number > 0 s"),
         (["--set", "c1_n_m=1e6"], "simulation diverged"),
         (["--seed", "x"], "argument --seed: must be an integer in [0, 9223372036854775807], got 'x'"),
     ],

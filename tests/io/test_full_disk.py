@@ -32,6 +32,7 @@ COMMANDS = {
     "allan --plot-dir": ["allan", "{static}", "--plot-dir", "{out}/allan"],
     "compare": ["compare", "--duration-s", "2", "-o", "{out}/cmp"],
     "demo": ["demo", "--duration-s", "10", "-o", "{out}/demo"],
+    "sweep": ["sweep", "--vary", "phi1_deg=10:20:2", "--duration-s", "1", "-o", "{out}/sweep"],
 }
 RUNNER = """
 import contextlib, io, json, resource, signal, sys

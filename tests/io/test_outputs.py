@@ -16,7 +16,7 @@ from pathlib import Path
 import pytest
 
 from pendsim_bridge.errors import OutputError
-from pendsim_bridge.io.outputs import atomic_directory, atomic_output, rename_no_replace
+from pendsim_bridge.io.outputs import atomic_directory, atomic_output, rename_no_replace, replace_hint_as
 
 
 def test_the_file_appears_only_when_complete(tmp_path):
@@ -39,8 +39,13 @@ def test_a_failure_leaves_nothing_behind(tmp_path):
 def test_an_existing_file_is_refused_and_untouched_unless_replace(tmp_path):
     target = tmp_path / "out.txt"
     target.write_text("old")
-    with pytest.raises(OutputError, match="exists; choose another name or pass --force"), atomic_output(target):
+    # a script is told its own way to replace (replace=True), the command line --force
+    with pytest.raises(OutputError, match=r"exists; choose another name or pass replace=True"), atomic_output(target):
         pass
+    with pytest.raises(OutputError, match="or pass --force"), replace_hint_as("--force"), atomic_output(target):
+        pass
+    with pytest.raises(OutputError, match=r"folder or pass replace=True"), atomic_directory(tmp_path) as folder:
+        (folder / "out.txt").write_text("x")
     assert target.read_text() == "old"
     with atomic_output(target, replace=True) as tmp:
         tmp.write_text("new")

@@ -230,3 +230,10 @@ def test_the_phi1_error_in_windows_equals_one_whole_run_comparison(n):
     assert np.array_equal(t_w, whole.t_s) and np.array_equal(delta, whole.delta)  # every instant once
     np.testing.assert_allclose(iae, whole.iae_curve, rtol=0, atol=1e-9 * whole.iae)
     np.testing.assert_allclose(ise, whole.ise_curve, rtol=0, atol=1e-9 * whole.ise)
+
+
+def test_view_takes_o_like_every_command_and_still_takes_save(recording, tmp_path):
+    for flag in ("-o", "--output", "--save"):
+        rrd = tmp_path / f"{flag.strip('-')}.rrd"
+        assert main(["view", str(recording), flag, str(rrd)]) == 0
+        assert rrd.stat().st_size > 0

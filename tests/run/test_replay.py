@@ -164,3 +164,17 @@ def test_loop_starts_again_at_the_beginning_of_the_window(recording):
     stream = replay(recording, topics=["/joint_states"], start_s=1.0, end_s=1.05, loop=True)
     times = [next(stream).log_time_ns - _start_ns(recording) for _ in range(18)]  # 6 per pass, three passes
     assert times[:6] == times[6:12] == times[12:18] == [1_000_000_000 + k * 10_000_000 for k in range(6)]
+
+
+@pytest.mark.parametrize("how", [["-o", "{out}"], ["--speed", "max", "--quiet"]])
+def test_a_window_that_starts_after_the_recording_is_one_line_naming_its_length(recording, tmp_path, capsys, how):
+    out = tmp_path / "cut.mcap"
+    assert main(["replay", str(recording), "--start", "500", *[a.format(out=out) for a in how]]) == 2
+    captured = capsys.readouterr()
+    lines = captured.err.splitlines()
+    assert len(lines) == 1 and captured.out == "", captured
+    assert "the window starts at 500 s, after the end of" in lines[0]
+    assert "its messages run from 0 to 30.000 s after its start" in lines[0]
+    assert list(tmp_path.iterdir()) == []
+    # just inside the end: still a (short) replay
+    assert main(["replay", str(recording), "--start", "29.99", "-o", str(out)]) == 0

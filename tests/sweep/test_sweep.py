@@ -130,14 +130,24 @@ def test_the_definition_file_shown_in_the_docs_loads(tmp_path):
         ({"vary": {"c1_n_m": [1.0]}, "engine": "mujoco", "features": ["lyapunov"]}, "lyapunov feature needs the fast"),
         ({"vary": {"c1_n_m": [1.0]}, "duration_s": 1.005}, "must be a whole number of steps"),
         ({"method": "grid"}, "method grid needs at least one varied input"),
-        ({"vary": {"c1_n_m": [-1.0]}}, None),  # checked when the cases are made: see below
+        ({"vary": {"c1_n_m": [-1.0]}}, "vary c1_n_m: c1_n_m must be >= 0 N/m, got -1.0"),
+        (
+            {"vary": {"phi1_deg": {"from": 0, "to": 1e300, "num": 3}}},
+            "vary phi1_deg to: phi1_deg must be a finite number in [-180, 180] deg, got 1e+300",
+        ),
+        (
+            {"vary": {"c1_n_m": [1.0]}, "base": {"support_x_frequency_hz": 1e300}},
+            "base support_x_frequency_hz must be a finite number in (0, 1000] Hz",
+        ),
+        ({"vary": {"c1_n_m": [1.0]}, "duration_s": 1e300}, "duration_s must be a finite number in (0, 86400] s"),
+        ({"vary": {"j1_kg_m2": [1e-9, 0.03]}}, None),  # see below
     ],
 )
 def test_bad_definitions_name_what_is_wrong(data, message):
-    if message is None:
+    if message is None:  # each value in its range; the rule between inputs is checked when the cases are made
         plan = _plan(**data)
-        with pytest.raises(ParameterError, match=r"case 0: c1_n_m must be >= 0 N/m, got -1.0"):
-            plan.case_inputs(plan.cases(), np.arange(1))
+        with pytest.raises(ParameterError, match=r"case 0: j1_kg_m2 = 1e-09 must exceed m1_kg \* oc1_m\^2"):
+            plan.case_inputs(plan.cases(), np.arange(2))
         return
     with pytest.raises(ParameterError, match=re.escape(message)):
         _plan(**data)
@@ -424,7 +434,10 @@ def test_a_definition_file_runs_and_a_second_run_resumes(tmp_path, capsys):
         (["--vary", "c1_n_m=1:x:3"], "vary c1_n_m: not a number: 'x'"),
         (["--vary", "c1_n_m"], "expected NAME=FROM:TO:NUM"),
         (["--vary", "c1_n_m=1:2", "--features", "colour"], "unknown feature 'colour'"),
-        (["--vary", "c1_n_m=-5,1"], None),
+        (["--vary", "c1_n_m=-5,1"], "vary c1_n_m: c1_n_m must be >= 0 N/m, got -5.0"),
+        (["--vary", "phi1_deg=0:1e300:3"], "vary phi1_deg to: phi1_deg must be a finite number in [-180, 180] deg"),
+        (["--vary", "phi1_deg=0:10:3", "--set", "phi1_deg=1e300"], "argument --set: phi1_deg must be a finite"),
+        (["--vary", "j1_kg_m2=1e-9,0.03"], None),
         (["--random", "5", "--vary", "c1_n_m=1,2"], "random and lhs need a range"),
         (
             ["--vary", "c1_n_m=1:2:3", "--engine", "mujoco", "--features", "lyapunov"],
@@ -447,7 +460,7 @@ def test_bad_input_gives_one_line_exit_2_and_writes_nothing(tmp_path, capsys, mo
     if message is not None:
         assert message in lines[0]
     else:
-        assert "case 0: c1_n_m must be >= 0 N/m, got -5.0" in lines[0]
+        assert "case 0: j1_kg_m2 = 1e-09 must exceed" in lines[0]
     assert captured.out == "" and list(tmp_path.iterdir()) == []
 
 

@@ -18,7 +18,11 @@ from __future__ import annotations
 import numba
 import numpy as np
 
+from pendsim_mj import compile_notice
+
 from ...signals import interrupts_deferred
+
+compile_notice.watch()  # one line on a cold compile (the command line prints it)
 
 MESSAGE_OPCODE = 0x05
 RECORD_HEAD_SIZE = 9  # opcode (1), length (8)

@@ -9,7 +9,12 @@ from typing import Any
 from mcap.opcode import Opcode
 
 from .chunks import inflate, read_chunk_ref
+from .mapping import release
 from .records import record_frame
+
+WINDOW_BYTES = 1 << 24
+"""The search goes through the file in windows of 16 MB, each window's pages released once
+searched, so that a long stretch of damage (a file of zeros) does not become resident memory."""
 
 
 def next_intact_chunk(buf: Any, size: int, start: int) -> int | None:
@@ -17,13 +22,18 @@ def next_intact_chunk(buf: Any, size: int, start: int) -> int | None:
     whose CRC checks (each candidate is inflated); None if there is none."""
     at = start
     opcode = bytes([Opcode.CHUNK])
-    while True:
-        at = buf.find(opcode, at)
-        if at < 0:
-            return None
-        if _plausible_chunk(buf, size, at):
-            return at
-        at += 1
+    while at < size:
+        stop = min(size, at + WINDOW_BYTES)
+        found = buf.find(opcode, at, stop)
+        if found < 0:
+            release(buf, at, stop)
+            at = stop
+            continue
+        if _plausible_chunk(buf, size, found):
+            return found
+        release(buf, at, found)
+        at = found + 1
+    return None
 
 
 def _plausible_chunk(buf: Any, size: int, at: int) -> bool:

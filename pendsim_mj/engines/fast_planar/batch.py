@@ -8,10 +8,13 @@ import os
 import numba
 import numpy as np
 
+from pendsim_mj import compile_notice
 from pendsim_mj.engines.fast_planar.closed_form import NINPUT, FloatArray, _check_coef
 from pendsim_mj.engines.fast_planar.kernel import _integrate_kernel
 from pendsim_mj.errors import ParameterError
 from pendsim_mj.rig.drives import NSTAGE
+
+compile_notice.watch()  # one line on a cold compile (the command line prints it)
 
 # Members integrated side by side in one chunk (a multiple of the 8-wide AVX-512 vector); chunks
 # are spread over the cores.

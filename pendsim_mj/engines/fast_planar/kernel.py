@@ -28,6 +28,7 @@ import numba
 import numpy as np
 from numpy.typing import NDArray
 
+from pendsim_mj import compile_notice
 from pendsim_mj.engines.fast_planar.closed_form import (
     _B1,
     _B2,
@@ -46,6 +47,8 @@ from pendsim_mj.engines.fast_planar.closed_form import (
     _SMOOTH2,
     FloatArray,
 )
+
+compile_notice.watch()  # one line on a cold compile (the command line prints it)
 
 # fdlibm (Sun Microsystems, 1993) constants: pi/2 in three 33-bit pieces and the minimax
 # polynomials of __kernel_sin / __kernel_cos on [-pi/4, pi/4].
