@@ -76,6 +76,7 @@ def run(args: argparse.Namespace) -> int:
         args.path, window_s=args.window_s, release_s=args.release_s, max_gap_s=args.max_gap_s, law=args.law
     )
     print(identification_table(args.path, result))
+    options.print_warnings(result.warnings)
     if args.write is not None:
         values = result.fit.overrides()
         with atomic_output(args.write, replace=args.force) as tmp:

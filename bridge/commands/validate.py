@@ -98,6 +98,7 @@ def run(args: argparse.Namespace) -> int:
         model=args.model,
     )
     print(table(report))
+    options.print_warnings(report.warnings)
     written = write_outputs(report, out_dir, plots=not args.no_plots, replace=args.force)
     print(f"wrote {', '.join(str(p) for p in written)}")
     failures = gate_failures(report, Gates(args.max_delta, args.max_iae, args.max_error_phi1))

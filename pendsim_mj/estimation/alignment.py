@@ -73,11 +73,10 @@ from pendsim_mj.estimation.start_fit import (
     ANGLE_SIGMA_RAD,
     TIMING_FIT_S,
     TIMING_MIN_RANGE_S,
-    TIMING_PROBE,
     StartModel,
     fit_start,
     mirrored_differs,
-    relative_fusion_timing,
+    sense_and_timing,
 )
 from pendsim_mj.estimation.swing_frame import fit_swing_frame
 from pendsim_mj.estimation.timing import DEFAULT_MAX_GAP_S, check_max_gap, coverage, fusion_phase
@@ -86,13 +85,13 @@ from pendsim_mj.sensors.bno055 import FUSION_RATE_HZ
 
 __all__ = [
     "ANGLE_SIGMA_RAD",
+    "FILE_TIMING_OPEN_S",
     "FIRST_SWING_S",
     "FRAME_FIT_S",
     "LARGE_SWING",
     "MIN_REST_S",
     "TIMING_FIT_S",
     "TIMING_MIN_RANGE_S",
-    "TIMING_PROBE",
     "UNEXPLAINED_POOR",
     "UNEXPLAINED_REFUSED",
     "MeasuredRun",
@@ -104,6 +103,16 @@ __all__ = [
 ]
 
 UNEXPLAINED_REFUSED = 0.5  # a found start whose model leaves this share of the motion unexplained is refused
+FILE_TIMING_OPEN_S = 0.006
+"""How far a lab file's two nodes' times may be off against each other at least, s (a logger's
+per-node offsets of a few ms); at least one sample period: one time column shared by two nodes
+sampled at other instants puts one node's values up to a period off."""
+
+
+def file_timing_open_s(rate_hz: float) -> float:
+    """How far a lab file's nodes' times may be off against each other (nodes sampled at
+    ``rate_hz``, Hz), s: FILE_TIMING_OPEN_S or one sample period, the larger."""
+    return max(FILE_TIMING_OPEN_S, 1.0 / rate_hz)
 
 
 def _owned(a: Floats, samples: NodeSamples) -> bool:
@@ -178,6 +187,7 @@ def align(
     drive_input: tuple[Floats, Floats] | None = None,
     off_hinge: bool = True,
     float32_values: bool = False,
+    file_times: bool = False,
 ) -> MeasuredRun:
     """The measured run of two nodes (M1's, M2's) against which ``params`` will be compared.
 
@@ -198,6 +208,11 @@ def align(
       float32_values: the run's values (angles, rates, accelerations, off-hinge gyros) as
         float32, its instants float64: 32 instead of 48 bytes a sample (a long run; float32
         rounds an angle of 0.5 rad by 3e-8 rad, far below the sensors' resolution).
+      file_times: the nodes' times are a lab file's columns (``pendsim import``), not a
+        recorder's clock: steps in them are found and removed (``timing.clock_steps``), and each
+        node's times may be off against the other's (a constant offset, one column shared by
+        nodes sampled at other instants) by up to ``file_timing_open_s`` of the slower node's
+        rate, which the start fit and the damping fit then estimate.
 
     Raises:
       RecordingError: too few samples, no motion, no swing to find a frame in.
@@ -206,7 +221,13 @@ def align(
     if len(nodes) != 2:
         raise ParameterError(f"align needs the two nodes (M1, M2), got {len(nodes)}")
     check_max_gap(max_gap_s)
-    prepared = [prepare_node(n, k) for k, n in enumerate(nodes)]
+    prepared = [prepare_node(n, k, find_steps=file_times) for k, n in enumerate(nodes)]
+    for k in range(2):  # a step one node's values could not read: the other's, of the same clock, may
+        clear = [(s.at_s, s.step_s) for s in prepared[1 - k].steps if s.other_s is None]
+        if clear and any(s.other_s is not None for s in prepared[k].steps):
+            prepared[k] = prepare_node(nodes[k], k, find_steps=True, known_steps=clear)
+    notes = [step.describe(f"M{k + 1}") for k, node in enumerate(prepared) for step in node.steps]
+    open_s = file_timing_open_s(min(n.rate_hz for n in prepared)) if file_times else 0.0
     onset_s = None
     if drive_input is not None:
         drive_input = (np.asarray(drive_input[0], dtype=float), np.asarray(drive_input[1], dtype=float))
@@ -263,12 +284,11 @@ def align(
         x_f, rms_f, unexplained_f = fit_start(model, flipped, instants, start_fit_s)
         if rms_f < rms:
             prepared, x, rms, unexplained = flipped, x_f, rms_f, unexplained_f
-    if fusion_rate_hz:  # the nodes' relative fusion timing, which their own data leave open
-        found = [p for p in phases if p is not None]
-        chosen, instants, (x, rms, unexplained), timing_range = relative_fusion_timing(
-            model, prepared, found, fusion_rate_hz, start_fit_s, (x, rms, unexplained)
-        )
-        phases = list(chosen)
+    # M2's sense against M1's and the nodes' relative timing, which their own data leave open
+    chosen = sense_and_timing(model, prepared, phases, fusion_rate_hz, start_fit_s, (x, rms, unexplained), open_s)
+    prepared, phases, instants, timing_range = chosen.nodes, chosen.phases, chosen.instants, chosen.timing_range_s
+    x, rms, unexplained = chosen.fitted
+    notes += chosen.notes
     phi0, omega0, start_time = model.states(x)
     shift = model.shift_s(x)
     if drive_input is not None and kind == "release":
@@ -301,6 +321,9 @@ def align(
         fusion_rate_hz=fusion_rate_hz,
         max_gap_s=max_gap_s,
         relative_timing_range_s=timing_range,
+        relative_timing_s=chosen.relative_s,
+        timing_open_s=open_s,
+        warnings=tuple(notes),
     )
 
 
