@@ -14,18 +14,21 @@ Works on arrays (time stamps, quaternions, gyro and accelerometer per node), fro
 3. **Swing frames** (``swing_frame``): each node's hinge axis, mounting and angle from its own
    data, whatever the heading, mount and axis remap. Signs: M1's first large excursion counts as
    positive (the paper releases M1 to +34 deg; the rig is mirror symmetric, so this convention
-   cannot change a comparison); M2 follows M1 through the coupling springs, which pull M2 toward
-   M1 (d alpha2 / d phi1 > 0, about 5 s^-2 on the paper's rig).
+   cannot change a comparison); M2's sense against M1's is the one the model fits (step 5).
 4. **Start state**: least squares of the model's first ``start_fit_s`` seconds against both
    nodes' angles and rates: the release instant and angles (from rest) for a release, else the
    full state (angles and rates) at the first samples. A driven run's model is driven by the
    recorded inputs (drive time 0 at the start); as the drive breaks the rig's mirror symmetry,
    the sign of the swing frames is the one whose start fit is better.
-5. **Fusion timing**: a BNO055 sample carries the latest 100 Hz fused value, so it is 0-10 ms
+5. **Sense and timing**: a BNO055 sample carries the latest 100 Hz fused value, so it is 0-10 ms
    old in a pattern set by where the chip's fusion ticks fall; that phase is found per node from
-   its own data within a stretch (``timing.fusion_phase``), and the nodes' relative timing within
-   both stretches by the start fit (``start_fit.relative_fusion_timing``); what is left open of it
-   (``MeasuredRun.relative_timing_range_s``) the damping fit refines.
+   its own data within a stretch (``timing.fusion_phase``). M2's sense against M1's and the
+   nodes' relative timing (within both stretches, and for a lab file's times within a sample
+   period more: ``file_times``) are chosen together by the start fit over 3 s, both senses tried
+   (``start_fit.sense_and_timing``); what is left open of the timing
+   (``MeasuredRun.relative_timing_range_s``) the damping fit refines. A lab file's clock steps
+   are removed first (``timing.clock_steps``); what the data leave unclear is a warning
+   (``MeasuredRun.warnings``).
 6. **Gaps**: nothing is filled in; each node keeps its own instants, and its coverage (share of
    the run inside segments whose spacing stays below ``max_gap_s``) is reported.
 

@@ -245,7 +245,9 @@ def orient(nodes: list[AlignedNode], t0: float, kind: StartKind) -> list[Aligned
     """Signs: M1's largest excursion over the first swing positive (for a release from rest that
     is its release angle: its held angle decides, not a comparison with the next, hardly
     smaller, excursion on the other side); M2 coupled to M1 as the springs couple them (alpha2
-    rises with phi1)."""
+    rises with phi1) as a first guess only: after a release in mode 1 the regression's two angle
+    columns are nearly collinear and it can read M2 mirrored, so ``start_fit.sense_and_timing``
+    decides M2's sense by the fit of the model."""
     m1, m2 = nodes
     assert m1.frame is not None and m2.frame is not None
     phi1 = m1.phi
