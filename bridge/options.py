@@ -15,6 +15,7 @@ import json
 import math
 import os
 import stat
+import sys
 from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import NoReturn, TypeVar
@@ -330,6 +331,12 @@ def add_alignment_options(p: argparse.ArgumentParser) -> None:
         metavar="S",
         help="never interpolate or integrate across a gap between samples longer than this, s (default 0.1)",
     )
+
+
+def print_warnings(lines: tuple[str, ...] | list[str]) -> None:
+    """Each warning as one line ``pendsim: warning: ...`` on standard error."""
+    for line in lines:
+        print(f"pendsim: warning: {' '.join(line.split())}", file=sys.stderr)
 
 
 def add_rerun_option(p: argparse.ArgumentParser, default: str, what: str) -> None:

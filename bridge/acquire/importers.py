@@ -52,7 +52,7 @@ from pendsim_mj.sensors.bno055 import ACCEL_LSB_M_S2
 from pendsim_mj.units import nanoseconds
 
 from ..io.outputs import atomic_output
-from ..io.recording_layout import UNIX_2000_S, utc_iso
+from ..io.recording_layout import IMPORT_METADATA, UNIX_2000_S, utc_iso
 from .packets import (
     ACCEL_UNITS,
     COLUMN_NAMES,
@@ -768,7 +768,7 @@ def import_file(
     first_t = next(iter(per_node.values()))[0]
     rate = round(nominal_rate_hz(first_t), 6) if len(first_t) > 1 else 0.0
     metadata = {
-        "pendsim/import": {
+        IMPORT_METADATA: {
             "source_file": str(source.resolve()),
             "source_name": source.name,
             "source_size_bytes": str(source.stat().st_size),

@@ -87,6 +87,7 @@ def run(args: argparse.Namespace) -> int:
         overrides=options.overrides_from(args),
     )
     print(identification_table(args.path, result))
+    options.print_warnings(result.warnings)
     if result.fit.misfit:
         print(f"pendsim: identify: {result.fit.misfit_note()}", file=sys.stderr)
         return 1

@@ -98,6 +98,7 @@ def run(args: argparse.Namespace) -> int:
         model=args.model,
     )
     print(table(report))
+    options.print_warnings(report.warnings)
     if report.identification is not None and report.identification.fit.misfit:
         print(f"pendsim: validate: {report.identification.fit.misfit_note()}", file=sys.stderr)
     written = write_outputs(report, out_dir, plots=not args.no_plots, replace=args.force)

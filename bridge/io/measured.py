@@ -22,7 +22,7 @@ from pendsim_mj.rig.params import DEFAULT_PARAMS, RigParams
 from pendsim_mj.units import seconds
 
 from .recording import Recording
-from .recording_layout import NODES, imu_topic
+from .recording_layout import IMPORT_METADATA, NODES, imu_topic
 
 
 def recorded_stamp_clock(metadata: dict[str, dict[str, str]], node: str, start_time_ns: int) -> ClockRelation | None:
@@ -106,6 +106,7 @@ def align_recording(
             drive_input=rec.drive_input_s,
             off_hinge=off_hinge,
             float32_values=float32_values,
+            file_times=IMPORT_METADATA in rec.metadata,
         )
     except RecordingError as exc:
         raise RecordingError(f"{rec.path}: {exc}") from None

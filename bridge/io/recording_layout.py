@@ -20,6 +20,7 @@ JOINT_NAMES = ("hinge_phi1", "hinge_phi2")
 SPATIAL_JOINT_NAMES = ("tilt_m1", "tilt_m2")  # pendsim_mj.rig.model.TILTS: the spatial variant's extra joints
 WORLD_FRAME = "world"
 MJCF_ATTACHMENT = "pendulums.xml"
+IMPORT_METADATA = "pendsim/import"  # what ``pendsim import`` writes: the times are a lab file's columns
 SITE_QUAT_WXYZ = rotations.IMU_SITE_QUAT_WXYZ  # the IMU site's axes in its body at rest
 TF_LAYOUT = ros2.tf_layout(((WORLD_FRAME, "m1"), (WORLD_FRAME, "m2")))
 STATIC_TF_LAYOUT = ros2.tf_layout((("m1", "imu_m1"), ("m2", "imu_m2")))

@@ -134,6 +134,7 @@ def identification_table(path: str | Path, result: Identification) -> str:
                 f"  {f.law:8} BIC {f.bic:12.1f}  rms {f.residual_rms_sigma:.3f} sigma  "
                 f"Ljung-Box p {f.ljung_box_p[0]:.2g} (m1), {f.ljung_box_p[1]:.2g} (m2){mark}"
             )
+    lines += [f"warning: {w}" for w in result.warnings]
     return "\n".join(lines)
 
 

@@ -47,6 +47,7 @@ class Identification:
     start_kind: str = "release"
     modal_decrement: ModalDecrement | None = None  # None: a mode without three amplitude peaks
     driven: bool = False  # the fit used the recorded drive; the decrements (free decay only) are skipped
+    warnings: tuple[str, ...] = ()  # the alignment's and the fit's (``identification.fit_warnings``), one line each
 
 
 @dataclasses.dataclass(frozen=True)
@@ -75,6 +76,11 @@ class ValidationReport:
     drive: Drive | None = None  # a driven recording's drive from the start on (every model run has it)
     lines: dict[tuple[str, str, str], DrawnLines] = dataclasses.field(default_factory=dict)
     """What the whole-run figures draw: (engine, release, quantity) -> its lines (``FIGURES``)."""
+
+    @property
+    def warnings(self) -> tuple[str, ...]:
+        """One-line warnings: the alignment's and, with an identified damping, the fit's."""
+        return self.identification.warnings if self.identification is not None else self.run.warnings
 
     @functools.cached_property
     def model_run(self) -> Trajectory:
@@ -201,6 +207,8 @@ def report_json(report: ValidationReport) -> dict[str, Any]:
         },
         "nodes": nodes,
         "relative_timing_range_s": None if run.relative_timing_range_s is None else list(run.relative_timing_range_s),
+        "relative_timing_s": run.relative_timing_s,
+        "warnings": list(report.warnings),
         "max_gap_s": run.max_gap_s,
         "damping": {
             "source": report.damping_source,
@@ -269,6 +277,7 @@ def table(report: ValidationReport) -> str:
         coverage_line(report.run),
         f"damping {report.damping_source}: b1 = {report.params.b1_n_m_s:.5g}, "
         f"b2 = {report.params.b2_n_m_s:.5g} N m s/rad",
+        *(f"warning: {w}" for w in report.warnings),
     ]
     for case in report.cases:
         if case.release != "estimated":

@@ -29,14 +29,16 @@ from numpy.typing import DTypeLike
 
 from pendsim_mj.engines import dispatch as engines
 from pendsim_mj.engines.dispatch import whole_steps_s
-from pendsim_mj.errors import ParameterError
+from pendsim_mj.errors import ParameterError, RecordingError
 from pendsim_mj.estimation.alignment import MeasuredRun
 from pendsim_mj.estimation.identification import (
     LogDecrement,
     ModalDecrement,
+    fit_warnings,
     log_decrement,
     modal_decrement,
     planar_damping,
+    timing_at_edge,
 )
 from pendsim_mj.estimation.quantities import VALIDATED
 from pendsim_mj.estimation.timing import DEFAULT_MAX_GAP_S
@@ -111,11 +113,17 @@ def identify(
     run = align_recording(rec, params, release_s=release_s, max_gap_s=max_gap_s)
     drive = recording_drive(rec, run)
     del rec  # the decoded recording is not needed by the fit (a 1 h record: about 120 MB)
-    return _identify(run, params, window_s, law, drive)
+    return _identify(run, params, window_s, law, drive, source=path)
 
 
 def _identify(
-    run: MeasuredRun, params: RigParams, window_s: float, law: str = "auto", drive: Drive | None = None
+    run: MeasuredRun,
+    params: RigParams,
+    window_s: float,
+    law: str = "auto",
+    drive: Drive | None = None,
+    *,
+    source: str | Path = "the recording",
 ) -> Identification:
     """Log decrement of the measured angles and the planar least-squares fit of the gyros (hinge
     losses and start state together; the one call into ``pendsim_mj.estimation.identification``). A driven
@@ -145,8 +153,12 @@ def _identify(
         drive=drive,
         timing_range_s=run.relative_timing_range_s,
     )
+    edge = timing_at_edge(fit, run.relative_timing_range_s)
+    if edge is not None and run.timing_open_s > 0:  # a lab file's times, off by more than they may be
+        raise RecordingError(f"{source}: the damping cannot be identified: {edge}")
+    warnings = run.warnings + fit_warnings(fit, run.relative_timing_range_s)
     return Identification(
-        decrement, fit, start.phi_rad, start.time_s, start.omega_rad_s, start.kind, modal, drive is not None
+        decrement, fit, start.phi_rad, start.time_s, start.omega_rad_s, start.kind, modal, drive is not None, warnings
     )
 
 
@@ -207,7 +219,7 @@ def validate(
     heap.trim()
     identification = None
     if damping == "identified":
-        identification = _identify(run, base, 120.0, drive=drive)
+        identification = _identify(run, base, 120.0, drive=drive, source=path)
         fit = identification.fit
         model_params = base.with_mapping(fit.overrides())
         source = f"identified (least squares, {fit.law} law)"

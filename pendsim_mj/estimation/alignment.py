@@ -14,18 +14,21 @@ Works on arrays (time stamps, quaternions, gyro and accelerometer per node), fro
 3. **Swing frames** (``swing_frame``): each node's hinge axis, mounting and angle from its own
    data, whatever the heading, mount and axis remap. Signs: M1's first large excursion counts as
    positive (the paper releases M1 to +34 deg; the rig is mirror symmetric, so this convention
-   cannot change a comparison); M2 follows M1 through the coupling springs, which pull M2 toward
-   M1 (d alpha2 / d phi1 > 0, about 5 s^-2 on the paper's rig).
+   cannot change a comparison); M2's sense against M1's is the one the model fits (step 5).
 4. **Start state**: least squares of the model's first ``start_fit_s`` seconds against both
    nodes' angles and rates: the release instant and angles (from rest) for a release, else the
    full state (angles and rates) at the first samples. A driven run's model is driven by the
    recorded inputs (drive time 0 at the start); as the drive breaks the rig's mirror symmetry,
    the sign of the swing frames is the one whose start fit is better.
-5. **Fusion timing**: a BNO055 sample carries the latest 100 Hz fused value, so it is 0-10 ms
+5. **Sense and timing**: a BNO055 sample carries the latest 100 Hz fused value, so it is 0-10 ms
    old in a pattern set by where the chip's fusion ticks fall; that phase is found per node from
-   its own data within a stretch (``timing.fusion_phase``), and the nodes' relative timing within
-   both stretches by the start fit (``start_fit.relative_fusion_timing``); what is left open of it
-   (``MeasuredRun.relative_timing_range_s``) the damping fit refines.
+   its own data within a stretch (``timing.fusion_phase``). M2's sense against M1's and the
+   nodes' relative timing (within both stretches, and for a lab file's times within a sample
+   period more: ``file_times``) are chosen together by the start fit over 3 s, both senses tried
+   (``start_fit.sense_and_timing``); what is left open of the timing
+   (``MeasuredRun.relative_timing_range_s``) the damping fit refines. A lab file's clock steps
+   are removed first (``timing.clock_steps``); what the data leave unclear is a warning
+   (``MeasuredRun.warnings``).
 6. **Gaps**: nothing is filled in; each node keeps its own instants, and its coverage (share of
    the run inside segments whose spacing stays below ``max_gap_s``) is reported.
 
@@ -73,11 +76,10 @@ from pendsim_mj.estimation.start_fit import (
     ANGLE_SIGMA_RAD,
     TIMING_FIT_S,
     TIMING_MIN_RANGE_S,
-    TIMING_PROBE,
     StartModel,
     fit_start,
     mirrored_differs,
-    relative_fusion_timing,
+    sense_and_timing,
 )
 from pendsim_mj.estimation.swing_frame import fit_swing_frame
 from pendsim_mj.estimation.timing import DEFAULT_MAX_GAP_S, check_max_gap, coverage, fusion_phase
@@ -86,13 +88,13 @@ from pendsim_mj.sensors.bno055 import FUSION_RATE_HZ
 
 __all__ = [
     "ANGLE_SIGMA_RAD",
+    "FILE_TIMING_OPEN_S",
     "FIRST_SWING_S",
     "FRAME_FIT_S",
     "LARGE_SWING",
     "MIN_REST_S",
     "TIMING_FIT_S",
     "TIMING_MIN_RANGE_S",
-    "TIMING_PROBE",
     "UNEXPLAINED_POOR",
     "UNEXPLAINED_REFUSED",
     "MeasuredRun",
@@ -104,6 +106,16 @@ __all__ = [
 ]
 
 UNEXPLAINED_REFUSED = 0.5  # a found start whose model leaves this share of the motion unexplained is refused
+FILE_TIMING_OPEN_S = 0.006
+"""How far a lab file's two nodes' times may be off against each other at least, s (a logger's
+per-node offsets of a few ms); at least one sample period: one time column shared by two nodes
+sampled at other instants puts one node's values up to a period off."""
+
+
+def file_timing_open_s(rate_hz: float) -> float:
+    """How far a lab file's nodes' times may be off against each other (nodes sampled at
+    ``rate_hz``, Hz), s: FILE_TIMING_OPEN_S or one sample period, the larger."""
+    return max(FILE_TIMING_OPEN_S, 1.0 / rate_hz)
 
 
 def _owned(a: Floats, samples: NodeSamples) -> bool:
@@ -178,6 +190,7 @@ def align(
     drive_input: tuple[Floats, Floats] | None = None,
     off_hinge: bool = True,
     float32_values: bool = False,
+    file_times: bool = False,
 ) -> MeasuredRun:
     """The measured run of two nodes (M1's, M2's) against which ``params`` will be compared.
 
@@ -198,6 +211,11 @@ def align(
       float32_values: the run's values (angles, rates, accelerations, off-hinge gyros) as
         float32, its instants float64: 32 instead of 48 bytes a sample (a long run; float32
         rounds an angle of 0.5 rad by 3e-8 rad, far below the sensors' resolution).
+      file_times: the nodes' times are a lab file's columns (``pendsim import``), not a
+        recorder's clock: steps in them are found and removed (``timing.clock_steps``), and each
+        node's times may be off against the other's (a constant offset, one column shared by
+        nodes sampled at other instants) by up to ``file_timing_open_s`` of the slower node's
+        rate, which the start fit and the damping fit then estimate.
 
     Raises:
       RecordingError: too few samples, no motion, no swing to find a frame in.
@@ -206,7 +224,13 @@ def align(
     if len(nodes) != 2:
         raise ParameterError(f"align needs the two nodes (M1, M2), got {len(nodes)}")
     check_max_gap(max_gap_s)
-    prepared = [prepare_node(n, k) for k, n in enumerate(nodes)]
+    prepared = [prepare_node(n, k, find_steps=file_times) for k, n in enumerate(nodes)]
+    for k in range(2):  # a step one node's values could not read: the other's, of the same clock, may
+        clear = [(s.at_s, s.step_s) for s in prepared[1 - k].steps if s.other_s is None]
+        if clear and any(s.other_s is not None for s in prepared[k].steps):
+            prepared[k] = prepare_node(nodes[k], k, find_steps=True, known_steps=clear)
+    notes = [step.describe(f"M{k + 1}") for k, node in enumerate(prepared) for step in node.steps]
+    open_s = file_timing_open_s(min(n.rate_hz for n in prepared)) if file_times else 0.0
     onset_s = None
     if drive_input is not None:
         drive_input = (np.asarray(drive_input[0], dtype=float), np.asarray(drive_input[1], dtype=float))
@@ -263,12 +287,11 @@ def align(
         x_f, rms_f, unexplained_f = fit_start(model, flipped, instants, start_fit_s)
         if rms_f < rms:
             prepared, x, rms, unexplained = flipped, x_f, rms_f, unexplained_f
-    if fusion_rate_hz:  # the nodes' relative fusion timing, which their own data leave open
-        found = [p for p in phases if p is not None]
-        chosen, instants, (x, rms, unexplained), timing_range = relative_fusion_timing(
-            model, prepared, found, fusion_rate_hz, start_fit_s, (x, rms, unexplained)
-        )
-        phases = list(chosen)
+    # M2's sense against M1's and the nodes' relative timing, which their own data leave open
+    chosen = sense_and_timing(model, prepared, phases, fusion_rate_hz, start_fit_s, (x, rms, unexplained), open_s)
+    prepared, phases, instants, timing_range = chosen.nodes, chosen.phases, chosen.instants, chosen.timing_range_s
+    x, rms, unexplained = chosen.fitted
+    notes += chosen.notes
     phi0, omega0, start_time = model.states(x)
     shift = model.shift_s(x)
     if drive_input is not None and kind == "release":
@@ -301,6 +324,9 @@ def align(
         fusion_rate_hz=fusion_rate_hz,
         max_gap_s=max_gap_s,
         relative_timing_range_s=timing_range,
+        relative_timing_s=chosen.relative_s,
+        timing_open_s=open_s,
+        warnings=tuple(notes),
     )
 
 

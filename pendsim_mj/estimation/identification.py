@@ -183,6 +183,51 @@ def planar_damping(
     )
 
 
+UNDETERMINED_SHARE = 0.02
+"""A fitted hinge loss whose 95 % half-width exceeds this share of its value is named in a warning
+(``fit_warnings``): the recording does not determine it (a release in one mode moves one
+pendulum little; a short record)."""
+TIMING_EDGE_S = 1e-5  # a fitted relative timing this close to its range's end is at the edge, s
+
+
+def timing_at_edge(fit: DampingFit, timing_range_s: tuple[float, float] | None) -> str | None:
+    """Where a damping fit put M2's timing against M1's at an end of the range alignment left
+    open (``timing_range_s``, s), one line saying so (the nodes' times are off by more than it
+    allows, and the damping took up the rest); else None."""
+    if fit.timing2_s is None or timing_range_s is None:
+        return None
+    lo, hi = timing_range_s
+    if min(fit.timing2_s - lo, hi - fit.timing2_s) >= TIMING_EDGE_S:
+        return None
+    return (
+        f"M2's values are fitted {1e3 * fit.timing2_s:+.2f} ms against M1's, at the edge of the "
+        f"{1e3 * lo:+.2f} to {1e3 * hi:+.2f} ms left open: the nodes' times are off by more, and the damping "
+        "would take up the rest; check the file's time columns"
+    )
+
+
+def fit_warnings(fit: DampingFit, timing_range_s: tuple[float, float] | None) -> tuple[str, ...]:
+    """One-line warnings on what a damping fit could not determine: a hinge loss known only to
+    more than ``UNDETERMINED_SHARE`` of its value, and M2's timing against M1's at the edge of
+    its range (``timing_at_edge``)."""
+    notes = []
+    values = []
+    if fit.law != "coulomb":
+        values += [(f"b{k + 1}", fit.b_n_m_s[k], fit.ci95_n_m_s[k], "N m s/rad") for k in range(2)]
+    if fit.law != "viscous":
+        values += [(f"F{k + 1}", fit.friction_n_m[k], fit.friction_ci95_n_m[k], "N m") for k in range(2)]
+    for name, value, half, unit in values:
+        if not half <= UNDETERMINED_SHARE * abs(value):
+            share = f"{100 * half / abs(value):.0f} %" if value else f"{half:.2g} {unit}"
+            notes.append(
+                f"{name} = {value:.4g} {unit} is determined only to +-{share} (95 %) by this recording "
+                "(a release in one mode barely moves one pendulum against the other; a longer record or a "
+                "release in both modes pins it)"
+            )
+    edge = timing_at_edge(fit, timing_range_s)
+    return (*notes, edge) if edge is not None else tuple(notes)
+
+
 def _sysid():
     from mujoco import sysid  # start-up: MuJoCo
 

@@ -14,7 +14,7 @@ uses which.
   per-kind scales and a stop on the BIC's resolution; no other fit poses that problem.
 
 Linear least squares is numpy's where it is used (``np.linalg.lstsq``: the swing frame's
-mounting, M2's sign; ``np.polyfit``: decay rates, the timing probes' parabola): one call each,
+mounting, M2's first guess of its sign; ``np.polyfit``: decay rates): one call each,
 nothing to share.
 
 Why the start fit does not go through ``mujoco.minimize.least_squares`` (which the issue that

@@ -131,13 +131,25 @@ class MeasuredRun:
     ``relative_timing_range_s``: (lo_s < 0, hi_s > 0), the shifts of M2's value instants against
     M1's that the nodes' fusion timing still allows (their fusion phases are known only within a
     stretch each): a fit through the whole run (``planar_fit``) refines the timing within it;
-    None where the timing is pinned or the nodes have no fusion timing."""
+    None where the timing is pinned or the nodes have no fusion timing and trusted times.
+
+    ``relative_timing_s``: how far alignment moved M2's value instants against M1's from where
+    the nodes' own data (fusion phases, time columns) put them, s (the start fit's choice).
+
+    ``timing_open_s``: how far the nodes' times were allowed off against each other beyond their
+    fusion timing, s (a lab file's time columns; 0: a recorder's clocks, trusted).
+
+    ``warnings``: one-line warnings about choices the data did not make clear or corrections
+    made to the times (a clock step removed, M2's sense, a timing held at its room's edge)."""
 
     nodes: tuple[NodeRun, NodeRun]
     start: StartState
     fusion_rate_hz: float | None
     max_gap_s: float
     relative_timing_range_s: tuple[float, float] | None = None
+    relative_timing_s: float = 0.0
+    timing_open_s: float = 0.0
+    warnings: tuple[str, ...] = ()
 
     def series(self, quantity: Quantity | str) -> tuple[Floats, Floats, Floats]:
         """(t_s, values, value_t_s) of a quantity (see ``pendsim_mj.estimation.quantities``), each (m,)."""

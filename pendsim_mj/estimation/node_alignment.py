@@ -16,7 +16,15 @@ import numpy as np
 from pendsim_mj.errors import ParameterError, RecordingError
 from pendsim_mj.estimation.measured_run import Floats, NodeSamples, StartKind
 from pendsim_mj.estimation.swing_frame import SwingFrame
-from pendsim_mj.estimation.timing import ClockRelation, fit_clock, fused_value_instants, nominal_rate_hz, roughness
+from pendsim_mj.estimation.timing import (
+    ClockRelation,
+    ClockStep,
+    clock_steps,
+    fit_clock,
+    fused_value_instants,
+    nominal_rate_hz,
+    roughness,
+)
 from pendsim_mj.sensors.bno055 import MIN_MOTION_RAD_S, ImuNoise
 
 MIN_REST_S = 0.1  # rest this long before the motion makes it a release
@@ -42,6 +50,7 @@ class AlignedNode:
     sigma: float
     rate_hz: float
     frame: SwingFrame | None = None
+    steps: tuple[ClockStep, ...] = ()  # steps of a lab file's time column found and removed
     series: dict[str, Floats] = dataclasses.field(default_factory=dict, repr=False, compare=False)
     """phi and omega in ``frame`` once computed: shared by the copies ``dataclasses.replace``
     makes with the same frame (a long run's whole-run series computed and held once)."""
@@ -108,7 +117,13 @@ def shows_fusion_hold(node: AlignedNode, fusion_rate_hz: float, phase_s: float) 
     return held < roughness(stamp, gyro, max_step)
 
 
-def prepare_node(samples: NodeSamples, index: int) -> AlignedNode:
+def prepare_node(
+    samples: NodeSamples, index: int, *, find_steps: bool = False, known_steps: Sequence[tuple[float, float]] = ()
+) -> AlignedNode:
+    """A node's samples sorted by stamp, on the recorder's clock (``fit_clock``); ``find_steps``:
+    its times are a lab file's column, whose steps (a logging host's clock set back or forward)
+    are found and removed (``timing.clock_steps``, ``known_steps`` its ``known``), kept in
+    ``steps``."""
     log = np.asarray(samples.log_t_s, dtype=float)
     n = len(log)
     shapes = {"quat_wxyz": (n, 4), "gyro_rad_s": (n, 3), "accel_m_s2": (n, 3)}
@@ -126,6 +141,12 @@ def prepare_node(samples: NodeSamples, index: int) -> AlignedNode:
         keep[1:] = np.diff(stamp[order]) > 0  # duplicates: the first copy
         order = order[keep]
         stamp, log = stamp[order], log[order]
+    steps: list[ClockStep] = []
+    if find_steps:
+        regular, steps = clock_steps(stamp, _floating(samples.gyro_rad_s)[order], known_steps)
+        if steps:
+            removed = stamp - regular
+            stamp, log = regular, log - removed
     clock = fit_clock(stamp, log) if samples.stamp_s is not None else None
     t = clock.to_recorder(stamp) if clock is not None else log
     if clock is None:
@@ -141,6 +162,7 @@ def prepare_node(samples: NodeSamples, index: int) -> AlignedNode:
         accel=_floating(samples.accel_m_s2)[order],
         sigma=sigma,
         rate_hz=nominal_rate_hz(t),
+        steps=tuple(steps),
     )
     if cov is not None and np.any(cov):
         return dataclasses.replace(node, sigma=-1.0)  # from the covariance once the hinge axis is known
@@ -223,7 +245,9 @@ def orient(nodes: list[AlignedNode], t0: float, kind: StartKind) -> list[Aligned
     """Signs: M1's largest excursion over the first swing positive (for a release from rest that
     is its release angle: its held angle decides, not a comparison with the next, hardly
     smaller, excursion on the other side); M2 coupled to M1 as the springs couple them (alpha2
-    rises with phi1)."""
+    rises with phi1) as a first guess only: after a release in mode 1 the regression's two angle
+    columns are nearly collinear and it can read M2 mirrored, so ``start_fit.sense_and_timing``
+    decides M2's sense by the fit of the model."""
     m1, m2 = nodes
     assert m1.frame is not None and m2.frame is not None
     phi1 = m1.phi

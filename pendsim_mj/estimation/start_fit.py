@@ -1,7 +1,7 @@
 """Alignment's start fit (steps 4 and 5 of ``pendsim_mj.estimation.alignment``): the model of the
 run's first seconds (``StartModel``) fitted to both nodes' angles and rates by least squares
 (``fit_start``: the release instant and angles from rest, or the full state at the first
-samples), and the nodes' relative fusion timing chosen by it (``relative_fusion_timing``). The
+samples), and M2's sense and the nodes' relative timing chosen by it (``sense_and_timing``). The
 parts of ``alignment.align``; no public API of their own.
 """
 
@@ -22,7 +22,6 @@ from pendsim_mj.rig.drives import Drive, Target, recorded_drive
 from pendsim_mj.rig.params import RigParams
 
 ANGLE_SIGMA_RAD = 0.002  # weight of the fused angle in the start fit (the gyro's own sigma weights rates)
-TIMING_PROBE = 0.25  # the nodes' relative fusion timing is probed this share of its open range either side
 TIMING_FIT_S = 3.0  # the start fit's window when it chooses that timing (at least start_fit_s), s
 TIMING_MIN_RANGE_S = 1e-4  # a relative timing open by less than this is left as the nodes' own data give it, s
 
@@ -37,6 +36,9 @@ class StartModel:
     engine: str
     horizon_s: float
     drive_input: tuple[Floats, Floats] | None = None  # (t_s on the recorder's clock, held (n, 4))
+    relative: bool = False
+    """The shift of node 2's value instants against node 1's is fitted too (the last unknown,
+    ``relative_s``): a value of node 2 at ``at`` belongs to at + shift."""
 
     @property
     def timed(self) -> bool:
@@ -49,6 +51,10 @@ class StartModel:
     def shift_s(self, x: Floats) -> float:
         """The shift of the values' instants, s: a value at ``at`` belongs to at + shift."""
         return float(x[4]) if self.timed else 0.0
+
+    def relative_s(self, x: Floats) -> float:
+        """The shift of node 2's value instants against node 1's, s (0 unless ``relative``)."""
+        return float(x[-1]) if self.relative else 0.0
 
     def drive(self) -> Drive | None:
         """The recorded drive from t0 on (None: a free run). A driven release starts at t0, its
@@ -96,7 +102,8 @@ def _residuals(model: StartModel, traj, member: int, x: Floats, data) -> Floats:
     out = []
     for k, (at, phi, omega, sigma) in enumerate(data):
         rest = float(phi0[k]) if model.kind == "release" else None
-        p, w = _predict(traj.t_s, traj.phi_rad[member, :, k], traj.omega_rad_s[member, :, k], at - start, rest)
+        since = at - start + (model.relative_s(x) if k == 1 else 0.0)
+        p, w = _predict(traj.t_s, traj.phi_rad[member, :, k], traj.omega_rad_s[member, :, k], since, rest)
         out += [(p - phi) / ANGLE_SIGMA_RAD, (w - omega) / sigma]
     return np.concatenate(out)
 
@@ -115,6 +122,9 @@ def _solve_start(model: StartModel, x0: Floats, data, *, iterations: int = 8) ->
     if model.timed:  # the values' shift: no rollout either
         steps[4] = 1e-4
         rolled.remove(4)
+    if model.relative:  # node 2's shift against node 1: none either
+        steps[-1] = 1e-4
+        rolled.remove(len(x) - 1)
 
     def linearise(x: Floats) -> tuple[Floats, Floats]:
         xs = [x] + [x + steps[j] * np.eye(len(x))[j] for j in rolled]
@@ -143,8 +153,9 @@ def _unexplained(model: StartModel, traj, x: Floats, data) -> float:
     start -= model.shift_s(x)
     residual, motion = [], []
     for k, (at, phi, _omega, _sigma) in enumerate(data):
-        after = at >= start
-        p, _ = _predict(traj.t_s, traj.phi_rad[0, :, k], traj.omega_rad_s[0, :, k], at[after] - start, None)
+        since = at - start + (model.relative_s(x) if k == 1 else 0.0)
+        after = since >= 0
+        p, _ = _predict(traj.t_s, traj.phi_rad[0, :, k], traj.omega_rad_s[0, :, k], since[after], None)
         residual.append(p - phi[after])
         motion.append(phi[after] - phi0[k])
     r, m = np.concatenate(residual), np.concatenate(motion)
@@ -188,73 +199,138 @@ def fit_start(
         x = np.array([t0] + [float(np.mean(h)) if len(h) else p for h, p in zip(held, phi_now, strict=True)])
     else:
         x = np.array(phi_now + omega_now + ([0.0] if model.timed else []))
+    if model.relative:
+        x = np.append(x, 0.0)
     return _solve_start(model, x if x0 is None else x0, _fit_data(nodes, instants, lo, hi), iterations=iterations)
 
 
-def relative_fusion_timing(
+SENSE_CLEAR = 4.0
+"""M2's sense against M1's is clear when the other sense's start fit has this many times the mean
+square residual (a wrong sense after a mode-1 release: hundreds of times; the right one with the
+nodes' timing off by 10 ms: under 2)."""
+
+
+@dataclasses.dataclass(frozen=True)
+class SenseAndTiming:
+    """What ``sense_and_timing`` chose.
+
+    Attributes:
+      nodes: both nodes, M2's swing frame in the sense chosen.
+      phases: each node's fusion phase (s in [0, 1 / fusion rate)), or None without fusion timing.
+      instants: (m_k,) each node's value instants at the chosen timing, s on the recorder's clock.
+      fitted: the start fit there, (x, rms, unexplained) as ``fit_start`` gives them.
+      relative_s: M2's value instants moved by this against M1's from where the nodes' own
+        data put them, s.
+      timing_range_s: (lo_s < 0, hi_s > 0): how far M2's value instants may still move against
+        M1's about the choice, s (None: nothing was left open).
+      notes: one-line warnings: a sense the fit could not tell, a timing at the edge of its room.
+    """
+
+    nodes: list[AlignedNode]
+    phases: list[float | None]
+    instants: list[Floats]
+    fitted: tuple[Floats, float, float]
+    relative_s: float
+    timing_range_s: tuple[float, float] | None
+    notes: tuple[str, ...]
+
+
+def sense_and_timing(
     model: StartModel,
     nodes: Sequence[AlignedNode],
-    phases: Sequence[float],
-    fusion_rate_hz: float,
+    phases: Sequence[float | None],
+    fusion_rate_hz: float | None,
     start_fit_s: float,
     fitted: tuple[Floats, float, float],
-) -> tuple[list[float], list[Floats], tuple[Floats, float, float], tuple[float, float] | None]:
-    """The nodes' fusion phases (s) within their stretches (``timing.fusion_phase_stretch``).
+    open_s: float = 0.0,
+) -> SenseAndTiming:
+    """M2's sense against M1's and the shift of M2's value instants against M1's, both by the fit
+    of the model to both nodes' first TIMING_FIT_S seconds.
 
-    A node's own data leave its phase open within its stretch (2.5 ms wide at 80 Hz sampling of
-    100 Hz fusion, each estimate within 1.25 ms). A common shift of both nodes' values is absorbed
-    by the start fit (the release instant, the state in motion, a driven run's fitted shift); the
-    shift of one node's values against the other's is not, and it costs the damping fit (a ms
-    reads as dry friction). So that relative shift, anywhere both stretches allow (up to 5 ms
-    wide: node 1's phase is as open as node 2's), is chosen by the start fit over TIMING_FIT_S:
-    its cost (mean square residual in sigmas, the start re-fitted) is quadratic in a shift of a few
-    ms on swings of about a second, so three probes (one Gauss-Newton step from ``fitted`` each)
-    give the parabola whose vertex, held inside that range, is taken. Each node then keeps the
-    middle of the phases its stretch allows with that relative shift, and the start is fitted
-    there as before. Only the value instants and the start fit change: a ms does not move the
-    swing frames.
+    **Sense.** The swing frames' sense is M1's convention (``node_alignment.orient``) and, for
+    M2, a regression of its angular acceleration on both angles: where the two angles move
+    nearly together (a release in mode 1: phi2 = 0.10 phi1) that regression is ill-conditioned
+    and can come out mirrored (b2 then 170 times the truth). So both senses of M2 are fitted and
+    the one whose mean square residual is lower by SENSE_CLEAR is kept; where neither is, the
+    lower is kept and a note says so.
+
+    **Timing.** A node's own data leave its fusion phase open within a stretch
+    (``timing.fusion_phase_stretch``: 2.5 ms wide at 80 Hz sampling of 100 Hz fusion), and a lab
+    file's time columns may be off against each other (``open_s`` either way: a constant offset
+    per node, one column shared by nodes sampled at other instants). A common shift of both is
+    absorbed by the start fit; M2's shift against M1's is not, and it costs the damping fit (a
+    ms reads as dry friction). That shift, anywhere the stretches and ``open_s`` allow, is an
+    unknown of the start fit over TIMING_FIT_S (its column needs no rollout), fitted for both
+    senses at once; the phases keep the middle of what both stretches allow, the rest moves
+    M2's instants. A shift the fit puts beyond the room is held at its edge, with a note.
 
     Args:
       model, nodes, start_fit_s: as for ``fit_start``.
-      phases: (2,) each node's phase from its own data (``timing.fusion_phase``), s.
-      fusion_rate_hz: the chips' fusion rate, Hz.
-      fitted: ``fit_start``'s (x, rms, unexplained) at those phases.
-
-    Returns:
-      The chosen phases (2,), s in [0, 1 / fusion_rate_hz); the value instants (recorder clock,
-      s) at them; the start fit there (x, rms, unexplained); the shifts of node 2's values
-      against node 1's that both stretches still allow about the choice, (lo_s < 0, hi_s > 0) s
-      (None: the timing was pinned, nothing was chosen).
+      phases: (2,) each node's phase from its own data (``timing.fusion_phase``), s, or None
+        (no fusion timing).
+      fusion_rate_hz: the chips' fusion rate, Hz, or None.
+      fitted: ``fit_start``'s (x, rms, unexplained) at those phases and the frames' senses.
+      open_s: how far each node's times may be off against the other's beyond the fusion
+        timing, s (0: the recorder's clocks are trusted).
     """
-    period = 1.0 / fusion_rate_hz
-    # each node's phase may move by d with lo < d <= hi (its stretch about its phase); 1 us margins
-    room = []
-    for node, phase in zip(nodes, phases, strict=True):
-        lo, hi = fusion_phase_stretch(node.stamp, fusion_rate_hz, phase)
-        room.append((lo - phase + 1e-6, hi - phase - 1e-6))
+    room = [(0.0, 0.0), (0.0, 0.0)]  # each node's phase may move by d with lo < d <= hi; 1 us margins
+    if fusion_rate_hz:
+        for k, (node, phase) in enumerate(zip(nodes, phases, strict=True)):
+            assert phase is not None
+            lo, hi = fusion_phase_stretch(node.stamp, fusion_rate_hz, phase)
+            room[k] = (lo - phase + 1e-6, hi - phase - 1e-6)
     (lo1, hi1), (lo2, hi2) = room
-    r_lo, r_hi = lo2 - hi1, hi2 - lo1  # node 2's shift against node 1's: d2 - d1
+    f_lo, f_hi = lo2 - hi1, hi2 - lo1  # what the phases allow of node 2's shift against node 1's
+    r_lo, r_hi = f_lo - open_s, f_hi + open_s
 
     def split(r: float) -> tuple[float, float]:
         d1 = 0.5 * (max(lo1, lo2 - r) + min(hi1, hi2 - r))  # the middle of what both stretches allow
         return d1, d1 + r
 
-    def moved(r: float) -> list[Floats]:
-        return [n.value_instants(fusion_rate_hz, p + d) for n, p, d in zip(nodes, phases, split(r), strict=True)]
+    def moved(r: float) -> tuple[list[float | None], list[Floats]]:
+        r_phase = min(max(r, f_lo), f_hi) if fusion_rate_hz else 0.0
+        shifts = split(r_phase) if fusion_rate_hz else (0.0, 0.0)
+        new = [None if p is None else p + d for p, d in zip(phases, shifts, strict=True)]
+        at = [n.value_instants(fusion_rate_hz, p) for n, p in zip(nodes, new, strict=True)]
+        if r != r_phase:
+            at[1] = at[1] + (r - r_phase)
+        return new, at
 
-    if not (r_lo < 0.0 < r_hi and r_hi - r_lo >= TIMING_MIN_RANGE_S):  # pinned by clocks sweeping the period
-        given = [n.value_instants(fusion_rate_hz, p) for n, p in zip(nodes, phases, strict=True)]
-        return list(phases), given, fitted, None
+    timed = r_lo < 0.0 < r_hi and r_hi - r_lo >= TIMING_MIN_RANGE_S
     window_s = max(start_fit_s, TIMING_FIT_S)
-    longer = dataclasses.replace(model, horizon_s=model.horizon_s + window_s - start_fit_s)
-    probe = TIMING_PROBE * (r_hi - r_lo)
-    r = np.array([max(-probe, r_lo), 0.0, min(probe, r_hi)])
-    # one Gauss-Newton step from the start fit's x: the cost with the start re-fitted, to second order
-    cost = [fit_start(longer, nodes, moved(float(v)), window_s, x0=fitted[0], iterations=1)[1] ** 2 for v in r]
-    curvature, slope, _ = np.polyfit(r, cost, 2)
-    best = float(np.clip(-slope / (2 * curvature), r_lo, r_hi)) if curvature > 0 else float(r[np.argmin(cost)])
-    best = min(max(best, r_lo + 1e-6), r_hi - 1e-6)  # strictly inside: the damping fit refines it within
-    instants = moved(best)
-    chosen = fit_start(model, nodes, instants, start_fit_s, x0=fitted[0])
-    chosen_phases = [(p + d) % period for p, d in zip(phases, split(best), strict=True)]
-    return chosen_phases, instants, chosen, (r_lo - best, r_hi - best)
+    longer = dataclasses.replace(model, horizon_s=model.horizon_s + window_s - start_fit_s, relative=timed)
+    _, instants = moved(0.0)
+    senses = [list(nodes), [nodes[0], nodes[1].with_frame(nodes[1].frame.flipped())]]  # type: ignore[union-attr]
+    fits = [fit_start(longer, candidate, instants, window_s) for candidate in senses]
+    costs = [f[1] ** 2 for f in fits]
+    best = int(np.argmin(costs))
+    notes = []
+    if costs[1 - best] < SENSE_CLEAR * costs[best]:
+        notes.append(
+            f"M2's sense against M1's is not clear from the first {window_s:g} s: the model fits "
+            f"{fits[best][1]:.3g} sigmas rms with it as taken, {fits[1 - best][1]:.3g} with M2 mirrored"
+            " (M2 hardly moves, or the model is far off); check the sign of M2's angle"
+        )
+    chosen_nodes = senses[best]
+    r = longer.relative_s(fits[best][0])
+    if timed and not r_lo < r < r_hi:
+        held = min(max(r, r_lo + 1e-6), r_hi - 1e-6)
+        notes.append(
+            f"M2's values seem {1e3 * r:+.1f} ms off against M1's, beyond the {1e3 * r_lo:+.1f} to "
+            f"{1e3 * r_hi:+.1f} ms their timing allows; held at {1e3 * held:+.1f} ms: check the file's time columns"
+        )
+        r = held
+    if not timed:
+        r = 0.0
+    new_phases, instants = moved(r)
+    if timed or best == 1:
+        fitted = fit_start(model, chosen_nodes, instants, start_fit_s, x0=fitted[0] if best == 0 else None)
+    return SenseAndTiming(
+        nodes=chosen_nodes,
+        phases=new_phases,
+        instants=instants,
+        fitted=fitted,
+        relative_s=r,
+        timing_range_s=(r_lo - r, r_hi - r) if timed else None,
+        notes=tuple(notes),
+    )

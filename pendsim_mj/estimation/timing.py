@@ -14,6 +14,7 @@ import bisect
 import dataclasses
 import itertools
 import math
+from collections.abc import Sequence
 
 import numpy as np
 from numpy.typing import NDArray
@@ -368,3 +369,140 @@ def fusion_phase(stamp_s: Floats, values: Floats, fusion_rate_hz: float, *, step
     while flat[(hi + 1) % n] and hi - lo < n - 1:
         hi += 1
     return float((0.5 * (lo + hi) * step_s) % period)
+
+
+STEP_WINDOW = 16  # samples either side of a step whose times' medians measure it
+STEP_FIT = 8  # samples either side whose values decide between readings a period apart (a quintic in time)
+SAME_STEP_S = 0.1  # a step of the other node's column this near is the same clock's (``clock_steps``' known), s
+MIN_CLOCK_STEP_S = 3e-4  # a step of the times smaller than this is left as it is, s
+MAX_CLOCK_STEPS = 20  # more candidate steps than this: times too irregular to find steps in
+
+
+@dataclasses.dataclass(frozen=True)
+class ClockStep:
+    """A step of a node's time column: the samples from ``index`` on carry times ``step_s`` later
+    than a regular sampler's (s; negative: the clock was set back).
+
+    Attributes:
+      index: the first sample after the step.
+      at_s: its time as the column gives it, s.
+      step_s: the step removed, s.
+      other_s: the reading a sample period away, where the times alone allow it (the step over a
+        lost sample) and the values could not tell it apart (None: they did, or it was not
+        possible).
+    """
+
+    index: int
+    at_s: float
+    step_s: float
+    other_s: float | None = None
+
+    def describe(self, node: str) -> str:
+        """One line naming the step, for a warning."""
+        line = f"{node}'s times step by {1e3 * self.step_s:+.1f} ms at {self.at_s:.3f} s (a clock step"
+        if self.other_s is None:
+            return line + ": its samples are regular around it); removed"
+        return (
+            line + f"; or {1e3 * self.other_s:+.1f} ms and a sample lost: its values do not tell which); "
+            f"{1e3 * self.step_s:+.1f} ms removed"
+        )
+
+
+def _smoothest(t: Floats, values: Floats, split: int, readings: Floats) -> tuple[int, int | None]:
+    """Which of the readings (k,) of a step between samples split - 1 and split of instants t (m,)
+    makes values (m, c) smoothest across it (least squares quintic in time, the samples from
+    ``split`` on moved back by the reading): (its index, None) where its residual is below half
+    every other's; else (the smallest step among those within twice the least residual, the next
+    smallest of them): the values do not tell them apart, and the fewest assumed is taken."""
+    costs = []
+    for step in readings:
+        local = t - np.where(np.arange(len(t)) >= split, step, 0.0)
+        local = (local - local.mean()) / max(float(np.ptp(local)), 1e-9)
+        basis = np.vander(local, 6)
+        fit, *_ = np.linalg.lstsq(basis, values, rcond=None)
+        costs.append(float(np.sum((basis @ fit - values) ** 2)))
+    cost = np.array(costs)
+    close = np.flatnonzero(cost < 2.0 * cost.min())
+    if len(close) == 1:
+        return int(close[0]), None
+    by_size = close[np.argsort(np.abs(readings[close]))]
+    return int(by_size[0]), int(by_size[1])
+
+
+def _step_sizes(off: Floats, candidates: NDArray[np.intp]) -> Floats:
+    """The step (s) at each candidate c (between samples c and c + 1) of a time column whose
+    steps less whole periods are ``off`` (n - 1,): the median of the times less the regular grid
+    over STEP_WINDOW samples after it less that over STEP_WINDOW samples up to it."""
+    grid = np.concatenate([[0.0], np.cumsum(off)])
+    padded = np.concatenate([np.full(STEP_WINDOW, np.nan), grid, np.full(STEP_WINDOW, np.nan)])
+    window = np.arange(STEP_WINDOW)
+    before = np.nanmedian(padded[candidates[:, None] + 1 + window], axis=1)  # samples c - W + 1 .. c
+    after = np.nanmedian(padded[candidates[:, None] + 1 + STEP_WINDOW + window], axis=1)  # c + 1 .. c + W
+    result: Floats = after - before
+    return result
+
+
+def clock_steps(
+    t_s: Floats, values: Floats, known: Sequence[tuple[float, float]] = ()
+) -> tuple[Floats, list[ClockStep]]:
+    """Steps of a regular sampler's time column (a logging host's clock set back or forward) found
+    and removed: (the times (n,) with every step removed, the steps).
+
+    The steps between samples, less the whole sample periods (``nominal_rate_hz``) each spans (at
+    least one), are a regular sampler's timing jitter (a robust scale from their median absolute
+    deviation); a step of the clock is one of them beyond ``MIN_CLOCK_STEP_S`` and ten times that
+    scale whose times stay moved: the medians of the times less the regular grid over
+    ``STEP_WINDOW`` samples after it and before it differ by it (a single late sample moves
+    neither). Its size is that difference. From the times alone a step is known only to whole
+    periods where the samples around it may have been lost (+10 ms at 80 Hz reads as -2.5 ms and
+    a lost sample): of the readings a period apart that leave at least one period between the two
+    samples, the one that makes ``values`` (n, c) (e.g. the gyro) smoothest across the step is
+    taken; where the values do not tell (a pendulum at rest), the reading of a ``known`` step
+    within SAME_STEP_S (the other node's column, stepped by the same host clock), else the
+    smallest, and ``ClockStep.other_s`` names the next.
+
+    Args:
+      t_s: (n,) the column's times, increasing, s.
+      values: (n, c) what the samples carry.
+      known: (time s, step s) of steps found clearly elsewhere (the other node's column).
+    """
+    t = np.asarray(t_s, dtype=float)
+    if len(t) < 4 * STEP_WINDOW:
+        return t, []
+    period = 1.0 / nominal_rate_hz(t)
+    dt = np.diff(t)
+    periods = np.maximum(1.0, np.rint(dt / period))
+    off = dt - periods * period
+    jitter = 1.4826 * float(np.median(np.abs(off - np.median(off))))
+    least = max(MIN_CLOCK_STEP_S, 10.0 * jitter)
+    candidates = np.flatnonzero(np.abs(off) > least)
+    if not len(candidates) or len(candidates) > MAX_CLOCK_STEPS:
+        return t, []
+    sizes = _step_sizes(off, candidates)
+    candidates, sizes = candidates[np.abs(sizes) > least], sizes[np.abs(sizes) > least]
+    if len(candidates):  # measured again on the times without them: the steps bias the period
+        regular = t - np.concatenate([[0.0], np.cumsum(np.bincount(candidates, sizes, len(dt)))])
+        period = 1.0 / nominal_rate_hz(regular)
+        periods = np.maximum(1.0, np.rint(dt / period))
+        off = dt - periods * period
+        sizes = _step_sizes(off, candidates)
+    v = np.asarray(values, dtype=float).reshape(len(t), -1)
+    steps: list[ClockStep] = []
+    for c, size in zip(candidates.tolist(), sizes.tolist(), strict=True):  # a few steps, not samples
+        readings = np.array([size + m * period for m in (0, -1, 1) if periods[c] - m >= 1])
+        near = slice(max(c + 1 - STEP_FIT, 0), min(c + 1 + STEP_FIT, len(t)))
+        best, other = _smoothest(t[near], v[near], c + 1 - near.start, readings)
+        same = [
+            j
+            for j, r in enumerate(readings)
+            for at, step in known
+            if abs(at - t[c + 1]) < SAME_STEP_S and abs(r - step) < 1e-3
+        ]
+        if other is not None and same:  # the other node's column, stepped by the same clock, read it
+            best, other = same[0], None
+        other_s = None if other is None else float(readings[other])
+        steps.append(ClockStep(c + 1, float(t[c + 1]), float(readings[best]), other_s))
+    corrected = t.copy()
+    for step in steps:
+        corrected[step.index :] -= step.step_s
+    return corrected, steps
