@@ -62,6 +62,7 @@ SEQ_RATE_FACTOR = 2.0  # sequence numbers per device second: at most this times 
 SEQ_SLACK = 8  # sequence numbers either way beyond what the rate allows
 RATE_SPAN_S = 0.2  # the fit's points measure the node's rate once they span this, s
 DECIDE_LAG_S = 0.1  # a packet without enough later neighbours is decided this long after arrival, s
+QUARANTINE_S = 0.15  # a packet judged time_ahead is judged again until this long after its arrival, s
 POOL_MAX = 8192  # packets held before a timeline is established; then it is forced
 IMPLAUSIBLE_REASONS = ("time_ahead", "time_behind", "seq_jump")
 _DRIFT = 2 * MAX_DRIFT_PPM * 1e-6  # the largest slope between two clocks within the drift bound
@@ -104,6 +105,7 @@ class Timeline:
         self._recent: collections.deque[_Entry] = collections.deque()  # decided, kept as neighbours
         self._waiting: collections.deque[_Entry] = collections.deque()  # arrived, not decided
         self._pool: list[_Entry] = []  # decided before the timeline was established
+        self._ahead: list[_Entry] = []  # judged time_ahead, judged again until QUARANTINE_S after arrival
         self._first_fed: tuple[int, float] | None = None  # (unwrapped seq, device s) of the first fed point
         self._last_fed: tuple[int, int, float] | None = None  # (unwrapped seq, seq, device s) of the latest
         self._fed_span: tuple[float, float] | None = None  # device times the fed points span, s
@@ -111,7 +113,7 @@ class Timeline:
     @property
     def held(self) -> int:
         """Packets not decided yet (waiting for neighbours, or for a timeline)."""
-        return len(self._waiting) + len(self._pool)
+        return len(self._waiting) + len(self._pool) + len(self._ahead)
 
     def add(self, packet: Packet, arrival_ns: int, arrival_s: float) -> None:
         """A decoded packet arrived (``arrival_s``: the same instant, s on the clock fit's axis)."""
@@ -126,22 +128,36 @@ class Timeline:
                 break
             self._waiting.popleft()
             entry.supported = self._supported(entry)
-            if self.established and (entry.supported or self._near_line(entry)) and self._seq_follows(entry):
-                self._feed(entry)
-            elif not self.established and entry.supported:
+            if self._feeds(entry):
                 self._feed(entry)
             self._recent.append(entry)
             if len(self._recent) > NEIGHBOURS:
                 self._recent.popleft()
             if self.established:
-                out.append(self._judge(entry))
+                out += self._judged([entry], now_s, final=final)
             else:
                 self._pool.append(entry)
                 ready = self.clock.count >= ESTABLISH_POINTS and self.clock.span_s >= ESTABLISH_S
                 if ready or len(self._pool) >= POOL_MAX:
-                    out += self._establish()
+                    out += self._establish(now_s, final=final)
         if final and not self.established and self._pool:
-            out += self._establish()
+            out += self._establish(now_s, final=final)
+        if self._ahead:
+            ahead, self._ahead = self._ahead, []
+            out += self._judged(ahead, now_s, final=final)
+        return out
+
+    def _judged(self, entries: list[_Entry], now_s: float, *, final: bool) -> list[Decision]:
+        """Decisions on ``entries``; one judged time_ahead is held back instead (its neighbours may
+        be about to move the fit down: a network that held the first packets back) until
+        ``QUARANTINE_S`` after its arrival."""
+        out = []
+        for entry in entries:
+            decision = self._judge(entry)
+            if decision.reason == "time_ahead" and not final and now_s - entry.arrival_s < QUARANTINE_S:
+                self._ahead.append(entry)
+            else:
+                out.append(decision)
         return out
 
     # -- the rules --------------------------------------------------------------------------
@@ -187,6 +203,13 @@ class Timeline:
                     return True
         return False
 
+    def _feeds(self, entry: _Entry) -> bool:
+        """Whether the clock fit learns from it: supported; once the timeline is established,
+        also near its line, and then only with a sequence number that follows the fit's."""
+        if not self.established:
+            return entry.supported
+        return (entry.supported or self._near_line(entry)) and self._seq_follows(entry)
+
     def _near_line(self, entry: _Entry, line: ClockRelation | None = None) -> bool:
         """Arrived within ``FEED_S`` of the line (the fit's by default)."""
         line = line if line is not None else self.clock.relation()
@@ -229,7 +252,7 @@ class Timeline:
             reason = "seq_jump"
         return Decision(entry.packet, entry.arrival_ns, reason)
 
-    def _establish(self) -> list[Decision]:
+    def _establish(self, now_s: float, *, final: bool) -> list[Decision]:
         """Judge the held packets against the fit: of those supported, refitted with every held
         packet near its line as well (of all of them if none was supported)."""
         pool = self._pool
@@ -245,7 +268,7 @@ class Timeline:
                 self._feed(entry)
         self.established = True
         self._pool = []
-        return [self._judge(entry) for entry in pool]
+        return self._judged(pool, now_s, final=final)
 
 
 __all__ = ["IMPLAUSIBLE_REASONS", "Decision", "Timeline"]
