@@ -3,6 +3,9 @@
 Every datagram on a node's port is counted as ``received`` and is exactly one of:
 
 - **malformed**: not a valid packet of this node (``reason`` per ``packets.MALFORMED_REASONS``);
+- **implausible**: a valid packet that does not fit the node's timeline (``reason`` per
+  ``timeline.IMPLAUSIBLE_REASONS``: device time or sequence number far from where the node's
+  clock and stream stand); dropped;
 - **duplicated**: a sequence number already seen;
 - **late**: a sequence number seen for the first time after its slot was closed (the stream had
   moved past it for longer than the reorder window); dropped;
@@ -30,6 +33,7 @@ from typing import NamedTuple
 from pendsim_mj.sensors.bno055 import SAMPLE_RATE_HZ
 
 from .packets import MALFORMED_REASONS, Packet
+from .timeline import IMPLAUSIBLE_REASONS
 
 SEEN_HORIZON = 1 << 20  # sequence numbers remembered behind the released frontier (duplicates, late)
 
@@ -46,11 +50,14 @@ class NodeCounters:
     late: int = 0
     malformed: int = 0
     malformed_reasons: tuple[tuple[str, int], ...] = ()
+    implausible: int = 0
+    implausible_reasons: tuple[tuple[str, int], ...] = ()
 
     def as_dict(self) -> dict[str, int]:
-        """Every counter by name (malformed reasons as ``malformed.REASON``)."""
-        out = {f.name: getattr(self, f.name) for f in dataclasses.fields(self) if f.name != "malformed_reasons"}
+        """Every counter by name (reasons as ``malformed.REASON`` and ``implausible.REASON``)."""
+        out = {f.name: getattr(self, f.name) for f in dataclasses.fields(self) if not f.name.endswith("_reasons")}
         out.update({f"malformed.{reason}": n for reason, n in self.malformed_reasons})
+        out.update({f"implausible.{reason}": n for reason, n in self.implausible_reasons})
         return out
 
 
@@ -88,6 +95,7 @@ class NodeStream:
         self.reordered = 0
         self.late = 0
         self.malformed: Counter[str] = Counter()
+        self.implausible: Counter[str] = Counter()
 
     # -- arrival ---------------------------------------------------------------------------
 
@@ -96,6 +104,12 @@ class NodeStream:
         assert reason in MALFORMED_REASONS, reason
         self.received += 1
         self.malformed[reason] += 1
+
+    def count_implausible(self, reason: str) -> None:
+        """A valid packet the node's timeline refused."""
+        assert reason in IMPLAUSIBLE_REASONS, reason
+        self.received += 1
+        self.implausible[reason] += 1
 
     def sequence_of(self, packet: Packet) -> int:
         """The packet's sequence number, unwrapped (or inferred from its device time)."""
@@ -173,4 +187,6 @@ class NodeStream:
             late=self.late,
             malformed=sum(self.malformed.values()),
             malformed_reasons=tuple(sorted(self.malformed.items())),
+            implausible=sum(self.implausible.values()),
+            implausible_reasons=tuple(sorted(self.implausible.items())),
         )

@@ -3,7 +3,11 @@
 Every decoded packet becomes a ``Packet``: the sequence number (None when the format has none),
 the device time in microseconds, and one row of ``ROW_FIELDS`` in SI units (NaN where the
 format carries nothing). Anything else a node (or anyone) sends raises ``PacketError`` with one
-of ``MALFORMED_REASONS``; no input makes a decoder raise anything else.
+of ``MALFORMED_REASONS``; no input makes a decoder raise anything else. A CRC says only that
+the bytes arrived as sent, not that a node sent them: every field is range-checked (device time
+within ``MAX_DEVICE_TIME_US``, sequence numbers, node id, header bytes, and every value finite and
+within what a BNO055 can report, ``ACCEL_LIMIT_M_S2`` and ``GYRO_LIMIT_RAD_S``). Whether a packet
+fits its node's timeline is ``timeline``'s question.
 
 - ``pendsim-v1``: a 70-byte binary packet (docs/acquisition.md has the byte table): magic
   ``PSIM``, version 1, node id, the chip's UNIT_SEL register, sequence number (uint32), device
@@ -32,7 +36,14 @@ from numpy.typing import NDArray
 
 from pendsim_mj.errors import ParameterError
 from pendsim_mj.sensors import rotations
-from pendsim_mj.sensors.bno055 import ACCEL_LSB_M_S2, GYRO_LSB_RAD_S, QUAT_LSB, STANDARD_GRAVITY_M_S2
+from pendsim_mj.sensors.bno055 import (
+    ACCEL_FULL_SCALE_M_S2,
+    ACCEL_LSB_M_S2,
+    GYRO_FULL_SCALE_RAD_S,
+    GYRO_LSB_RAD_S,
+    QUAT_LSB,
+    STANDARD_GRAVITY_M_S2,
+)
 
 FORMATS = ("pendsim-v1", "csv", "json")
 
@@ -55,7 +66,8 @@ TIME_COLUMNS = {"t_s": 1e6, "t_ms": 1e3, "t_us": 1.0}  # name -> microseconds pe
 EXTRA_COLUMNS = ("seq", "node", "calib", "_")  # "calib": the CALIB_STAT byte; "_": skip the column
 COLUMN_NAMES = (*TIME_COLUMNS, *ROW_FIELDS, *EXTRA_COLUMNS)
 MALFORMED_REASONS = (
-    "truncated", "oversized", "bad_header", "crc", "wrong_node", "non_finite", "out_of_range", "unparsable",
+    "truncated", "oversized", "bad_header", "crc", "wrong_node", "non_finite", "out_of_range", "bad_time",
+    "unparsable",
 )  # fmt: skip
 
 # SI per unit. "raw-...": the BNO055's register counts in that UNIT_SEL mode (its mg mode's are mg).
@@ -77,6 +89,16 @@ DEFAULT_JSON_FIELDS: tuple[tuple[str, str], ...] = (
 MAX_TEXT_BYTES = 1024  # a CSV line
 MAX_JSON_BYTES = 4096  # a JSON object
 QUAT_NORM_RANGE = (0.9, 1.1)  # a quaternion further from unit length is not an orientation
+# Device time, us: below 2^52 (142 years of a clock counting from boot, or Unix time in us until
+# 2112), where a float64 holds it exactly and, in seconds, to better than 1 us; the clock fit
+# needs no more. Larger values (a uint64 field can hold up to 2^64 - 1) are refused as bad_time.
+MAX_DEVICE_TIME_US = 2**52
+MAX_TEXT_SEQ = 2**53  # a text packet's sequence number: an integer a float64 holds exactly
+# Per axis, the largest value a BNO055 can report (its largest ranges: 16 g, 2000 dps) plus 1 %
+# for values rounded when printed; beyond that a reading is no BNO055's ("out_of_range").
+RANGE_MARGIN = 1.01
+ACCEL_LIMIT_M_S2 = ACCEL_FULL_SCALE_M_S2 * RANGE_MARGIN  # acceleration, linear acceleration, gravity
+GYRO_LIMIT_RAD_S = GYRO_FULL_SCALE_RAD_S * RANGE_MARGIN
 
 
 class Packet(NamedTuple):
@@ -233,6 +255,13 @@ def _check_row(row: list[float], groups: tuple[str, ...]) -> None:
             raise PacketError("out_of_range", f"quaternion norm {norm:.3g} is not 1")
     if "calib" in groups and not all(row[ROW_INDEX[n]] in (0.0, 1.0, 2.0, 3.0) for n in GROUPS["calib"]):
         raise PacketError("out_of_range", "calibration levels must be 0-3")
+    for group in groups:
+        limit = _LIMITS.get(group)
+        if limit is not None and not all(abs(row[ROW_INDEX[n]]) <= limit for n in GROUPS[group]):
+            raise PacketError("out_of_range", f"{group} beyond what a BNO055 reports (|value| <= {limit:.4g} SI)")
+
+
+_LIMITS = {"gyro": GYRO_LIMIT_RAD_S, "accel": ACCEL_LIMIT_M_S2, "linear": ACCEL_LIMIT_M_S2, "gravity": ACCEL_LIMIT_M_S2}
 
 
 # -- pendsim-v1 -------------------------------------------------------------------------------
@@ -254,6 +283,9 @@ _CALIB_LEVELS = [tuple(float(v) for v in calib_levels(c)) for c in range(256)]
 UNIT_SEL_ACCEL_MG = 0x01  # UNIT_SEL bit 0: acceleration in mg (else m/s^2, 100 LSB per m/s^2)
 UNIT_SEL_GYRO_RPS = 0x02  # UNIT_SEL bit 1: angular rate in rad/s, 900 LSB (else dps, 16 LSB)
 V1_UNIT_SEL = UNIT_SEL_GYRO_RPS  # what the emulator sends: the grid pendsim's BNO055 model uses
+# UNIT_SEL bits the datasheet leaves reserved (3, 5, 6); bits 2 (Euler unit), 4 (temperature unit)
+# and 7 (Euler orientation convention) change nothing pendsim reads.
+UNIT_SEL_RESERVED = 0x68
 
 
 def _v1_scales(unit_sel: int) -> tuple[float, ...]:
@@ -264,6 +296,9 @@ def _v1_scales(unit_sel: int) -> tuple[float, ...]:
 
 
 _V1_SCALES = [_v1_scales(u) for u in range(4)]
+# The largest |register| (LSB) of the gyro and of the nine acceleration registers, per UNIT_SEL & 3.
+_V1_GYRO_MAX_LSB = [GYRO_LIMIT_RAD_S / s[4] for s in _V1_SCALES]
+_V1_ACCEL_MAX_LSB = [ACCEL_LIMIT_M_S2 / s[7] for s in _V1_SCALES]
 EULER_LSB_DEG = 1.0 / 16.0  # BNO055: 1 deg = 16 LSB (UNIT_SEL bit 2 clear)
 MAG_LSB_UT = 1.0 / 16.0  # BNO055: 1 uT = 16 LSB
 EARTH_FIELD_UT = np.array([0.0, 22.0, -42.0])  # a mid-latitude field in the fusion frame (z up), uT
@@ -308,11 +343,20 @@ class V1Codec:
             raise PacketError("crc", "CRC-32 does not match")
         if v[2] != self.node_id:
             raise PacketError("wrong_node", f"node id {v[2]} on the port of node {self.node_id}")
+        if v[3] & UNIT_SEL_RESERVED or v[4]:
+            raise PacketError("bad_header", f"UNIT_SEL {v[3]:#04x} or reserved byte {v[4]} has reserved bits set")
+        if v[6] >= MAX_DEVICE_TIME_US:
+            raise PacketError("bad_time", f"device time {v[6]} us, at most {MAX_DEVICE_TIME_US - 1}")
         registers = _V1_PICK(v)  # quaternion, gyro, accel, linear, gravity: int16 LSB
         norm2 = registers[0] ** 2 + registers[1] ** 2 + registers[2] ** 2 + registers[3] ** 2
         if not _QUAT_NORM2_LSB[0] <= norm2 <= _QUAT_NORM2_LSB[1]:
             raise PacketError("out_of_range", f"quaternion norm {math.sqrt(norm2) * QUAT_LSB:.3g} is not 1")
-        row = (*map(operator.mul, registers, _V1_SCALES[v[3] & 3]), *_CALIB_LEVELS[v[-2]])
+        units = v[3] & 3
+        gyro_lsb = max(abs(registers[4]), abs(registers[5]), abs(registers[6]))
+        accel_lsb = max(max(registers[7:]), -min(registers[7:]))
+        if gyro_lsb > _V1_GYRO_MAX_LSB[units] or accel_lsb > _V1_ACCEL_MAX_LSB[units]:
+            raise PacketError("out_of_range", "a gyro or acceleration register beyond what a BNO055 reports")
+        row = (*map(operator.mul, registers, _V1_SCALES[units]), *_CALIB_LEVELS[v[-2]])
         return Packet(v[5], v[6], row)
 
     def encode(self, seq: int, device_time_us: int, row: np.ndarray, *, node_id: int | None = None) -> bytes:
@@ -404,17 +448,21 @@ class _TextCodec:
                 continue
             if isinstance(value, bool) or not isinstance(value, (int, float)):
                 raise PacketError("unparsable", f"{name} is not a number")
-            numbers[name] = float(value)
+            try:
+                numbers[name] = float(value)
+            except OverflowError:  # an integer of hundreds of digits (JSON allows it)
+                reason = "bad_time" if name == self.time_name else "out_of_range"
+                raise PacketError(reason, f"{name} has {len(str(value))} digits") from None
         if not all(math.isfinite(v) for v in numbers.values()):
             raise PacketError("non_finite", "a value is NaN or infinite")
         t = numbers[self.time_name] * TIME_COLUMNS[self.time_name]
-        if not 0 <= t < 2**63:
-            raise PacketError("out_of_range", f"device time {t:g} us")
+        if not 0 <= t < MAX_DEVICE_TIME_US:
+            raise PacketError("bad_time", f"device time {t:g} us, allowed 0 to 2^52")
         seq = None
         if self.has_seq:
             s = numbers["seq"]
-            if s != int(s) or not 0 <= s < 2**63:
-                raise PacketError("out_of_range", f"sequence number {s:g}")
+            if not 0 <= s < MAX_TEXT_SEQ or s != int(s):
+                raise PacketError("out_of_range", f"sequence number {s:g}, allowed an integer 0 to 2^53")
             seq = int(s)
         row = [math.nan] * len(ROW_FIELDS)
         for name, value in numbers.items():

@@ -2,9 +2,11 @@
 
 One socket per node (bound to 127.0.0.1 unless told otherwise), one loop:
 
-1. every datagram is stamped with the host's monotonic clock as it is read, decoded by the node's
-   codec (``packets``), and accounted (``accounting.NodeStream``); an accepted packet's (device
-   time, arrival time) feeds the node's clock fit (``clock.ClockFit``);
+1. every datagram is stamped with the host's monotonic clock as it is read and decoded by the
+   node's codec (``packets``: every field range-checked); the node's timeline (``timeline``)
+   feeds its clock fit (``clock.ClockFit``) with the packets that agree with their neighbours and
+   refuses those that do not fit the established timeline; the rest are accounted
+   (``accounting.NodeStream``);
 2. every 50 ms, each node's samples whose turn has come (in sequence order, within the reorder
    window) get their log time, the device time mapped to host time by the current fit, on one
    UTC base for both nodes, and go to the file (``sink``) and the live view;
@@ -55,6 +57,7 @@ from .clock import MAX_DRIFT_PPM, ClockFit, ClockRelation, jitter_summary_ms, re
 from .packets import PacketError, StreamFormat
 from .ports import BNO055_NDOF, DEFAULT_NODES, NodeSpec, check_nodes
 from .sink import RecordingSink
+from .timeline import Timeline
 
 TICK_S = 0.05  # release and live-view cadence
 FLUSH_S = 0.5  # write to the file at least this often
@@ -157,7 +160,7 @@ class _Node:
         self.spec = spec
         self.codec = stream.codec(spec.name, spec.node_id)
         self.stream = NodeStream(window_ns=window_ns, seq_modulus=self.codec.seq_modulus, rate_hz=rate_hz)
-        self.clock = ClockFit()
+        self.timeline = Timeline(rate_hz=rate_hz, has_seq=self.codec.has_seq, seq_modulus=self.codec.seq_modulus)
         self.device_s: list[float] = []  # accepted packets: device time and arrival (s since start)
         self.arrival_s: list[float] = []
         self.last_read_ns = 0  # when the loop last read one (a loop behind its sockets reads old datagrams)
@@ -170,20 +173,33 @@ class _Node:
         self.previous = NodeCounters()
         self.host_dropped = 0  # datagrams this host's socket dropped (its buffer was full)
 
+    @property
+    def clock(self) -> ClockFit:
+        """The node's clock fit (the timeline's: fed with the packets that fit it)."""
+        return self.timeline.clock
+
     def receive(self, data: bytes, arrival_ns: int, start_ns: int) -> bool:
-        """Decode and account one datagram; True if its sample was accepted."""
+        """Decode one datagram and hand it to the timeline; True if a sample was accepted since
+        (the timeline decides a packet once its neighbours have arrived)."""
         try:
             packet = self.codec.decode(data)
         except PacketError as exc:
             self.stream.count_malformed(exc.reason)
             return False
-        if self.stream.offer(packet, arrival_ns) != "accepted":
-            return False
-        device_s, arrival_s = packet.device_time_us * 1e-6, seconds(arrival_ns - start_ns)
-        self.clock.add(device_s, arrival_s)
-        self.device_s.append(device_s)
-        self.arrival_s.append(arrival_s)
-        return True
+        self.timeline.add(packet, arrival_ns, seconds(arrival_ns - start_ns))
+        return self.settle(arrival_ns, start_ns)
+
+    def settle(self, now_ns: int, start_ns: int, *, final: bool = False) -> bool:
+        """Account the packets the timeline has decided; True if a sample was accepted."""
+        accepted = False
+        for decision in self.timeline.decide(seconds(now_ns - start_ns), final=final):
+            if decision.reason is not None:
+                self.stream.count_implausible(decision.reason)
+            elif self.stream.offer(decision.packet, decision.arrival_ns) == "accepted":
+                self.device_s.append(decision.packet.device_time_us * 1e-6)
+                self.arrival_s.append(seconds(decision.arrival_ns - start_ns))
+                accepted = True
+        return accepted
 
     def line(self) -> ClockRelation | None:
         return self.clock.relation() if self.clock.count else None
@@ -389,6 +405,7 @@ def _run(
     say(f"listening: {listening} ({spec.stream.format}); writing {partial} until done, then {output}")
     if not _is_loopback(spec.bind):
         say(f"note: bound to {spec.bind}: these ports are reachable from the network")
+    listen_ns = time.monotonic_ns()  # a node not heard from yet is waited for from here (not from the set-up)
     status_line = _StatusLine(status)
     deadline = start_ns + nanoseconds(spec.duration_s) if spec.duration_s is not None else None
     next_tick = start_ns
@@ -421,7 +438,7 @@ def _run(
                     status_line.show(_status_text(nodes, seconds(now - start_ns)), seconds(now - start_ns))
                 if now >= next_flush:
                     next_flush = now + nanoseconds(FLUSH_S)
-                    sink.flush(_settled_ns(nodes, now, start_ns))
+                    sink.flush(_settled_ns(nodes, now, listen_ns))
             now = time.monotonic_ns()
             _release(nodes, now, sink, live, utc_ns, start_ns, final=True)
             status_line.end()
@@ -493,6 +510,8 @@ def _release(
 ) -> None:
     """Hand each node's released samples, with their log times, to the file and the view."""
     for node in nodes:
+        if node.settle(now_ns, start_ns, final=final):
+            node.last_sample_ns = now_ns
         if not final and node.clock.span_s < WARMUP_S:
             continue
         released = node.stream.release(now_ns, final=final)
@@ -550,16 +569,16 @@ def _device_stamps(node: _Node, device_us: NDArray[np.int64], t_ns: NDArray[np.i
     return stamps
 
 
-def _settled_ns(nodes: list[_Node], now_ns: int, start_ns: int) -> int | None:
+def _settled_ns(nodes: list[_Node], now_ns: int, listen_ns: int) -> int | None:
     """The log time up to which every node has released its samples, so that what is written is
     in log-time order across nodes. A node holds the writing back (-1: nothing yet) until it has
     released samples, unless no sample of it has come for STALE_S: since its last one, or since
-    the start for a node not heard from yet (its first samples may be stamped before what the
-    others sent so far); malformed packets do not count. None (everything) when every node is
-    silent that long."""
+    ``listen_ns`` (when acquire said it listens) for a node not heard from yet (its first samples
+    may be stamped before what the others sent so far); malformed and implausible packets do not
+    count. None (everything) when every node is silent that long."""
     settled = None
     for node in nodes:
-        heard_ns = node.last_sample_ns or start_ns
+        heard_ns = node.last_sample_ns or listen_ns
         if now_ns - heard_ns > nanoseconds(STALE_S):
             continue
         if node.last_log_ns < 0:
@@ -581,8 +600,14 @@ def _diagnostics(nodes: list[_Node], marks: list[int], now_ns: int) -> list[ros2
         silent_s = seconds(now_ns - node.last_read_ns) if node.last_read_ns else math.inf
         if silent_s > DIAGNOSTICS_S:
             level, message = 3, "no packets" if not counters.received else f"silent for {silent_s:.1f} s"
-        elif new["lost"] or new["late"] or new["malformed"] or new["duplicated"]:
-            level, message = 1, f"{new['received']} packets/s, {new['lost']} lost, {new['malformed']} malformed"
+        elif new["lost"] or new["late"] or new["malformed"] or new["duplicated"] or new["implausible"]:
+            level, message = (
+                1,
+                (
+                    f"{new['received']} packets/s, {new['lost']} lost, {new['malformed']} malformed, "
+                    f"{new['implausible']} implausible"
+                ),
+            )
         else:
             level, message = 0, f"{new['received']} packets/s"
         values = [(k, str(v)) for k, v in counters.as_dict().items()]
@@ -591,7 +616,7 @@ def _diagnostics(nodes: list[_Node], marks: list[int], now_ns: int) -> list[ros2
             ("drift_ppm", f"{line.drift_ppm:.3f}" if line is not None else "nan"),
             ("jitter_p50_ms", f"{jitter[0]:.3f}"),
             ("jitter_p99_ms", f"{jitter[1]:.3f}"),
-            ("pending", str(node.stream.pending)),
+            ("pending", str(node.stream.pending + node.timeline.held)),
             ("host_dropped", str(node.host_dropped)),
         ]
         statuses.append(
@@ -611,7 +636,7 @@ def _status_text(nodes: list[_Node], elapsed_s: float) -> str:
         drift = f"{line.drift_ppm:+.1f} ppm" if line is not None and node.clock.span_s >= WARMUP_S else "- ppm"
         parts.append(
             f"{node.spec.name}: {c.written} ok {c.lost} lost {c.duplicated} dup {c.reordered} reord "
-            f"{c.late} late {c.malformed} bad {drift}"
+            f"{c.late} late {c.malformed} bad {c.implausible} implausible {drift}"
         )
     return " | ".join(parts)
 
@@ -644,8 +669,9 @@ def _nothing_arrived(results: tuple[NodeResult, ...], spec: AcquireSpec, duratio
     for r in results:
         c = r.counters
         got = f"{c.received} packet(s)" if c.received else "no packets"
-        if c.malformed_reasons:
-            got += " (" + ", ".join(f"{k} {v}" for k, v in c.malformed_reasons) + ")"
+        reasons = [*c.malformed_reasons, *c.implausible_reasons]
+        if reasons:
+            got += " (" + ", ".join(f"{k} {v}" for k, v in reasons) + ")"
         parts.append(f"{r.name} port {r.port}: {got}")
     return (
         f"no IMU sample arrived in {duration_s:.1f} s ({'; '.join(parts)}); nothing written. "
@@ -689,16 +715,21 @@ def summary(result: AcquireResult) -> str:
         f"{result.size_bytes / 1e6:.2f} MB (stopped: {result.stop_reason})"
     ]
     head = f"  {'node':4} {'port':>5} {'received':>9} {'written':>8} {'lost':>6} {'dup':>5} {'reord':>6}"
-    lines.append(f"{head} {'late':>5} {'bad':>5} {'drift ppm':>10} {'jitter p50/p99 ms':>18}")
+    lines.append(f"{head} {'late':>5} {'bad':>5} {'impl':>5} {'drift ppm':>10} {'jitter p50/p99 ms':>18}")
     for r in result.nodes:
         c = r.counters
         lines.append(
             f"  {r.name:4} {r.port:5d} {c.received:9d} {c.written:8d} {c.lost:6d} {c.duplicated:5d} "
-            f"{c.reordered:6d} {c.late:5d} {c.malformed:5d} {_number(r.drift_ppm, 10, 2)} "
+            f"{c.reordered:6d} {c.late:5d} {c.malformed:5d} {c.implausible:5d} {_number(r.drift_ppm, 10, 2)} "
             f"{_number(r.jitter_p50_ms, 8, 3)} / {_number(r.jitter_p99_ms, 7, 3)}"
         )
         if c.malformed_reasons:
             lines.append("       malformed: " + ", ".join(f"{k} {v}" for k, v in c.malformed_reasons))
+        if c.implausible_reasons:
+            lines.append(
+                "       implausible (off the node's timeline): "
+                + ", ".join(f"{k} {v}" for k, v in c.implausible_reasons)
+            )
         if r.host_dropped:
             lines.append(f"       {r.host_dropped} of the lost were dropped by this host (acquire read too slowly)")
     for r in result.nodes:

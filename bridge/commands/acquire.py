@@ -20,7 +20,8 @@ def register(sub: argparse._SubParsersAction[options.Parser]) -> None:
         "acquire",
         help="record the rig's two sensor nodes (UDP) into a pendsim recording",
         description="Listen for each node's UDP packets on its own port (127.0.0.1 unless --bind), account for lost, "
-        "duplicated, reordered, late and malformed packets, map each node's device time to one host time base, and "
+        "duplicated, reordered, late, malformed and implausible (off the node's timeline) packets, map each node's "
+        "device time to one host time base, and "
         "write the recording (the layout of 'pendsim record', plus /diagnostics at 1 Hz). Stops after --duration-s, "
         "on Ctrl-C or SIGTERM. 'pendsim nodes' emulates the nodes.",
     )

@@ -53,6 +53,11 @@ SAMPLE_RATE_HZ = 80.0  # the rig's ESP32 nodes read the chip at 80 Hz (paper; sp
 FUSION_RATE_HZ = 100.0  # NDOF mode: fused output at 100 Hz (BNO055 datasheet; FIELD-NOTES: BNO055)
 GYRO_LSB_RAD_S = 1.0 / 900.0  # BNO055 datasheet: 1 rad/s = 900 LSB
 QUAT_LSB = 2.0**-14  # BNO055 datasheet: quaternion 1 = 2^14 LSB
+# The largest readings the chip can give in any mode (datasheet: accelerometer ranges +-2/4/8/16 g,
+# gyroscope +-125/250/500/1000/2000 dps; the fusion modes use 4 g and 2000 dps). Acceleration,
+# linear acceleration and the gravity vector share the accelerometer's scale.
+ACCEL_FULL_SCALE_M_S2 = 16 * STANDARD_GRAVITY_M_S2
+GYRO_FULL_SCALE_RAD_S = math.radians(2000.0)
 CALIBRATION_FIELDS = ("system", "gyro", "accel", "mag")
 
 Vec3 = tuple[float, float, float]

@@ -105,11 +105,14 @@ def _own_data_error_s(stamps_s, gyros_rad_s, truth) -> float:
     return _wrapped((own[1] - truth[1]) - (own[0] - truth[0]))
 
 
-def _assert_damping(b_n_m_s, law, rms_sigma):
-    assert law == "viscous"
-    np.testing.assert_allclose(b_n_m_s[0], TRUE_B[0], rtol=B_RTOL[0])
-    np.testing.assert_allclose(b_n_m_s[1], TRUE_B[1], rtol=B_RTOL[1])
-    assert rms_sigma < MAX_RMS_SIGMA
+def _assert_damping(b_n_m_s, law, rms_sigma, context=None):
+    """``context``: what a failure should show (an acquisition's counters, drift and jitter: a
+    relative clock-rate error between the nodes of 50 ppm raises the residuals to 1.01 sigma over
+    these 12 s, 100 ppm to 1.09, measured by scaling a recording's stamp clock)."""
+    assert law == "viscous", context
+    np.testing.assert_allclose(b_n_m_s[0], TRUE_B[0], rtol=B_RTOL[0], err_msg=str(context))
+    np.testing.assert_allclose(b_n_m_s[1], TRUE_B[1], rtol=B_RTOL[1], err_msg=str(context))
+    assert rms_sigma < MAX_RMS_SIGMA, context
 
 
 @pytest.mark.parametrize(
@@ -230,6 +233,7 @@ def test_a_nodes_and_acquire_recording_over_udp_identifies_viscous_damping(tmp_p
     error_s = _relative_error_s(run, truth)
     assert abs(error_s) <= ALIGN_TOLERANCE_S
     fit = identify(tmp_path / "run.mcap").fit
-    assert fit.timing2_s is not None and abs(error_s + fit.timing2_s) <= FIT_TOLERANCE_S["release"]
-    _assert_damping(fit.b_n_m_s, fit.law, fit.residual_rms_sigma)
+    acquisition = rec.metadata["pendsim/acquisition_result"]  # shown if it fails: a loaded run's clocks
+    assert fit.timing2_s is not None and abs(error_s + fit.timing2_s) <= FIT_TOLERANCE_S["release"], acquisition
+    _assert_damping(fit.b_n_m_s, fit.law, fit.residual_rms_sigma, acquisition)
     assert math.isfinite(fit.timing2_ci95_s) and fit.timing2_ci95_s < FIT_TOLERANCE_S["release"]
