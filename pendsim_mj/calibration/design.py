@@ -28,7 +28,7 @@ from pendsim_mj.engines import fast_planar
 from pendsim_mj.engines.fast_planar.closed_form import COEFFICIENTS
 from pendsim_mj.estimation.planar_fit import FIT_DT_S
 from pendsim_mj.nonlinear.linear import linear_modes
-from pendsim_mj.rig.drives import Drive, Sine, held_inputs
+from pendsim_mj.rig.drives import Drive, Sine, stage_inputs
 from pendsim_mj.rig.params import RigParams
 
 Floats = NDArray[np.float64]
@@ -129,7 +129,7 @@ def information_of(
     phi0 = np.radians(experiment.phi0_deg)
     inputs = None
     if experiment.drive is not None:
-        inputs = held_inputs(experiment.drive, math.ceil(duration_s / FIT_DT_S) + 2, FIT_DT_S)
+        inputs = stage_inputs(experiment.drive, math.ceil(duration_s / FIT_DT_S) + 2, FIT_DT_S)
     (r1, r2), _, _ = fast_planar.rates_at(coef, phi0, (0.0, 0.0), (t, t), FIT_DT_S, inputs=inputs, slopes=False)
     run = CalibrationRun(
         experiment.label, (t, t), (r1, r2), (sigma_rad_s, sigma_rad_s), (float(phi0[0]), float(phi0[1])),

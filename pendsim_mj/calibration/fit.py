@@ -39,7 +39,7 @@ from pendsim_mj.calibration.parameters import QUANTITIES, ParameterSpace, Quanti
 from pendsim_mj.engines import fast_planar
 from pendsim_mj.errors import ParameterError
 from pendsim_mj.estimation.planar_fit import FIT_DT_S, MAX_RELEASE_OFFSET_S, ljung_box_p
-from pendsim_mj.rig.drives import Drive, TimeSeries, held_inputs
+from pendsim_mj.rig.drives import Drive, TimeSeries, stage_inputs
 from pendsim_mj.rig.params import RigParams
 
 Floats = NDArray[np.float64]
@@ -120,8 +120,8 @@ class CalibrationRun:
             value_t_s=(at[0], at[1]),
             gyro_z_rad_s=(gyro[0], gyro[1]),
             gyro_sigma_rad_s=tuple(run.gyro_sigma_rad_s),  # type: ignore[attr-defined]
-            phi0_rad=phi0,  # type: ignore[arg-type]
-            omega0_rad_s=omega0,  # type: ignore[arg-type]
+            phi0_rad=phi0,
+            omega0_rad_s=omega0,
             moving=start.kind != "release",
             drive=drive,
             timing_range_s=run.relative_timing_range_s,  # type: ignore[attr-defined]
@@ -321,8 +321,8 @@ def _held(run: CalibrationRun) -> Floats:
     """The run's drive held over the steps the latest release offset and timing shift need (as
     ``planar_fit``), from the release on."""
     assert run.drive is not None
-    end_s = run.duration_s + MAX_RELEASE_OFFSET_S + max(0.0, *(run.timing_range_s or ()))
-    return held_inputs(run.drive, math.ceil(end_s / FIT_DT_S) + 2, FIT_DT_S)
+    end_s = run.duration_s + MAX_RELEASE_OFFSET_S + max((0.0, *(run.timing_range_s or ())))
+    return stage_inputs(run.drive, math.ceil(end_s / FIT_DT_S) + 2, FIT_DT_S)
 
 
 def _windows(duration_s: float) -> list[float]:

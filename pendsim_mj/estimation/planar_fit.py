@@ -371,7 +371,7 @@ def fit_planar(
             raise ParameterError(f"node {k + 1} has {len(at[-1])} usable gyro samples; the fit needs at least 10")
     inputs = None
     if drive:  # the steps the latest release offset needs (``fast_planar.rates_at``), and one more
-        end_s = max(float(at[0][-1]), float(at[1][-1])) + MAX_RELEASE_OFFSET_S + max(0.0, *(timing_range_s or ()))
+        end_s = max(float(at[0][-1]), float(at[1][-1])) + MAX_RELEASE_OFFSET_S + max((0.0, *(timing_range_s or ())))
         inputs = stage_inputs(drive, math.ceil(end_s / FIT_DT_S) + 2, FIT_DT_S)
     if timing_range_s is not None and not timing_range_s[0] <= 0.0 <= timing_range_s[1]:
         raise ParameterError(f"timing_range_s must hold 0 (the instants as given), got {timing_range_s!r}")

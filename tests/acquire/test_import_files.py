@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from pendsim_bridge.acquire.importers import read_tdms
+from pendsim_bridge.acquire.lab_files import read_tdms
 from pendsim_bridge.cli import main
 from pendsim_bridge.io.recording import read_recording
 
