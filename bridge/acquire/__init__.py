@@ -4,11 +4,13 @@ their emulation (``pendsim nodes``) and lab files (``pendsim import``).
 - ``packets``: the three packet formats (pendsim-v1 binary, CSV line, JSON object), each with an
   encoder (the emulator's) and a decoder that turns anything malformed into a ``PacketError``.
 - ``clock``: the online fit that maps a node's device time to host time under network jitter.
+- ``timeline``: each node's trusted timeline: packets that do not fit it are refused, not learnt.
 - ``accounting``: per node sequence tracking, the reorder window and the counters.
 - ``sink``: the one adapter between acquisition and the MCAP writer.
 - ``receiver``: the sockets, the loop, signals, the status line and the summary.
 - ``live``: the Rerun live view, in batches.
-- ``importers``: lab files (CSV, LabVIEW .lvm, TDMS) into a recording, through the same sink.
+- ``lab_files``: lab files (CSV, LabVIEW .lvm, TDMS) read into a table of named columns.
+- ``importers``: such a table into a recording, through the same sink.
 - ``tdms_check``: a TDMS file's segments walked (either byte order) before npTDMS reads it.
 - ``unit_check``: the units of imported values checked against their physics (the gyro against
   the orientation's rotation, gravity's magnitude).
