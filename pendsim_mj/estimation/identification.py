@@ -209,12 +209,15 @@ def timing_at_edge(fit: DampingFit, timing_range_s: tuple[float, float] | None) 
 def fit_warnings(fit: DampingFit, timing_range_s: tuple[float, float] | None) -> tuple[str, ...]:
     """One-line warnings on what a damping fit could not determine: a hinge loss known only to
     more than ``UNDETERMINED_SHARE`` of its value, and M2's timing against M1's at the edge of
-    its range (``timing_at_edge``)."""
+    its range (``timing_at_edge``). A misfit (``DampingFit.misfit``) says nothing of the damping's
+    precision: its numbers are not the rig's, and ``misfit_note`` says why."""
     notes = []
     values = []
-    if fit.law != "coulomb":
+    if fit.misfit:
+        pass
+    elif fit.law != "coulomb":
         values += [(f"b{k + 1}", fit.b_n_m_s[k], fit.ci95_n_m_s[k], "N m s/rad") for k in range(2)]
-    if fit.law != "viscous":
+    if fit.law != "viscous" and not fit.misfit:
         values += [(f"F{k + 1}", fit.friction_n_m[k], fit.friction_ci95_n_m[k], "N m") for k in range(2)]
     for name, value, half, unit in values:
         if not half <= UNDETERMINED_SHARE * abs(value):

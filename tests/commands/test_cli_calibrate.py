@@ -62,6 +62,13 @@ def test_calibrate_closes_the_gap_the_papers_parameters_leave(recording, tmp_pat
         assert got == pytest.approx(true, rel=0.02)
 
 
+def test_the_commands_parameter_list_is_the_librarys():
+    from pendsim_bridge.commands import calibrate
+    from pendsim_mj.calibration import PLANAR_PARAMETERS
+
+    assert calibrate.PLANAR_PARAMETERS == PLANAR_PARAMETERS
+
+
 @pytest.mark.parametrize(
     ("extra", "message"),
     [
