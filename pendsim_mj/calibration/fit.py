@@ -394,27 +394,22 @@ def calibrate(
     y = problem.start()
     windows = _windows(max(run.duration_s for run in runs))
     iterations = 0
-    normal, gradient, rr, n, _ = problem.normal_equations(y, windows[0])
-    # the stated rig as a weak prior: each free parameter within PLAUSIBLE_CHANGE of it (1 sigma); it
-    # keeps what no recording sees at the stated values and weighs nothing against what one determines
-    prior = np.zeros((problem.size, problem.size))
-    prior[: problem.nfree, : problem.nfree] = np.eye(problem.nfree) / info.PLAUSIBLE_CHANGE**2
-    everything = np.eye(problem.size)
+    normal, gradient, rr, n, schur = problem.normal_equations(y, windows[0])
     for window in windows:
         if iterations:
-            normal, gradient, rr, n, _ = problem.normal_equations(y, window)
+            normal, gradient, rr, n, schur = problem.normal_equations(y, window)
         mu = 1e-3
         for _ in range(12):
             if iterations >= MAX_ITERATIONS:
                 break
-            cost = rr + float(y @ prior @ y)
-            trial = problem.clip(y + _step(normal + prior, gradient + prior @ y, everything, mu))
-            t_normal, t_gradient, t_rr, t_n, _ = problem.normal_equations(trial, window)
+            variance = rr / max(1, n - problem.size)
+            determined = [d for d in info.directions(schur, variance) if d.determined]
+            trial = problem.clip(y + _step(normal, gradient, _basis(problem, determined), mu))
+            t_normal, t_gradient, t_rr, t_n, t_schur = problem.normal_equations(trial, window)
             iterations += 1
-            t_cost = t_rr + float(trial @ prior @ trial)
-            if t_cost < cost:
-                done = cost - t_cost < max(CHI2_TOLERANCE, 1e-12 * cost)
-                y, normal, gradient, rr, n = trial, t_normal, t_gradient, t_rr, t_n
+            if t_rr < rr:
+                done = rr - t_rr < max(CHI2_TOLERANCE, 1e-12 * rr)
+                y, normal, gradient, rr, n, schur = trial, t_normal, t_gradient, t_rr, t_n, t_schur
                 mu = max(mu / 10.0, 1e-9)
                 if done:
                     break

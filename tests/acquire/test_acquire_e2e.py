@@ -288,7 +288,7 @@ def test_acquire_refuses_a_port_in_use_and_unwritable_outputs(tmp_path, capsys):
     [
         (["--loss", "1.5"], "must be in [0, 1]"),
         (["--clock-drift-ppm", "m3=5"], "unknown node 'm3'"),
-        (["--clock-drift-ppm", "m2=5000"], "clock drift must be within +-1000 ppm"),
+        (["--clock-drift-ppm", "m2=5000"], "--clock-drift-ppm must be at most 1000 ppm"),
         (["--node", "m1=5601", "--clock-drift-ppm", "m2=5"], "node m2 is not sent to"),
         (["--duration-s", "2", "--hold-s", "3"], "must be longer than --hold-s"),
         (["--log", "sent.txt"], "must end in .jsonl or .csv"),

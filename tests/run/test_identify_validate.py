@@ -133,7 +133,7 @@ def test_a_model_with_10_percent_stiffer_coupling_springs_fails_validation(propo
     [
         (["--damping", "fast"], "--damping must be 'identified', 'recorded' or B1,B2"),
         (["--damping", "1e-3,-1"], "--damping values must be finite, >= 0 and at most 1000"),
-        (["--max-delta", "-1"], "argument --max-delta: must be >= 0"),
+        (["--max-delta", "-1"], "argument --max-delta: must be in [0, 100]"),
     ],
 )
 def test_validate_bad_options_are_one_line_exit_2(proportional, capsys, extra, message):
