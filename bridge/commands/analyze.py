@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import sys
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -299,6 +300,7 @@ def _period_or(drive: Drive | None, default: float) -> float:
 
 def _tongues(args: argparse.Namespace) -> int:
     from pendsim_mj.nonlinear import tongues  # start-up: MuJoCo, scipy
+    from pendsim_mj.nonlinear.tongues import TIP_LEVEL_REL_TOL
 
     from ..report.analysis_report import write_tongues  # start-up: matplotlib
 
@@ -307,17 +309,28 @@ def _tongues(args: argparse.Namespace) -> int:
     with _bar(None, "tongues (rounds)") as bar:
         result = tongues(options.params_from(args), freqs, args.level_max_m_s2, levels=args.levels,
                          steps_per_period=args.steps_per_period, progress=bar.update)  # fmt: skip
-    k = int(np.nanargmin(result.boundary_m_s2)) if np.any(np.isfinite(result.boundary_m_s2)) else None
-    lowest = (
-        f"lowest unstable level {result.boundary_m_s2[k]:.4g} m/s^2 at {freqs[k]:.4f} Hz"
-        if k is not None
-        else (f"rest is stable everywhere up to {args.level_max_m_s2:g} m/s^2")
-    )
     f1, f2 = result.linear_frequency_hz
-    print(f"principal tongues grow from 2 f1 = {2 * f1:.4f} Hz and 2 f2 = {2 * f2:.4f} Hz; {lowest}")
+    print(f"principal tongues grow from 2 f1 = {2 * f1:.4f} Hz and 2 f2 = {2 * f2:.4f} Hz")
+    for tip in result.tips:
+        where = f" near {tip.near}" if tip.near else ""
+        edge = " (at the edge of the frequency range: the tongue's tip may lie outside it)" if tip.at_edge else ""
+        print(f"tongue tip{where}: {tip.level_m_s2:.5g} m/s^2 +- {tip.level_tol_m_s2:.1g} at {tip.frequency_hz:.5f} Hz "
+              f"+- {tip.frequency_tol_hz:.0e} ({2 * args.steps_per_period} steps per period; "
+              f"{args.steps_per_period} give {tip.level_n_m_s2:.5g}){edge}")  # fmt: skip
+    tip = result.lowest_tip
+    print(
+        f"lowest unstable level {tip.level_m_s2:.4g} m/s^2 at {tip.frequency_hz:.4f} Hz"
+        if tip is not None
+        else f"rest is stable everywhere up to {args.level_max_m_s2:g} m/s^2"
+    )
     settings = {"level_max_m_s2": args.level_max_m_s2, "steps_per_period": args.steps_per_period}
     _written(write_tongues(result, args.out_dir, settings=settings, replace=args.force))
-    return 0
+    loose = [t for t in result.tips if not t.converged]
+    for t in loose:
+        print(f"pendsim: unconverged: the tongue tip at {t.frequency_hz:.4f} Hz is not located to "
+              f"{TIP_LEVEL_REL_TOL:g} of its level ({t.level_tol_m_s2:.1g} m/s^2 between {args.steps_per_period} and "
+              f"{2 * args.steps_per_period} steps per period); raise --steps-per-period", file=sys.stderr)  # fmt: skip
+    return 1 if loose else 0
 
 
 def _sync(args: argparse.Namespace) -> int:

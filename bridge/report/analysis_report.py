@@ -349,6 +349,9 @@ def write_tongues(result: Tongues, out_dir: Path, *, settings: dict[str, Any], r
         mesh = ax.pcolormesh(result.frequency_hz, result.level_m_s2, growth, shading="nearest", cmap="Reds")
         fig.colorbar(mesh, ax=ax, pad=0.01).set_label("growth of a perturbation, ln|mu| per period")
         ax.plot(result.frequency_hz, result.boundary_m_s2, color="black", linewidth=1.6, label="boundary (Floquet)")
+        if result.tips:
+            ax.plot([t.frequency_hz for t in result.tips], [t.level_m_s2 for t in result.tips], "v", color="black",
+                    markersize=7, label="tongue tips (refined between the grid's frequencies)")  # fmt: skip
         top = result.level_m_s2[-1]
         for m in (0, 1):
             a = np.where(result.analytic_m_s2[m] <= top * 1.05, result.analytic_m_s2[m], np.nan)
