@@ -223,7 +223,13 @@ def _print_response(sweeps: Any, branch: Any, agreements: Any) -> None:
         print(f"continuation: {len(branch.frequency_hz)} orbits, peak {peak:.2f} deg at {branch.frequency_hz[k]:.4f} "
               f"Hz, {int(np.sum(~branch.stable))} unstable ({branch.end_reason})")  # fmt: skip
         for b in branch.bifurcations:
-            print(f"  {b.kind} at {b.frequency_hz:.5f} Hz, phi1 amplitude {math.degrees(b.amplitude_rad[0]):.2f} deg")
+            amp, amp_tol = math.degrees(b.amplitude_rad[0]), math.degrees(b.amplitude_tol_rad[0])
+            how = (
+                f"the turning point, bracketed to {b.frequency_tol_hz:.0e} Hz and {amp_tol:.0e} deg"
+                if b.refined
+                else f"interpolated between branch points {b.frequency_tol_hz:.1g} Hz and {amp_tol:.2g} deg apart"
+            )
+            print(f"  {b.kind} at {b.frequency_hz:.6f} Hz, phi1 amplitude {amp:.3f} deg ({how})")
     for s, a in zip(sweeps, agreements, strict=False):
         print(f"stepped {s.direction} vs continuation (stable branches): max relative difference "
               f"{a.max_relative_difference:.2e}")  # fmt: skip

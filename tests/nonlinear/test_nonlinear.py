@@ -118,6 +118,23 @@ def test_continuation_reports_the_two_folds_of_a_softening_resonance(response):
     assert branch.end_reason == "end of the frequency range"
 
 
+def test_each_fold_is_the_turning_point_where_two_orbits_meet(response):
+    drive, branch, _ = response
+    for fold in branch.folds():
+        assert fold.refined and fold.frequency_tol_hz < 1e-9 and fold.amplitude_tol_rad[0] < 1e-7
+        i = fold.index
+        beyond = fold.frequency_hz - branch.frequency_hz[i] > 0  # the frequency turns back at a maximum
+        inside = fold.frequency_hz + (-1e-5 if beyond else 1e-5)
+        # independently, by Newton at fixed frequencies from the branch points either side: 1e-5 Hz
+        # inside the fold two orbits whose amplitudes straddle the fold's (their midpoint is it to
+        # O(1e-5 Hz): 0.002 deg here), 1e-5 Hz outside none
+        amps = [orbit_at(DAMPED, drive, inside, x, steps_per_period=64).amplitude_rad[0] for x in branch.x0[i : i + 2]]
+        assert min(amps) < fold.amplitude_rad[0] < max(amps) and max(amps) - min(amps) > 0.1 * DEG
+        assert np.mean(amps) == pytest.approx(fold.amplitude_rad[0], abs=0.01 * DEG)
+        with pytest.raises(ParameterError, match="Newton did not converge"):
+            orbit_at(DAMPED, drive, 2 * fold.frequency_hz - inside, branch.x0[i], steps_per_period=64)
+
+
 def test_stepped_sine_and_continuation_agree_to_1_percent_on_the_stable_branches(response):
     drive, branch, sweeps = response
     up, down = sweeps
