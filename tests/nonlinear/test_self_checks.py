@@ -45,3 +45,39 @@ def test_a_tongue_tip_at_too_few_steps_per_period_is_reported_unconverged():
     assert tip.level_tol_m_s2 > TIP_LEVEL_REL_TOL * tip.level_m_s2
     assert abs(tip.level_m_s2 - a_tip) < abs(tip.level_n_m_s2 - a_tip)
     assert math.isfinite(tip.frequency_hz) and abs(tip.frequency_hz - f_tip) < 1e-4
+
+
+def _independent_exponent_per_s(params, phi0_deg: float, members: int, duration_s: float) -> tuple[float, float]:
+    """The largest Lyapunov exponent by another implementation: the compiled planar engine's
+    Benettin pairs (unscaled state norm, renormalised every 10 s, the mean over the whole run)
+    from ``members`` releases within 1e-4 rad of phi0: (ensemble mean, 95 % half-width), 1/s."""
+    from scipy.special import stdtrit
+
+    from pendsim_mj.engines import fast_planar
+
+    rng = np.random.default_rng(7)
+    phi0 = np.radians([phi0_deg, 0.0]) + 1e-4 * rng.uniform(-1, 1, (members, 2))
+    coef = fast_planar.coefficients([params] * members)
+    steps = round(duration_s / 0.01)
+    running = fast_planar.lyapunov(coef, phi0, np.zeros((members, 2)), steps, 0.01, renormalise_every=1000,
+                                   separation=1e-9)  # fmt: skip
+    each = running[-1]
+    return float(np.mean(each)), float(stdtrit(members - 1, 0.975) * np.std(each, ddof=1) / math.sqrt(members))
+
+
+def test_a_chaotic_release_is_reported_unconverged_with_an_interval_that_holds_a_long_run():
+    # the undamped rig released at 170 deg: chaotic, with sticky regular islands; single runs of
+    # 600 s give 0.03 to 0.16 1/s
+    from pendsim_mj.nonlinear import largest_lyapunov
+
+    undamped = DEFAULT_PARAMS.with_overrides(b1_n_m_s=0.0, b2_n_m_s=0.0)
+    short = largest_lyapunov(undamped, None, x0=(math.radians(170), 0.0, 0.0, 0.0), duration_s=150.0,
+                             transient_s=50.0, members=4)  # fmt: skip
+    assert not short.converged and short.failed_check == "spread"
+    assert short.uncertainty_per_s > short.tolerance_per_s and short.needed_duration_s > 150.0
+    # the interval holds an independent estimate 24 times longer in all (16 runs of 900 s)
+    reference, reference_half_width = _independent_exponent_per_s(undamped, 170.0, 16, 900.0)
+    assert 0.05 < reference < 0.15 and reference_half_width < 0.03
+    assert abs(short.exponent_per_s - reference) <= short.uncertainty_per_s
+    assert short.uncertainty_per_s < 0.2  # and says something: the motion is chaotic
+    assert short.exponent_per_s - short.uncertainty_per_s > -0.05
