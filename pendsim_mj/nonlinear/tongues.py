@@ -22,7 +22,8 @@ linearly in ``growth`` within the last bracket), until the frequency is known to
 drive's sampling and RK4 converge with the step): the 2N tip is reported, and the difference
 between the N and 2N levels is its ``level_tol_m_s2``. A tip is ``converged`` when A is no
 lower at f +- TIP_FREQUENCY_TOL_HZ than at f (a minimum lies within the tolerance) at both N
-and 2N, and the level's tolerance is at most ``TIP_LEVEL_REL_TOL`` of the level.
+and 2N, and the level's tolerance is at most ``TIP_LEVEL_REL_TOL`` of the level (or ``TIP_LEVEL_ABS_SHARE``
+of level_max, for a tip at level 0).
 
 **The Mathieu-type limit** (``mathieu_boundary_m_s2``). Linearised,
 M q'' + C q' + (K_s + G (1 + a_v / g)) q = 0 (``linear.linear_modes``: the pivot's acceleration
@@ -58,6 +59,7 @@ PERTURBATION = 1e-7  # rad and rad/s: linear to ~1e-14 relative
 UNSTABLE = 1e-9  # growth per period above which rest counts as unstable (undamped: FD noise ~1e-10)
 TIP_FREQUENCY_TOL_HZ = 2e-5  # a tip's frequency is located to within this
 TIP_LEVEL_REL_TOL = 1e-3  # a tip's level counts as converged when N and 2N agree to this (relative)
+TIP_LEVEL_ABS_SHARE = 1e-5  # ... or to this share of level_max (a tip at level 0: no damping)
 _BISECTION_REL_TOL = 1e-7  # of level_max: the boundary's bisection at one frequency
 
 
@@ -76,7 +78,7 @@ class TongueTip:
       at_edge: the minimum lies at the edge of the frequency range (the tongue's tip may lie
         outside it).
       converged: a minimum within frequency_tol_hz at N and 2N (at an edge: within the range),
-        and level_tol_m_s2 <= TIP_LEVEL_REL_TOL * level_m_s2.
+        and level_tol_m_s2 <= max(TIP_LEVEL_REL_TOL * level_m_s2, TIP_LEVEL_ABS_SHARE * level_max).
     """
 
     frequency_hz: float
@@ -167,7 +169,8 @@ class _RestMonodromy:
                 lo, hi, g_lo, g_hi = guess[:k], guess[k:], g[0], g[1]
         if np.isnan(g_hi[0]):
             g_hi = self.growth(f, hi) - UNSTABLE
-        while np.any(g_hi > 0) and np.max((hi - lo) / hi) > _BISECTION_REL_TOL:
+        floor = 1e-3 * level_max_m_s2  # a tip at level 0 (no damping): stop at 1e-10 of level_max
+        while np.any(g_hi > 0) and np.max((hi - lo) / np.maximum(hi, floor)) > _BISECTION_REL_TOL:
             mid = 0.5 * (lo + hi)
             g = self.growth(f, mid) - UNSTABLE
             bad = g > 0
@@ -270,7 +273,9 @@ def refine_tips(
                 level_n_m_s2=a_n,
                 near=name if abs(special[name] - f_2n) < 0.05 else "",
                 at_edge=bool(edge),
-                converged=bool(ok_n and ok_2n and tol <= TIP_LEVEL_REL_TOL * a_2n),
+                converged=bool(
+                    ok_n and ok_2n and tol <= max(TIP_LEVEL_REL_TOL * a_2n, TIP_LEVEL_ABS_SHARE * level_max_m_s2)
+                ),
             )
         )
     return tuple(sorted(found, key=lambda t: t.level_m_s2))

@@ -161,7 +161,7 @@ def test_analyze_tongues_lyapunov_bifurcation_and_sync_on_small_settings(tmp_pat
     assert inside.any()
     np.testing.assert_allclose(rows["boundary_m_s2"][inside], rows["mathieu_mode1_m_s2"][inside], rtol=0.02)
     free = ["analyze", "lyapunov", "--free", "--phi1-deg", "20", "--set", "b1_n_m_s=0", "--set", "b2_n_m_s=0",
-            "--duration-s", "200", "--transient-s", "0", "--members", "3"]  # fmt: skip
+            "--duration-s", "200", "--transient-s", "0", "--members", "3", "--dt-s", "0.02"]  # fmt: skip
     assert main([*free, "-o", str(t / "ly")]) == 0
     ly = json.loads((t / "ly" / "lyapunov.json").read_text())["result"]
     assert ly["converged"] and abs(ly["exponent_per_s"]) + ly["uncertainty_per_s"] < 0.04  # regular: about 0
