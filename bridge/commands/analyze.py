@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import sys
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -108,6 +109,12 @@ def _add_lyapunov(p: argparse.ArgumentParser) -> None:
     p.add_argument("--interval-s", type=options.float_in(0.001, 100.0, "s"),
                    help="renormalisation interval (default: the drive period, or 1 s)")  # fmt: skip
     p.add_argument("--dt-s", type=options.float_in(1e-4, 0.1, "s"), default=0.01, help="step, s (default 0.01)")
+    p.add_argument("--members", type=options.int_in(2, 256), default=8,
+                   help="runs in the ensemble, started within 1e-5 rad of the release (default 8)")  # fmt: skip
+    p.add_argument("--tolerance-per-s", type=options.float_in(1e-6, 100.0, "1/s"), default=0.01,
+                   help="absolute tolerance of the exponent, 1/s (default 0.01)")  # fmt: skip
+    p.add_argument("--rel-tol", type=options.float_in(0.0, 10.0, ""), default=0.1,
+                   help="relative tolerance of the exponent (default 0.1); the larger of the two applies")  # fmt: skip
 
 
 def _add_tongues(p: argparse.ArgumentParser) -> None:
@@ -222,7 +229,13 @@ def _print_response(sweeps: Any, branch: Any, agreements: Any) -> None:
         print(f"continuation: {len(branch.frequency_hz)} orbits, peak {peak:.2f} deg at {branch.frequency_hz[k]:.4f} "
               f"Hz, {int(np.sum(~branch.stable))} unstable ({branch.end_reason})")  # fmt: skip
         for b in branch.bifurcations:
-            print(f"  {b.kind} at {b.frequency_hz:.5f} Hz, phi1 amplitude {math.degrees(b.amplitude_rad[0]):.2f} deg")
+            amp, amp_tol = math.degrees(b.amplitude_rad[0]), math.degrees(b.amplitude_tol_rad[0])
+            how = (
+                f"the turning point, bracketed to {b.frequency_tol_hz:.0e} Hz and {amp_tol:.0e} deg"
+                if b.refined
+                else f"interpolated between branch points {b.frequency_tol_hz:.1g} Hz and {amp_tol:.2g} deg apart"
+            )
+            print(f"  {b.kind} at {b.frequency_hz:.6f} Hz, phi1 amplitude {amp:.3f} deg ({how})")
     for s, a in zip(sweeps, agreements, strict=False):
         print(f"stepped {s.direction} vs continuation (stable branches): max relative difference "
               f"{a.max_relative_difference:.2e}")  # fmt: skip
@@ -275,18 +288,39 @@ def _lyapunov(args: argparse.Namespace) -> int:
     interval = args.interval_s or _period_or(drive, 1.0)
     dt = interval / max(1, round(interval / args.dt_s))  # a whole number of steps per interval
     x0 = (math.radians(args.phi1_deg), math.radians(args.phi2_deg), 0.0, 0.0)
-    with _bar(args.duration_s + args.transient_s, "Lyapunov (simulated s)") as bar:
+    with _bar(2 * (args.duration_s + args.transient_s), "Lyapunov (simulated s, both steps)") as bar:
         result = largest_lyapunov(
             options.params_from(args), drive, x0=x0, duration_s=args.duration_s, transient_s=args.transient_s,
-            interval_s=interval, dt_s=dt, progress=bar.update,
+            interval_s=interval, dt_s=dt, members=args.members, abs_tol_per_s=args.tolerance_per_s,
+            rel_tol=args.rel_tol, progress=bar.update,
         )  # fmt: skip
+    r = result
     print(
-        f"largest Lyapunov exponent {result.exponent_per_s:.4g} 1/s (spread of the running estimate over the "
-        f"last quarter {result.spread_per_s:.2g} 1/s; {len(result.t_s)} intervals of {result.interval_s:g} s)"
-    )
-    settings = {"interval_s": result.interval_s, "dt_s": dt, "x0": x0, "free": args.free}
+        f"largest Lyapunov exponent {r.exponent_per_s:.4g} +- {r.uncertainty_per_s:.2g} 1/s ({args.members} runs of "
+        f"{len(r.t_s)} intervals of {r.interval_s:g} s, from {np.min(r.member_exponents_per_s):.3g} to "
+        f"{np.max(r.member_exponents_per_s):.3g}; at dt/2 {r.step_difference_per_s:+.2g}, over the first half "
+        f"{r.time_difference_per_s:+.2g}; {'converged' if r.converged else 'NOT converged'} to "
+        f"{r.tolerance_per_s:.2g} 1/s)"
+    )  # fmt: skip
+    settings = {"interval_s": result.interval_s, "dt_s": dt, "x0": x0, "free": args.free, "members": args.members}
     _written(write_lyapunov(result, drive, args.out_dir, settings=settings, replace=args.force))
+    if not r.converged:
+        change = {
+            "spread": f"the runs disagree: run longer (about --duration-s {_round_up(r.needed_duration_s)})",
+            "step": f"the runs at dt/2 disagree: halve the step (--dt-s {dt / 2:.3g})",
+            "time": f"the first half disagrees: run longer (--duration-s {_round_up(2 * args.duration_s)})",
+        }[r.failed_check]
+        print(f"pendsim: unconverged: the Lyapunov exponent is {r.exponent_per_s:.3g} +- {r.uncertainty_per_s:.2g} "
+              f"1/s, wider than the tolerance {r.tolerance_per_s:.2g} 1/s; {change}, or widen --tolerance-per-s / "
+              "--rel-tol", file=sys.stderr)  # fmt: skip
+        return 1
     return 0
+
+
+def _round_up(seconds: float) -> str:
+    """A duration rounded up to two significant digits, for advice."""
+    magnitude = 10 ** max(0, math.floor(math.log10(max(seconds, 1.0))) - 1)
+    return f"{math.ceil(seconds / magnitude) * magnitude:g}"
 
 
 def _period_or(drive: Drive | None, default: float) -> float:
@@ -299,6 +333,7 @@ def _period_or(drive: Drive | None, default: float) -> float:
 
 def _tongues(args: argparse.Namespace) -> int:
     from pendsim_mj.nonlinear import tongues  # start-up: MuJoCo, scipy
+    from pendsim_mj.nonlinear.tongues import TIP_LEVEL_REL_TOL
 
     from ..report.analysis_report import write_tongues  # start-up: matplotlib
 
@@ -307,17 +342,28 @@ def _tongues(args: argparse.Namespace) -> int:
     with _bar(None, "tongues (rounds)") as bar:
         result = tongues(options.params_from(args), freqs, args.level_max_m_s2, levels=args.levels,
                          steps_per_period=args.steps_per_period, progress=bar.update)  # fmt: skip
-    k = int(np.nanargmin(result.boundary_m_s2)) if np.any(np.isfinite(result.boundary_m_s2)) else None
-    lowest = (
-        f"lowest unstable level {result.boundary_m_s2[k]:.4g} m/s^2 at {freqs[k]:.4f} Hz"
-        if k is not None
-        else (f"rest is stable everywhere up to {args.level_max_m_s2:g} m/s^2")
-    )
     f1, f2 = result.linear_frequency_hz
-    print(f"principal tongues grow from 2 f1 = {2 * f1:.4f} Hz and 2 f2 = {2 * f2:.4f} Hz; {lowest}")
+    print(f"principal tongues grow from 2 f1 = {2 * f1:.4f} Hz and 2 f2 = {2 * f2:.4f} Hz")
+    for tip in result.tips:
+        where = f" near {tip.near}" if tip.near else ""
+        edge = " (at the edge of the frequency range: the tongue's tip may lie outside it)" if tip.at_edge else ""
+        print(f"tongue tip{where}: {tip.level_m_s2:.5g} m/s^2 +- {tip.level_tol_m_s2:.1g} at {tip.frequency_hz:.5f} Hz "
+              f"+- {tip.frequency_tol_hz:.0e} ({2 * args.steps_per_period} steps per period; "
+              f"{args.steps_per_period} give {tip.level_n_m_s2:.5g}){edge}")  # fmt: skip
+    lowest = result.lowest_tip
+    print(
+        f"lowest unstable level {lowest.level_m_s2:.4g} m/s^2 at {lowest.frequency_hz:.4f} Hz"
+        if lowest is not None
+        else f"rest is stable everywhere up to {args.level_max_m_s2:g} m/s^2"
+    )
     settings = {"level_max_m_s2": args.level_max_m_s2, "steps_per_period": args.steps_per_period}
     _written(write_tongues(result, args.out_dir, settings=settings, replace=args.force))
-    return 0
+    loose = [t for t in result.tips if not t.converged]
+    for t in loose:
+        print(f"pendsim: unconverged: the tongue tip at {t.frequency_hz:.4f} Hz is not located to "
+              f"{TIP_LEVEL_REL_TOL:g} of its level ({t.level_tol_m_s2:.1g} m/s^2 between {args.steps_per_period} and "
+              f"{2 * args.steps_per_period} steps per period); raise --steps-per-period", file=sys.stderr)  # fmt: skip
+    return 1 if loose else 0
 
 
 def _sync(args: argparse.Namespace) -> int:

@@ -311,18 +311,24 @@ def write_lyapunov(
         )
         fig, (ax, ax2) = plt.subplots(2, 1, figsize=(10, 7.5), dpi=110, sharex=True)
         ax.plot(result.t_s, result.running_per_s, color="tab:blue", linewidth=1.2,
-                label="running estimate: sum of ln(d/d0) / t")  # fmt: skip
+                label="first run's running estimate: sum of ln(d/d0) / t")  # fmt: skip
+        low, high = result.exponent_per_s - result.uncertainty_per_s, result.exponent_per_s + result.uncertainty_per_s
+        ax.axhspan(low, high, color="tab:red", alpha=0.15, label="ensemble estimate +- uncertainty (95 %)")
         ax.axhline(result.exponent_per_s, color="tab:red", linestyle="--", linewidth=1.2,
-                   label=f"estimate {result.exponent_per_s:.4g} 1/s (slope, second half)")  # fmt: skip
+                   label=f"ensemble estimate {result.exponent_per_s:.4g} 1/s "
+                   f"({len(result.member_exponents_per_s)} runs)")  # fmt: skip
+        ax.plot(np.full(len(result.member_exponents_per_s), result.t_s[-1]), result.member_exponents_per_s, "_",
+                color="black", markersize=12, label="each run's exponent (last three quarters)")  # fmt: skip
         ax.axhline(0.0, color="black", linewidth=0.8)
         ax.set_ylabel("largest Lyapunov exponent (1/s)")
-        verdict = "chaotic" if result.exponent_per_s > max(0.01, 3 * result.spread_per_s) else "regular"
-        ax.set_title(f"Convergence of the largest Lyapunov exponent ({verdict})")
+        verdict = "chaotic" if low > 0 else ("not chaotic" if high < max(0.01, result.tolerance_per_s) else "undecided")
+        state = "converged" if result.converged else "NOT converged"
+        ax.set_title(f"Convergence of the largest Lyapunov exponent ({verdict}; {state})")
         total = np.cumsum(result.stretch)
-        half = len(total) // 2
-        ax2.plot(result.t_s, total, color="tab:blue", linewidth=1.2, label="sum of ln(d/d0)")
-        ax2.plot(result.t_s[half:], total[half] + result.exponent_per_s * (result.t_s[half:] - result.t_s[half]),
-                 "--", color="tab:red", linewidth=1.2, label="fitted slope")  # fmt: skip
+        first = len(total) // 4
+        ax2.plot(result.t_s, total, color="tab:blue", linewidth=1.2, label="sum of ln(d/d0), first run")
+        ax2.plot(result.t_s[first:], total[first] + result.exponent_per_s * (result.t_s[first:] - result.t_s[first]),
+                 "--", color="tab:red", linewidth=1.2, label="slope of the ensemble estimate")  # fmt: skip
         ax2.set_xlabel(f"time after {result.transient_s:g} s of transient (s)")
         ax2.set_ylabel("cumulative log stretch")
         for a in (ax, ax2):
@@ -349,6 +355,9 @@ def write_tongues(result: Tongues, out_dir: Path, *, settings: dict[str, Any], r
         mesh = ax.pcolormesh(result.frequency_hz, result.level_m_s2, growth, shading="nearest", cmap="Reds")
         fig.colorbar(mesh, ax=ax, pad=0.01).set_label("growth of a perturbation, ln|mu| per period")
         ax.plot(result.frequency_hz, result.boundary_m_s2, color="black", linewidth=1.6, label="boundary (Floquet)")
+        if result.tips:
+            ax.plot([t.frequency_hz for t in result.tips], [t.level_m_s2 for t in result.tips], "v", color="black",
+                    markersize=7, label="tongue tips (refined between the grid's frequencies)")  # fmt: skip
         top = result.level_m_s2[-1]
         for m in (0, 1):
             a = np.where(result.analytic_m_s2[m] <= top * 1.05, result.analytic_m_s2[m], np.nan)

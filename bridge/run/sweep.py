@@ -451,6 +451,9 @@ class SweepStore:
         cols["diverged"] = pa.array(feats.diverged, type=pa.bool_())
         for j, name in enumerate(feats.names):
             cols[name] = pa.array(feats.values[:, j], type=pa.float64())
+        for name, flags in feats.quality.items():
+            kind = pa.bool_() if flags.dtype == np.bool_ else pa.float64()
+            cols[name] = pa.array(flags, type=kind)
         if feats.poincare is not None:
             for name, values in zip(FEATURE_GROUPS["poincare"], dataclasses.astuple(feats.poincare), strict=True):
                 cols[name] = pa.array([v.tolist() for v in values], type=pa.list_(pa.float64()))

@@ -107,6 +107,54 @@ def spectral_peak_hz_batch(t_s: np.ndarray, x: np.ndarray, max_hz: float = np.in
     return out
 
 
+def second_peak_ratio_batch(t_s: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """How clearly each row's spectral peak dominates: the height of its second-highest peak over
+    the highest's, (m,) in [0, 1] for rows of x (m, n) sampled at t_s (n,).
+
+    Peaks are the local maxima of the windowed spectrum of ``spectral_peak_hz_batch``
+    (``hann_magnitude``, 8x zero padding), each height refined by the parabola through the
+    log-magnitudes of its bin and its two neighbours; the second is the highest peak outside the
+    first's main lobe (the Hann window's: +-2 bins of 1 / duration; its side lobes are 31 dB down).
+    0 for a single peak or a constant row, NaN for a row with a non-finite value. A row whose
+    padded spectrum would exceed the memory bound is transformed with less padding (at least its
+    own length, rounded up to a power of two)."""
+    t = np.asarray(t_s, dtype=float)
+    rows = np.asarray(x, dtype=float)
+    if rows.ndim != 2 or rows.shape[1:] != t.shape:
+        raise ParameterError(f"expected x of shape (m, {t.shape[0] if t.ndim == 1 else 'n'}), got {rows.shape}")
+    _check_series(t, rows[0] if len(rows) else t)
+    n = len(t)
+    nfft = padded_length(n)
+    while 16 * (nfft // 2 + 1) > _SPECTRUM_BYTES and nfft >= 2 * n:
+        nfft //= 2
+    out = np.full(len(rows), np.nan)
+    if 16 * (nfft // 2 + 1) > _SPECTRUM_BYTES:
+        return out
+    lobe = 2 * nfft / n  # the main lobe's half-width in padded bins
+    block = max(1, _SPECTRUM_BYTES // (16 * (nfft // 2 + 1)))
+    for lo in range(0, len(rows), block):
+        y = rows[lo : lo + block]
+        logs = np.log(hann_magnitude(y, nfft)[:, 1:] + 1e-300)  # without the zero-frequency bin
+        a, b, c = logs[:, :-2], logs[:, 1:-1], logs[:, 2:]
+        is_peak = (b > a) & (b >= c)
+        denom = a - 2 * b + c
+        with np.errstate(divide="ignore", invalid="ignore"):
+            height = np.where(denom < 0, b - (a - c) ** 2 / (8 * denom), b)  # the parabola's vertex
+        height = np.where(is_peak, height, -np.inf)
+        first = np.argmax(height, axis=1)
+        bins = np.arange(height.shape[1])
+        outside = np.abs(bins[None, :] - first[:, None]) > lobe
+        second = np.max(np.where(outside, height, -np.inf), axis=1)
+        top = height[np.arange(len(y)), first]
+        with np.errstate(invalid="ignore", over="ignore"):
+            ratio = np.where(np.isfinite(second), np.exp(second - top), 0.0)
+        ratio[~np.isfinite(top)] = 0.0
+        ratio[~np.any(y != y[:, :1], axis=1)] = 0.0
+        ratio[~np.all(np.isfinite(y), axis=1)] = np.nan
+        out[lo : lo + block] = ratio
+    return out
+
+
 SPECTRUM_PARTS = 16
 """A long series' zero-padded spectrum is computed in this many interleaved parts (bins r, r + 16,
 r + 32, ...; ``_peak_in_parts``): a sixteenth of its memory. Each part is the transform of length

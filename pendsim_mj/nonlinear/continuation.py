@@ -79,7 +79,9 @@ def newton(
     """
     u = np.array(u0, dtype=float)
     res_norm = np.inf
-    for it in range(1, max_iter + 1):
+    it = 0
+    while it < max_iter:
+        it += 1
         g, jac, extra = system(u)
         res_norm = float(np.max(np.abs(g)))
         jz = jac * scale  # d G / d z
@@ -159,3 +161,66 @@ def continue_branch(
         elif p.iterations >= settings.max_newton - 1:
             ds = max(settings.ds_min, ds / 1.5)
     return points, "max_points"
+
+
+@dataclasses.dataclass(frozen=True)
+class TurningPoint:
+    """Where a branch turns back in one component of u, refined (``turning_point``).
+
+    point: the converged solution there. bracket: the two converged solutions either side of it
+    on the last bracket (the turning point lies between them on the branch). iterations: solves.
+    """
+
+    point: Point
+    bracket: tuple[Point, Point]
+    iterations: int
+
+
+def turning_point(
+    system: System,
+    before: Point,
+    after: Point,
+    *,
+    scale: NDArray[np.float64],
+    component: int,
+    settings: Settings = Settings(),
+    arclength_tol: float = 1e-7,
+    max_iter: int = 40,
+) -> TurningPoint:
+    """The turning point of u[component] between two consecutive points of a branch, whose
+    tangents' components have opposite signs: the root of the tangent's component over the
+    pseudo-arclength s from ``before`` (the solution on the hyperplane t . (z - z_before) = s,
+    t = before's tangent), by regula falsi with the Illinois modification, until the bracket in s
+    is below ``arclength_tol`` (scaled units).
+
+    Raises:
+      ParameterError: the tangents do not change sign, or a correction did not converge.
+    """
+    z0, t0 = before.u / scale, before.tangent
+    lo, hi = (0.0, before), (float(t0 @ (after.u / scale - z0)), after)
+    h_lo, h_hi = float(before.tangent[component]), float(after.tangent[component])
+    if not h_lo * h_hi < 0 or not hi[0] > 0:
+        raise ParameterError("no turning point between these points: the tangent's component keeps its sign")
+    side = 0
+    it = 0
+    while it < max_iter:
+        it += 1
+        if hi[0] - lo[0] <= arclength_tol:
+            break
+        s = hi[0] - h_hi * (hi[0] - lo[0]) / (h_hi - h_lo)
+        s = min(max(s, lo[0] + 0.01 * (hi[0] - lo[0])), hi[0] - 0.01 * (hi[0] - lo[0]))
+        share = (s - lo[0]) / (hi[0] - lo[0])
+        guess = lo[1].u + share * (hi[1].u - lo[1].u)
+        p = newton(system, guess, scale=scale, tangent=t0, anchor=z0, ds=s, tol=settings.newton_tol,
+                   step_tol=settings.step_tol, max_iter=settings.max_newton)  # fmt: skip
+        h = float(p.tangent[component])
+        if h * h_lo > 0:
+            lo, h_lo = (s, p), h
+            h_hi = h_hi / 2 if side == -1 else h_hi  # Illinois: the same end kept twice
+            side = -1
+        else:
+            hi, h_hi = (s, p), h
+            h_lo = h_lo / 2 if side == 1 else h_lo
+            side = 1
+    best = min((lo[1], hi[1]), key=lambda q: abs(float(q.tangent[component])))
+    return TurningPoint(point=best, bracket=(lo[1], hi[1]), iterations=it)

@@ -26,8 +26,8 @@ from collections.abc import Callable, Sequence
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from pendsim_mj.errors import ParameterError
-from pendsim_mj.nonlinear.continuation import Point, Settings, continue_branch, newton
+from pendsim_mj.errors import ParameterError, SimulationDiverged
+from pendsim_mj.nonlinear.continuation import Point, Settings, continue_branch, newton, turning_point
 from pendsim_mj.nonlinear.flow import RigFlow, scaled_norm
 from pendsim_mj.nonlinear.periodic import (
     ForcedShooting,
@@ -188,8 +188,12 @@ class Bifurcation:
     """A bifurcation located between branch points ``index`` and ``index + 1``.
 
     kind: "fold", "period_doubling", "neimark_sacker" or "branch_point". frequency_hz and
-    amplitude_rad (2,): where, interpolated (a fold at the turning point of the frequency).
-    multiplier: the Floquet multiplier that crosses the unit circle (at point index + 1).
+    amplitude_rad (2,): where. A fold found by ``continue_response`` is refined to the turning
+    point of the frequency (``continuation.turning_point``: a converged orbit there, ``refined``);
+    every other bifurcation is interpolated between the two points. frequency_tol_hz and
+    amplitude_tol_rad (2,): the bifurcation lies within these of the values given (refined: the
+    last bracket's width; interpolated: the distance between the two points). multiplier: the
+    Floquet multiplier that crosses the unit circle (at point index + 1).
     """
 
     kind: str
@@ -197,6 +201,9 @@ class Bifurcation:
     frequency_hz: float
     amplitude_rad: NDArray[np.float64]
     multiplier: complex
+    frequency_tol_hz: float = math.nan
+    amplitude_tol_rad: NDArray[np.float64] = dataclasses.field(default_factory=lambda: np.full(2, math.nan))
+    refined: bool = False
 
 
 @dataclasses.dataclass(frozen=True)
@@ -253,6 +260,11 @@ def detect_bifurcations(
             amplitude_rad[i] + s * (amplitude_rad[i + 1] - amplitude_rad[i]),
         )
 
+    def found(kind: str, i: int, f: float, a: NDArray[np.float64], mu: complex) -> Bifurcation:
+        width_f = float(abs(frequency_hz[i + 1] - frequency_hz[i]))
+        width_a = np.abs(amplitude_rad[i + 1] - amplitude_rad[i])
+        return Bifurcation(kind, i, f, a, mu, frequency_tol_hz=width_f, amplitude_tol_rad=width_a)
+
     for i in range(len(frequency_hz) - 1):
         mu0, mu1 = multipliers[i], multipliers[i + 1]
         minus_one = (np.prod(mu0 + 1).real, np.prod(mu1 + 1).real)
@@ -267,20 +279,20 @@ def detect_bifurcations(
             if len(frequency_hz) >= 3 and j >= 0:
                 f = float(_parabola_value(frequency_hz[j : j + 3], s))
             crossing = mu1[np.argmin(np.abs(mu1 - 1))]
-            out.append(Bifurcation("fold", i, f, a, complex(crossing)))
+            out.append(found("fold", i, f, a, complex(crossing)))
         elif np.sign(plus_one[0]) != np.sign(plus_one[1]):
             f, a = at(i, _interpolate(*plus_one))
-            out.append(Bifurcation("branch_point", i, f, a, complex(mu1[np.argmin(np.abs(mu1 - 1))])))
+            out.append(found("branch_point", i, f, a, complex(mu1[np.argmin(np.abs(mu1 - 1))])))
         if np.sign(minus_one[0]) != np.sign(minus_one[1]):
             f, a = at(i, _interpolate(*minus_one))
-            out.append(Bifurcation("period_doubling", i, f, a, complex(mu1[np.argmin(np.abs(mu1 + 1))])))
+            out.append(found("period_doubling", i, f, a, complex(mu1[np.argmin(np.abs(mu1 + 1))])))
         if complex_out[0] != complex_out[1]:
             c0 = np.max(np.abs(mu0[np.abs(mu0.imag) > real_tol]), initial=0.0) - 1
             c1 = np.max(np.abs(mu1[np.abs(mu1.imag) > real_tol]), initial=0.0) - 1
             f, a = at(i, _interpolate(c0, c1))
             pair = mu1[np.abs(mu1.imag) > real_tol]
             mult = complex(pair[np.argmax(np.abs(pair))]) if len(pair) else complex(mu1[0])
-            out.append(Bifurcation("neimark_sacker", i, f, a, mult))
+            out.append(found("neimark_sacker", i, f, a, mult))
     return tuple(out)
 
 
@@ -388,7 +400,31 @@ def continue_response(
                 if np.max(np.abs(last.extra.states[:, :2])) <= max_amplitude_rad
                 else ("amplitude limit")
             )
-        return _branch(points, drive, shooting, why)
+        branch = _branch(points, drive, shooting, why)
+        refined = tuple(_refined_fold(b, points, shooting, scale, settings) if b.kind == "fold" else b
+                        for b in branch.bifurcations)  # fmt: skip
+        return dataclasses.replace(branch, bifurcations=refined)
+
+
+def _refined_fold(
+    fold: Bifurcation, points: list[Point], shooting: ForcedShooting, scale: NDArray[np.float64], settings: Settings
+) -> Bifurcation:
+    """The fold at the turning point of the frequency between its two branch points (a converged
+    orbit there), or the interpolated fold unchanged where the refinement fails."""
+    try:
+        turn = turning_point(shooting.system, points[fold.index], points[fold.index + 1], scale=scale,
+                             component=4, settings=settings)  # fmt: skip
+    except (ParameterError, SimulationDiverged):
+        return fold
+    orbit, (lo, hi) = turn.point.extra, turn.bracket
+    return dataclasses.replace(
+        fold,
+        frequency_hz=float(turn.point.u[4]),
+        amplitude_rad=orbit.amplitude_rad,
+        frequency_tol_hz=float(abs(hi.u[4] - lo.u[4])),
+        amplitude_tol_rad=np.abs(hi.extra.amplitude_rad - lo.extra.amplitude_rad),
+        refined=True,
+    )
 
 
 def orbit_at(

@@ -5,7 +5,12 @@ MuJoCo Trajectory) and gets the same features. Feature groups and the columns th
 
 - ``frequency``: ``freq1_hz``, ``freq2_hz``: dominant frequency of phi1, phi2, the same estimate
   ``pendsim simulate`` prints (``analysis.spectral_peak_hz``: Hann window, 8x zero padding,
-  log-parabola refinement).
+  log-parabola refinement). With them, two quality columns per pendulum (``QUALITY_COLUMNS``, not
+  features: no maps, no elasticities): ``freq1_peak_ratio``, ``freq2_peak_ratio``, the height of
+  the second-highest spectral peak over the highest (``analysis.second_peak_ratio_batch``; 0.03
+  for a pure sine: the window's side lobes), and ``freq1_ambiguous``, ``freq2_ambiguous`` (bool):
+  that ratio is at least ``AMBIGUOUS_PEAK_RATIO``, so that which peak the frequency is can flip
+  with a small change (M2 released at 0 swings in both modes about equally: 0.97 to 1).
 - ``amplitude``: ``amp1_rad``, ``amp2_rad``: largest |phi| over the run; ``amp1_end_rad``,
   ``amp2_end_rad``: largest |phi| over its last fifth (what is left at the end).
 - ``decay``: ``decay1_per_s``, ``decay2_per_s``: ln(A_head / A_tail) / (t_tail - t_head), where
@@ -33,7 +38,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from pendsim_mj.errors import ParameterError
-from pendsim_mj.estimation.analysis import spectral_peak_hz_batch
+from pendsim_mj.estimation.analysis import second_peak_ratio_batch, spectral_peak_hz_batch
 
 FloatArray = NDArray[np.float64]
 
@@ -45,6 +50,11 @@ FEATURE_GROUPS: dict[str, tuple[str, ...]] = {
     "poincare": ("poincare_t_s", "poincare_phi2_rad", "poincare_omega2_rad_s"),
     "lyapunov": ("lyapunov_per_s",),
 }
+QUALITY_COLUMNS: dict[str, tuple[str, ...]] = {
+    "frequency": ("freq1_peak_ratio", "freq2_peak_ratio", "freq1_ambiguous", "freq2_ambiguous"),
+}
+"""Per feature group, the columns that say how far its values can be trusted (after the features)."""
+AMBIGUOUS_PEAK_RATIO = 0.8  # a second spectral peak within 20 % of the first: the frequency is ambiguous
 DEFAULT_GROUPS = ("frequency", "amplitude", "energy")
 LIST_GROUPS = frozenset({"poincare"})  # groups whose columns hold one list per case
 WINDOW_SHARE = 0.2  # head and tail windows of amplitude and decay: a fifth of the run
@@ -103,12 +113,15 @@ class PoincareSamples:
 
 @dataclasses.dataclass(frozen=True)
 class Features:
-    """Features of m runs: ``values[:, j]`` is column ``names[j]`` (NaN where a run diverged)."""
+    """Features of m runs: ``values[:, j]`` is column ``names[j]`` (NaN where a run diverged);
+    ``quality`` the columns of ``QUALITY_COLUMNS`` for the groups computed, each (m,) (float
+    ratios, NaN where a run diverged; bool flags, False there)."""
 
     names: tuple[str, ...]
     values: FloatArray
     diverged: NDArray[np.bool_]
     poincare: PoincareSamples | None
+    quality: dict[str, NDArray[np.float64] | NDArray[np.bool_]] = dataclasses.field(default_factory=dict)
 
     def column(self, name: str) -> FloatArray:
         """One scalar column, (m,)."""
@@ -130,10 +143,16 @@ def compute(motion: Motion, groups: Sequence[str], *, lyapunov_per_s: FloatArray
     phi = motion.phi_rad
     m, n = phi.shape[:2]
     columns: dict[str, FloatArray] = {}
+    quality: dict[str, NDArray[np.float64] | NDArray[np.bool_]] = {}
     if "frequency" in groups:
         flat = np.moveaxis(phi, 2, 1).reshape(2 * m, n)  # rows: case 0 phi1, case 0 phi2, ...
         freq = spectral_peak_hz_batch(t, flat).reshape(m, 2)
         columns["freq1_hz"], columns["freq2_hz"] = freq[:, 0], freq[:, 1]
+        ratio = second_peak_ratio_batch(t, flat).reshape(m, 2)
+        ratio[motion.diverged] = np.nan
+        for k in (0, 1):
+            quality[f"freq{k + 1}_peak_ratio"] = ratio[:, k]
+            quality[f"freq{k + 1}_ambiguous"] = np.nan_to_num(ratio[:, k]) >= AMBIGUOUS_PEAK_RATIO
     head = max(1, round(WINDOW_SHARE * (n - 1)))  # samples 0..head and n-1-head..n-1
     mag = np.abs(phi)
     head_i = np.argmax(mag[:, : head + 1], axis=1)  # (m, 2)
@@ -161,7 +180,7 @@ def compute(motion: Motion, groups: Sequence[str], *, lyapunov_per_s: FloatArray
     values = np.stack([columns[c] for c in names], axis=1) if names else np.zeros((m, 0))
     values[motion.diverged] = np.nan
     poincare = _poincare(motion) if "poincare" in groups else None
-    return Features(names=names, values=values, diverged=motion.diverged.copy(), poincare=poincare)
+    return Features(names=names, values=values, diverged=motion.diverged.copy(), poincare=poincare, quality=quality)
 
 
 def _hermite(y0: FloatArray, y1: FloatArray, d0: FloatArray, d1: FloatArray, h: float, s: FloatArray) -> FloatArray:

@@ -160,9 +160,12 @@ def test_analyze_tongues_lyapunov_bifurcation_and_sync_on_small_settings(tmp_pat
     inside = np.isfinite(rows["boundary_m_s2"])
     assert inside.any()
     np.testing.assert_allclose(rows["boundary_m_s2"][inside], rows["mathieu_mode1_m_s2"][inside], rtol=0.02)
-    assert main(["analyze", "lyapunov", "--duration-s", "60", "--transient-s", "20", "-o", str(t / "ly")]) == 0
+    free = ["analyze", "lyapunov", "--free", "--phi1-deg", "20", "--set", "b1_n_m_s=0", "--set", "b2_n_m_s=0",
+            "--duration-s", "200", "--transient-s", "0", "--members", "3", "--dt-s", "0.02"]  # fmt: skip
+    assert main([*free, "-o", str(t / "ly")]) == 0
     ly = json.loads((t / "ly" / "lyapunov.json").read_text())["result"]
-    assert ly["exponent_per_s"] > 0.2  # the default drive is the chaotic example
+    assert ly["converged"] and abs(ly["exponent_per_s"]) + ly["uncertainty_per_s"] < 0.04  # regular: about 0
+    assert len(ly["member_exponents_per_s"]) == 3 and len(ly["half_step_exponents_per_s"]) == 1
     assert main(["analyze", "bifurcation", "--values", "3", "--transient-periods", "5", "--sample-periods", "4",
                  "-o", str(t / "bf")]) == 0  # fmt: skip
     rows = np.genfromtxt(t / "bf" / "bifurcation.csv", delimiter=",", names=True, dtype=None, encoding=None)
@@ -172,6 +175,31 @@ def test_analyze_tongues_lyapunov_bifurcation_and_sync_on_small_settings(tmp_pat
     assert np.all(rows["locking_index"] > 0.9)  # small drive, damped: M2 follows M1 at the drive frequency
     for folder, stem in (("tg", "tongues"), ("ly", "lyapunov"), ("bf", "bifurcation"), ("sy", "sync")):
         assert (t / folder / f"{stem}.png").stat().st_size > 10_000
+
+
+def test_an_unconverged_lyapunov_exponent_is_one_line_and_exit_1_with_the_files_written(tmp_path, capsys):
+    out = tmp_path / "ly"
+    args = ["analyze", "lyapunov", "--duration-s", "60", "--transient-s", "20", "--members", "3", "-o", str(out)]
+    assert main(args) == 1
+    captured = capsys.readouterr()
+    (line,) = captured.err.strip().splitlines()
+    assert line.startswith("pendsim: unconverged: the Lyapunov exponent is ") and "--duration-s" in line
+    assert "NOT converged" in captured.out
+    ly = json.loads((out / "lyapunov.json").read_text())["result"]
+    assert not ly["converged"] and ly["uncertainty_per_s"] > ly["tolerance_per_s"]
+
+
+def test_an_unconverged_tongue_tip_is_one_line_and_exit_1(tmp_path, capsys):
+    out = tmp_path / "tg"
+    args = ["analyze", "tongues", "--f-min-hz", "1.74", "--f-max-hz", "1.77", "--frequencies", "3",
+            "--level-max-m-s2", "0.3", "--levels", "2", "--steps-per-period", "32", "-o", str(out)]  # fmt: skip
+    assert main(args) == 1
+    captured = capsys.readouterr()
+    (line,) = captured.err.strip().splitlines()
+    assert line.startswith("pendsim: unconverged: the tongue tip at 1.754") and "raise --steps-per-period" in line
+    assert "tongue tip near 2 f1: 0.1107" in captured.out  # 64 steps per period: within 1e-4 of the tip
+    (tip,) = json.loads((out / "tongues.json").read_text())["tongues"]["tips"]
+    assert not tip["converged"]
 
 
 @pytest.mark.parametrize(

@@ -472,3 +472,37 @@ def test_a_definition_file_and_sweep_options_together_are_refused(tmp_path, caps
     definition.write_text("{not json")
     assert main(["sweep", str(definition), "-o", str(tmp_path / "o")]) == 2
     assert "is not valid JSON" in capsys.readouterr().err
+
+
+def _linear_phi2_peak_ratio(phi0_rad) -> float:
+    """The ratio of mode 1's and mode 2's amplitudes in phi2 (smaller over larger) for a small
+    release from rest, from the linearised modes: phi0 = sum c_i u_i."""
+    from pendsim_mj.nonlinear import linear_modes
+
+    shapes = linear_modes(UNDAMPED).shapes
+    parts = np.abs(shapes[1] * np.linalg.solve(shapes, np.asarray(phi0_rad)))
+    return float(parts.min() / parts.max())
+
+
+def test_a_frequency_with_two_peaks_of_similar_height_is_flagged_in_the_parquet_row(tmp_path):
+    # M2 released at 0 swings in both modes about equally: which peak is freq2 can flip
+    plan = _plan(vary={"phi1_deg": [4.0, 30.0]}, base={"b1_n_m_s": 0.0, "b2_n_m_s": 0.0}, duration_s=60.0,
+                 features=["frequency"])  # fmt: skip
+    run_sweep(plan, tmp_path / "out", progress=False, plots=False)
+    rows = pq.read_table(tmp_path / "out" / "results.parquet").sort_by("case_id").to_pydict()
+    assert rows["freq2_ambiguous"] == [True, True] and rows["freq1_ambiguous"] == [False, False]
+    assert all(r < 0.1 for r in rows["freq1_peak_ratio"])  # M1: one peak (and the window's side lobes)
+    # at 4 deg the motion is linear: the two peaks' heights are the modal amplitudes in phi2
+    expected = _linear_phi2_peak_ratio([math.radians(4.0), 0.0])
+    assert expected > 0.8 and rows["freq2_peak_ratio"][0] == pytest.approx(expected, abs=0.02)
+
+
+def test_a_release_in_one_mode_has_one_spectral_peak():
+    from pendsim_mj.estimation.analysis import second_peak_ratio_batch
+    from pendsim_mj.nonlinear import linear_modes
+
+    shapes = linear_modes(UNDAMPED).shapes
+    tr = fast_planar.solve_batch(UNDAMPED, phi0_rad=[np.radians(3.0) * shapes[:, 0], np.radians(3.0) * shapes[:, 1]],
+                                 duration_s=60.0)  # fmt: skip
+    ratio = second_peak_ratio_batch(tr.t_s, tr.phi_rad[..., 1])
+    assert np.all(ratio < 0.05)  # the Hann window's side lobes: 0.027
