@@ -109,7 +109,19 @@ def calibrate_recordings(
     def fit(subset: Sequence[CalibrationRun], law: str = law) -> Calibration:
         return calibrate(subset, params, law=law, free=free, fixed=fixed)
 
-    cal = calibrate(runs, params, law=law, free=free, fixed=fixed, progress=say)
+    start = None
+    if any(run.drive for run in runs):
+        # a driven run is timed against the model that aligns it (its fusion timing, its start):
+        # aligned with the stated rig, that can be tens of ms off. Calibrate on the free runs
+        # first (on all, if none is free), align the driven ones again with that rig, then fit all.
+        first = [run for run in runs if not run.drive] or runs
+        say("calibrate: the free runs first, then the driven ones aligned with their rig")
+        rig = calibrate(first, params, law=law, free=free, fixed=fixed).params
+        start = rig.as_dict()
+        again = load_runs([p for p, run in zip(paths, runs, strict=True) if run.drive], rig, release_s=release_s,
+                          max_gap_s=max_gap_s)  # fmt: skip
+        runs = [again.pop(0) if run.drive else run for run in runs]
+    cal = calibrate(runs, params, law=law, free=free, fixed=fixed, start=start, progress=say)
     _consistency(runs, cal, fit)
     space = ParameterSpace(cal.stated, cal.free)
     words = describe_held(cal.undetermined, cal.free, space.scale_direction(cal.x))

@@ -48,6 +48,7 @@ FIRST_WINDOW_S = 3.0  # the first window (a 5 % frequency error: 0.8 rad of phas
 MAX_ITERATIONS = 100  # Gauss-Newton iterations over all stages
 CHI2_TOLERANCE = 1e-3  # a stage ends when an iteration moves the sum of squared residuals (sigmas^2) by less
 DRIVE_MARGIN_S = 0.15  # the instants a recorded drive's last samples leave for the release offset and timing shift
+MAX_DRIVE_SHIFT_S = 0.02  # how far a driven run's instants may shift against its recorded drive, s
 MIN_DURATION_S = 5.0  # a recording shorter than this after its start cannot calibrate anything
 _SENSITIVE = ("b1_n_m_s", "b2_n_m_s", "friction1_n_m", "friction2_n_m", *fast_planar.COEF_SENSITIVITIES)
 _UNITS = {"N/m": "N/m"}
@@ -86,8 +87,16 @@ class CalibrationRun:
         return max(float(a[-1]) for a in self.value_t_s)
 
     @property
+    def shifts_drive(self) -> bool:
+        """A driven run that starts in motion: its instants may shift against its drive (a release
+        offset does that for a driven release)."""
+        return self.moving and bool(self.drive)
+
+    @property
     def local_names(self) -> tuple[str, ...]:
         names = ["phi1_0", "phi2_0", *(("omega1_0", "omega2_0") if self.moving else ("release_offset_s",))]
+        if self.shifts_drive:
+            names.append("drive_shift_s")
         if self.timing_range_s is not None:
             names.append("timing2_s")
         return tuple(names)
@@ -242,6 +251,9 @@ class _Problem:
             if run.timing_range_s is not None:
                 k = lo + names.index("timing2_s")
                 y[k] = min(max(y[k], run.timing_range_s[0]), run.timing_range_s[1])
+            if run.shifts_drive:
+                k = lo + names.index("drive_shift_s")
+                y[k] = min(max(y[k], -MAX_DRIVE_SHIFT_S), MAX_DRIVE_SHIFT_S)
         return y
 
     def _run_arguments(
@@ -256,11 +268,13 @@ class _Problem:
         omega0 = np.array([local.get("omega1_0", 0.0), local.get("omega2_0", 0.0)])
         release = float(local.get("release_offset_s", 0.0))
         shift = float(local.get("timing2_s", 0.0))
+        common = float(local.get("drive_shift_s", 0.0))
         at, gyro = [], []
         for k in range(2):
             n = int(np.searchsorted(run.value_t_s[k], window_s, side="right"))
             t = run.value_t_s[k][:n]
-            at.append(t + shift if k == 1 and shift else t)
+            moved = common + (shift if k == 1 else 0.0)
+            at.append(t + moved if moved else t)
             gyro.append(run.gyro_z_rad_s[k][:n])
         return coef[:, None].copy(), phi0, omega0, release, (at[0], at[1]), (gyro[0], gyro[1])
 
@@ -279,7 +293,8 @@ class _Problem:
             state = ["phi1_0", "phi2_0", *(("omega1_0", "omega2_0") if run.moving else ())]
             jtj, jtr, rr_r = fast_planar.normal_equations_at(
                 coef, phi0, omega0, at, gyro, run.gyro_sigma_rad_s, FIT_DT_S, release_s=release,
-                wrt=[*rows, *state], release_column=not run.moving, timing_column=run.timing_range_s is not None,
+                wrt=[*rows, *state], release_column=not run.moving or run.shifts_drive,
+                timing_column=run.timing_range_s is not None,
                 inputs=self.inputs[r],
             )  # fmt: skip
             if not (np.all(np.isfinite(jtj)) and np.all(np.isfinite(jtr)) and math.isfinite(rr_r)):
@@ -288,6 +303,9 @@ class _Problem:
             t = np.zeros((len(rows) + nloc, self.nfree + nloc))
             t[: len(rows), : self.nfree] = jac[[fast_planar.COEFFICIENTS.index(name) for name in rows]]
             t[len(rows) :, self.nfree :] = np.eye(nloc)
+            if run.shifts_drive:  # the kernel's release column is d rate / d tau = -d rate / d (the instants' shift)
+                k = run.local_names.index("drive_shift_s")
+                t[len(rows) + k, self.nfree + k] = -1.0
             nr = t.T @ jtj @ t
             gr = t.T @ jtr
             index = np.r_[np.arange(self.nfree), np.arange(self.offsets[r], self.offsets[r + 1])]
@@ -359,6 +377,7 @@ def calibrate(
     law: str = "viscous",
     free: Sequence[str] | None = None,
     fixed: Mapping[str, float] | None = None,
+    start: Mapping[str, float] | None = None,
     progress: Callable[[str], None] | None = None,
 ) -> Calibration:
     """Fit the rig's parameters to recordings (see the module docstring).
@@ -370,6 +389,8 @@ def calibrate(
       law: the hinges' damping law fitted with the rig: "viscous", "coulomb" or "both".
       free: the parameters to fit besides the damping (``parameters.DEFAULT_FREE``).
       fixed: parameters held at given values (SI), e.g. a weighed mass or a measured inertia.
+      start: values of free parameters to start from (e.g. an earlier calibration's), SI; the
+        stated rig stays what the undetermined directions are held at.
       progress: called with one line per stage.
 
     Raises:
@@ -392,6 +413,10 @@ def calibrate(
     space = ParameterSpace(stated, names)
     problem = _Problem(space, runs)
     y = problem.start()
+    for name, value in (start or {}).items():
+        if name in space.free:
+            i = space.free.index(name)
+            y[i] = (value - space.stated_values[i]) / space.scale[i]
     windows = _windows(max(run.duration_s for run in runs))
     iterations = 0
     normal, gradient, rr, n, schur = problem.normal_equations(y, windows[0])

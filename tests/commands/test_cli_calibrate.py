@@ -84,3 +84,26 @@ def test_calibrate_refuses_bad_input_in_one_line_and_writes_nothing(recording, t
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith("pendsim: error: ") and message in err[0]
     assert not out.exists()
+
+
+def test_a_recording_with_a_known_torque_fixes_the_scale_a_free_swing_leaves_open(recording, tmp_path, capsys):
+    """A known drive torque is a moment not divided by an unknown inertia: with it J1, c1 and the
+    damping themselves are determined (each driven run's instants fitted against its drive)."""
+    rec, _ = recording
+    rig = tmp_path / "rig.json"
+    rig.write_text(json.dumps(RIG))
+    driven = tmp_path / "driven.mcap"
+    args = ["record", "-o", str(driven), "--params-file", str(rig), "--duration-s", "40", "--phi1-deg", "20",
+            "--torque1-n-m", "sine:0.005,0.87", "--seed", "5"]  # fmt: skip
+    assert main(args) == 0
+    out = tmp_path / "cal"
+    assert main(["calibrate", str(rec), str(driven), "-o", str(out), "--no-checks"]) == 0
+    capsys.readouterr()
+    report = json.loads((out / "calibration.json").read_text())
+    quantities = {q["name"]: q for q in report["quantities"]}
+    true = PAPER.as_dict() | RIG
+    for name in ("j1_kg_m2", "c1_n_m"):
+        q = quantities[name]
+        assert q["determined"], name
+        assert abs(q["value"] - true[name]) <= q["half_width95"], q
+    assert all(r["residual_rms_sigma"] < 1.1 for r in report["runs"])
