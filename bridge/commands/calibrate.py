@@ -89,8 +89,9 @@ def run(args: argparse.Namespace) -> int:
 
     if args.model == "spatial":
         raise ParameterError(
-            "--model spatial: calibration on the spatial model is not available yet; calibrate with the planar "
-            "model (the default) and check the spatial effects with 'pendsim validate --model spatial'"
+            "--model spatial: calibration on the spatial model is not available yet (fitting the tilt after a planar "
+            "calibration leaves the in-plane parameters wrong for it); calibrate with the planar model (the default: "
+            "it names spatial motion when the gyros show it) and check with 'pendsim validate --model spatial'"
         )
     if args.release_s is not None and len(args.paths) > 1:
         raise ParameterError("--release-s applies to one recording; with several, each one's release is found")
