@@ -96,6 +96,12 @@ def run(args: argparse.Namespace) -> int:
     if args.release_s is not None and len(args.paths) > 1:
         raise ParameterError("--release-s applies to one recording; with several, each one's release is found")
     fixed = dict(args.fixed)
+    repeated = sorted({name for name, _ in args.fixed if [n for n, _ in args.fixed].count(name) > 1})
+    if repeated:
+        raise ParameterError(f"--fix {repeated[0]} given twice; fix each parameter once")
+    both = sorted(set(fixed) & set(args.free))
+    if both:
+        raise ParameterError(f"{both[0]} is both fixed (--fix) and freed (--free); give one of them")
     out_dir = args.out_dir or args.paths[0].with_name(f"{args.paths[0].stem}_calibration")
     options.check_output_dir(out_dir, OUTPUTS, force=args.force)
     params = RigParams().with_mapping(options.overrides_from(args))
@@ -112,7 +118,7 @@ def run(args: argparse.Namespace) -> int:
     )
     print(report_text(report), end="")
     written = write_outputs(report, out_dir, replace=args.force)
-    use = f"pendsim validate REC --params-file {out_dir / 'params.json'}"
+    use = f"pendsim validate {args.paths[0]} --params-file {out_dir / 'params.json'}"
     print(f"wrote {', '.join(str(p) for p in written)} (use: {use})")
     for line in report.model_error[:1]:
         print(f"pendsim: calibration: {line}", file=sys.stderr)

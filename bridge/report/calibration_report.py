@@ -42,6 +42,7 @@ class CalibrationReport:
     left_out: tuple[Metrics, ...]
     model_error: tuple[str, ...]
     suggestions: tuple[Suggestion, ...]
+    fixed: tuple[tuple[str, float], ...] = ()  # held at given values (--fix)
 
 
 def _clean(v: float) -> float | None:
@@ -54,10 +55,14 @@ def report_json(report: CalibrationReport) -> dict[str, Any]:
     return {
         "recordings": list(report.paths),
         "law": cal.law,
+        "fixed": dict(report.fixed),
         "free": list(cal.free),
         "parameters": cal.overrides(),
         "stated": {name: cal.stated.as_dict()[name] for name in cal.free},
-        "quantities": [{**dataclasses.asdict(q), "half_width95": _clean(q.half_width95)} for q in cal.quantities],
+        "quantities": [
+            {**dataclasses.asdict(q), "half_width95": _clean(q.half_width95) if q.determined else None}
+            for q in cal.quantities
+        ],
         "directions": [
             {
                 "components": dict(zip(cal.free, map(float, d.vector), strict=True)),
@@ -95,11 +100,20 @@ def report_text(report: CalibrationReport) -> str:
             change = 100 * (q.value / q.stated - 1) if q.stated else math.nan
             shown = f"{change:+.2f} % from stated" if math.isfinite(change) else f"stated {q.stated:.6g}"
             out.append(f"- {q.label} = {q.value:.6g} +- {q.half_width95:.2g} {q.unit} ({shown})")
-    out += ["", "## Not determined by these recordings (held at the stated values)", ""]
+    out.append(
+        "Stated rig (where the fit starts, and what it holds where the recordings say nothing): the paper's, with "
+        "--params-file/--set"
+        + (": held by --fix: " + ", ".join(f"{n} = {v:g}" for n, v in report.fixed) if report.fixed else "")
+        + "."
+    )
+    out += ["", "## Not determined by these recordings (held near the stated values)", ""]
     out += [f"- {w}" for w in report.held_words] or ["- nothing: every free parameter is determined"]
     undetermined = [q for q in cal.quantities if not q.determined]
     if undetermined:
-        out.append("- so these are not determined alone: " + ", ".join(q.label for q in undetermined))
+        out.append(
+            "- so these are not determined alone (params.json holds one rig with every determined quantity; "
+            "its values of these carry the held directions): " + ", ".join(q.label for q in undetermined)
+        )
     if report.suggestions:
         out += ["", "## Which recording would determine more", ""]
         out += [f"- {s.describe()}" for s in report.suggestions]

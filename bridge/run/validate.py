@@ -222,7 +222,11 @@ def validate(
         identification = _identify(run, base, 120.0, drive=drive, source=path)
         fit = identification.fit
         model_params = base.with_mapping(fit.overrides())
-        source = f"identified (least squares, {fit.law} law)"
+        source = (
+            "identified (least squares; NO law chosen: the model does not fit, see the line below)"
+            if fit.misfit
+            else f"identified (least squares, {fit.law} law)"
+        )
     elif damping == "recorded":
         model_params, source = base, "recorded"
     elif isinstance(damping, tuple) and len(damping) == 2:

@@ -60,13 +60,19 @@ class Suggestion:
     widest_after: float
 
     def describe(self) -> str:
-        if self.newly_determined:
-            what = "would determine " + ", ".join(self.newly_determined)
-        else:
-            what = "would determine nothing more alone"
-        before = "unseen" if math.isinf(self.widest_before) else f"+-{100 * self.widest_before:.2g} %"
-        after = "unseen" if math.isinf(self.widest_after) else f"+-{100 * self.widest_after:.2g} %"
-        return f"{self.experiment.label}: {what} (the widest held direction: {before} -> {after})"
+        what = "would determine " + ", ".join(self.newly_determined) if self.newly_determined else "narrows"
+        if math.isinf(self.widest_before) and math.isinf(self.widest_after):
+            return f"{self.experiment.label}: {what}"
+        before = "not seen" if math.isinf(self.widest_before) else f"+-{100 * self.widest_before:.2g} %"
+        after = "not seen" if math.isinf(self.widest_after) else f"+-{100 * self.widest_after:.2g} %"
+        return (
+            f"{self.experiment.label}: {what} (the least determined direction's 95 % half-width: {before} -> {after})"
+        )
+
+    @property
+    def helps(self) -> bool:
+        """It determines something more, or narrows what stays held by at least a fifth."""
+        return bool(self.newly_determined) or self.widest_after < 0.8 * self.widest_before
 
     def to_json(self) -> dict[str, object]:
         return {
@@ -100,7 +106,7 @@ def candidates(params: RigParams) -> list[Experiment]:
     out.append(
         Experiment(
             f"a known torque of {1000 * TORQUE_AMPLITUDE_N_M:g} mN m at M1's hinge at {f1:.3f} Hz (/drive), "
-            "from 20 deg",
+            "both released from 20 deg",
             (20.0, 20.0),
             drive=torque,
         )
@@ -108,7 +114,8 @@ def candidates(params: RigParams) -> list[Experiment]:
     for n in (1, 2):
         out.append(
             Experiment(
-                f"a release at 30 deg with a known {1000 * ADDED_MASS_KG:g} g mass clamped at the sensor disk of M{n}",
+                f"a release of both at 30 deg with a known {1000 * ADDED_MASS_KG:g} g mass clamped at the sensor disk "
+                f"of M{n}",
                 (30.0, 30.0),
                 added_coef=_added_mass(params, n, ADDED_MASS_KG),
             )
@@ -158,4 +165,4 @@ def suggest(cal: Calibration, *, sigma_rad_s: float, duration_s: float, top: int
         narrowed = sum(math.log(min(info.Z95 * 1e6, d.half_width95)) for d in dirs if not d.determined)
         scored.append((-len(new), narrowed, Suggestion(experiment, new, widest, after)))
     scored.sort(key=lambda s: (s[0], s[1]))
-    return [s[2] for s in scored[:top]]
+    return [s[2] for s in scored if s[2].helps][:top]

@@ -48,6 +48,7 @@ FIRST_WINDOW_S = 3.0  # the first window (a 5 % frequency error: 0.8 rad of phas
 MAX_ITERATIONS = 100  # Gauss-Newton iterations over all stages
 CHI2_TOLERANCE = 1e-3  # a stage ends when an iteration moves the sum of squared residuals (sigmas^2) by less
 DRIVE_MARGIN_S = 0.15  # the instants a recorded drive's last samples leave for the release offset and timing shift
+LOSSES = ("b1_n_m_s", "b2_n_m_s", "friction1_n_m", "friction2_n_m")  # never below 0
 MAX_DRIVE_SHIFT_S = 0.02  # how far a driven run's instants may shift against its recorded drive, s
 MIN_DURATION_S = 5.0  # a recording shorter than this after its start cannot calibrate anything
 _SENSITIVE = ("b1_n_m_s", "b2_n_m_s", "friction1_n_m", "friction2_n_m", *fast_planar.COEF_SENSITIVITIES)
@@ -241,8 +242,11 @@ class _Problem:
         return y
 
     def clip(self, y: Floats) -> Floats:
-        """Release offsets and timing shifts within their ranges."""
+        """Hinge losses at least 0, release offsets and timing shifts within their ranges."""
         y = y.copy()
+        for i, name in enumerate(self.space.free):
+            if name in LOSSES:  # a loss the data put at 0 stays there (a fit may step below it)
+                y[i] = max(y[i], -self.space.stated_values[i] / self.space.scale[i])
         for r, run in enumerate(self.runs):
             names, lo = run.local_names, self.offsets[r]
             if "release_offset_s" in names:

@@ -208,7 +208,8 @@ class ParameterSpace:
                     return x + step * d
                 except ParameterError:
                     continue
-        raise ParameterError(f"the calibrated parameters are no rig ({first}); fix a measured inertia with --fix")
+        advice = "; fix a measured inertia with --fix" if "must exceed" in str(first) else ""
+        raise ParameterError(f"the calibrated parameters are no rig ({first}){advice}")
 
     def quantity_gradient(self, quantity: Quantity, x: Floats) -> Floats:
         """d quantity / d x, (nfree,)."""

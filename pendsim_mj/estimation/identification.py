@@ -227,7 +227,7 @@ def fit_warnings(fit: DampingFit, timing_range_s: tuple[float, float] | None) ->
                 "(a release in one mode barely moves one pendulum against the other; a longer record or a "
                 "release in both modes pins it)"
             )
-    edge = timing_at_edge(fit, timing_range_s)
+    edge = None if fit.misfit else timing_at_edge(fit, timing_range_s)  # a misfit's timing is the rig's doing
     return (*notes, edge) if edge is not None else tuple(notes)
 
 
