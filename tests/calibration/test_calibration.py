@@ -128,6 +128,14 @@ def test_two_recordings_of_one_rig_are_calibrated_together():
             assert abs(q.value - true[q.name]) <= 1.5 * q.half_width95, q
 
 
+def test_dry_friction_on_a_rig_without_it_is_found_near_zero_never_below():
+    (run,) = runs_of([PAPER], (30.0, 5.0), 20.0, seed=14)
+    cal = calibrate([run], PAPER, law="both")
+    for n in (1, 2):
+        q = cal.quantity(f"friction{n}_n_m")
+        assert 0.0 <= q.value <= 2e-6  # N m; the rig has none (a fit stepping below 0 once refused the result)
+
+
 def test_a_recording_too_short_or_too_still_is_refused():
     (run,) = runs_of([PAPER], (30.0, 5.0), 3.0, seed=10)
     with pytest.raises(ParameterError, match="at least"):

@@ -49,6 +49,8 @@ def test_calibrate_closes_the_gap_the_papers_parameters_leave(recording, tmp_pat
     assert main(["identify", str(rec), "--params-file", str(paper)]) == 1
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "pendsim calibrate" in err[0] and "no law chosen" in err[0]
+    assert main(["validate", str(rec), "--params-file", str(paper), "--no-plots", "-o", str(tmp_path / "v")]) == 1
+    assert "no law chosen" in capsys.readouterr().err
     calibrated = tmp_path / "calibrated.json"
     calibrated.write_text(json.dumps(STATED | params))
     fitted = tmp_path / "fitted.json"
@@ -75,12 +77,16 @@ def test_the_commands_parameter_list_is_the_librarys():
         (["--fix", "j3_kg_m2=0.02"], "unknown parameter 'j3_kg_m2'"),
         (["--free", "rod_length_m"], "not a parameter of the planar model"),
         (["--model", "spatial"], "not available yet"),
+        (["--fix", "j1_kg_m2=0.026", "--fix", "j1_kg_m2=0.027"], "--fix j1_kg_m2 given twice"),
+        (["--fix", "j1_kg_m2=0.026", "--free", "j1_kg_m2"], "both fixed (--fix) and freed (--free)"),
+        (["{rec}"], "hold the same data; give each recording once"),
     ],
 )
 def test_calibrate_refuses_bad_input_in_one_line_and_writes_nothing(recording, tmp_path, capsys, extra, message):
     rec, _ = recording
     out = tmp_path / "cal"
-    assert main(["calibrate", str(rec), "-o", str(out), "--no-checks", *extra]) == 2
+    extra = [word.format(rec=rec) for word in extra]
+    assert main(["calibrate", str(rec), *extra, "-o", str(out), "--no-checks"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith("pendsim: error: ") and message in err[0]
     assert not out.exists()
