@@ -19,6 +19,22 @@ PLANAR_PARAMETERS = (
 OUTPUTS = ("params.json", "calibration.json", "calibration.md", "calibration.png")
 
 
+def added_mass(text: str) -> tuple[int, int, float, float]:
+    """N:M1:KG@M -> (recording index from 0, pendulum, kg, m)."""
+    import re
+
+    found = re.fullmatch(r"\s*(\d+)\s*:\s*[Mm]([12])\s*:\s*([^@]+)@(.+)", text)
+    if not found:
+        raise argparse.ArgumentTypeError(f"expected N:M1:KG@M (e.g. 2:M1:0.050@0.417), got {text!r}")
+    index, pendulum = int(found.group(1)), int(found.group(2))
+    mass, radius = options.finite_float(found.group(3)), options.finite_float(found.group(4))
+    if index < 1 or not (0 < mass <= 5) or not (0 < radius <= 1):
+        raise argparse.ArgumentTypeError(
+            f"--added-mass {text!r}: the recording is counted from 1, the mass must be 0-5 kg and the radius 0-1 m"
+        )
+    return index - 1, pendulum, mass, radius
+
+
 def register(sub: argparse._SubParsersAction[options.Parser]) -> None:
     p = sub.add_parser(
         "calibrate",
@@ -69,6 +85,17 @@ def register(sub: argparse._SubParsersAction[options.Parser]) -> None:
         help="also fit this parameter (default: c1_n_m, c2_n_m, j1_kg_m2, j2_kg_m2, oc1_m, oc2_m, l24_m, l68_m "
         "and the damping); repeatable",
     )
+    p.add_argument(
+        "--added-mass",
+        dest="added",
+        type=added_mass,
+        action="append",
+        default=[],
+        metavar="N:M1:KG@M",
+        help="the N-th recording (1 = the first given) was made with a known mass of KG kg clamped on M1 or M2 at "
+        "M metres from the axis, e.g. 2:M1:0.050@0.417: a known moment that fixes the scale of all moments; "
+        "repeatable",
+    )
     options.add_parameter_options(p, what="the stated rig (the calibration's start and what it holds)")
     options.add_alignment_options(p)
     p.add_argument(
@@ -95,6 +122,8 @@ def run(args: argparse.Namespace) -> int:
         )
     if args.release_s is not None and len(args.paths) > 1:
         raise ParameterError("--release-s applies to one recording; with several, each one's release is found")
+    if any(index >= len(args.paths) for index, *_ in args.added):
+        raise ParameterError(f"--added-mass names a recording beyond the {len(args.paths)} given")
     fixed = dict(args.fixed)
     repeated = sorted({name for name, _ in args.fixed if [n for n, _ in args.fixed].count(name) > 1})
     if repeated:
@@ -114,6 +143,7 @@ def run(args: argparse.Namespace) -> int:
         release_s=args.release_s,
         max_gap_s=args.max_gap_s,
         checks=not args.no_checks,
+        added={index: (pendulum, mass, radius) for index, pendulum, mass, radius in args.added},
         progress=lambda line: print(line, file=sys.stderr),
     )
     print(report_text(report), end="")

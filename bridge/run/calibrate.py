@@ -7,6 +7,7 @@ validations that show what it changed, and writes the parameter file and the rep
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 
@@ -16,7 +17,7 @@ from pendsim_mj.calibration import Calibration, CalibrationRun, calibrate
 from pendsim_mj.calibration.design import suggest
 from pendsim_mj.calibration.fit import LOSSES
 from pendsim_mj.calibration.information import describe_held
-from pendsim_mj.calibration.parameters import ParameterSpace
+from pendsim_mj.calibration.parameters import ParameterSpace, added_mass_constants
 from pendsim_mj.errors import ParameterError
 from pendsim_mj.estimation.alignment import DEFAULT_MAX_GAP_S
 from pendsim_mj.estimation.measured_run import MeasuredRun
@@ -144,14 +145,24 @@ def calibrate_recordings(
     release_s: float | None = None,
     max_gap_s: float = DEFAULT_MAX_GAP_S,
     checks: bool = True,
+    added: Mapping[int, tuple[int, float, float]] | None = None,
     progress: Callable[[str], None] | None = None,
 ) -> CalibrationReport:
     """Calibrate the rig on the recordings and check the result (module docstring); ``checks``
-    False: no validations, no left-out fits (the calibration alone)."""
+    False: no validations, no left-out fits (the calibration alone). ``added``: recording index ->
+    (pendulum, kg, m) of a known mass clamped on it while it was recorded."""
     say = progress or (lambda line: None)
     off_hinge: dict[str, float] = {}
     runs = load_runs(paths, params, release_s=release_s, max_gap_s=max_gap_s, off_hinge=off_hinge)
     _refuse_repeats(runs)
+
+    def with_masses(runs: list[CalibrationRun]) -> list[CalibrationRun]:
+        for index, (pendulum, mass_kg, radius_m) in (added or {}).items():
+            extra = added_mass_constants(params, pendulum, mass_kg, radius_m)
+            runs[index] = dataclasses.replace(runs[index], added_coef=extra)
+        return runs
+
+    runs = with_masses(runs)
 
     def fit(subset: Sequence[CalibrationRun], law: str = law) -> Calibration:
         return calibrate(subset, params, law=law, free=free, fixed=fixed)
@@ -167,7 +178,7 @@ def calibrate_recordings(
         start = rig.as_dict()
         again = load_runs([p for p, run in zip(paths, runs, strict=True) if run.drive], rig, release_s=release_s,
                           max_gap_s=max_gap_s)  # fmt: skip
-        runs = [again.pop(0) if run.drive else run for run in runs]
+        runs = with_masses([again.pop(0) if run.drive else run for run in runs])
     cal = calibrate(runs, params, law=law, free=free, fixed=fixed, start=start, progress=say)
     _consistency(runs, cal, fit)
     space = ParameterSpace(cal.stated, cal.free)

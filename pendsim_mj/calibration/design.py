@@ -23,9 +23,8 @@ from numpy.typing import NDArray
 
 from pendsim_mj.calibration import information as info
 from pendsim_mj.calibration.fit import Calibration, CalibrationRun, _Problem, determine
-from pendsim_mj.calibration.parameters import ParameterSpace
+from pendsim_mj.calibration.parameters import ParameterSpace, added_mass_constants
 from pendsim_mj.engines import fast_planar
-from pendsim_mj.engines.fast_planar.closed_form import COEFFICIENTS
 from pendsim_mj.estimation.planar_fit import FIT_DT_S
 from pendsim_mj.nonlinear.linear import linear_modes
 from pendsim_mj.rig.drives import Drive, Sine, stage_inputs
@@ -84,16 +83,6 @@ class Suggestion:
         }
 
 
-def _added_mass(params: RigParams, pendulum: int, mass_kg: float) -> Floats:
-    """The constants a point mass at the sensor disk of a pendulum adds: m g r, m r^2, m r."""
-    radius = params.om1_m if pendulum == 1 else params.om2_m
-    add = np.zeros(len(COEFFICIENTS))
-    add[COEFFICIENTS.index(f"gravity{pendulum}_n_m")] = mass_kg * params.g_m_s2 * radius
-    add[COEFFICIENTS.index(f"j{pendulum}_kg_m2")] = mass_kg * radius**2
-    add[COEFFICIENTS.index(f"moc{pendulum}_kg_m")] = mass_kg * radius
-    return add
-
-
 def candidates(params: RigParams) -> list[Experiment]:
     """Releases in mode 1, mode 2 and of one pendulum at small and large amplitude, a known torque
     at M1's hinge at the first mode's frequency, and a known mass at each disk."""
@@ -117,7 +106,7 @@ def candidates(params: RigParams) -> list[Experiment]:
                 f"a release of both at 30 deg with a known {1000 * ADDED_MASS_KG:g} g mass clamped at the sensor disk "
                 f"of M{n}",
                 (30.0, 30.0),
-                added_coef=_added_mass(params, n, ADDED_MASS_KG),
+                added_coef=added_mass_constants(params, n, ADDED_MASS_KG, params.om1_m if n == 1 else params.om2_m),
             )
         )
     return out

@@ -116,6 +116,22 @@ QUANTITIES = (
 )
 
 
+def added_mass_constants(params: RigParams, pendulum: int, mass_kg: float, radius_m: float) -> Floats:
+    """The force-law constants (NCOEF,) a point mass ``mass_kg`` clamped on pendulum 1 or 2 at
+    ``radius_m`` from the axis adds: m g r, m r^2 and m r (known: they break the common scale)."""
+    if pendulum not in (1, 2):
+        raise ParameterError(f"an added mass goes on pendulum 1 or 2, got {pendulum!r}")
+    if not (0.0 < mass_kg <= 5.0 and 0.0 < radius_m <= 1.0):
+        raise ParameterError(
+            f"an added mass must be 0-5 kg at 0-1 m from the axis, got {mass_kg!r} kg at {radius_m!r} m"
+        )
+    add = np.zeros(len(COEFFICIENTS))
+    add[COEFFICIENTS.index(f"gravity{pendulum}_n_m")] = mass_kg * params.g_m_s2 * radius_m
+    add[COEFFICIENTS.index(f"j{pendulum}_kg_m2")] = mass_kg * radius_m**2
+    add[COEFFICIENTS.index(f"moc{pendulum}_kg_m")] = mass_kg * radius_m
+    return add
+
+
 def parameter_quantity(name: str, unit: str) -> Quantity:
     """A free parameter as a reported quantity (its value read from the parameters, not the
     constants: ``ParameterSpace.quantity_values`` handles it)."""

@@ -128,3 +128,30 @@ def test_a_spatial_recording_is_named_as_model_error_with_its_cause_tested(tmp_p
     assert "the support tilts, spatial motion" in captured.out
     assert "dry friction does not explain it" in captured.out
     assert (out / "params.json").is_file()  # written: the report says what is wrong with it
+
+
+def test_a_recording_with_a_known_added_mass_fixes_the_scale(recording, tmp_path, capsys):
+    """The same rig recorded with 50 g clamped on M1 at 0.417 m: its m g r and m r^2 are known
+    moments, so J1 and c1 themselves are determined (within their intervals of the rig without it)."""
+    rec, _ = recording
+    base = PAPER.with_mapping(RIG)
+    mass, radius = 0.05, 0.417
+    m1 = base.m1_kg + mass
+    loaded = RIG | {
+        "m1_kg": m1,
+        "oc1_m": (base.m1_kg * base.oc1_m + mass * radius) / m1,
+        "j1_kg_m2": base.j1_kg_m2 + mass * radius**2,
+    }
+    rig = tmp_path / "loaded.json"
+    rig.write_text(json.dumps(loaded))
+    heavy = tmp_path / "heavy.mcap"
+    assert main(["record", "-o", str(heavy), "--params-file", str(rig), "--duration-s", "60", "--seed", "6"]) == 0
+    out = tmp_path / "cal"
+    args = ["calibrate", str(rec), str(heavy), "--added-mass", f"2:M1:{mass}@{radius}", "-o", str(out), "--no-checks"]
+    assert main(args) == 0
+    capsys.readouterr()
+    quantities = {q["name"]: q for q in json.loads((out / "calibration.json").read_text())["quantities"]}
+    for name in ("j1_kg_m2", "c1_n_m"):
+        q = quantities[name]
+        assert q["determined"], name
+        assert abs(q["value"] - base.as_dict()[name]) <= q["half_width95"], q

@@ -56,6 +56,7 @@ TEMPLATES = {
     "[NAME=]S": ("{}", "m2={}"),
     "speed": ("{}",),
     "damping_choice": ("{},0.001", "0.001,{}"),
+    "added_mass": ("1:M1:{}@0.4", "1:M1:0.05@{}", "{}:M1:0.05@0.4"),
 }
 # Positional arguments a probe must give for the option to be reached (none: options are parsed
 # in the order given, so a bad option before a missing positional is named first).
