@@ -107,13 +107,8 @@ def register(sub: argparse._SubParsersAction[options.Parser]) -> None:
     p.set_defaults(handler=run)
 
 
-def run(args: argparse.Namespace) -> int:
-    from pendsim_mj.calibration.parameters import DEFAULT_FREE  # start-up: with the command
-    from pendsim_mj.rig.params import RigParams
-
-    from ..report.calibration_report import report_text, write_outputs  # start-up: numba, when it runs
-    from ..run.calibrate import calibrate_recordings
-
+def _checked(args: argparse.Namespace) -> dict[str, float]:
+    """The options' combinations checked (each alone is checked by its parser); the fixed values."""
     if args.model == "spatial":
         raise ParameterError(
             "--model spatial: calibration on the spatial model is not available yet (fitting the tilt after a planar "
@@ -124,13 +119,24 @@ def run(args: argparse.Namespace) -> int:
         raise ParameterError("--release-s applies to one recording; with several, each one's release is found")
     if any(index >= len(args.paths) for index, *_ in args.added):
         raise ParameterError(f"--added-mass names a recording beyond the {len(args.paths)} given")
-    fixed = dict(args.fixed)
-    repeated = sorted({name for name, _ in args.fixed if [n for n, _ in args.fixed].count(name) > 1})
+    names = [name for name, _ in args.fixed]
+    repeated = sorted({name for name in names if names.count(name) > 1})
     if repeated:
         raise ParameterError(f"--fix {repeated[0]} given twice; fix each parameter once")
-    both = sorted(set(fixed) & set(args.free))
+    both = sorted(set(names) & set(args.free))
     if both:
         raise ParameterError(f"{both[0]} is both fixed (--fix) and freed (--free); give one of them")
+    return dict(args.fixed)
+
+
+def run(args: argparse.Namespace) -> int:
+    from pendsim_mj.calibration.parameters import DEFAULT_FREE  # start-up: with the command
+    from pendsim_mj.rig.params import RigParams
+
+    from ..report.calibration_report import report_text, write_outputs  # start-up: numba, when it runs
+    from ..run.calibrate import calibrate_recordings
+
+    fixed = _checked(args)
     out_dir = args.out_dir or args.paths[0].with_name(f"{args.paths[0].stem}_calibration")
     options.check_output_dir(out_dir, OUTPUTS, force=args.force)
     params = RigParams().with_mapping(options.overrides_from(args))

@@ -126,8 +126,8 @@ class DampingFit:
             return ""
         return (
             f"the damping fit leaves {self.residual_rms_sigma:.1f} gyro noise sigmas rms (a fitting model: about 1): "
-            "the rig's parameters, not the damping law, are off; no law chosen. Run 'pendsim calibrate REC' and "
-            "use its params.json with --params-file"
+            "the model, not the damping law, is off (most often the rig's parameters; or motion the planar model "
+            "leaves out); no law chosen. Run 'pendsim calibrate REC': it fits the rig and tests the causes"
         )
 
     def overrides(self) -> dict[str, float]:

@@ -264,7 +264,12 @@ def _assert_every_real_sample_kept(rec, the_plan, out):
         c = _counters(rec, stream.name)
         assert int(c["written"]) == len(stream.seq) == len(rec.imu[stream.name].t_ns), (stream.name, c)
         assert (c["lost"], c["late"], c["duplicated"]) == ("0", "0", "0"), c
-        assert abs(float(c["drift_ppm"])) < 60, c  # the emulator's clocks do not drift (3-s runs: tens of ppm)
+        # the emulator's clocks do not drift: what the fit reads is the host's delay jitter over the
+        # run (tens of ppm on a quiet machine, hundreds under load), bounded by the jitter the
+        # acquisition itself recorded, not by a number for a quiet machine
+        span_s = (rec.imu[stream.name].t_ns[-1] - rec.imu[stream.name].t_ns[0]) / 1e9
+        allowed_ppm = 60 + 2e3 * float(c["jitter_p99_ms"]) / span_s  # 2 x p99 jitter over the span, in ppm
+        assert abs(float(c["drift_ppm"])) < allowed_ppm, (c, allowed_ppm)
     assert "Traceback" not in out
 
 
