@@ -53,7 +53,7 @@ from numpy.typing import NDArray
 from pendsim_mj.errors import ParameterError
 from pendsim_mj.sweep.features import FEATURE_GROUPS
 from pendsim_mj.sweep.plan import CaseTable, SweepPlan
-from pendsim_mj.sweep.run import TaskResult, run_task
+from pendsim_mj.sweep.run import TaskResult, light_path, run_task
 
 from ..errors import OutputError
 from ..io.outputs import atomic_output, output_error
@@ -64,6 +64,8 @@ META_KEY = b"pendsim.sweep"
 TASK_STEPS = {"fast": 30_000_000, "mujoco": 400_000, "spatial": 300_000}
 # Bound on a task's sampled states in memory (cases x samples x 5 x 8 bytes).
 TASK_STATE_BYTES = 256 * 2**20
+CHECK_BLOCK = 1 << 16  # cases whose inputs are checked at once before a sweep starts (bounded memory)
+ROW_GROUP_ROWS = 1 << 17  # rows per Parquet row group of results.parquet (about 10 MB at 20 columns)
 TASKS_PER_WORKER = 4  # at least this many tasks per worker (balance, progress, little lost on a kill)
 
 
@@ -132,8 +134,10 @@ def run_sweep(
         check_scheduler(scheduler)
     start = time.perf_counter()
     table = plan.cases()
-    plan.case_inputs(table, np.arange(len(table)))  # every case's parameters and drive are valid, before any work
-    plan.case_drives(table, np.arange(len(table)))
+    for lo in range(0, len(table), CHECK_BLOCK):  # every case's parameters and drive are valid, before any work
+        rows = np.arange(lo, min(len(table), lo + CHECK_BLOCK))
+        plan.case_inputs(table, rows)
+        plan.case_drives(table, rows)
     store = SweepStore.open(Path(out_dir), plan, table)
     try:
         return _run_into(store, plan, table, start, workers, scheduler, cases_per_task, progress, plots, on_task_done)
@@ -159,8 +163,16 @@ def _run_into(
     parallel = workers or 1
     if cases_per_task is None:
         cases_per_task = default_cases_per_task(plan, len(table), parallel if scheduler is None else 8)
-    tasks = [remaining[i : i + cases_per_task] for i in range(0, len(remaining), cases_per_task)]
-    backend = "serial" if workers is None and scheduler is None else (scheduler or f"LocalCluster ({workers} workers)")
+    tasks = contiguous_tasks(remaining, cases_per_task)
+    if workers is not None and plan.engine == "fast":  # one machine: the kernel's threads already use every core
+        workers = None
+        backend = (
+            f"this process (the fast engine threads over the cores; --workers {parallel} is for the MuJoCo engines)"
+        )
+    else:
+        backend = (
+            "serial" if workers is None and scheduler is None else (scheduler or f"LocalCluster ({workers} workers)")
+        )
     if tasks:
         with _terminate_as_interrupt(), _progress_bar(len(table), resumed, progress, backend) as bar:
 
@@ -285,13 +297,22 @@ def _identity(address: str, timeout_s: float) -> str | None:
     return answer.get("type") if isinstance(answer, dict) else None
 
 
+def contiguous_tasks(ids: NDArray[np.int64], size: int) -> list[NDArray[np.int64]]:
+    """Sorted case ids cut into tasks of at most ``size`` consecutive ids each (a gap, a range
+    finished before a resume, ends a task): every part then holds one range of case ids, so the
+    parts of a sweep never interleave and ``combine`` streams them in order."""
+    runs = np.split(ids, np.flatnonzero(np.diff(ids) != 1) + 1) if len(ids) else []
+    return [run[i : i + size] for run in runs for i in range(0, len(run), size)]
+
+
 def default_cases_per_task(plan: SweepPlan, ncases: int, parallel: int) -> int:
-    """Enough cases for TASK_STEPS trajectory steps, within TASK_STATE_BYTES of sampled states and
-    held drive inputs,
-    and at most ncases / (TASKS_PER_WORKER * parallel) so every worker gets several tasks."""
+    """Enough cases for TASK_STEPS trajectory steps, within TASK_STATE_BYTES of what a task keeps
+    per case (sampled states, or on the light path the angles only; held drive inputs), and at
+    most ncases / (TASKS_PER_WORKER * parallel) so every worker gets several tasks."""
     by_steps = TASK_STEPS[plan.engine] // max(1, plan.nstep)
     driven = bool(plan.driven_targets(plan.cases()))
-    per_case = 40 * (plan.nstep // plan.save_every + 1) + (32 * plan.nstep if driven else 0)  # states, inputs
+    per_sample = 16 if light_path(plan) else 40  # phi1, phi2 or the five states, float64
+    per_case = per_sample * (plan.nstep // plan.save_every + 1) + (32 * plan.nstep if driven else 0)
     by_memory = TASK_STATE_BYTES // per_case
     by_balance = math.ceil(ncases / (TASKS_PER_WORKER * parallel))
     return max(1, min(by_steps, by_memory, by_balance))
@@ -404,28 +425,55 @@ class SweepStore:
         return path
 
     def combine(self) -> Path:
-        """Publish ``results.parquet``: every case once, by case_id.
+        """Publish ``results.parquet``: every case once, by case_id, streamed part by part into row
+        groups of ROW_GROUP_ROWS (memory does not grow with the sweep). Parts hold ranges of case
+        ids (``contiguous_tasks``); a folder whose parts interleave (written by an older version)
+        is merged in memory.
 
         Raises:
           OutputError: a case is missing or recorded twice (the parts are not one sweep's).
         """
-        parts = [self._read_part(p) for p in self._part_files()]
-        if not parts:
+        files = self._part_files()
+        if not files:
             raise OutputError(f"{str(self.parts)!r} holds no results")
-        merged = pa.concat_tables(parts).sort_by("case_id")
-        ids = merged.column("case_id").to_numpy()
-        if len(ids) != len(self.table) or np.any(ids != np.arange(len(self.table))):
-            twice: NDArray[np.int64] = np.unique(ids[np.flatnonzero(np.diff(ids) == 0)])
+        ids = [self._read_part(f, columns=["case_id"]).column("case_id").to_numpy() for f in files]
+        order = np.argsort([part[0] if len(part) else -1 for part in ids], kind="stable")
+        ranges = all(np.array_equal(part, np.arange(part[0], part[0] + len(part))) for part in ids if len(part))
+        merged_ids = np.concatenate([ids[i] for i in order])
+        if len(merged_ids) != len(self.table) or np.any(np.sort(merged_ids) != np.arange(len(self.table))):
+            merged_ids.sort()
+            twice: NDArray[np.int64] = np.unique(merged_ids[np.flatnonzero(np.diff(merged_ids) == 0)])
             raise OutputError(
-                f"{str(self.parts)!r} holds {len(ids)} rows for {len(self.table)} cases"
+                f"{str(self.parts)!r} holds {len(merged_ids)} rows for {len(self.table)} cases"
                 + (f" (case {int(twice[0])} twice)" if len(twice) else "")
                 + "; delete the folder to start again"
             )
-        merged = merged.replace_schema_metadata({META_KEY: json.dumps(self.definition).encode()})
         path = self.root / "results.parquet"
         self.will_create(path)
+        meta = {META_KEY: json.dumps(self.definition).encode()}
         with atomic_output(path, replace=True) as tmp:
-            pq.write_table(merged, tmp)
+            if not (ranges and np.array_equal(merged_ids, np.arange(len(self.table)))):
+                merged = pa.concat_tables([self._read_part(f) for f in files]).sort_by("case_id")
+                pq.write_table(merged.replace_schema_metadata(meta), tmp, row_group_size=ROW_GROUP_ROWS)
+                return path
+            schema = self._read_part(files[order[0]]).schema.with_metadata(meta)
+            with pq.ParquetWriter(tmp, schema) as writer:
+                pending: list[pa.Table] = []
+                rows = 0
+                for i in order:
+                    part = self._read_part(files[i])
+                    if part.schema.remove_metadata() != schema.remove_metadata():
+                        raise OutputError(
+                            f"results part {str(files[i])!r} has other columns than the sweep's; "
+                            "delete it and run again to recompute its cases"
+                        )
+                    pending.append(part)
+                    rows += part.num_rows
+                    if rows >= ROW_GROUP_ROWS:
+                        writer.write_table(pa.concat_tables(pending).cast(schema), row_group_size=ROW_GROUP_ROWS)
+                        pending, rows = [], 0
+                if pending:
+                    writer.write_table(pa.concat_tables(pending).cast(schema), row_group_size=ROW_GROUP_ROWS)
         return path
 
     def _part_files(self) -> list[Path]:
@@ -608,16 +656,17 @@ def _shorten(names: list[str], keep: int = 4) -> str:
 def describe(summary: SweepSummary, plan: SweepPlan, *, top: int = 12) -> str:
     """What ``pendsim sweep`` prints: the run, the files, and for a sensitivity sweep the ranking
     of the first feature."""
-    table = pq.read_table(summary.results)
-    first = table.column_names.index("diverged")
-    inputs = [c for c in table.column_names[1:first] if c not in ("varied", "relative_change")]
-    features = table.column_names[first + 1 :]
+    names = pq.read_schema(summary.results).names  # the schema and the row count: no rows read
+    nrows = pq.ParquetFile(summary.results).metadata.num_rows
+    first = names.index("diverged")
+    inputs = [c for c in names[1:first] if c not in ("varied", "relative_change")]
+    features = names[first + 1 :]
     lines = [
         f"sweep of {summary.ncases} cases ({plan.method}, {plan.engine} engine, {plan.duration_s:g} s at "
         f"{plan.dt_s:g} s) on {summary.backend}: computed {summary.computed} in {summary.elapsed_s:.1f} s"
         + (f", {summary.resumed} already done" if summary.resumed else "")
         + f", {summary.diverged} diverged",
-        f"results: {summary.results} ({table.num_rows} rows, {table.num_columns} columns: case_id, "
+        f"results: {summary.results} ({nrows} rows, {len(names)} columns: case_id, "
         f"{len(inputs)} input{'s' if len(inputs) != 1 else ''} ({_shorten(inputs)}), diverged, {', '.join(features)})",
     ]
     if plan.trajectories:

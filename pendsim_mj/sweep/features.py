@@ -7,7 +7,7 @@ MuJoCo Trajectory) and gets the same features. Feature groups and the columns th
   ``pendsim simulate`` prints (``analysis.spectral_peak_hz``: Hann window, 8x zero padding,
   log-parabola refinement). With them, two quality columns per pendulum (``QUALITY_COLUMNS``, not
   features: no maps, no elasticities): ``freq1_peak_ratio``, ``freq2_peak_ratio``, the height of
-  the second-highest spectral peak over the highest (``analysis.second_peak_ratio_batch``; 0.03
+  the second-highest spectral peak over the highest (``analysis.second_peak_ratio_batch``, the same way; 0.03
   for a pure sine: the window's side lobes), and ``freq1_ambiguous``, ``freq2_ambiguous`` (bool):
   that ratio is at least ``AMBIGUOUS_PEAK_RATIO``, so that which peak the frequency is can flip
   with a small change (M2 released at 0 swings in both modes about equally: 0.97 to 1).
@@ -38,7 +38,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from pendsim_mj.errors import ParameterError
-from pendsim_mj.estimation.analysis import second_peak_ratio_batch, spectral_peak_hz_batch
+from pendsim_mj.estimation.spectral_peaks import peaks_and_ratios
 
 FloatArray = NDArray[np.float64]
 
@@ -130,6 +130,65 @@ class Features:
         return self.values[:, self.names.index(name)]
 
 
+@dataclasses.dataclass(frozen=True)
+class MotionSummary:
+    """A batch of m runs reduced to what the scalar features need (a ``Motion`` reduced by
+    ``summarise``, or the fast engine's pass that never stores the motion).
+
+    Attributes:
+      t_s: (n,) sample times, uniformly spaced.
+      phi_rad: (m, 2, n) the sampled angles (the frequency's input), or None when not needed.
+      amp_rad: (m, 2) largest |phi_n| over the samples.
+      head_amp_rad, head_index: (m, 2) largest |phi_n| over samples 0..head (``head_samples``)
+        and its first sample.
+      tail_amp_rad, tail_index: (m, 2) the same over samples n - 1 - head .. n - 1.
+      energy_start_j, energy_end_j: (m,) total energy at the first and last sample, J.
+      dissipated_j: (m,) energy taken by the hinge damping over the run, J.
+      diverged: (m,) as ``Motion.diverged``.
+    """
+
+    t_s: FloatArray
+    phi_rad: FloatArray | None
+    amp_rad: FloatArray
+    head_amp_rad: FloatArray
+    head_index: NDArray[np.int64]
+    tail_amp_rad: FloatArray
+    tail_index: NDArray[np.int64]
+    energy_start_j: FloatArray
+    energy_end_j: FloatArray
+    dissipated_j: FloatArray
+    diverged: NDArray[np.bool_]
+
+
+def head_samples(n: int) -> int:
+    """The head window of n samples is samples 0..head_samples(n) (a fifth of the run, at least
+    one step); the tail window the last head_samples(n) + 1."""
+    return max(1, round(WINDOW_SHARE * (n - 1)))
+
+
+def summarise(motion: Motion, *, keep_phi: bool = True) -> MotionSummary:
+    """The reductions of ``MotionSummary`` from a stored motion (first of equal maxima)."""
+    phi = motion.phi_rad
+    n = phi.shape[1]
+    head = head_samples(n)
+    mag = np.abs(phi)
+    head_i = np.argmax(mag[:, : head + 1], axis=1)  # (m, 2)
+    tail_i = n - 1 - head + np.argmax(mag[:, n - 1 - head :], axis=1)
+    return MotionSummary(
+        t_s=motion.t_s,
+        phi_rad=np.moveaxis(phi, 2, 1) if keep_phi else None,
+        amp_rad=mag.max(axis=1),
+        head_amp_rad=np.take_along_axis(mag, head_i[:, None, :], axis=1)[:, 0],
+        head_index=head_i,
+        tail_amp_rad=np.take_along_axis(mag, tail_i[:, None, :], axis=1)[:, 0],
+        tail_index=tail_i,
+        energy_start_j=motion.total_energy_j[:, 0],
+        energy_end_j=motion.total_energy_j[:, -1],
+        dissipated_j=motion.dissipated_j[:, -1],
+        diverged=motion.diverged,
+    )
+
+
 def compute(motion: Motion, groups: Sequence[str], *, lyapunov_per_s: FloatArray | None = None) -> Features:
     """The features of ``groups`` (checked by ``check_groups``) for every run of ``motion``.
 
@@ -139,48 +198,66 @@ def compute(motion: Motion, groups: Sequence[str], *, lyapunov_per_s: FloatArray
       lyapunov_per_s: (m,) exponents, required when "lyapunov" is asked for.
     """
     groups = check_groups(groups)
-    t = motion.t_s
-    phi = motion.phi_rad
-    m, n = phi.shape[:2]
+    features = compute_summary(summarise(motion, keep_phi="frequency" in groups), groups, lyapunov_per_s=lyapunov_per_s)
+    if "poincare" in groups:
+        features = dataclasses.replace(features, poincare=_poincare(motion))
+    return features
+
+
+def compute_summary(
+    summary: MotionSummary,
+    groups: Sequence[str],
+    *,
+    lyapunov_per_s: FloatArray | None = None,
+    nthread: int | None = None,
+) -> Features:
+    """The scalar features of ``groups`` from reduced runs (Poincare samples need the motion:
+    ``compute``).
+
+    Args:
+      summary: the reduced runs (``phi_rad`` needed for "frequency").
+      groups: feature groups.
+      lyapunov_per_s: (m,) exponents, required when "lyapunov" is asked for.
+      nthread: threads for the frequency's transforms (default: every core).
+    """
+    groups = check_groups(groups)
+    t = summary.t_s
+    m = len(summary.diverged)
     columns: dict[str, FloatArray] = {}
     quality: dict[str, NDArray[np.float64] | NDArray[np.bool_]] = {}
     if "frequency" in groups:
-        flat = np.moveaxis(phi, 2, 1).reshape(2 * m, n)  # rows: case 0 phi1, case 0 phi2, ...
-        freq = spectral_peak_hz_batch(t, flat).reshape(m, 2)
+        if summary.phi_rad is None:
+            raise ParameterError("the frequency feature needs the sampled angles (phi_rad)")
+        freq, ratio = (
+            v.reshape(m, 2) for v in peaks_and_ratios(t, summary.phi_rad.reshape(2 * m, -1), nthread=nthread)
+        )
         columns["freq1_hz"], columns["freq2_hz"] = freq[:, 0], freq[:, 1]
-        ratio = second_peak_ratio_batch(t, flat).reshape(m, 2)
-        ratio[motion.diverged] = np.nan
+        ratio[summary.diverged] = np.nan
         for k in (0, 1):
             quality[f"freq{k + 1}_peak_ratio"] = ratio[:, k]
             quality[f"freq{k + 1}_ambiguous"] = np.nan_to_num(ratio[:, k]) >= AMBIGUOUS_PEAK_RATIO
-    head = max(1, round(WINDOW_SHARE * (n - 1)))  # samples 0..head and n-1-head..n-1
-    mag = np.abs(phi)
-    head_i = np.argmax(mag[:, : head + 1], axis=1)  # (m, 2)
-    tail_i = n - 1 - head + np.argmax(mag[:, n - 1 - head :], axis=1)
-    head_amp = np.take_along_axis(mag, head_i[:, None, :], axis=1)[:, 0]
-    tail_amp = np.take_along_axis(mag, tail_i[:, None, :], axis=1)[:, 0]
     if "amplitude" in groups:
-        whole = mag.max(axis=1)
-        columns["amp1_rad"], columns["amp2_rad"] = whole[:, 0], whole[:, 1]
-        columns["amp1_end_rad"], columns["amp2_end_rad"] = tail_amp[:, 0], tail_amp[:, 1]
+        columns["amp1_rad"], columns["amp2_rad"] = summary.amp_rad[:, 0], summary.amp_rad[:, 1]
+        columns["amp1_end_rad"], columns["amp2_end_rad"] = summary.tail_amp_rad[:, 0], summary.tail_amp_rad[:, 1]
     if "decay" in groups:
         with np.errstate(divide="ignore", invalid="ignore"):
-            decay = np.log(head_amp / tail_amp) / (t[tail_i] - t[head_i])
+            decay = np.log(summary.head_amp_rad / summary.tail_amp_rad) / (
+                t[summary.tail_index] - t[summary.head_index]
+            )
         decay[~np.isfinite(decay)] = np.nan  # a pendulum at rest has no decay
         columns["decay1_per_s"], columns["decay2_per_s"] = decay[:, 0], decay[:, 1]
     if "energy" in groups:
-        columns["energy_j"] = motion.total_energy_j[:, 0]
-        columns["energy_end_j"] = motion.total_energy_j[:, -1]
-        columns["dissipated_j"] = motion.dissipated_j[:, -1]
+        columns["energy_j"] = summary.energy_start_j
+        columns["energy_end_j"] = summary.energy_end_j
+        columns["dissipated_j"] = summary.dissipated_j
     if "lyapunov" in groups:
         if lyapunov_per_s is None or np.shape(lyapunov_per_s) != (m,):
             raise ParameterError("the lyapunov feature needs the exponents of every run (the fast engine)")
         columns["lyapunov_per_s"] = np.asarray(lyapunov_per_s, dtype=float)
     names = scalar_columns(groups)
     values = np.stack([columns[c] for c in names], axis=1) if names else np.zeros((m, 0))
-    values[motion.diverged] = np.nan
-    poincare = _poincare(motion) if "poincare" in groups else None
-    return Features(names=names, values=values, diverged=motion.diverged.copy(), poincare=poincare, quality=quality)
+    values[summary.diverged] = np.nan
+    return Features(names=names, values=values, diverged=summary.diverged.copy(), poincare=None, quality=quality)
 
 
 def _hermite(y0: FloatArray, y1: FloatArray, d0: FloatArray, d1: FloatArray, h: float, s: FloatArray) -> FloatArray:

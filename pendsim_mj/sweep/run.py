@@ -23,7 +23,7 @@ from pendsim_mj.errors import SimulationDiverged
 from pendsim_mj.rig.checks import energy_grew
 from pendsim_mj.rig.drives import Drive, drive_stage_inputs, stage_inputs_at_samples
 from pendsim_mj.rig.params import ParamColumns
-from pendsim_mj.sweep.features import Features, Motion, compute
+from pendsim_mj.sweep.features import Features, Motion, MotionSummary, compute, compute_summary, head_samples
 from pendsim_mj.sweep.plan import CaseTable, SweepPlan
 
 FloatArray = NDArray[np.float64]
@@ -70,15 +70,27 @@ def run_task(
     # (k, nstep, NSTAGE, 4): the drive at each RK4 stage's time (the fast engine, fourth order; MuJoCo
     # holds each step's midpoint value: only whether a case is driven is read from these there)
     held = drive_stage_inputs(drives, plan.nstep, plan.dt_s) if drives[0] is not None else None
+    lyapunov = _fast_lyapunov(plan, params, phi0, omega0, nthread) if "lyapunov" in plan.features else None
+    if light_path(plan) and not keep_trajectories:
+        summary = _fast_summary(plan, params, phi0, omega0, held, nthread)
+        features = compute_summary(summary, plan.features, lyapunov_per_s=lyapunov, nthread=nthread)
+        return TaskResult(case_ids=ids, features=features, trajectories=None)
     if plan.engine == "fast":
-        motion, lyapunov = _fast_motion(plan, params, phi0, omega0, held, nthread)
+        motion = _fast_motion(plan, params, phi0, omega0, held, nthread)
     else:
-        motion, lyapunov = _mujoco_motion(plan, params, phi0, omega0, drives, held, nthread), None
+        motion = _mujoco_motion(plan, params, phi0, omega0, drives, held, nthread)
     features = compute(motion, plan.features, lyapunov_per_s=lyapunov)
     traj = None
     if keep_trajectories:
         traj = np.concatenate([motion.phi_rad, motion.omega_rad_s], axis=2)
     return TaskResult(case_ids=ids, features=features, trajectories=traj)
+
+
+def light_path(plan: SweepPlan) -> bool:
+    """Whether the plan's tasks take the light path: the fast engine reduces each run on the fly
+    (``fast_planar.summarise``) and no trajectory is stored. Poincare samples, kept trajectories
+    and the MuJoCo engines need the sampled motion."""
+    return plan.engine == "fast" and "poincare" not in plan.features and not plan.trajectories
 
 
 def _driven(held: FloatArray | None, k: int) -> NDArray[np.bool_]:
@@ -93,7 +105,7 @@ def _fast_motion(
     omega0: FloatArray,
     held: FloatArray | None,
     nthread: int | None,
-) -> tuple[Motion, FloatArray | None]:
+) -> Motion:
     coef = fast_planar.coefficients(params)
     states = fast_planar.integrate(
         coef, phi0, omega0, plan.nstep, plan.dt_s, inputs=held, save_every=plan.save_every, nthread=nthread
@@ -118,13 +130,58 @@ def _fast_motion(
         dissipated_j=dissipated.T,
         diverged=diverged,
     )
-    lyapunov = None
-    if "lyapunov" in plan.features:
-        every = min(LYAPUNOV_RENORMALISE_STEPS, plan.nstep)
-        lyapunov = fast_planar.lyapunov(
-            coef, phi0, omega0, plan.nstep - plan.nstep % every, plan.dt_s, renormalise_every=every, nthread=nthread
-        )[-1]
-    return motion, lyapunov
+    return motion
+
+
+def _fast_lyapunov(
+    plan: SweepPlan, params: ParamColumns, phi0: FloatArray, omega0: FloatArray, nthread: int | None
+) -> FloatArray:
+    """(k,) largest Lyapunov exponents, 1/s, on the fast kernel (every engine's sweep gets them
+    from it: ``check`` refuses the feature on the MuJoCo engines)."""
+    every = min(LYAPUNOV_RENORMALISE_STEPS, plan.nstep)
+    lyapunov: FloatArray = fast_planar.lyapunov(
+        fast_planar.coefficients(params), phi0, omega0, plan.nstep - plan.nstep % every, plan.dt_s,
+        renormalise_every=every, nthread=nthread,
+    )[-1]  # fmt: skip
+    return lyapunov
+
+
+def _fast_summary(
+    plan: SweepPlan,
+    params: ParamColumns,
+    phi0: FloatArray,
+    omega0: FloatArray,
+    held: FloatArray | None,
+    nthread: int | None,
+) -> MotionSummary:
+    """The light path: the fast kernel's pass reduced on the fly (``fast_planar.summarise``), no
+    stored trajectory; the same features as ``_fast_motion`` + ``compute``."""
+    coef = fast_planar.coefficients(params)
+    nsave = plan.nstep // plan.save_every + 1
+    stats, phi = fast_planar.summarise(
+        coef, phi0, omega0, plan.nstep, plan.dt_s, head_samples=head_samples(nsave), inputs=held,
+        save_every=plan.save_every, keep_phi="frequency" in plan.features, nthread=nthread,
+    )  # fmt: skip
+    row = {name: stats[i] for i, name in enumerate(fast_planar.SUMMARY_ROWS)}
+
+    def pair(a: str, b: str) -> FloatArray:
+        return np.stack([row[a], row[b]], axis=1)
+
+    start_and_peak = np.stack([row["energy_start"], row["energy_max"]], axis=1)
+    grew = energy_grew(start_and_peak, coef[fast_planar.COEFFICIENTS.index("gravity1_n_m")]) & ~_driven(held, len(phi0))
+    return MotionSummary(
+        t_s=np.asarray(np.arange(nsave) * (plan.dt_s * plan.save_every), dtype=np.float64),
+        phi_rad=phi,
+        amp_rad=pair("amp1", "amp2"),
+        head_amp_rad=pair("head1", "head2"),
+        head_index=pair("head1_index", "head2_index").astype(np.int64),
+        tail_amp_rad=pair("tail1", "tail2"),
+        tail_index=pair("tail1_index", "tail2_index").astype(np.int64),
+        energy_start_j=row["energy_start"],
+        energy_end_j=row["energy_end"],
+        dissipated_j=row["dissipated_end"],
+        diverged=grew | (row["nonfinite"] > 0) | ~np.isfinite(row["dissipated_end"]),
+    )
 
 
 def _mujoco_motion(

@@ -1,6 +1,6 @@
-"""The Dask backend with real processes on loopback: a 10 000-case sweep run serially, on a
-LocalCluster of 2 workers started by ``pendsim sweep --workers 2``, and on a running cluster
-reached by its address with one worker process killed (SIGKILL) mid-sweep gives the same rows;
+"""The Dask backend with real processes on loopback: a 10 000-case sweep run serially and on a
+running cluster reached by its address with one worker process killed (SIGKILL) mid-sweep, and a
+MuJoCo-engine sweep serially and on a LocalCluster of 2 workers (``pendsim sweep --workers 2``), give the same rows;
 the killed worker's task is retried, no case is written twice, and no process is left running,
 also when ``pendsim sweep --workers 2`` itself gets SIGTERM or SIGKILL."""
 
@@ -10,6 +10,7 @@ import signal
 import subprocess
 import sys
 import time
+from pathlib import Path
 
 import numpy as np
 import psutil
@@ -77,9 +78,9 @@ def serial_rows(tmp_path_factory) -> pa.Table:
     return pq.read_table(summary.results)
 
 
-def _assert_same_rows(expected: pa.Table, got: pa.Table) -> None:
-    assert got.column_names == expected.column_names and got.num_rows == expected.num_rows == 10_000
-    np.testing.assert_array_equal(got.column("case_id").to_numpy(), np.arange(10_000))  # each case once
+def _assert_same_rows(expected: pa.Table, got: pa.Table, ncases: int = 10_000) -> None:
+    assert got.column_names == expected.column_names and got.num_rows == expected.num_rows == ncases
+    np.testing.assert_array_equal(got.column("case_id").to_numpy(), np.arange(ncases))  # each case once
     for name in expected.column_names:
         a, b = expected.column(name), got.column(name)
         if pa.types.is_list(a.type):
@@ -92,15 +93,35 @@ def _assert_same_rows(expected: pa.Table, got: pa.Table) -> None:
             np.testing.assert_allclose(b_np, a_np, rtol=0, atol=1e-12, equal_nan=True, err_msg=name)
 
 
-def test_pendsim_sweep_on_2_local_workers_gives_the_serial_rows_and_leaves_no_process(serial_rows, tmp_path, capsys):
+MUJOCO_FEATURES = ["frequency", "amplitude", "decay", "energy", "poincare"]
+
+
+def _sweep_args(engine: str, out: Path, *more: str) -> list[str]:
+    args = ["sweep", "--engine", engine, "--random", "400", "--seed", "7", "--duration-s", "1", "--features"]
+    args += [",".join(MUJOCO_FEATURES), *(f"--vary={name}={spec['from']}:{spec['to']}" for name, spec in VARY.items())]
+    return [*args, "--cases-per-task", "25", "--no-plots", *more, "-o", str(out)]
+
+
+def test_pendsim_sweep_on_2_local_workers_gives_the_serial_rows_and_leaves_no_process(tmp_path, capsys):
+    # the MuJoCo engine: 400 cases in 16 tasks on two worker processes, the rows of a serial run
+    assert main(_sweep_args("mujoco", tmp_path / "serial")) == 0
+    assert "on serial: computed 400" in capsys.readouterr().out
     before = _children()
-    args = ["sweep", "--random", "10000", "--seed", "7", "--duration-s", "1", "--features", ",".join(FEATURES)]
-    args += [f"--vary={name}={spec['from']}:{spec['to']}" for name, spec in VARY.items()]
-    args += ["--workers", "2", "--cases-per-task", str(CASES_PER_TASK), "--no-plots", "-o", str(tmp_path / "local")]
-    assert main(args) == 0
-    assert "on LocalCluster (2 workers): computed 10000" in capsys.readouterr().out
-    _assert_same_rows(serial_rows, pq.read_table(tmp_path / "local" / "results.parquet"))
+    assert main(_sweep_args("mujoco", tmp_path / "local", "--workers", "2")) == 0
+    assert "on LocalCluster (2 workers): computed 400" in capsys.readouterr().out
+    expected, got = (pq.read_table(tmp_path / name / "results.parquet") for name in ("serial", "local"))
+    _assert_same_rows(expected, got, 400)
     assert _all_gone(_children() - before)
+
+
+def test_workers_on_the_fast_engine_run_in_this_process_on_the_kernels_threads(tmp_path, capsys):
+    # one machine: the fast kernel already threads over every core, so worker processes would
+    # only add their start-up (issue 24); no process is started and the output says why
+    before = _children()
+    assert main(_sweep_args("fast", tmp_path / "fast", "--workers", "2")) == 0
+    out = capsys.readouterr().out
+    assert "on this process (the fast engine threads over the cores; --workers 2 is for the MuJoCo engines)" in out
+    assert "computed 400" in out and _children() == before
 
 
 def test_a_worker_killed_mid_sweep_loses_only_its_task_which_is_retried(serial_rows, tmp_path):
@@ -154,11 +175,12 @@ def test_a_signal_to_pendsim_sweep_on_workers_leaves_no_process_running(tmp_path
     # SIGTERM: the sweep stops cleanly (exit 130) and closes its cluster; SIGKILL cannot be
     # caught, and the worker processes then notice that their parent is gone and exit
     out = tmp_path / "out"
-    cmd = [sys.executable, "-m", "pendsim_bridge.cli", "sweep", "--random", "400", "--vary", "c1_n_m=4:8",
-           "--duration-s", "30", "--cases-per-task", "5", "--workers", "2", "--no-plots", "-o", str(out)]  # fmt: skip
+    cmd = [sys.executable, "-m", "pendsim_bridge.cli", "sweep", "--engine", "mujoco", "--random", "400", "--vary",
+           "c1_n_m=4:8", "--duration-s", "30", "--cases-per-task", "5", "--workers", "2", "--no-plots",
+           "-o", str(out)]  # fmt: skip
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
-        deadline = time.monotonic() + 240  # the workers may compile the kernel first (a fresh clone)
+        deadline = time.monotonic() + 240  # the workers may compile MuJoCo models first
         while time.monotonic() < deadline and not list((out / "parts").glob("part-*.parquet")):
             time.sleep(0.05)
         assert list((out / "parts").glob("part-*.parquet")), "the sweep did not start"

@@ -25,7 +25,8 @@ A member that diverges (non-finite state) keeps NaN; ``integrate`` never raises 
 ``solve_batch`` does (as the reference).
 
 Public entry points: ``solve`` / ``solve_batch`` (the reference's arguments, drives included, and
-its Trajectory), ``integrate`` (states only, optionally every k-th step: what a sweep needs),
+its Trajectory), ``integrate`` (states only, optionally every k-th step), ``summarise`` (the same pass reduced on
+the fly to a sweep's features: no stored trajectory),
 ``lyapunov`` (largest Lyapunov exponent, Benettin's two-trajectory method), ``diverged``,
 ``rates_at`` (one run's rates at given instants with exact sensitivities) and
 ``normal_equations_at`` (the same pass summing a fit's J^T J, J^T r, r.r), and the closed
@@ -37,7 +38,7 @@ in ``_accel`` (and in the power of ``_rk4`` if they dissipate) (``kernel``), mir
 ``accelerations``, and test one step against ``reference`` to 1e-12 rad.
 """
 
-from pendsim_mj.engines.fast_planar.batch import CHUNK, integrate
+from pendsim_mj.engines.fast_planar.batch import CHUNK, integrate, summarise
 from pendsim_mj.engines.fast_planar.closed_form import (
     COEFFICIENTS,
     NCOEF,
@@ -50,7 +51,7 @@ from pendsim_mj.engines.fast_planar.closed_form import (
     spring_lengths,
     spring_moments,
 )
-from pendsim_mj.engines.fast_planar.kernel import sincos
+from pendsim_mj.engines.fast_planar.kernel import SUMMARY_ROWS, sincos
 from pendsim_mj.engines.fast_planar.lyapunov_exponent import lyapunov
 from pendsim_mj.engines.fast_planar.rates import COEF_SENSITIVITIES, SENSITIVITY_NAMES, normal_equations_at, rates_at
 from pendsim_mj.engines.fast_planar.trajectories import solve, solve_batch, solve_blocks
@@ -62,6 +63,7 @@ __all__ = [
     "NCOEF",
     "NINPUT",
     "SENSITIVITY_NAMES",
+    "SUMMARY_ROWS",
     "accelerations",
     "coefficients",
     "diverged",
@@ -77,4 +79,5 @@ __all__ = [
     "solve_blocks",
     "spring_lengths",
     "spring_moments",
+    "summarise",
 ]

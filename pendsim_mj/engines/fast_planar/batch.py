@@ -10,7 +10,7 @@ import numpy as np
 
 from pendsim_mj import compile_notice
 from pendsim_mj.engines.fast_planar.closed_form import NINPUT, FloatArray, _check_coef
-from pendsim_mj.engines.fast_planar.kernel import _integrate_kernel
+from pendsim_mj.engines.fast_planar.kernel import SUMMARY_ROWS, _integrate_kernel, _summary_kernel
 from pendsim_mj.errors import ParameterError
 from pendsim_mj.rig.drives import NSTAGE
 
@@ -128,3 +128,65 @@ def integrate(
         raise ParameterError(f"save_every must be a whole number >= 1 that divides nstep = {nstep}, got {save_every!r}")
     held = _held(inputs, nbatch, nstep)
     return _run(k, _initial_state(phi0, omega0), held, 0, int(nstep), float(dt_s), save_every, nthread)
+
+
+def summarise(
+    coef: FloatArray,
+    phi0_rad: FloatArray,
+    omega0_rad_s: FloatArray,
+    nstep: int,
+    dt_s: float,
+    *,
+    head_samples: int,
+    inputs: FloatArray | None = None,
+    save_every: int = 1,
+    keep_phi: bool = False,
+    nthread: int | None = None,
+) -> tuple[FloatArray, FloatArray | None]:
+    """``integrate``'s pass (the same states, bit for bit) reduced on the fly to what a sweep's
+    features need, so no trajectory is stored: the light path of a sweep.
+
+    Args:
+      coef, phi0_rad, omega0_rad_s, nstep, dt_s, inputs, save_every, nthread: as ``integrate``;
+        the reductions see the samples r = 0 .. nstep // save_every (t = r * save_every * dt_s).
+      head_samples: the head window is samples 0..head_samples, the tail window the last
+        head_samples + 1 samples (1 <= head_samples < nstep // save_every).
+      keep_phi: also return the sampled angles.
+
+    Returns:
+      stats (len(SUMMARY_ROWS), nbatch): row ``SUMMARY_ROWS.index(name)`` per quantity (amplitudes
+      in rad, sample indices as floats, energies in J, the end state, 1.0 where a sample was not
+      finite); phi (nbatch, 2, nstep // save_every + 1) rad, or None.
+    """
+    phi0 = np.asarray(phi0_rad, dtype=np.float64)
+    omega0 = np.asarray(omega0_rad_s, dtype=np.float64)
+    nbatch = len(phi0)
+    k = _check_coef(coef, nbatch)
+    if isinstance(save_every, bool) or not isinstance(save_every, int) or save_every < 1 or nstep % save_every:
+        raise ParameterError(f"save_every must be a whole number >= 1 that divides nstep = {nstep}, got {save_every!r}")
+    nsave = nstep // save_every + 1
+    if not 1 <= head_samples < nsave - 1:
+        raise ParameterError(f"head_samples must be 1 .. {nsave - 2} for {nsave} samples, got {head_samples!r}")
+    held = _held(inputs, nbatch, nstep)
+    stats = np.empty((len(SUMMARY_ROWS), nbatch))
+    phi = np.empty((nbatch, 2, nsave)) if keep_phi else np.empty((0, 2, 0))
+    threads = _threads(nthread)
+    chunk = _chunk(nbatch, threads)
+    previous = numba.get_num_threads()
+    numba.set_num_threads(max(1, min(threads, -(-nbatch // chunk))))
+    try:
+        _summary_kernel(
+            k,
+            _initial_state(phi0, omega0),
+            held,
+            int(nstep),
+            float(dt_s),
+            save_every,
+            int(head_samples),
+            chunk,
+            phi,
+            stats,
+        )
+    finally:
+        numba.set_num_threads(previous)
+    return stats, (phi if keep_phi else None)
