@@ -9,7 +9,7 @@ import numpy as np
 
 from pendsim_mj import compile_notice
 
-compile_notice.watch()  # one line on a cold compile (the command line prints it)
+compile_notice.watch()  # the cache folder; one line on a cold compile (the CLI prints it)
 
 
 @numba.njit(cache=True)
