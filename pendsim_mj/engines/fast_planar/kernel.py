@@ -17,7 +17,17 @@ All of them live in this one file: the kernels inline the same helpers (``_accel
 ``sincos``), and numba's ``cache=True`` notices edits only in the file a cached function is
 defined in. The constants they read from ``closed_form`` (the coefficient rows, ``NINPUT``, the
 friction smoothing) are frozen into the cache when compiled: after changing one of those, remove
-this package's ``__pycache__``.
+this package's folder in numba's cache (``pendsim_mj.compile_notice``: ``~/.cache/pendsim/numba-*``
+unless ``NUMBA_CACHE_DIR`` is set).
+
+Compile time: numba inlines a helper marked ``inline="always"`` into every call site at the level
+of its own IR, which costs seconds per nested copy. The kernels inline only where it pays at run
+time (the RK4 step into the batch loop, where the members vectorise; ``_accel`` and
+``_sens_derivative`` into the rates kernel). The sensitivities' partials take the angles' sines
+and cosines from ``_trig`` (once per stage, not per column) and are compiled on their own, and
+the batch loop is one compiled chunk function that the parallel kernel and its serial twin both
+call: a cold compile of the rates kernel took 71 s of CPU before, 12 s after, at the same speed
+and with the same bits (2026-11-26, 2 cores, load 6).
 """
 
 from __future__ import annotations
@@ -48,7 +58,7 @@ from pendsim_mj.engines.fast_planar.closed_form import (
     FloatArray,
 )
 
-compile_notice.watch()  # one line on a cold compile (the command line prints it)
+compile_notice.watch()  # the cache folder; one line on a cold compile (the CLI prints it)
 
 # fdlibm (Sun Microsystems, 1993) constants: pi/2 in three 33-bit pieces and the minimax
 # polynomials of __kernel_sin / __kernel_cos on [-pi/4, pi/4].
@@ -125,16 +135,34 @@ def _resist(w1: float, w2: float, c: tuple[float, ...]) -> tuple[float, float]:
 
 
 @numba.njit(inline="always", cache=True)
+def _trig(p1: float, p2: float) -> tuple[float, float, float, float, float, float]:
+    """(sin phi1, cos phi1, sin phi2, cos phi2, sin(phi2 - phi1), cos(phi2 - phi1)), shared by
+    ``_accel_at`` and the partials (computed once per stage, not per column)."""
+    s1, c1 = sincos(p1)
+    s2, c2 = sincos(p2)
+    return s1, c1, s2, c2, s2 * c1 - c2 * s1, c2 * c1 + s2 * s1
+
+
+@numba.njit(inline="always", cache=True)
 def _accel(
     p1: float, p2: float, w1: float, w2: float, c: tuple[float, ...], u: tuple[float, float, float, float]
 ) -> tuple[float, float]:
     """phi1'', phi2'' with constants c (``_member``) and the inputs u = (tau1, tau2, a_h, a_v)
     (zeros when undriven: the drive terms then add exactly 0), in the reference's order of
     operations."""
-    s1, c1 = sincos(p1)
-    s2, c2 = sincos(p2)
-    sd = s2 * c1 - c2 * s1  # sin(phi2 - phi1)
-    cd = c2 * c1 + s2 * s1  # cos(phi2 - phi1)
+    return _accel_at(_trig(p1, p2), w1, w2, c, u)
+
+
+@numba.njit(inline="always", cache=True)
+def _accel_at(
+    trig: tuple[float, float, float, float, float, float],
+    w1: float,
+    w2: float,
+    c: tuple[float, ...],
+    u: tuple[float, float, float, float],
+) -> tuple[float, float]:
+    """``_accel`` with the angles' ``_trig`` given."""
+    s1, c1, s2, c2, sd, cd = trig
     m1 = c[_KS] * sd - c[_KC] * cd
     m2 = -m1 - c[_FS] * s2 + c[_FC] * c2
     d1, d2 = _resist(w1, w2, c)
@@ -191,6 +219,59 @@ def _rk4(
     )
 
 
+@numba.njit(cache=True)
+def _integrate_chunk(
+    k: FloatArray,
+    y0: FloatArray,
+    held: FloatArray,
+    step0: int,
+    nstep: int,
+    h: float,
+    every: int,
+    out: FloatArray,
+    lo: int,
+    hi: int,
+) -> None:
+    """Members lo..hi-1 side by side (SIMD), as ``_integrate_kernel`` describes: compiled once, on
+    its own (the loop vectorises here), and called per chunk by both kernels."""
+    m = hi - lo
+    driven = held.shape[0] > 0
+    kc = _chunk_coefficients(k, lo, hi)
+    p1 = y0[0, lo:hi].copy()
+    p2 = y0[1, lo:hi].copy()
+    w1 = y0[2, lo:hi].copy()
+    w2 = y0[3, lo:hi].copy()
+    d = y0[4, lo:hi].copy()
+    u = np.zeros((3, 4, m))  # this step's inputs: stage (start, midpoint, end), channel, member
+    for i in range(m):
+        for q in range(5):
+            out[0, q, lo + i] = y0[q, lo + i]
+    for step in range(nstep):
+        if driven:
+            for j in range(3):
+                for q in range(4):
+                    for i in range(m):
+                        u[j, q, i] = held[step0 + step, j, q, lo + i]
+        for i in range(m):
+            u0 = (u[0, 0, i], u[0, 1, i], u[0, 2, i], u[0, 3, i])
+            um = (u[1, 0, i], u[1, 1, i], u[1, 2, i], u[1, 3, i])
+            u1 = (u[2, 0, i], u[2, 1, i], u[2, 2, i], u[2, 3, i])
+            a, b, c, e, f = _rk4(p1[i], p2[i], w1[i], w2[i], d[i], h, _member(kc, i), u0, um, u1)
+            p1[i] = a
+            p2[i] = b
+            w1[i] = c
+            w2[i] = e
+            d[i] = f
+        if (step + 1) % every == 0:
+            row = (step + 1) // every
+            for i in range(m):
+                out[row, 0, lo + i] = p1[i]
+                out[row, 1, lo + i] = p2[i]
+                out[row, 2, lo + i] = w1[i]
+                out[row, 3, lo + i] = w2[i]
+                out[row, 4, lo + i] = d[i]
+
+
 @numba.njit(parallel=True, cache=True)
 def _integrate_kernel(
     k: FloatArray,
@@ -210,64 +291,48 @@ def _integrate_kernel(
     r * every steps, (nsave, 5, nbatch).
     """
     n = y0.shape[1]
-    driven = held.shape[0] > 0
     for ci in numba.prange((n + chunk - 1) // chunk):
-        lo = ci * chunk
-        hi = min(n, lo + chunk)
-        m = hi - lo
-        kc = _chunk_coefficients(k, lo, hi)
-        p1 = y0[0, lo:hi].copy()
-        p2 = y0[1, lo:hi].copy()
-        w1 = y0[2, lo:hi].copy()
-        w2 = y0[3, lo:hi].copy()
-        d = y0[4, lo:hi].copy()
-        u = np.zeros((3, 4, m))  # this step's inputs: stage (start, midpoint, end), channel, member
-        for i in range(m):
-            for q in range(5):
-                out[0, q, lo + i] = y0[q, lo + i]
-        for step in range(nstep):
-            if driven:
-                for j in range(3):
-                    for q in range(4):
-                        for i in range(m):
-                            u[j, q, i] = held[step0 + step, j, q, lo + i]
-            for i in range(m):
-                u0 = (u[0, 0, i], u[0, 1, i], u[0, 2, i], u[0, 3, i])
-                um = (u[1, 0, i], u[1, 1, i], u[1, 2, i], u[1, 3, i])
-                u1 = (u[2, 0, i], u[2, 1, i], u[2, 2, i], u[2, 3, i])
-                a, b, c, e, f = _rk4(p1[i], p2[i], w1[i], w2[i], d[i], h, _member(kc, i), u0, um, u1)
-                p1[i] = a
-                p2[i] = b
-                w1[i] = c
-                w2[i] = e
-                d[i] = f
-            if (step + 1) % every == 0:
-                row = (step + 1) // every
-                for i in range(m):
-                    out[row, 0, lo + i] = p1[i]
-                    out[row, 1, lo + i] = p2[i]
-                    out[row, 2, lo + i] = w1[i]
-                    out[row, 3, lo + i] = w2[i]
-                    out[row, 4, lo + i] = d[i]
+        _integrate_chunk(k, y0, held, step0, nstep, h, every, out, ci * chunk, min(n, ci * chunk + chunk))
+
+
+@numba.njit(cache=True)
+def _integrate_serial(
+    k: FloatArray,
+    y0: FloatArray,
+    held: FloatArray,
+    step0: int,
+    nstep: int,
+    h: float,
+    every: int,
+    out: FloatArray,
+    chunk: int,
+) -> None:
+    """``_integrate_kernel`` on the calling thread, chunk after chunk (the same arithmetic, bit for
+    bit): what a run on one thread calls. numba compiles it in about a third of the parallel
+    kernel's time (no parallel loop to lower), and calling it starts no thread pool."""
+    n = y0.shape[1]
+    for ci in range((n + chunk - 1) // chunk):
+        _integrate_chunk(k, y0, held, step0, nstep, h, every, out, ci * chunk, min(n, ci * chunk + chunk))
 
 
 # --- rates at given instants, with their exact sensitivities (the damping fit) -----------------
 
 
-@numba.njit(inline="always", cache=True)
+@numba.njit(cache=True)
 def _accel_partials(
-    p1: float, p2: float, w1: float, w2: float, c: tuple[float, ...], u: tuple[float, float, float, float]
+    trig: tuple[float, float, float, float, float, float],
+    w1: float,
+    w2: float,
+    c: tuple[float, ...],
+    u: tuple[float, float, float, float],
 ) -> tuple[float, float, float, float, float, float, float, float, float, float]:
     """d(phi1'', phi2'')/d(phi1, phi2, omega_n) and the direct derivatives by b_n, F_n with the held
     inputs u (``_accel``; the torques add no partial, a support acceleration adds
     -m_n OC_n (a_v cos phi_n - a_h sin phi_n) / J_n to d phi_n'' / d phi_n):
     (a1_p1, a1_p2, a1_w1, a2_p1, a2_p2, a2_w2, a1_b1, a2_b2, a1_F1, a2_F2), from the equations of
     the module docstring (d = phi2 - phi1; s(w) = w / sqrt(w^2 + w_s^2), s'(w) = w_s^2 / (w^2 +
-    w_s^2)^(3/2))."""
-    s1, c1 = sincos(p1)
-    s2, c2 = sincos(p2)
-    sd = s2 * c1 - c2 * s1
-    cd = c2 * c1 + s2 * s1
+    w_s^2)^(3/2)); trig: ``_trig`` of the state's angles."""
+    s1, c1, s2, c2, sd, cd = trig
     coupling = c[_KS] * cd + c[_KC] * sd  # d M1 / d phi2 = -d M1 / d phi1
     q1 = w1 * w1 + _SMOOTH2
     q2 = w2 * w2 + _SMOOTH2
@@ -289,22 +354,24 @@ def _accel_partials(
     )
 
 
-@numba.njit(inline="always", cache=True)
+@numba.njit(cache=True)
 def _coef_partial(
-    p1: float, p2: float, w1: float, w2: float, c: tuple[float, ...], u: tuple[float, float, float, float], code: int
+    trig: tuple[float, float, float, float, float, float],
+    a1: float,
+    a2: float,
+    c: tuple[float, ...],
+    u: tuple[float, float, float, float],
+    code: int,
 ) -> tuple[float, float]:
     """The direct derivative of (phi1'', phi2'') by one force-law constant, ``wrt`` code 8 + its
     index in COEF_SENSITIVITIES (J1, J2, m1 g OC1, m2 g OC2, K_s, K_c, F_s, F_c, m1 OC1, m2 OC2),
     from the equations of ``closed_form`` (d = phi2 - phi1): d phi_n'' / d J_n = -phi_n'' / J_n;
-    the others enter phi_n'' linearly, divided by J_n."""
-    s1, c1 = sincos(p1)
-    s2, c2 = sincos(p2)
-    sd = s2 * c1 - c2 * s1
-    cd = c2 * c1 + s2 * s1
+    the others enter phi_n'' linearly, divided by J_n. trig: ``_trig`` of the state's angles;
+    a1, a2: ``_accel`` at the state (with u)."""
+    s1, c1, s2, c2, sd, cd = trig
     j1 = 1.0 / c[_J1]
     j2 = 1.0 / c[_J2]
     if code == 8 or code == 9:
-        a1, a2 = _accel(p1, p2, w1, w2, c, u)
         return (-a1 * j1, 0.0) if code == 8 else (0.0, -a2 * j2)
     if code == 10:
         return -s1 * j1, 0.0
@@ -325,12 +392,14 @@ def _coef_partial(
 
 @numba.njit(inline="always", cache=True)
 def _sens_derivative(
-    p1: float, p2: float, w1: float, w2: float, c: tuple[float, ...], u: tuple[float, float, float, float],
-    wrt: NDArray[np.int64], s: FloatArray, out: FloatArray,
+    trig: tuple[float, float, float, float, float, float], w1: float, w2: float, c: tuple[float, ...],
+    u: tuple[float, float, float, float], a1: float, a2: float, wrt: NDArray[np.int64], s: FloatArray,
+    out: FloatArray,
 ) -> None:  # fmt: skip
     """d/dt of the sensitivities s (4, P) of (phi1, phi2, omega1, omega2) at the state given, into
-    out (4, P): the variational equations of the rig with the held inputs u."""
-    a1p1, a1p2, a1w1, a2p1, a2p2, a2w2, a1b1, a2b2, a1f1, a2f2 = _accel_partials(p1, p2, w1, w2, c, u)
+    out (4, P): the variational equations of the rig with the held inputs u (trig: ``_trig`` of
+    the state's angles; a1, a2: ``_accel`` there, which the caller has computed)."""
+    a1p1, a1p2, a1w1, a2p1, a2p2, a2w2, a1b1, a2b2, a1f1, a2f2 = _accel_partials(trig, w1, w2, c, u)
     for col in range(s.shape[1]):
         out[0, col] = s[2, col]
         out[1, col] = s[3, col]
@@ -346,7 +415,7 @@ def _sens_derivative(
         elif code == 7:
             out[3, col] += a2f2
         elif code >= 8:  # a force-law constant (calibration): its direct derivative of the accelerations
-            d1, d2 = _coef_partial(p1, p2, w1, w2, c, u, code)
+            d1, d2 = _coef_partial(trig, a1, a2, c, u, code)
             out[2, col] += d1
             out[3, col] += d2
 
@@ -409,8 +478,9 @@ def _rates_kernel(
     ks = np.zeros((4, 4, npar))  # the four stages' d/dt of s
     st = np.zeros((4, npar))  # a stage's s
     p1, p2, w1, w2 = y0[0], y0[1], y0[2], y0[3]
-    a1, a2 = _accel(p1, p2, w1, w2, c, zero)
-    _sens_derivative(p1, p2, w1, w2, c, zero, wrt, s, ks[0])
+    tp = _trig(p1, p2)
+    a1, a2 = _accel_at(tp, w1, w2, c, zero)
+    _sens_derivative(tp, w1, w2, c, zero, a1, a2, wrt, s, ks[0])
     n1 = np.searchsorted(at1, tau)
     n2 = np.searchsorted(at2, tau)
     m1, m2 = len(at1), len(at2)
@@ -429,35 +499,40 @@ def _rates_kernel(
             inp0 = (held[step, 0, 0], held[step, 0, 1], held[step, 0, 2], held[step, 0, 3])
             inp = (held[step, 1, 0], held[step, 1, 1], held[step, 1, 2], held[step, 1, 3])
             inp1 = (held[step, 2, 0], held[step, 2, 1], held[step, 2, 2], held[step, 2, 3])
-            a1, a2 = _accel(p1, p2, w1, w2, c, inp0)
+            tp = _trig(p1, p2)
+            a1, a2 = _accel_at(tp, w1, w2, c, inp0)
             if npar:
-                _sens_derivative(p1, p2, w1, w2, c, inp0, wrt, s, ks[0])
+                _sens_derivative(tp, w1, w2, c, inp0, a1, a2, wrt, s, ks[0])
         # RK4 of the state, in _rk4's order of operations, and of s alongside (each stage with
         # the inputs at its time: the variational step is the exact derivative of this step)
         q1, q2, v1, v2 = p1 + hh * w1, p2 + hh * w2, w1 + hh * a1, w2 + hh * a2
-        f1, f2 = _accel(q1, q2, v1, v2, c, inp)
+        tq = _trig(q1, q2)
+        f1, f2 = _accel_at(tq, v1, v2, c, inp)
         r1, r2, x1, x2 = p1 + hh * v1, p2 + hh * v2, w1 + hh * f1, w2 + hh * f2
-        g1, g2 = _accel(r1, r2, x1, x2, c, inp)
+        tr = _trig(r1, r2)
+        g1, g2 = _accel_at(tr, x1, x2, c, inp)
         t1, t2, y1, y2 = p1 + h * x1, p2 + h * x2, w1 + h * g1, w2 + h * g2
-        i1, i2 = _accel(t1, t2, y1, y2, c, inp1)
+        tt = _trig(t1, t2)
+        i1, i2 = _accel_at(tt, y1, y2, c, inp1)
         np1 = p1 + h6 * (((w1 + 2.0 * v1) + 2.0 * x1) + y1)
         np2 = p2 + h6 * (((w2 + 2.0 * v2) + 2.0 * x2) + y2)
         nw1 = w1 + h6 * (((a1 + 2.0 * f1) + 2.0 * g1) + i1)
         nw2 = w2 + h6 * (((a2 + 2.0 * f2) + 2.0 * g2) + i2)
-        na1, na2 = _accel(np1, np2, nw1, nw2, c, inp1)
+        tn = _trig(np1, np2)
+        na1, na2 = _accel_at(tn, nw1, nw2, c, inp1)
         if npar:
             for col in range(npar):
                 for r in range(4):
                     st[r, col] = s[r, col] + hh * ks[0, r, col]
-            _sens_derivative(q1, q2, v1, v2, c, inp, wrt, st, ks[1])
+            _sens_derivative(tq, v1, v2, c, inp, f1, f2, wrt, st, ks[1])
             for col in range(npar):
                 for r in range(4):
                     st[r, col] = s[r, col] + hh * ks[1, r, col]
-            _sens_derivative(r1, r2, x1, x2, c, inp, wrt, st, ks[2])
+            _sens_derivative(tr, x1, x2, c, inp, g1, g2, wrt, st, ks[2])
             for col in range(npar):
                 for r in range(4):
                     st[r, col] = s[r, col] + h * ks[2, r, col]
-            _sens_derivative(t1, t2, y1, y2, c, inp1, wrt, st, ks[3])
+            _sens_derivative(tt, y1, y2, c, inp1, i1, i2, wrt, st, ks[3])
             for col in range(npar):
                 for n in range(2):
                     ends[n, 0, col] = s[2 + n, col]
@@ -466,7 +541,7 @@ def _rates_kernel(
                     s[r, col] = s[r, col] + h6 * (
                         ((ks[0, r, col] + 2.0 * ks[1, r, col]) + 2.0 * ks[2, r, col]) + ks[3, r, col]
                     )
-            _sens_derivative(np1, np2, nw1, nw2, c, inp1, wrt, s, ks[0])
+            _sens_derivative(tn, nw1, nw2, c, inp1, na1, na2, wrt, s, ks[0])
         last = step == nstep - 1
         for node in range(2):
             at = at1 if node == 0 else at2
