@@ -22,12 +22,13 @@ unless ``NUMBA_CACHE_DIR`` is set).
 
 Compile time: numba inlines a helper marked ``inline="always"`` into every call site at the level
 of its own IR, which costs seconds per nested copy. The kernels inline only where it pays at run
-time (the RK4 step into the batch loop, where the members vectorise; ``_accel`` and
-``_sens_derivative`` into the rates kernel). The sensitivities' partials take the angles' sines
-and cosines from ``_trig`` (once per stage, not per column) and are compiled on their own, and
-the batch loop is one compiled chunk function that the parallel kernel and its serial twin both
-call: a cold compile of the rates kernel took 71 s of CPU before, 12 s after, at the same speed
-and with the same bits (2026-11-26, 2 cores, load 6).
+time (the RK4 step into the batch loop, where the members vectorise; ``_trig``, ``_accel_at`` and
+``_sens_derivative`` into the rates kernel, each written once in its loop over the RK4 stages).
+The sensitivities' partials take the angles' sines and cosines from ``_trig`` (once per stage,
+not per column) and are compiled on their own, and the batch loop is one compiled chunk function
+that the parallel kernel and its serial twin both call. A cold compile of the rates kernel took
+71 s of CPU before, 7 s after; the fit's pass runs at the same speed (the calibration's, with
+every force-law sensitivity, within 10 %), with the same bits (2026-11-26, 2 cores, load 4-6).
 """
 
 from __future__ import annotations
@@ -494,54 +495,62 @@ def _rates_kernel(
     hh = 0.5 * h
     h6 = h / 6.0
     ends = np.zeros((2, 2, npar))  # at the step's start: each node's s of omega and of alpha
+    v1 = v2 = f1 = f2 = x1 = x2 = g1 = g2 = y1 = y2 = i1 = i2 = 0.0  # the stages' rates and accelerations
+    np1, np2, nw1, nw2, na1, na2 = p1, p2, w1, w2, a1, a2  # the step's end: state and acceleration
     for step in range(nstep):
-        if driven:  # this step's inputs: the start's alpha and the variational slope with them
+        if driven:  # this step's inputs
             inp0 = (held[step, 0, 0], held[step, 0, 1], held[step, 0, 2], held[step, 0, 3])
             inp = (held[step, 1, 0], held[step, 1, 1], held[step, 1, 2], held[step, 1, 3])
             inp1 = (held[step, 2, 0], held[step, 2, 1], held[step, 2, 2], held[step, 2, 3])
-            tp = _trig(p1, p2)
-            a1, a2 = _accel_at(tp, w1, w2, c, inp0)
-            if npar:
-                _sens_derivative(tp, w1, w2, c, inp0, a1, a2, wrt, s, ks[0])
-        # RK4 of the state, in _rk4's order of operations, and of s alongside (each stage with
-        # the inputs at its time: the variational step is the exact derivative of this step)
-        q1, q2, v1, v2 = p1 + hh * w1, p2 + hh * w2, w1 + hh * a1, w2 + hh * a2
-        tq = _trig(q1, q2)
-        f1, f2 = _accel_at(tq, v1, v2, c, inp)
-        r1, r2, x1, x2 = p1 + hh * v1, p2 + hh * v2, w1 + hh * f1, w2 + hh * f2
-        tr = _trig(r1, r2)
-        g1, g2 = _accel_at(tr, x1, x2, c, inp)
-        t1, t2, y1, y2 = p1 + h * x1, p2 + h * x2, w1 + h * g1, w2 + h * g2
-        tt = _trig(t1, t2)
-        i1, i2 = _accel_at(tt, y1, y2, c, inp1)
-        np1 = p1 + h6 * (((w1 + 2.0 * v1) + 2.0 * x1) + y1)
-        np2 = p2 + h6 * (((w2 + 2.0 * v2) + 2.0 * x2) + y2)
-        nw1 = w1 + h6 * (((a1 + 2.0 * f1) + 2.0 * g1) + i1)
-        nw2 = w2 + h6 * (((a2 + 2.0 * f2) + 2.0 * g2) + i2)
-        tn = _trig(np1, np2)
-        na1, na2 = _accel_at(tn, nw1, nw2, c, inp1)
-        if npar:
-            for col in range(npar):
-                for r in range(4):
-                    st[r, col] = s[r, col] + hh * ks[0, r, col]
-            _sens_derivative(tq, v1, v2, c, inp, f1, f2, wrt, st, ks[1])
-            for col in range(npar):
-                for r in range(4):
-                    st[r, col] = s[r, col] + hh * ks[1, r, col]
-            _sens_derivative(tr, x1, x2, c, inp, g1, g2, wrt, st, ks[2])
-            for col in range(npar):
-                for r in range(4):
-                    st[r, col] = s[r, col] + h * ks[2, r, col]
-            _sens_derivative(tt, y1, y2, c, inp1, i1, i2, wrt, st, ks[3])
-            for col in range(npar):
-                for n in range(2):
-                    ends[n, 0, col] = s[2 + n, col]
-                    ends[n, 1, col] = ks[0, 2 + n, col]
-                for r in range(4):
-                    s[r, col] = s[r, col] + h6 * (
-                        ((ks[0, r, col] + 2.0 * ks[1, r, col]) + 2.0 * ks[2, r, col]) + ks[3, r, col]
-                    )
-            _sens_derivative(tn, nw1, nw2, c, inp1, na1, na2, wrt, s, ks[0])
+        # RK4 of the state, in _rk4's order of operations, and of s alongside (each stage with the
+        # inputs at its time: the variational step is the exact derivative of this step). One
+        # evaluation per stage, written once (numba compiles each written call site): 0 the step's
+        # start (driven only: undriven, the previous step's end holds it), 1 and 2 the midpoints,
+        # 3 the end, 4 the new state (the start of the next step).
+        for stage in range(0 if driven else 1, 5):
+            if stage == 0:
+                e1, e2, o1, o2, u = p1, p2, w1, w2, inp0
+            elif stage == 1:
+                e1, e2, o1, o2, u = p1 + hh * w1, p2 + hh * w2, w1 + hh * a1, w2 + hh * a2, inp
+            elif stage == 2:
+                e1, e2, o1, o2, u = p1 + hh * v1, p2 + hh * v2, w1 + hh * f1, w2 + hh * f2, inp
+            elif stage == 3:
+                e1, e2, o1, o2, u = p1 + h * x1, p2 + h * x2, w1 + h * g1, w2 + h * g2, inp1
+            else:
+                e1 = p1 + h6 * (((w1 + 2.0 * v1) + 2.0 * x1) + y1)
+                e2 = p2 + h6 * (((w2 + 2.0 * v2) + 2.0 * x2) + y2)
+                o1 = w1 + h6 * (((a1 + 2.0 * f1) + 2.0 * g1) + i1)
+                o2 = w2 + h6 * (((a2 + 2.0 * f2) + 2.0 * g2) + i2)
+                u = inp1
+            trig = _trig(e1, e2)
+            b1, b2 = _accel_at(trig, o1, o2, c, u)
+            if stage == 0:
+                a1, a2 = b1, b2
+            elif stage == 1:
+                v1, v2, f1, f2 = o1, o2, b1, b2
+            elif stage == 2:
+                x1, x2, g1, g2 = o1, o2, b1, b2
+            elif stage == 3:
+                y1, y2, i1, i2 = o1, o2, b1, b2
+            else:
+                np1, np2, nw1, nw2, na1, na2 = e1, e2, o1, o2, b1, b2
+            if not npar:
+                continue
+            if 1 <= stage <= 3:  # the stage's s from the previous stage's slope
+                frac = h if stage == 3 else hh
+                for col in range(npar):
+                    for r in range(4):
+                        st[r, col] = s[r, col] + frac * ks[stage - 1, r, col]
+            elif stage == 4:  # the step's s
+                for col in range(npar):
+                    for n in range(2):
+                        ends[n, 0, col] = s[2 + n, col]
+                        ends[n, 1, col] = ks[0, 2 + n, col]
+                    for r in range(4):
+                        s[r, col] = s[r, col] + h6 * (
+                            ((ks[0, r, col] + 2.0 * ks[1, r, col]) + 2.0 * ks[2, r, col]) + ks[3, r, col]
+                        )
+            _sens_derivative(trig, o1, o2, c, u, b1, b2, wrt, st if 1 <= stage <= 3 else s, ks[stage % 4])
         last = step == nstep - 1
         for node in range(2):
             at = at1 if node == 0 else at2
