@@ -31,6 +31,7 @@ from __future__ import annotations
 import dataclasses
 import functools
 import math
+from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
@@ -103,8 +104,18 @@ def adev_of_phase(x: np.ndarray, m: np.ndarray, *, threads: int = 2) -> np.ndarr
     from pendsim_mj.allan import kernel as allan_kernel  # numba (and its compiled kernels) only once needed
 
     x = np.ascontiguousarray(x, dtype=float)
-    kernel = allan_kernel.oadev_parallel if threads > 1 and x.size > 2_000_000 else allan_kernel.oadev_serial
-    return kernel(x, m)
+    if threads <= 1 or x.size <= 2_000_000 or len(m) < 2:
+        return np.asarray(allan_kernel.oadev_serial(x, m))
+    # the taus dealt round-robin over the threads (each tau sums about n rows: even shares), each
+    # share summed by the compiled kernel without the GIL; every tau as the serial kernel sums it
+    out = np.empty((len(m), x.shape[1]))
+    shares = [slice(t, None, threads) for t in range(min(threads, len(m)))]
+    with ThreadPoolExecutor(max_workers=len(shares) - 1, thread_name_prefix="adev") as pool:
+        others = [pool.submit(allan_kernel.oadev_serial, x, m[share]) for share in shares[1:]]
+        out[shares[0]] = allan_kernel.oadev_serial(x, m[shares[0]])
+        for share, done in zip(shares[1:], others, strict=True):
+            out[share] = done.result()
+    return out
 
 
 def load_kernels() -> None:
