@@ -31,8 +31,9 @@ import tempfile
 from collections.abc import Callable
 from typing import Any
 
-COLD_COMPILE_S = "about 20 s; longer on a busy machine"
-"""What a cold compile of the planar kernels costs (measured on 2 cores: 17-20 s CPU)."""
+COLD_COMPILE_S = "about 5-20 s of CPU; longer on a busy machine"
+"""What a cold compile costs a command (2 cores, 2026-11-26: allan 2-3 s, validate and identify
+13-19 s, a sweep's parallel kernel 11-15 s more)."""
 
 _notice: Callable[[str], None] | None = None
 _said = False
