@@ -1,25 +1,81 @@
-"""One line when numba compiles pendsim's kernels (a cold cache: the first run after installing,
-or a new ``NUMBA_CACHE_DIR``), so that a first command that is silent for 20 s to 2 minutes says
-why. pendsim_mj prints nothing itself: the command line sets the notice (``set_notice``), a
-script may too. Loaded cache entries say nothing.
+"""Where pendsim's numba kernels are cached, and one line when numba compiles them (a cold cache:
+the first run after installing, a new numba, or a new ``NUMBA_CACHE_DIR``), so that a first
+command that is silent for seconds says why. pendsim_mj prints nothing itself: the command line
+sets the notice (``set_notice``), a script may too. Loaded cache entries say nothing.
 
-Each module that defines kernels calls ``watch()`` after importing numba; it registers one
-listener for numba's "numba:compile" event, which numba triggers only when a function is
-compiled, never when it is loaded from its cache.
+Each module that defines kernels calls ``watch()`` right after importing numba and before its
+first ``@numba.njit``; it does two things, once per process:
+
+- **The cache folder.** Where numba keeps what it compiled is chosen when a function is
+  decorated. Unless numba already has a folder (``NUMBA_CACHE_DIR``, or ``cache_dir`` in a
+  ``.numba_config.yaml``), pendsim sets ``NUMBA_CACHE_DIR`` to ``cache_folder()``: the user's
+  cache folder for pendsim, one subfolder per numba version (``~/.cache/pendsim/numba-0.68.1``
+  on Linux, ``$XDG_CACHE_HOME`` if set; numba adds one subfolder per source folder). Without
+  it numba writes beside the source (``__pycache__``), falls back to ``~/.cache/numba`` when the
+  source is read-only, and refuses to import a kernel module at all ("cannot cache function")
+  when neither is writable; and environments with different numba versions that share a
+  source tree (editable installs) overwrite each other's entries. Where the user's cache
+  folder is not writable either, the kernels are kept in a temporary folder for this process
+  only (compiled again on every run; the line says so). The variable is set in ``os.environ``,
+  so that child processes (workers, subprocesses) use the same folder.
+- **The notice.** One listener for numba's "numba:compile" event, which numba triggers only
+  when a function is compiled, never when it is loaded from its cache.
 """
 
 from __future__ import annotations
 
+import atexit
 import os
+import shutil
+import tempfile
 from collections.abc import Callable
 from typing import Any
 
-COLD_COMPILE_S = "about 20 s; longer on a busy machine"
-"""What a cold compile of the planar kernels costs (measured on 2 cores: 17-20 s CPU)."""
+COLD_COMPILE_S = "about 5-20 s of CPU; longer on a busy machine"
+"""What a cold compile costs a command (2 cores, 2026-11-26: allan 2-3 s, validate and identify
+13-19 s, a sweep's parallel kernel 11-15 s more)."""
 
 _notice: Callable[[str], None] | None = None
 _said = False
 _watching = False
+_kept = True  # False: the kernels live in a temporary folder for this process only
+
+
+def cache_folder() -> str:
+    """pendsim's default numba cache folder: the user's cache folder for pendsim (numba's own
+    rule: ``$XDG_CACHE_HOME`` or ``~/.cache`` on Linux, ``~/Library/Caches`` on macOS,
+    ``%LOCALAPPDATA%`` on Windows), one subfolder per numba version. numba must be importable."""
+    import numba
+    from numba.misc.appdirs import AppDirs  # numba's copy of appdirs: the rule numba's own cache uses
+
+    return os.path.join(AppDirs(appname="pendsim", appauthor=False).user_cache_dir, f"numba-{numba.__version__}")
+
+
+def _writable(folder: str) -> bool:
+    try:
+        os.makedirs(folder, exist_ok=True)
+        tempfile.TemporaryFile(dir=folder).close()  # as numba checks a cache folder
+    except OSError:
+        return False
+    return True
+
+
+def _use_cache_folder() -> None:
+    """Set ``NUMBA_CACHE_DIR`` to ``cache_folder()`` unless numba has a cache folder already
+    (the module docstring); a temporary one where that is not writable."""
+    global _kept
+    from numba.core import config
+
+    # the user's folder (NUMBA_CACHE_DIR or numba's config file) is respected
+    if config.CACHE_DIR:  # type: ignore[attr-defined]
+        return
+    folder = cache_folder()
+    if not _writable(folder):
+        folder = tempfile.mkdtemp(prefix="pendsim-numba-")
+        atexit.register(shutil.rmtree, folder, ignore_errors=True)
+        _kept = False
+    os.environ["NUMBA_CACHE_DIR"] = folder
+    config.reload_config()  # numba reads its environment again: CACHE_DIR for the decorators that follow
 
 
 def set_notice(notice: Callable[[str], None] | None) -> None:
@@ -37,14 +93,21 @@ def _cache_folder(dispatcher: Any) -> str:
 
 def message(dispatcher: Any) -> str:
     """The line said on a cold compile, naming where the result is kept."""
+    if not _kept:
+        return (
+            f"compiling pendsim's numba kernels ({COLD_COMPILE_S}; not kept: no writable cache folder, "
+            "set NUMBA_CACHE_DIR to one)"
+        )
     return f"compiling pendsim's numba kernels once ({COLD_COMPILE_S}; cached in {_cache_folder(dispatcher)})"
 
 
 def watch() -> None:
-    """Listen for numba compiling (once per process; numba must be importable)."""
+    """Choose the cache folder and listen for numba compiling (once per process; numba must be
+    importable; call it before the module's first ``@numba.njit``)."""
     global _watching
     if _watching:
         return
+    _use_cache_folder()
     from numba.core import event  # start-up: called by modules that have just imported numba
 
     class _Listener(event.Listener):

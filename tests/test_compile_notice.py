@@ -1,31 +1,40 @@
-"""A cold numba cache says so in one line on a terminal, once; a warm one says nothing.
+"""A cold numba cache says so in one line on a terminal, once, before the command's results; a
+warm one says nothing. pendsim's kernels are cached in the user's cache folder, not beside the
+source, unless ``NUMBA_CACHE_DIR`` says otherwise.
 
 ``pendsim allan`` (whose kernels compile in a few seconds) runs twice in a subprocess whose
-standard error is a pseudo-terminal, with ``NUMBA_CACHE_DIR`` an empty folder: the first run
-compiles and prints ``pendsim: compiling pendsim's numba kernels once (...; cached in DIR)``, the
-second loads the cache and prints no such line. numba's "numba:compile" event (what the line
-hangs on) fires only for a real compile, so the test takes its truth from numba, not from time.
+standard output and error are a pseudo-terminal, with ``NUMBA_CACHE_DIR`` an empty folder: the
+first run compiles and prints ``pendsim: compiling pendsim's numba kernels once (...; cached in
+DIR)`` before its table, the second loads the cache and prints no such line. numba's
+"numba:compile" event (what the line hangs on) fires only for a real compile, so the test takes
+its truth from numba, not from time. The cache folder's rule is checked on the smallest kernel
+(``chunk_kernel._u64``, compiled in about a second), with numba's own hit and miss counts.
 """
 
 from __future__ import annotations
 
 import contextlib
 import io
+import json
 import os
 import pty
 import subprocess
 import sys
+from pathlib import Path
+
+import numba
 
 from pendsim_bridge.cli import _say_compiling, main
 
 
 def _stderr_on_a_terminal(args: list[str], env: dict[str, str]) -> str:
+    """What the command wrote to a terminal (standard output and error both: in the order written)."""
     leader, follower = pty.openpty()
     try:
         done = subprocess.run(
             [sys.executable, "-m", "pendsim_bridge.cli", *args],
             stdin=subprocess.DEVNULL,
-            stdout=subprocess.PIPE,
+            stdout=follower,
             stderr=follower,
             env=env,
             timeout=600,
@@ -52,10 +61,13 @@ def test_a_cold_cache_says_it_compiles_once_and_a_warm_one_says_nothing(tmp_path
     cache.mkdir()
     env = {**os.environ, "NUMBA_CACHE_DIR": str(cache), "MPLBACKEND": "Agg"}
     args = ["allan", str(static), "--no-plots"]
-    cold = [line for line in _stderr_on_a_terminal(args, env).splitlines() if "compiling" in line]
+    lines = _stderr_on_a_terminal(args, env).splitlines()
+    cold = [line for line in lines if "compiling" in line]
     assert len(cold) == 1, cold
-    assert cold[0].startswith("pendsim: compiling pendsim's numba kernels once (about 20 s")
+    assert cold[0].startswith("pendsim: compiling pendsim's numba kernels once (about ")
     assert f"cached in {cache}" in cold[0]
+    table = next(i for i, line in enumerate(lines) if line.startswith("m1"))  # the first result row
+    assert lines.index(cold[0]) < table, lines  # said before the results, while compiling
     assert any(cache.rglob("*.nbi"))  # numba did compile into that folder
     warm = _stderr_on_a_terminal(args, env)
     assert "compiling" not in warm, warm
@@ -66,3 +78,62 @@ def test_no_line_when_standard_error_is_not_a_terminal(capsys):
     capsys.readouterr()
     _say_compiling("compiling pendsim's numba kernels once")  # what a cold compile calls
     assert capsys.readouterr().err == ""
+
+
+_SMALLEST_KERNEL = """
+import json, os
+import numpy as np
+from pendsim_bridge.io.mcap import chunk_kernel
+from pendsim_mj import compile_notice
+chunk_kernel._u64(np.zeros(8, np.uint8), 0)
+kernel = chunk_kernel._u64
+print(json.dumps({
+    "variable": os.environ.get("NUMBA_CACHE_DIR"), "path": kernel._cache._cache_path,
+    "hits": sum(kernel.stats.cache_hits.values()), "misses": sum(kernel.stats.cache_misses.values()),
+    "line": compile_notice.message(kernel),
+}))
+"""
+
+
+def _smallest_kernel(tmp_path: Path, **env: str) -> dict:
+    clean = {k: v for k, v in os.environ.items() if k != "NUMBA_CACHE_DIR"}
+    done = subprocess.run(
+        [sys.executable, "-c", _SMALLEST_KERNEL],
+        env={**clean, **env},
+        cwd=tmp_path,  # no .numba_config.yaml here
+        capture_output=True,
+        text=True,
+        timeout=300,
+        check=True,
+    )
+    result: dict = json.loads(done.stdout)
+    return result
+
+
+def test_kernels_are_cached_per_numba_version_in_the_users_cache_folder_not_beside_the_source(tmp_path):
+    xdg = tmp_path / "xdg"
+    folder = xdg / "pendsim" / f"numba-{numba.__version__}"
+    first = _smallest_kernel(tmp_path, XDG_CACHE_HOME=str(xdg))
+    assert first["variable"] == str(folder)  # set for child processes too
+    assert Path(first["path"]).parent == folder  # numba's subfolder per source folder, in pendsim's
+    assert (first["misses"], first["hits"]) == (1, 0)
+    assert f"cached in {first['path']}" in first["line"]
+    again = _smallest_kernel(tmp_path, XDG_CACHE_HOME=str(xdg))  # a new process loads, compiles nothing
+    assert (again["misses"], again["hits"]) == (0, 1)
+
+
+def test_an_explicit_numba_cache_dir_is_respected(tmp_path):
+    mine = tmp_path / "mine"
+    result = _smallest_kernel(tmp_path, NUMBA_CACHE_DIR=str(mine), XDG_CACHE_HOME=str(tmp_path / "xdg"))
+    assert result["variable"] == str(mine)
+    assert Path(result["path"]).parent == mine
+    assert not (tmp_path / "xdg").exists()
+
+
+def test_without_a_writable_cache_folder_the_kernels_still_run_and_the_line_says_so(tmp_path):
+    blocked = tmp_path / "a-file"
+    blocked.write_text("")  # the user's cache folder cannot be made under a file (even as root)
+    result = _smallest_kernel(tmp_path, XDG_CACHE_HOME=str(blocked))
+    assert result["misses"] == 1
+    assert "not kept: no writable cache folder, set NUMBA_CACHE_DIR" in result["line"]
+    assert not Path(result["variable"]).exists()  # the temporary folder went with the process

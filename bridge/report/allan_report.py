@@ -99,7 +99,7 @@ def analyse(
 
     Time on a 2-core machine (a 6 h recording): numba is loaded first (0.3-0.5 s) and the chunks'
     message indexes are checked compiled (``McapFile.chunks``); the deviations are computed on
-    other threads (compiled, without the GIL) while this one imports allantools and calls
+    other threads (compiled, without the GIL) while this one imports scipy.special and calls
     ``while_computing`` (the caller's own imports, e.g. the plotting modules).
 
     Raises:
@@ -117,7 +117,7 @@ def analyse(
         load_kernels()
     with ThreadPoolExecutor(max_workers=1, thread_name_prefix="allan") as pool:
         computing = pool.submit(_deviations, stretches.columns)  # compiled, without the GIL
-        import allantools  # noqa: F401  (start-up: loaded meanwhile, for the confidence intervals)
+        import scipy.special  # noqa: F401  (start-up: loaded meanwhile, for the confidence intervals)
 
         if while_computing is not None:
             while_computing()

@@ -8,9 +8,14 @@
   differences of the phase (the running sum of the data less its mean, built once from the
   recording's own arrays: no joined copy) row by row over all axes, the taus spread over threads
   (one process, no workers), and equals ``allantools.oadev`` to 1e-11 (tests/allan/test_allan.py).
-- **Confidence intervals**: ``allantools.edf_greenhall`` (equivalent degrees of freedom for the
-  overlapping estimator) and ``allantools.confidence_interval`` (chi-squared), with the noise type
-  of each tau identified from the local log-log slope (-1/2 white, 0 flicker, +1/2 random walk).
+- **Confidence intervals**: the equivalent degrees of freedom of the overlapping estimator by
+  Greenhall's algorithm (``edf_overlapping``; C. A. Greenhall and W. J. Riley, "Uncertainty of
+  stability variances based on finite differences", PTTI 2003 / Greenhall 2004), and chi-squared
+  intervals (NIST SP1065 eq. 45), with the noise type of each tau identified from the local
+  log-log slope (-1/2 white, 0 flicker, +1/2 random walk). Both equal ``allantools.edf_greenhall``
+  and ``allantools.confidence_interval`` bit for bit (tests/allan/test_allan.py), without importing
+  allantools and scipy.stats (1.3 s of CPU at start-up, for two small functions): the intervals
+  need only ``scipy.special.gammaincinv``.
 - **Noise terms** read from the curve: white noise N (velocity or angle random walk) as the value
   at tau = 1 s of the slope -1/2 line through the points where the slope is -1/2; rate random
   walk K as the value at tau = 3 s of the slope +1/2 line (sigma = K sqrt(tau / 3)); bias
@@ -26,6 +31,7 @@ from __future__ import annotations
 import dataclasses
 import functools
 import math
+from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
@@ -98,8 +104,18 @@ def adev_of_phase(x: np.ndarray, m: np.ndarray, *, threads: int = 2) -> np.ndarr
     from pendsim_mj.allan import kernel as allan_kernel  # numba (and its compiled kernels) only once needed
 
     x = np.ascontiguousarray(x, dtype=float)
-    kernel = allan_kernel.oadev_parallel if threads > 1 and x.size > 2_000_000 else allan_kernel.oadev_serial
-    return kernel(x, m)
+    if threads <= 1 or x.size <= 2_000_000 or len(m) < 2:
+        return np.asarray(allan_kernel.oadev_serial(x, m))
+    # the taus dealt round-robin over the threads (each tau sums about n rows: even shares), each
+    # share summed by the compiled kernel without the GIL; every tau as the serial kernel sums it
+    out = np.empty((len(m), x.shape[1]))
+    shares = [slice(t, None, threads) for t in range(min(threads, len(m)))]
+    with ThreadPoolExecutor(max_workers=len(shares) - 1, thread_name_prefix="adev") as pool:
+        others = [pool.submit(allan_kernel.oadev_serial, x, m[share]) for share in shares[1:]]
+        out[shares[0]] = allan_kernel.oadev_serial(x, m[shares[0]])
+        for share, done in zip(shares[1:], others, strict=True):
+            out[share] = done.result()
+    return out
 
 
 def load_kernels() -> None:
@@ -168,10 +184,8 @@ def curves_of_deviations(
     n = n_samples
     m = tau_grid(n)
     tau = m / rate_hz
-    import allantools  # (with scipy) only once needed: not while a recording is read
-
     edf_of = functools.cache(
-        lambda al, k: allantools.edf_greenhall(alpha=al, d=2, m=k, N=n + 1, overlapping=True)
+        lambda al, k: edf_overlapping(al, k, n + 1)
     )  # the axes of a record share m and N, and mostly the noise type
     curves = []
     for j in range(adev.shape[1]):
@@ -190,14 +204,104 @@ def curves_of_deviations(
 
 def confidence_interval(dev: np.ndarray, edf: np.ndarray, confidence: float) -> tuple[np.ndarray, np.ndarray]:
     """``allantools.confidence_interval`` (chi-squared, NIST SP1065 eq. 45) for arrays: the
-    (low, high) bounds of the deviations dev (k,) with edf (k,) degrees of freedom."""
-    from scipy.stats import chi2  # start-up: scipy, only for the intervals
+    (low, high) bounds of the deviations dev (k,) with edf (k,) degrees of freedom. The chi-squared
+    quantile is scipy.stats' ``chi2.ppf`` as scipy computes it, 2 gammaincinv(edf / 2, p), without
+    importing scipy.stats (NaN where edf is not positive, as there)."""
+    from scipy.special import gammaincinv  # start-up: scipy.special only, for the intervals
 
     tail = min(abs(confidence), abs(confidence - 1)) / 2
     edf = np.asarray(edf, dtype=float)
-    low = np.sqrt(edf * dev * dev / chi2.ppf(1 - tail, edf))
-    high = np.sqrt(edf * dev * dev / chi2.ppf(tail, edf))
+    with np.errstate(invalid="ignore"):
+        upper = np.where(edf > 0, 2 * gammaincinv(edf / 2, 1 - tail), np.nan)
+        lower = np.where(edf > 0, 2 * gammaincinv(edf / 2, tail), np.nan)
+    low = np.sqrt(edf * dev * dev / upper)
+    high = np.sqrt(edf * dev * dev / lower)
     return low, high
+
+
+# Greenhall's tables (Greenhall 2004, Tables 2 and 3) for the Allan variance (d = 2), by alpha.
+_TABLE2_D2 = {1: (790.0, 410.0), 0: (2.0 / 3.0, 1.0 / 3.0), -1: (0.852, 0.375), -2: (1.079, 0.368)}
+_TABLE3_D2 = (15.23, 12.0)  # alpha = 1
+_J_MAX = 100
+
+
+def edf_overlapping(alpha: int, m: int, n_phase: int) -> float:
+    """Equivalent degrees of freedom of the overlapping Allan variance (second differences, d = 2;
+    stride 1, unmodified) at averaging factor m of n_phase phase points, for the power-law noise
+    alpha (1 flicker PM, 0 white FM, -1 flicker FM, -2 random-walk FM): Greenhall's algorithm
+    (Greenhall 2004, cases 2 and 3 with F = S = m; the same arithmetic as
+    ``allantools.edf_greenhall(alpha, 2, m, n_phase, overlapping=True)``)."""
+    if alpha not in _TABLE2_D2:
+        raise ParameterError(f"edf_overlapping: alpha must be 1, 0, -1 or -2, got {alpha!r}")
+    d = 2
+    length = m / m + m * d  # the filter's length in phase samples
+    big_m = 1 + np.floor(m * (n_phase - length) / m)
+    j = min(big_m, (d + 1) * m)
+    r = big_m / m
+    if alpha <= 0:  # case 2
+        if j <= _J_MAX:
+            f = m if m * (d + 1) <= _J_MAX else math.inf
+            inv = (1.0 / (pow(_sz(0, f, alpha), 2) * big_m)) * _basic_sum(j, big_m, m, f, alpha)
+        elif r > d + 1:
+            a0, a1 = _TABLE2_D2[alpha]
+            inv = (1.0 / r) * (a0 - a1 / r)
+        else:
+            inv = (1.0 / (pow(_sz(0, math.inf, alpha), 2) * _J_MAX)) * _basic_sum(
+                _J_MAX, _J_MAX, _J_MAX / r, math.inf, alpha
+            )
+        return float(1.0 / inv)
+    b0, b1 = _TABLE3_D2  # case 3: alpha = 1
+    if j <= _J_MAX:
+        inv = (1.0 / (pow(_sz(0, m, 1), 2) * big_m)) * _basic_sum(j, big_m, m, m, 1)
+    elif r > d + 1:
+        a0, a1 = _TABLE2_D2[1]
+        inv = (1.0 / (pow(b0 + b1 * np.log(m), 2) * r)) * (a0 - a1 / r)
+    else:
+        m_prime = _J_MAX / r
+        inv = (1.0 / (pow(b0 + b1 * np.log(m), 2) * _J_MAX)) * _basic_sum(_J_MAX, _J_MAX, m_prime, m_prime, 1)
+    return float(1.0 / inv)
+
+
+def _basic_sum(j: float, big_m: float, s: float, f: float, alpha: int) -> float:
+    """Greenhall's basic sum (2004, eq. 10) for d = 2."""
+    first = pow(_sz(0, f, alpha), 2)
+    second = (1 - float(j) / float(big_m)) * pow(_sz(float(j) / float(s), f, alpha), 2)
+    third = 0.0
+    for i in range(1, int(j)):
+        third += 2 * (1.0 - float(i) / float(big_m)) * pow(_sz(float(i) / float(s), f, alpha), 2)
+    return float(first + second + third)
+
+
+def _sz(t: float, f: float, alpha: int) -> float:
+    """Greenhall's s_z (2004, eq. 9) for d = 2: the second difference of s_x."""
+    return (
+        6 * _sx(t, f, alpha) - 4 * _sx(t - 1.0, f, alpha) - 4 * _sx(t + 1.0, f, alpha)
+        + _sx(t - 2.0, f, alpha) + _sx(t + 2.0, f, alpha)
+    )  # fmt: skip
+
+
+def _sx(t: float, f: float, alpha: int) -> float:
+    """Greenhall's s_x (2004, eq. 8)."""
+    if f == math.inf:
+        return _sw(t, alpha + 2)
+    return pow(f, 2) * (2 * _sw(t, alpha) - _sw(t - 1.0 / float(f), alpha) - _sw(t + 1.0 / float(f), alpha))
+
+
+def _sw(t: float, alpha: int) -> float:
+    """Greenhall's s_w (2004, eq. 7): |t|^(1 - alpha) up to sign, with a log for odd alpha."""
+    if alpha == 2:
+        return -np.abs(t)
+    if alpha == 1:
+        return 0 if t == 0 else pow(t, 2) * np.log(np.abs(t))
+    if alpha == 0:
+        return np.abs(pow(t, 3))
+    if alpha == -1:
+        return 0 if t == 0 else pow(t, 4) * np.log(np.abs(t))
+    if alpha == -2:
+        return np.abs(pow(t, 5))
+    if alpha == -3:
+        return 0 if t == 0 else pow(t, 6) * np.log(np.abs(t))
+    return np.abs(pow(t, 7))  # alpha = -4
 
 
 @dataclasses.dataclass(frozen=True)

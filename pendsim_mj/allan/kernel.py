@@ -1,20 +1,27 @@
 """The overlapping Allan deviation's sums, compiled by numba (``pendsim_mj.allan.deviation`` imports this
 module only when it computes: numba and its compiled code stay out of a process until needed).
-The deviations release the GIL: a caller's thread goes on (imports, plots) while they run."""
+The deviations release the GIL: a caller's thread goes on (imports, plots) while they run, and
+``deviation.adev_of_phase`` spreads the taus over threads of its own, each calling
+``oadev_serial`` (no ``parallel=True`` kernel: numba took 4-6 s of CPU to compile one, against
+about 1 s for the serial kernel, on a first run whose target is 8 s)."""
 
 from __future__ import annotations
+
+import math
 
 import numba
 import numpy as np
 
 from pendsim_mj import compile_notice
 
-compile_notice.watch()  # one line on a cold compile (the command line prints it)
+compile_notice.watch()  # the cache folder; one line on a cold compile (the CLI prints it)
 
 
 @numba.njit(cache=True)
-def _oadev_at(x: np.ndarray, k: int) -> np.ndarray:  # pragma: no cover - compiled
-    """The deviation at lag k for each column of the phase x (n+1, a); (a,)."""
+def _oadev_at(x: np.ndarray, k: int, out: np.ndarray) -> None:  # pragma: no cover - compiled
+    """The deviation at lag k for each column of the phase x (n+1, a), into out (a,) (scalar
+    square roots, not an array expression: numba compiles this in a fraction of the time, and
+    sqrt is correctly rounded either way)."""
     n1, a = x.shape
     rows = n1 - 2 * k
     if a == 6:
@@ -25,7 +32,9 @@ def _oadev_at(x: np.ndarray, k: int) -> np.ndarray:  # pragma: no cover - compil
             for j in range(a):
                 d = x[i + 2 * k, j] - 2.0 * x[i + k, j] + x[i, j]
                 total[j] += d * d
-    return np.sqrt(total / (2.0 * k * k * rows))
+    scale = 2.0 * k * k * rows
+    for j in range(a):
+        out[j] = math.sqrt(total[j] / scale)
 
 
 @numba.njit(cache=True)
@@ -51,23 +60,13 @@ def _sums_at_six(x: np.ndarray, k: int) -> np.ndarray:  # pragma: no cover - com
     return np.array([t0, t1, t2, t3, t4, t5])
 
 
-@numba.njit(cache=True, parallel=True, nogil=True)
-def oadev_parallel(x: np.ndarray, m: np.ndarray) -> np.ndarray:  # pragma: no cover - compiled
-    """``oadev_serial`` with the taus spread over numba's threads (each tau summed in one thread,
-    in the same order: the results equal the serial ones bit for bit)."""
-    out = np.empty((len(m), x.shape[1]))
-    for t in numba.prange(len(m)):
-        out[t] = _oadev_at(x, m[t])
-    return out
-
-
 @numba.njit(cache=True, nogil=True)
 def oadev_serial(x: np.ndarray, m: np.ndarray) -> np.ndarray:  # pragma: no cover - compiled
     """sqrt(sum d^2 / (2 m^2 (n+1-2m))) per column of the phase x (n+1, a), d its second
     difference at lag m; (len(m), a). Phase in units of samples: the caller's units cancel."""
     out = np.empty((len(m), x.shape[1]))
     for t in range(len(m)):
-        out[t] = _oadev_at(x, m[t])
+        _oadev_at(x, m[t], out[t])
     return out
 
 
@@ -96,4 +95,3 @@ def warm_up() -> None:
     running_sum_into(x, 0, np.zeros((8, 3), np.float32), np.zeros(3))
     running_sum_into(x, 3, np.zeros((8, 3)), np.zeros(3))
     oadev_serial(x, np.ones(1, np.int64))
-    oadev_parallel(x, np.ones(1, np.int64))

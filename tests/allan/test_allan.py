@@ -21,6 +21,7 @@ from pendsim_mj.allan.deviation import (
     allan_curves,
     check_sampling,
     confidence_interval,
+    edf_overlapping,
     gyro_motion,
     longest_uniform_segment,
     motion_intervals_s,
@@ -30,6 +31,7 @@ from pendsim_mj.allan.deviation import (
     still_samples,
     tau_grid,
 )
+from pendsim_mj.errors import ParameterError
 from pendsim_mj.rig.model import exact_mjcf
 from pendsim_mj.rig.params import DEFAULT_PARAMS
 from pendsim_mj.sensors.bno055 import Bno055, ImuNoise, flicker_noise, static_imu
@@ -292,9 +294,26 @@ def test_allan_longest_segment_analyses_only_the_static_hold_of_a_swinging_recor
 
 def test_confidence_intervals_equal_allantools_per_value():
     dev, edf = np.array([0.1, 0.02, 3.0, 1e-4]), np.array([1.5, 200.0, 7e6, 12.0])
-    low, high = confidence_interval(dev, edf, 0.6827)
-    for k in range(len(dev)):
-        assert (low[k], high[k]) == pytest.approx(allantools.confidence_interval(dev[k], edf[k], ci=0.6827), rel=1e-15)
+    for confidence in (0.6827, 0.95):
+        low, high = confidence_interval(dev, edf, confidence)
+        for k in range(len(dev)):  # scipy.special's quantile as scipy.stats computes it: bit for bit
+            assert (low[k], high[k]) == allantools.confidence_interval(dev[k], edf[k], ci=confidence)
+
+
+@pytest.mark.parametrize("alpha", [1, 0, -1, -2])
+def test_edf_equals_allantools_edf_greenhall_in_every_case(alpha):
+    # Greenhall's cases for d = 2, F = S = m on the taus of short and long records: J <= 100 (2.1a,
+    # 3.1) and r > d + 1 (the tables: 2.2, 3.2); beyond the grid (m > n / 10), J <= 100 with
+    # m (d + 1) > 100 (2.1b: m = 40 of 150) and J > 100 with r <= d + 1 (2.3, 3.3: m = 80 of 400)
+    cases = [(int(m), n) for n in (25, 200, 4001, 1_728_002) for m in tau_grid(n - 1)]
+    for m, n_phase in [*cases, (40, 150), (50, 300), (80, 400)]:
+        expected = allantools.edf_greenhall(alpha=alpha, d=2, m=m, N=n_phase, overlapping=True)
+        assert edf_overlapping(alpha, m, n_phase) == expected, (alpha, m, n_phase)
+
+
+def test_edf_refuses_a_noise_type_the_slopes_never_give():
+    with pytest.raises(ParameterError, match="alpha must be 1, 0, -1 or -2, got 2"):
+        edf_overlapping(2, 10, 1000)
 
 
 def test_no_stretch_is_static_within_the_margin_of_any_nodes_motion():

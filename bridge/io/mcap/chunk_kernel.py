@@ -22,7 +22,7 @@ from pendsim_mj import compile_notice
 
 from ...signals import interrupts_deferred
 
-compile_notice.watch()  # one line on a cold compile (the command line prints it)
+compile_notice.watch()  # the cache folder; one line on a cold compile (the CLI prints it)
 
 MESSAGE_OPCODE = 0x05
 RECORD_HEAD_SIZE = 9  # opcode (1), length (8)

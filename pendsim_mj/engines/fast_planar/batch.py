@@ -1,5 +1,6 @@
 """``integrate``: the batch driver of the compiled RK4 kernel (``kernel._integrate_kernel``), its
-chunks spread over the threads, with the stage (or held) inputs of drives."""
+chunks spread over the threads (``kernel._integrate_serial`` on one thread), with the stage (or
+held) inputs of drives."""
 
 from __future__ import annotations
 
@@ -10,11 +11,11 @@ import numpy as np
 
 from pendsim_mj import compile_notice
 from pendsim_mj.engines.fast_planar.closed_form import NINPUT, FloatArray, _check_coef
-from pendsim_mj.engines.fast_planar.kernel import SUMMARY_ROWS, _integrate_kernel, _summary_kernel
+from pendsim_mj.engines.fast_planar.kernel import SUMMARY_ROWS, _integrate_kernel, _integrate_serial, _summary_kernel
 from pendsim_mj.errors import ParameterError
 from pendsim_mj.rig.drives import NSTAGE
 
-compile_notice.watch()  # one line on a cold compile (the command line prints it)
+compile_notice.watch()  # the cache folder; one line on a cold compile (the CLI prints it)
 
 # Members integrated side by side in one chunk (a multiple of the 8-wide AVX-512 vector); chunks
 # are spread over the cores.
@@ -58,15 +59,20 @@ def _run(
     nthread: int | None,
 ) -> FloatArray:
     """The kernel on min(chunks, threads) threads, from state y0 (5, nbatch) at t = step0 h with
-    the stage inputs (H, NSTAGE, NINPUT, nbatch) (``_held``; H = 0: undriven): a batch that fits one chunk runs on the
-    calling thread alone (no pool wake-up: batch size 1 costs only the integration). Returns
-    (nstep // every + 1, 5, nbatch)."""
+    the stage inputs (H, NSTAGE, NINPUT, nbatch) (``_held``; H = 0: undriven): a batch that fits one
+    chunk runs on the calling thread alone through ``_integrate_serial`` (no thread pool
+    started, and a first run compiles that kernel in about a third of the parallel one's time;
+    the same arithmetic, bit for bit). Returns (nstep // every + 1, 5, nbatch)."""
     nbatch = y0.shape[1]
     threads = _threads(nthread)
     chunk = _chunk(nbatch, threads)
     out = np.empty((nstep // every + 1, 5, nbatch))
+    used = max(1, min(threads, -(-nbatch // chunk)))
+    if nbatch <= chunk:  # one chunk: the serial twin (its loop does not vectorise: many chunks run faster in parallel)
+        _integrate_serial(k, y0, held, step0, nstep, h, every, out, chunk)
+        return out
     previous = numba.get_num_threads()
-    numba.set_num_threads(max(1, min(threads, -(-nbatch // chunk))))
+    numba.set_num_threads(used)
     try:
         _integrate_kernel(k, y0, held, step0, nstep, h, every, out, chunk)
     finally:

@@ -17,7 +17,23 @@ All of them live in this one file: the kernels inline the same helpers (``_accel
 ``sincos``), and numba's ``cache=True`` notices edits only in the file a cached function is
 defined in. The constants they read from ``closed_form`` (the coefficient rows, ``NINPUT``, the
 friction smoothing) are frozen into the cache when compiled: after changing one of those, remove
-this package's ``__pycache__``.
+this package's folder in numba's cache (``pendsim_mj.compile_notice``: ``~/.cache/pendsim/numba-*``
+unless ``NUMBA_CACHE_DIR`` is set).
+
+Compile time: numba inlines a helper marked ``inline="always"`` into every call site at the level
+of its own IR, which costs seconds per nested copy. The kernels inline only where it pays at run
+time (the RK4 step into the batch loop, where the members vectorise; ``_trig``, ``_accel_at`` and
+``_sens_derivative`` into the rates kernel, each written once in its loop over the RK4 stages).
+The sensitivities' partials take the angles' sines and cosines from ``_trig`` (once per stage,
+not per column) and are compiled on their own. The batch loop (``_integrate_chunk``,
+``_summary_chunk``) is inlined into its parallel kernel and the serial twin: compiled on its own
+and called from the parallel loop it ran 2.5-4x slower (the members vectorise only inside the
+parallel loop, where numba marks the arrays as not aliased). The undriven step passes constant
+zero inputs (``_advance``), so the drive terms fold away: reading them from the stage-input array
+made the undriven batch 4.3x slower (0.90 against 0.21 s CPU for 2000 cases of 3000 steps).
+A cold compile of the rates kernel took 71 s of CPU before, 7 s after; the fit's pass runs at
+the same speed (the calibration's, with every force-law sensitivity, within 10 %), with the
+same bits (2026-11-26, 2 cores, load 4-6).
 """
 
 from __future__ import annotations
@@ -48,7 +64,7 @@ from pendsim_mj.engines.fast_planar.closed_form import (
     FloatArray,
 )
 
-compile_notice.watch()  # one line on a cold compile (the command line prints it)
+compile_notice.watch()  # the cache folder; one line on a cold compile (the CLI prints it)
 
 # fdlibm (Sun Microsystems, 1993) constants: pi/2 in three 33-bit pieces and the minimax
 # polynomials of __kernel_sin / __kernel_cos on [-pi/4, pi/4].
@@ -125,16 +141,34 @@ def _resist(w1: float, w2: float, c: tuple[float, ...]) -> tuple[float, float]:
 
 
 @numba.njit(inline="always", cache=True)
+def _trig(p1: float, p2: float) -> tuple[float, float, float, float, float, float]:
+    """(sin phi1, cos phi1, sin phi2, cos phi2, sin(phi2 - phi1), cos(phi2 - phi1)), shared by
+    ``_accel_at`` and the partials (computed once per stage, not per column)."""
+    s1, c1 = sincos(p1)
+    s2, c2 = sincos(p2)
+    return s1, c1, s2, c2, s2 * c1 - c2 * s1, c2 * c1 + s2 * s1
+
+
+@numba.njit(inline="always", cache=True)
 def _accel(
     p1: float, p2: float, w1: float, w2: float, c: tuple[float, ...], u: tuple[float, float, float, float]
 ) -> tuple[float, float]:
     """phi1'', phi2'' with constants c (``_member``) and the inputs u = (tau1, tau2, a_h, a_v)
     (zeros when undriven: the drive terms then add exactly 0), in the reference's order of
     operations."""
-    s1, c1 = sincos(p1)
-    s2, c2 = sincos(p2)
-    sd = s2 * c1 - c2 * s1  # sin(phi2 - phi1)
-    cd = c2 * c1 + s2 * s1  # cos(phi2 - phi1)
+    return _accel_at(_trig(p1, p2), w1, w2, c, u)
+
+
+@numba.njit(inline="always", cache=True)
+def _accel_at(
+    trig: tuple[float, float, float, float, float, float],
+    w1: float,
+    w2: float,
+    c: tuple[float, ...],
+    u: tuple[float, float, float, float],
+) -> tuple[float, float]:
+    """``_accel`` with the angles' ``_trig`` given."""
+    s1, c1, s2, c2, sd, cd = trig
     m1 = c[_KS] * sd - c[_KC] * cd
     m2 = -m1 - c[_FS] * s2 + c[_FC] * c2
     d1, d2 = _resist(w1, w2, c)
@@ -236,6 +270,47 @@ def _advance(
         d[i] = f
 
 
+@numba.njit(inline="always", cache=True)
+def _integrate_chunk(
+    k: FloatArray,
+    y0: FloatArray,
+    held: FloatArray,
+    step0: int,
+    nstep: int,
+    h: float,
+    every: int,
+    out: FloatArray,
+    lo: int,
+    hi: int,
+) -> None:
+    """Members lo..hi-1 side by side (SIMD), as ``_integrate_kernel`` describes, for both kernels.
+    Inlined into each: called as a function compiled on its own, the parallel loop ran 2.5-4x
+    slower (LLVM vectorised the members only inside numba's parallel loop, where the arrays are
+    known not to alias; measured 2026-11-26, numba 0.68)."""
+    m = hi - lo
+    driven = held.shape[0] > 0
+    kc = _chunk_coefficients(k, lo, hi)
+    p1 = y0[0, lo:hi].copy()
+    p2 = y0[1, lo:hi].copy()
+    w1 = y0[2, lo:hi].copy()
+    w2 = y0[3, lo:hi].copy()
+    d = y0[4, lo:hi].copy()
+    u = np.zeros((3, 4, m))  # this step's inputs: stage (start, midpoint, end), channel, member
+    for i in range(m):
+        for q in range(5):
+            out[0, q, lo + i] = y0[q, lo + i]
+    for step in range(nstep):
+        _advance(p1, p2, w1, w2, d, u, held, step0 + step, lo, kc, h, driven)
+        if (step + 1) % every == 0:
+            row = (step + 1) // every
+            for i in range(m):
+                out[row, 0, lo + i] = p1[i]
+                out[row, 1, lo + i] = p2[i]
+                out[row, 2, lo + i] = w1[i]
+                out[row, 3, lo + i] = w2[i]
+                out[row, 4, lo + i] = d[i]
+
+
 @numba.njit(parallel=True, cache=True)
 def _integrate_kernel(
     k: FloatArray,
@@ -255,31 +330,28 @@ def _integrate_kernel(
     r * every steps, (nsave, 5, nbatch).
     """
     n = y0.shape[1]
-    driven = held.shape[0] > 0
     for ci in numba.prange((n + chunk - 1) // chunk):
-        lo = ci * chunk
-        hi = min(n, lo + chunk)
-        m = hi - lo
-        kc = _chunk_coefficients(k, lo, hi)
-        p1 = y0[0, lo:hi].copy()
-        p2 = y0[1, lo:hi].copy()
-        w1 = y0[2, lo:hi].copy()
-        w2 = y0[3, lo:hi].copy()
-        d = y0[4, lo:hi].copy()
-        u = np.zeros((3, 4, m))  # this step's inputs: stage (start, midpoint, end), channel, member
-        for i in range(m):
-            for q in range(5):
-                out[0, q, lo + i] = y0[q, lo + i]
-        for step in range(nstep):
-            _advance(p1, p2, w1, w2, d, u, held, step0 + step, lo, kc, h, driven)
-            if (step + 1) % every == 0:
-                row = (step + 1) // every
-                for i in range(m):
-                    out[row, 0, lo + i] = p1[i]
-                    out[row, 1, lo + i] = p2[i]
-                    out[row, 2, lo + i] = w1[i]
-                    out[row, 3, lo + i] = w2[i]
-                    out[row, 4, lo + i] = d[i]
+        _integrate_chunk(k, y0, held, step0, nstep, h, every, out, ci * chunk, min(n, ci * chunk + chunk))
+
+
+@numba.njit(cache=True)
+def _integrate_serial(
+    k: FloatArray,
+    y0: FloatArray,
+    held: FloatArray,
+    step0: int,
+    nstep: int,
+    h: float,
+    every: int,
+    out: FloatArray,
+    chunk: int,
+) -> None:
+    """``_integrate_kernel`` on the calling thread, chunk after chunk (the same arithmetic, bit for
+    bit): what a run on one thread calls. numba compiles it in about a third of the parallel
+    kernel's time (no parallel loop to lower), and calling it starts no thread pool."""
+    n = y0.shape[1]
+    for ci in range((n + chunk - 1) // chunk):
+        _integrate_chunk(k, y0, held, step0, nstep, h, every, out, ci * chunk, min(n, ci * chunk + chunk))
 
 
 # --- a sweep's pass: the features' reductions on the fly, no stored trajectory -----------------
@@ -432,20 +504,21 @@ def _summary_kernel(
 # --- rates at given instants, with their exact sensitivities (the damping fit) -----------------
 
 
-@numba.njit(inline="always", cache=True)
+@numba.njit(cache=True)
 def _accel_partials(
-    p1: float, p2: float, w1: float, w2: float, c: tuple[float, ...], u: tuple[float, float, float, float]
+    trig: tuple[float, float, float, float, float, float],
+    w1: float,
+    w2: float,
+    c: tuple[float, ...],
+    u: tuple[float, float, float, float],
 ) -> tuple[float, float, float, float, float, float, float, float, float, float]:
     """d(phi1'', phi2'')/d(phi1, phi2, omega_n) and the direct derivatives by b_n, F_n with the held
     inputs u (``_accel``; the torques add no partial, a support acceleration adds
     -m_n OC_n (a_v cos phi_n - a_h sin phi_n) / J_n to d phi_n'' / d phi_n):
     (a1_p1, a1_p2, a1_w1, a2_p1, a2_p2, a2_w2, a1_b1, a2_b2, a1_F1, a2_F2), from the equations of
     the module docstring (d = phi2 - phi1; s(w) = w / sqrt(w^2 + w_s^2), s'(w) = w_s^2 / (w^2 +
-    w_s^2)^(3/2))."""
-    s1, c1 = sincos(p1)
-    s2, c2 = sincos(p2)
-    sd = s2 * c1 - c2 * s1
-    cd = c2 * c1 + s2 * s1
+    w_s^2)^(3/2)); trig: ``_trig`` of the state's angles."""
+    s1, c1, s2, c2, sd, cd = trig
     coupling = c[_KS] * cd + c[_KC] * sd  # d M1 / d phi2 = -d M1 / d phi1
     q1 = w1 * w1 + _SMOOTH2
     q2 = w2 * w2 + _SMOOTH2
@@ -467,22 +540,24 @@ def _accel_partials(
     )
 
 
-@numba.njit(inline="always", cache=True)
+@numba.njit(cache=True)
 def _coef_partial(
-    p1: float, p2: float, w1: float, w2: float, c: tuple[float, ...], u: tuple[float, float, float, float], code: int
+    trig: tuple[float, float, float, float, float, float],
+    a1: float,
+    a2: float,
+    c: tuple[float, ...],
+    u: tuple[float, float, float, float],
+    code: int,
 ) -> tuple[float, float]:
     """The direct derivative of (phi1'', phi2'') by one force-law constant, ``wrt`` code 8 + its
     index in COEF_SENSITIVITIES (J1, J2, m1 g OC1, m2 g OC2, K_s, K_c, F_s, F_c, m1 OC1, m2 OC2),
     from the equations of ``closed_form`` (d = phi2 - phi1): d phi_n'' / d J_n = -phi_n'' / J_n;
-    the others enter phi_n'' linearly, divided by J_n."""
-    s1, c1 = sincos(p1)
-    s2, c2 = sincos(p2)
-    sd = s2 * c1 - c2 * s1
-    cd = c2 * c1 + s2 * s1
+    the others enter phi_n'' linearly, divided by J_n. trig: ``_trig`` of the state's angles;
+    a1, a2: ``_accel`` at the state (with u)."""
+    s1, c1, s2, c2, sd, cd = trig
     j1 = 1.0 / c[_J1]
     j2 = 1.0 / c[_J2]
     if code == 8 or code == 9:
-        a1, a2 = _accel(p1, p2, w1, w2, c, u)
         return (-a1 * j1, 0.0) if code == 8 else (0.0, -a2 * j2)
     if code == 10:
         return -s1 * j1, 0.0
@@ -503,12 +578,14 @@ def _coef_partial(
 
 @numba.njit(inline="always", cache=True)
 def _sens_derivative(
-    p1: float, p2: float, w1: float, w2: float, c: tuple[float, ...], u: tuple[float, float, float, float],
-    wrt: NDArray[np.int64], s: FloatArray, out: FloatArray,
+    trig: tuple[float, float, float, float, float, float], w1: float, w2: float, c: tuple[float, ...],
+    u: tuple[float, float, float, float], a1: float, a2: float, wrt: NDArray[np.int64], s: FloatArray,
+    out: FloatArray,
 ) -> None:  # fmt: skip
     """d/dt of the sensitivities s (4, P) of (phi1, phi2, omega1, omega2) at the state given, into
-    out (4, P): the variational equations of the rig with the held inputs u."""
-    a1p1, a1p2, a1w1, a2p1, a2p2, a2w2, a1b1, a2b2, a1f1, a2f2 = _accel_partials(p1, p2, w1, w2, c, u)
+    out (4, P): the variational equations of the rig with the held inputs u (trig: ``_trig`` of
+    the state's angles; a1, a2: ``_accel`` there, which the caller has computed)."""
+    a1p1, a1p2, a1w1, a2p1, a2p2, a2w2, a1b1, a2b2, a1f1, a2f2 = _accel_partials(trig, w1, w2, c, u)
     for col in range(s.shape[1]):
         out[0, col] = s[2, col]
         out[1, col] = s[3, col]
@@ -524,7 +601,7 @@ def _sens_derivative(
         elif code == 7:
             out[3, col] += a2f2
         elif code >= 8:  # a force-law constant (calibration): its direct derivative of the accelerations
-            d1, d2 = _coef_partial(p1, p2, w1, w2, c, u, code)
+            d1, d2 = _coef_partial(trig, a1, a2, c, u, code)
             out[2, col] += d1
             out[3, col] += d2
 
@@ -587,8 +664,9 @@ def _rates_kernel(
     ks = np.zeros((4, 4, npar))  # the four stages' d/dt of s
     st = np.zeros((4, npar))  # a stage's s
     p1, p2, w1, w2 = y0[0], y0[1], y0[2], y0[3]
-    a1, a2 = _accel(p1, p2, w1, w2, c, zero)
-    _sens_derivative(p1, p2, w1, w2, c, zero, wrt, s, ks[0])
+    tp = _trig(p1, p2)
+    a1, a2 = _accel_at(tp, w1, w2, c, zero)
+    _sens_derivative(tp, w1, w2, c, zero, a1, a2, wrt, s, ks[0])
     n1 = np.searchsorted(at1, tau)
     n2 = np.searchsorted(at2, tau)
     m1, m2 = len(at1), len(at2)
@@ -602,49 +680,62 @@ def _rates_kernel(
     hh = 0.5 * h
     h6 = h / 6.0
     ends = np.zeros((2, 2, npar))  # at the step's start: each node's s of omega and of alpha
+    v1 = v2 = f1 = f2 = x1 = x2 = g1 = g2 = y1 = y2 = i1 = i2 = 0.0  # the stages' rates and accelerations
+    np1, np2, nw1, nw2, na1, na2 = p1, p2, w1, w2, a1, a2  # the step's end: state and acceleration
     for step in range(nstep):
-        if driven:  # this step's inputs: the start's alpha and the variational slope with them
+        if driven:  # this step's inputs
             inp0 = (held[step, 0, 0], held[step, 0, 1], held[step, 0, 2], held[step, 0, 3])
             inp = (held[step, 1, 0], held[step, 1, 1], held[step, 1, 2], held[step, 1, 3])
             inp1 = (held[step, 2, 0], held[step, 2, 1], held[step, 2, 2], held[step, 2, 3])
-            a1, a2 = _accel(p1, p2, w1, w2, c, inp0)
-            if npar:
-                _sens_derivative(p1, p2, w1, w2, c, inp0, wrt, s, ks[0])
-        # RK4 of the state, in _rk4's order of operations, and of s alongside (each stage with
-        # the inputs at its time: the variational step is the exact derivative of this step)
-        q1, q2, v1, v2 = p1 + hh * w1, p2 + hh * w2, w1 + hh * a1, w2 + hh * a2
-        f1, f2 = _accel(q1, q2, v1, v2, c, inp)
-        r1, r2, x1, x2 = p1 + hh * v1, p2 + hh * v2, w1 + hh * f1, w2 + hh * f2
-        g1, g2 = _accel(r1, r2, x1, x2, c, inp)
-        t1, t2, y1, y2 = p1 + h * x1, p2 + h * x2, w1 + h * g1, w2 + h * g2
-        i1, i2 = _accel(t1, t2, y1, y2, c, inp1)
-        np1 = p1 + h6 * (((w1 + 2.0 * v1) + 2.0 * x1) + y1)
-        np2 = p2 + h6 * (((w2 + 2.0 * v2) + 2.0 * x2) + y2)
-        nw1 = w1 + h6 * (((a1 + 2.0 * f1) + 2.0 * g1) + i1)
-        nw2 = w2 + h6 * (((a2 + 2.0 * f2) + 2.0 * g2) + i2)
-        na1, na2 = _accel(np1, np2, nw1, nw2, c, inp1)
-        if npar:
-            for col in range(npar):
-                for r in range(4):
-                    st[r, col] = s[r, col] + hh * ks[0, r, col]
-            _sens_derivative(q1, q2, v1, v2, c, inp, wrt, st, ks[1])
-            for col in range(npar):
-                for r in range(4):
-                    st[r, col] = s[r, col] + hh * ks[1, r, col]
-            _sens_derivative(r1, r2, x1, x2, c, inp, wrt, st, ks[2])
-            for col in range(npar):
-                for r in range(4):
-                    st[r, col] = s[r, col] + h * ks[2, r, col]
-            _sens_derivative(t1, t2, y1, y2, c, inp1, wrt, st, ks[3])
-            for col in range(npar):
-                for n in range(2):
-                    ends[n, 0, col] = s[2 + n, col]
-                    ends[n, 1, col] = ks[0, 2 + n, col]
-                for r in range(4):
-                    s[r, col] = s[r, col] + h6 * (
-                        ((ks[0, r, col] + 2.0 * ks[1, r, col]) + 2.0 * ks[2, r, col]) + ks[3, r, col]
-                    )
-            _sens_derivative(np1, np2, nw1, nw2, c, inp1, wrt, s, ks[0])
+        # RK4 of the state, in _rk4's order of operations, and of s alongside (each stage with the
+        # inputs at its time: the variational step is the exact derivative of this step). One
+        # evaluation per stage, written once (numba compiles each written call site): 0 the step's
+        # start (driven only: undriven, the previous step's end holds it), 1 and 2 the midpoints,
+        # 3 the end, 4 the new state (the start of the next step).
+        for stage in range(0 if driven else 1, 5):
+            if stage == 0:
+                e1, e2, o1, o2, u = p1, p2, w1, w2, inp0
+            elif stage == 1:
+                e1, e2, o1, o2, u = p1 + hh * w1, p2 + hh * w2, w1 + hh * a1, w2 + hh * a2, inp
+            elif stage == 2:
+                e1, e2, o1, o2, u = p1 + hh * v1, p2 + hh * v2, w1 + hh * f1, w2 + hh * f2, inp
+            elif stage == 3:
+                e1, e2, o1, o2, u = p1 + h * x1, p2 + h * x2, w1 + h * g1, w2 + h * g2, inp1
+            else:
+                e1 = p1 + h6 * (((w1 + 2.0 * v1) + 2.0 * x1) + y1)
+                e2 = p2 + h6 * (((w2 + 2.0 * v2) + 2.0 * x2) + y2)
+                o1 = w1 + h6 * (((a1 + 2.0 * f1) + 2.0 * g1) + i1)
+                o2 = w2 + h6 * (((a2 + 2.0 * f2) + 2.0 * g2) + i2)
+                u = inp1
+            trig = _trig(e1, e2)
+            b1, b2 = _accel_at(trig, o1, o2, c, u)
+            if stage == 0:
+                a1, a2 = b1, b2
+            elif stage == 1:
+                v1, v2, f1, f2 = o1, o2, b1, b2
+            elif stage == 2:
+                x1, x2, g1, g2 = o1, o2, b1, b2
+            elif stage == 3:
+                y1, y2, i1, i2 = o1, o2, b1, b2
+            else:
+                np1, np2, nw1, nw2, na1, na2 = e1, e2, o1, o2, b1, b2
+            if not npar:
+                continue
+            if 1 <= stage <= 3:  # the stage's s from the previous stage's slope
+                frac = h if stage == 3 else hh
+                for col in range(npar):
+                    for r in range(4):
+                        st[r, col] = s[r, col] + frac * ks[stage - 1, r, col]
+            elif stage == 4:  # the step's s
+                for col in range(npar):
+                    for n in range(2):
+                        ends[n, 0, col] = s[2 + n, col]
+                        ends[n, 1, col] = ks[0, 2 + n, col]
+                    for r in range(4):
+                        s[r, col] = s[r, col] + h6 * (
+                            ((ks[0, r, col] + 2.0 * ks[1, r, col]) + 2.0 * ks[2, r, col]) + ks[3, r, col]
+                        )
+            _sens_derivative(trig, o1, o2, c, u, b1, b2, wrt, st if 1 <= stage <= 3 else s, ks[stage % 4])
         last = step == nstep - 1
         for node in range(2):
             at = at1 if node == 0 else at2
