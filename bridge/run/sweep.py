@@ -469,10 +469,12 @@ class SweepStore:
                         )
                     pending.append(part)
                     rows += part.num_rows
-                    if rows >= ROW_GROUP_ROWS:
-                        writer.write_table(pa.concat_tables(pending).cast(schema), row_group_size=ROW_GROUP_ROWS)
-                        pending, rows = [], 0
-                if pending:
+                    if rows >= ROW_GROUP_ROWS:  # whole row groups out, the rest waits for the next parts
+                        held = pa.concat_tables(pending).cast(schema)
+                        whole = rows - rows % ROW_GROUP_ROWS
+                        writer.write_table(held.slice(0, whole), row_group_size=ROW_GROUP_ROWS)
+                        pending, rows = [held.slice(whole)], rows - whole
+                if rows:
                     writer.write_table(pa.concat_tables(pending).cast(schema), row_group_size=ROW_GROUP_ROWS)
         return path
 

@@ -159,11 +159,23 @@ def test_a_worker_killed_mid_sweep_loses_only_its_task_which_is_retried(serial_r
             plots=False,
             on_task_done=kill_a_busy_worker,
         )
+        # each worker process loaded the kernels once, not per task (numba's dispatcher counts
+        # every load from the cache and every compile, per signature)
+        loads = client.run(
+            lambda: {
+                name: sum(getattr(kernel, name).stats.cache_hits.values())
+                + sum(getattr(kernel, name).stats.cache_misses.values())
+                for name in ("_integrate_kernel", "_integrate_serial")
+                for kernel in [__import__("pendsim_mj.engines.fast_planar.kernel", fromlist=["kernel"])]
+            }
+        )
         runs: dict[str, int] = {}
         for entry in cluster.scheduler.transition_log:
             if str(entry[0]).startswith("pendsim-sweep") and entry[2] == "processing":
                 runs[str(entry[0])] = runs.get(str(entry[0]), 0) + 1
     assert len(killed) == 1 and _all_gone(set(killed))
+    per_worker = [n["_integrate_kernel"] for n in loads.values()]  # 40 tasks over 2 (then 3) processes
+    assert len(per_worker) == 2 and max(per_worker) == 1, loads
     assert len(runs) == 40 and max(runs.values()) >= 2  # the killed worker's task ran again elsewhere
     assert summary.tasks == 40 and len(list((tmp_path / "killed" / "parts").iterdir())) == 40  # each written once
     _assert_same_rows(serial_rows, pq.read_table(summary.results))

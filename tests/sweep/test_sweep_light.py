@@ -113,3 +113,41 @@ def test_a_diverging_case_is_flagged_on_the_light_path_as_on_the_stored_one():
     full = run_task(plan, table, np.arange(2), keep_trajectories=True).features
     assert light.diverged.tolist() == full.diverged.tolist() == [False, True]
     assert np.isnan(light.values[1]).all() and math.isfinite(light.column("freq1_hz")[0])
+
+
+def test_tasks_are_ranges_of_case_ids_cut_at_the_gaps_a_resume_leaves():
+    from pendsim_bridge.run.sweep import contiguous_tasks
+
+    tasks = contiguous_tasks(np.array([0, 1, 2, 3, 7, 8, 9, 12]), 3)
+    assert [t.tolist() for t in tasks] == [[0, 1, 2], [3], [7, 8, 9], [12]]
+    assert contiguous_tasks(np.zeros(0, dtype=np.int64), 3) == []
+
+
+def test_results_are_streamed_part_by_part_into_row_groups_in_case_order(tmp_path, monkeypatch):
+    # parts of 7 cases; two of them deleted and recomputed by a resume with tasks of 10 (which
+    # must not span the gap); results.parquet written in row groups of 16 rows
+    import pyarrow.parquet as pq
+
+    from pendsim_bridge.run import sweep as sweep_run
+
+    plan = SweepPlan.from_mapping({"method": "random", "samples": 100, "seed": 2, "duration_s": 2.0,
+                                   "features": ["amplitude", "energy"],
+                                   "vary": {"phi1_deg": {"from": 5, "to": 90}}})  # fmt: skip
+    sweep_run.run_sweep(plan, tmp_path / "whole", cases_per_task=7, progress=False, plots=False)
+    out = tmp_path / "resumed"
+    sweep_run.run_sweep(plan, out, cases_per_task=7, progress=False, plots=False)
+    for first in (7, 21):
+        (out / "parts" / f"part-{first:09d}.parquet").unlink()
+    (out / "results.parquet").unlink()
+    monkeypatch.setattr(sweep_run, "ROW_GROUP_ROWS", 16)
+    summary = sweep_run.run_sweep(plan, out, cases_per_task=10, progress=False, plots=False)
+    assert (summary.computed, summary.resumed, summary.tasks) == (14, 86, 2)
+    for part in (out / "parts").glob("part-*.parquet"):
+        ids = pq.read_table(part, columns=["case_id"]).column("case_id").to_numpy()
+        assert np.array_equal(ids, np.arange(ids[0], ids[0] + len(ids))) and int(part.stem[5:]) == ids[0]
+    streamed = pq.ParquetFile(out / "results.parquet")
+    assert streamed.metadata.num_row_groups == 7 and streamed.metadata.row_group(0).num_rows == 16
+    got, expected = streamed.read(), pq.read_table(tmp_path / "whole" / "results.parquet")
+    assert got.schema.metadata == expected.schema.metadata and got.column_names == expected.column_names
+    for name in got.column_names:
+        assert np.array_equal(got.column(name).to_numpy(), expected.column(name).to_numpy(), equal_nan=True), name
