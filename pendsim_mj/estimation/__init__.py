@@ -21,6 +21,8 @@ Modules and their jobs:
 - ``spatial_identification``: tilt stiffness and damping of the support on the spatial model.
 - ``comparison``: planar against spatial runs (frequencies, amplitudes, differences).
 - ``analysis``: frequencies, amplitudes, beats, log decrement and run summaries of series.
+- ``spectral_peaks``: ``analysis``'s spectral peak and second-peak ratio of many rows at once
+  (a quarter-length transform and exact refinement: what a sweep computes).
 - ``least_squares``: the room's nonlinear least-squares solvers and which fit uses which.
 
 Importing this package imports none of them (no MuJoCo, numba or scipy): each name below is

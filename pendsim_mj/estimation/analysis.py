@@ -25,6 +25,20 @@ def _check_series(t_s: np.ndarray, x: np.ndarray) -> tuple[np.ndarray, np.ndarra
     return t, y
 
 
+def checked_rows(t_s: np.ndarray, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """t_s (n,) and rows x (m, n) as float arrays, checked: uniformly shaped, n >= 8.
+
+    Raises:
+      ParameterError: the shapes do not match, or fewer than 8 samples.
+    """
+    t = np.asarray(t_s, dtype=float)
+    rows = np.asarray(x, dtype=float)
+    if rows.ndim != 2 or rows.shape[1:] != t.shape:
+        raise ParameterError(f"expected x of shape (m, {t.shape[0] if t.ndim == 1 else 'n'}), got {rows.shape}")
+    _check_series(t, rows[0] if len(rows) else t)
+    return t, rows
+
+
 def noise_level(x: np.ndarray) -> float:
     """A robust estimate of the white-noise sigma of a smooth signal plus noise: the median
     absolute deviation of its second differences / sqrt(6) (the signal's own curvature adds to
@@ -71,11 +85,7 @@ _SPECTRUM_BYTES = 64 * 2**20
 def spectral_peak_hz_batch(t_s: np.ndarray, x: np.ndarray, max_hz: float = np.inf, min_hz: float = 0.0) -> np.ndarray:
     """``spectral_peak_hz`` of each row of x (m, n) sampled at t_s (n,): (m,) Hz, in blocks of rows
     of bounded memory. A row with a non-finite value gives NaN."""
-    t = np.asarray(t_s, dtype=float)
-    rows = np.asarray(x, dtype=float)
-    if rows.ndim != 2 or rows.shape[1:] != t.shape:
-        raise ParameterError(f"expected x of shape (m, {t.shape[0] if t.ndim == 1 else 'n'}), got {rows.shape}")
-    _check_series(t, rows[0] if len(rows) else t)
+    t, rows = checked_rows(t_s, x)
     n = len(t)
     dt = (t[-1] - t[0]) / (n - 1)
     nfft = padded_length(n)
@@ -101,7 +111,7 @@ def spectral_peak_hz_batch(t_s: np.ndarray, x: np.ndarray, max_hz: float = np.in
         with np.errstate(divide="ignore", invalid="ignore"):
             shift = np.where(inside & (denom != 0), 0.5 * (a - c) / np.where(denom != 0, denom, 1.0), 0.0)
         freq = (k + shift) / (nfft * dt)
-        freq[~np.any(y != 0, axis=1)] = 0.0
+        freq[~np.any(y != y[:, :1], axis=1)] = 0.0  # a constant row (zero included) has no frequency
         freq[~np.all(np.isfinite(y), axis=1)] = np.nan
         out[lo : lo + block] = freq
     return out
@@ -118,11 +128,7 @@ def second_peak_ratio_batch(t_s: np.ndarray, x: np.ndarray) -> np.ndarray:
     0 for a single peak or a constant row, NaN for a row with a non-finite value. A row whose
     padded spectrum would exceed the memory bound is transformed with less padding (at least its
     own length, rounded up to a power of two)."""
-    t = np.asarray(t_s, dtype=float)
-    rows = np.asarray(x, dtype=float)
-    if rows.ndim != 2 or rows.shape[1:] != t.shape:
-        raise ParameterError(f"expected x of shape (m, {t.shape[0] if t.ndim == 1 else 'n'}), got {rows.shape}")
-    _check_series(t, rows[0] if len(rows) else t)
+    t, rows = checked_rows(t_s, x)
     n = len(t)
     nfft = padded_length(n)
     while 16 * (nfft // 2 + 1) > _SPECTRUM_BYTES and nfft >= 2 * n:

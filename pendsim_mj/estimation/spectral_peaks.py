@@ -41,8 +41,7 @@ import scipy.fft
 from numpy.typing import NDArray
 
 from pendsim_mj import compile_notice
-from pendsim_mj.errors import ParameterError
-from pendsim_mj.estimation.analysis import padded_length
+from pendsim_mj.estimation.analysis import checked_rows, padded_length
 
 compile_notice.watch()
 
@@ -241,12 +240,9 @@ def peaks_and_ratios(t_s: np.ndarray, x: np.ndarray, *, nthread: int | None = No
     """``spectral_peak_hz_batch(t_s, x)`` and ``second_peak_ratio_batch(t_s, x)`` of every row of
     x (m, n) sampled at t_s (n,), by the method of the module docstring: ((m,) Hz, (m,) ratio).
 
-    A row with a non-finite value gives NaN for both; an all-zero row frequency 0, a constant row
+    A row with a non-finite value gives NaN for both; a constant row (zero included) frequency 0 and
     ratio 0 (as analysis)."""
-    t = np.asarray(t_s, dtype=float)
-    rows = np.asarray(x, dtype=float)
-    if t.ndim != 1 or rows.ndim != 2 or rows.shape[1] != len(t) or len(t) < 8:
-        raise ParameterError(f"expected x of shape (m, n) and t_s of shape (n,), n >= 8; got {rows.shape}, {t.shape}")
+    t, rows = checked_rows(t_s, x)
     n = len(t)
     dt = (t[-1] - t[0]) / (n - 1)
     nfft = padded_length(n)
@@ -268,7 +264,7 @@ def peaks_and_ratios(t_s: np.ndarray, x: np.ndarray, *, nthread: int | None = No
         _refine_kernel(y, coarse, COARSE_FACTOR, nfft, lobe, CANDIDATE_SHARE, peak, share)
         finite = np.all(np.isfinite(raw), axis=1)
         f = peak / (nfft * dt)
-        f[~np.any(raw != 0, axis=1)] = 0.0
+        f[~np.any(raw != raw[:, :1], axis=1)] = 0.0  # a constant row (zero included) has no frequency
         share[~np.any(raw != raw[:, :1], axis=1)] = 0.0
         f[~finite] = np.nan
         share[~finite] = np.nan

@@ -165,7 +165,7 @@ def test_a_worker_killed_mid_sweep_loses_only_its_task_which_is_retried(serial_r
             lambda: {
                 name: sum(getattr(kernel, name).stats.cache_hits.values())
                 + sum(getattr(kernel, name).stats.cache_misses.values())
-                for name in ("_integrate_kernel", "_integrate_serial")
+                for name in ("_integrate_kernel_undriven", "_integrate_serial_undriven")
                 for kernel in [__import__("pendsim_mj.engines.fast_planar.kernel", fromlist=["kernel"])]
             }
         )
@@ -174,7 +174,7 @@ def test_a_worker_killed_mid_sweep_loses_only_its_task_which_is_retried(serial_r
             if str(entry[0]).startswith("pendsim-sweep") and entry[2] == "processing":
                 runs[str(entry[0])] = runs.get(str(entry[0]), 0) + 1
     assert len(killed) == 1 and _all_gone(set(killed))
-    per_worker = [n["_integrate_kernel"] for n in loads.values()]  # 40 tasks over 2 (then 3) processes
+    per_worker = [n["_integrate_kernel_undriven"] for n in loads.values()]  # 40 tasks over 2 (then 3) processes
     assert len(per_worker) == 2 and max(per_worker) == 1, loads
     assert len(runs) == 40 and max(runs.values()) >= 2  # the killed worker's task ran again elsewhere
     assert summary.tasks == 40 and len(list((tmp_path / "killed" / "parts").iterdir())) == 40  # each written once

@@ -68,7 +68,7 @@ def test_the_short_transform_gives_the_padded_transforms_peak_and_ratio_on_awkwa
     exact = ok & (r0 >= RATIO_EXACT_FROM)
     assert exact.sum() >= 55 and np.abs(ratio - r0)[exact].max() <= 1e-8
     assert np.abs(ratio - r0)[ok].max() < RATIO_EXACT_FROM
-    assert freq[-3] == 0.0 and ratio[-2] == 0.0  # all zero: no frequency; constant: no second peak
+    assert freq[-3] == freq[-2] == ratio[-3] == ratio[-2] == 0.0  # zero, constant: no frequency, no second peak
 
 
 def test_light_path_features_equal_the_stored_motion_path_on_1000_cases():

@@ -38,7 +38,7 @@ in ``_accel`` (and in the power of ``_rk4`` if they dissipate) (``kernel``), mir
 ``accelerations``, and test one step against ``reference`` to 1e-12 rad.
 """
 
-from pendsim_mj.engines.fast_planar.batch import CHUNK, integrate, summarise
+from pendsim_mj.engines.fast_planar.batch import CHUNK, SUMMARY_ROWS, integrate, summarise
 from pendsim_mj.engines.fast_planar.closed_form import (
     COEFFICIENTS,
     NCOEF,
@@ -51,7 +51,7 @@ from pendsim_mj.engines.fast_planar.closed_form import (
     spring_lengths,
     spring_moments,
 )
-from pendsim_mj.engines.fast_planar.kernel import SUMMARY_ROWS, sincos
+from pendsim_mj.engines.fast_planar.kernel import sincos
 from pendsim_mj.engines.fast_planar.lyapunov_exponent import lyapunov
 from pendsim_mj.engines.fast_planar.rates import COEF_SENSITIVITIES, SENSITIVITY_NAMES, normal_equations_at, rates_at
 from pendsim_mj.engines.fast_planar.trajectories import solve, solve_batch, solve_blocks

@@ -10,8 +10,13 @@ import numba
 import numpy as np
 
 from pendsim_mj import compile_notice
-from pendsim_mj.engines.fast_planar.closed_form import NINPUT, FloatArray, _check_coef
-from pendsim_mj.engines.fast_planar.kernel import SUMMARY_ROWS, _integrate_kernel, _integrate_serial, _summary_kernel
+from pendsim_mj.engines.fast_planar.closed_form import NINPUT, FloatArray, _check_coef, kinetic_energy, potential_energy
+from pendsim_mj.engines.fast_planar.kernel import (
+    _integrate_kernel,
+    _integrate_kernel_undriven,
+    _integrate_serial,
+    _integrate_serial_undriven,
+)
 from pendsim_mj.errors import ParameterError
 from pendsim_mj.rig.drives import NSTAGE
 
@@ -69,12 +74,14 @@ def _run(
     out = np.empty((nstep // every + 1, 5, nbatch))
     used = max(1, min(threads, -(-nbatch // chunk)))
     if nbatch <= chunk:  # one chunk: the serial twin (its loop does not vectorise: many chunks run faster in parallel)
-        _integrate_serial(k, y0, held, step0, nstep, h, every, out, chunk)
+        serial = _integrate_serial if held.shape[0] else _integrate_serial_undriven
+        serial(k, y0, held, step0, nstep, h, every, out, chunk)
         return out
     previous = numba.get_num_threads()
     numba.set_num_threads(used)
     try:
-        _integrate_kernel(k, y0, held, step0, nstep, h, every, out, chunk)
+        kernel = _integrate_kernel if held.shape[0] else _integrate_kernel_undriven
+        kernel(k, y0, held, step0, nstep, h, every, out, chunk)
     finally:
         numba.set_num_threads(previous)
     return out
@@ -136,6 +143,18 @@ def integrate(
     return _run(k, _initial_state(phi0, omega0), held, 0, int(nstep), float(dt_s), save_every, nthread)
 
 
+# Rows of ``summarise``'s stats: per pendulum n = 1, 2 the largest |phi_n| over the run, over the
+# head window (samples 0..head) and its sample, over the tail window (the last head + 1 samples)
+# and its sample; the total energy at the first sample, its largest value and at the last; the
+# end state; 1.0 where a sample was not finite.
+SUMMARY_ROWS = (
+    "amp1", "amp2", "head1", "head2", "head1_index", "head2_index", "tail1", "tail2", "tail1_index",
+    "tail2_index", "energy_start", "energy_max", "energy_end", "phi1_end", "phi2_end", "omega1_end",
+    "omega2_end", "dissipated_end", "nonfinite",
+)  # fmt: skip
+SUMMARY_BLOCK_BYTES = 16 * 2**20  # states of one block of samples in memory (summarise)
+
+
 def summarise(
     coef: FloatArray,
     phi0_rad: FloatArray,
@@ -149,8 +168,11 @@ def summarise(
     keep_phi: bool = False,
     nthread: int | None = None,
 ) -> tuple[FloatArray, FloatArray | None]:
-    """``integrate``'s pass (the same states, bit for bit) reduced on the fly to what a sweep's
-    features need, so no trajectory is stored: the light path of a sweep.
+    """``integrate``'s states (the same kernel, the same bits) reduced block by block of samples
+    to what a sweep's features need, so no trajectory is held: the light path of a sweep. Each
+    block of samples runs through the kernel from the last block's end state and is folded into
+    running reductions; memory stays within SUMMARY_BLOCK_BYTES of states (plus the angles, when
+    kept).
 
     Args:
       coef, phi0_rad, omega0_rad_s, nstep, dt_s, inputs, save_every, nthread: as ``integrate``;
@@ -161,8 +183,9 @@ def summarise(
 
     Returns:
       stats (len(SUMMARY_ROWS), nbatch): row ``SUMMARY_ROWS.index(name)`` per quantity (amplitudes
-      in rad, sample indices as floats, energies in J, the end state, 1.0 where a sample was not
-      finite); phi (nbatch, 2, nstep // save_every + 1) rad, or None.
+      in rad, sample indices as floats, energies in J: ``kinetic_energy`` + ``potential_energy``,
+      the end state, 1.0 where a sample was not finite); phi (nbatch, 2, nstep // save_every + 1)
+      rad, or None.
     """
     phi0 = np.asarray(phi0_rad, dtype=np.float64)
     omega0 = np.asarray(omega0_rad_s, dtype=np.float64)
@@ -170,29 +193,57 @@ def summarise(
     k = _check_coef(coef, nbatch)
     if isinstance(save_every, bool) or not isinstance(save_every, int) or save_every < 1 or nstep % save_every:
         raise ParameterError(f"save_every must be a whole number >= 1 that divides nstep = {nstep}, got {save_every!r}")
-    nsave = nstep // save_every + 1
-    if not 1 <= head_samples < nsave - 1:
-        raise ParameterError(f"head_samples must be 1 .. {nsave - 2} for {nsave} samples, got {head_samples!r}")
+    last = nstep // save_every
+    if not 1 <= head_samples < last:
+        raise ParameterError(f"head_samples must be 1 .. {last - 1} for {last + 1} samples, got {head_samples!r}")
     held = _held(inputs, nbatch, nstep)
-    stats = np.empty((len(SUMMARY_ROWS), nbatch))
-    phi = np.empty((nbatch, 2, nsave)) if keep_phi else np.empty((0, 2, 0))
-    threads = _threads(nthread)
-    chunk = _chunk(nbatch, threads)
-    previous = numba.get_num_threads()
-    numba.set_num_threads(max(1, min(threads, -(-nbatch // chunk))))
-    try:
-        _summary_kernel(
-            k,
-            _initial_state(phi0, omega0),
-            held,
-            int(nstep),
-            float(dt_s),
-            save_every,
-            int(head_samples),
-            chunk,
-            phi,
-            stats,
-        )
-    finally:
-        numba.set_num_threads(previous)
-    return stats, (phi if keep_phi else None)
+    row = {name: np.zeros(nbatch) for name in SUMMARY_ROWS}
+    phi = np.empty((nbatch, 2, last + 1)) if keep_phi else None
+    block = max(1, SUMMARY_BLOCK_BYTES // (40 * max(1, nbatch)))  # samples per block
+    y = _initial_state(phi0, omega0)
+    tail = last - head_samples
+    r0 = 0  # the block's first sample
+    while r0 <= last:
+        if r0 == 0:
+            states = y[None]  # sample 0
+        else:
+            count = min(block, last - r0 + 1)
+            states = _run(k, y, held, (r0 - 1) * save_every, count * save_every, float(dt_s), save_every, nthread)[1:]
+        _fold(states, r0, head_samples, tail, k, row)
+        if phi is not None:
+            phi[:, :, r0 : r0 + len(states)] = states[:, :2].transpose(2, 1, 0)
+        y = np.ascontiguousarray(states[-1])
+        r0 += len(states)
+    for name, q in (("phi1_end", 0), ("phi2_end", 1), ("omega1_end", 2), ("omega2_end", 3), ("dissipated_end", 4)):
+        row[name] = y[q].copy()
+    return np.stack([row[name] for name in SUMMARY_ROWS]), phi
+
+
+def _fold(states: FloatArray, r0: int, head: int, tail: int, k: FloatArray, row: dict[str, FloatArray]) -> None:
+    """Fold samples r0 .. r0 + len(states) - 1 (states (count, 5, nbatch)) into ``row``: the first
+    of equal maxima kept (numpy's argmax); NaN never wins, "nonfinite" notes it."""
+    r = r0 + np.arange(len(states))
+    mag = np.abs(states[:, :2])  # (count, 2, nbatch)
+    energy = kinetic_energy(states[:, 2], states[:, 3], k) + potential_energy(states[:, 0], states[:, 1], k)
+    row["nonfinite"] = np.maximum(row["nonfinite"], ~np.all(np.isfinite(states[:, :4]), axis=(0, 1)))
+    if r0 == 0:
+        row["energy_start"] = energy[0].copy()
+        row["energy_max"] = np.full_like(energy[0], -np.inf)
+        for n in (1, 2):
+            row[f"amp{n}"] = np.full_like(energy[0], -np.inf)
+            row[f"head{n}"] = np.full_like(energy[0], -np.inf)
+            row[f"tail{n}"] = np.full_like(energy[0], -np.inf)
+    row["energy_max"] = np.fmax(row["energy_max"], np.fmax.reduce(energy, axis=0))
+    row["energy_end"] = energy[-1].copy()
+    for n in (1, 2):
+        m = mag[:, n - 1]
+        row[f"amp{n}"] = np.fmax(row[f"amp{n}"], np.fmax.reduce(m, axis=0))
+        for window, inside in (("head", r <= head), ("tail", r >= tail)):
+            if not inside.any():
+                continue
+            part = m[inside]
+            at = np.argmax(np.nan_to_num(part, nan=-np.inf), axis=0)
+            best = part[at, np.arange(part.shape[1])]
+            better = best > row[f"{window}{n}"]
+            row[f"{window}{n}"] = np.where(better, best, row[f"{window}{n}"])
+            row[f"{window}{n}_index"] = np.where(better, r[inside][at], row[f"{window}{n}_index"])

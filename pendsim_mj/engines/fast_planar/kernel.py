@@ -25,12 +25,12 @@ of its own IR, which costs seconds per nested copy. The kernels inline only wher
 time (the RK4 step into the batch loop, where the members vectorise; ``_trig``, ``_accel_at`` and
 ``_sens_derivative`` into the rates kernel, each written once in its loop over the RK4 stages).
 The sensitivities' partials take the angles' sines and cosines from ``_trig`` (once per stage,
-not per column) and are compiled on their own. The batch loop (``_integrate_chunk``,
-``_summary_chunk``) is inlined into its parallel kernel and the serial twin: compiled on its own
+not per column) and are compiled on their own. The batch loop (``_integrate_chunk``)
+is inlined into the parallel kernel and the serial twin: compiled on its own
 and called from the parallel loop it ran 2.5-4x slower (the members vectorise only inside the
-parallel loop, where numba marks the arrays as not aliased). The undriven step passes constant
-zero inputs (``_advance``), so the drive terms fold away: reading them from the stage-input array
-made the undriven batch 4.3x slower (0.90 against 0.21 s CPU for 2000 cases of 3000 steps).
+parallel loop, where numba marks the arrays as not aliased). The step reads its stage inputs
+from twelve 1-D arrays: reading them from one (3, 4, m) array made the undriven batch 4.3x
+slower (0.90 against 0.21 s CPU for 2000 cases of 3000 steps).
 A cold compile of the rates kernel took 71 s of CPU before, 7 s after; the fit's pass runs at
 the same speed (the calibration's, with every force-law sensitivity, within 10 %), with the
 same bits (2026-11-26, 2 cores, load 4-6).
@@ -226,51 +226,6 @@ def _rk4(
 
 
 @numba.njit(inline="always", cache=True)
-def _advance(
-    p1: FloatArray,
-    p2: FloatArray,
-    w1: FloatArray,
-    w2: FloatArray,
-    d: FloatArray,
-    u: FloatArray,
-    held: FloatArray,
-    step: int,
-    lo: int,
-    kc: tuple[FloatArray, ...],
-    h: float,
-    driven: bool,
-) -> None:
-    """One RK4 step of a chunk's members, the step loop of ``_integrate_kernel``: their states p1,
-    p2, w1, w2, d in place, side by side (the loop vectorises), reading step ``step``'s stage
-    inputs of members lo.. from ``held`` into the scratch u (3, 4, m) when ``driven``."""
-    m = len(p1)
-    if not driven:  # constant zero inputs: the drive terms fold away and the loop vectorises
-        zero = (0.0, 0.0, 0.0, 0.0)
-        for i in range(m):
-            a, b, c, e, f = _rk4(p1[i], p2[i], w1[i], w2[i], d[i], h, _member(kc, i), zero, zero, zero)
-            p1[i] = a
-            p2[i] = b
-            w1[i] = c
-            w2[i] = e
-            d[i] = f
-        return
-    for j in range(3):
-        for q in range(4):
-            for i in range(m):
-                u[j, q, i] = held[step, j, q, lo + i]
-    for i in range(m):
-        u0 = (u[0, 0, i], u[0, 1, i], u[0, 2, i], u[0, 3, i])
-        um = (u[1, 0, i], u[1, 1, i], u[1, 2, i], u[1, 3, i])
-        u1 = (u[2, 0, i], u[2, 1, i], u[2, 2, i], u[2, 3, i])
-        a, b, c, e, f = _rk4(p1[i], p2[i], w1[i], w2[i], d[i], h, _member(kc, i), u0, um, u1)
-        p1[i] = a
-        p2[i] = b
-        w1[i] = c
-        w2[i] = e
-        d[i] = f
-
-
-@numba.njit(inline="always", cache=True)
 def _integrate_chunk(
     k: FloatArray,
     y0: FloatArray,
@@ -285,8 +240,9 @@ def _integrate_chunk(
 ) -> None:
     """Members lo..hi-1 side by side (SIMD), as ``_integrate_kernel`` describes, for both kernels.
     Inlined into each: called as a function compiled on its own, the parallel loop ran 2.5-4x
-    slower (LLVM vectorised the members only inside numba's parallel loop, where the arrays are
-    known not to alias; measured 2026-11-26, numba 0.68)."""
+    slower (LLVM vectorised the members only inside numba's parallel loop; measured 2026-11-26,
+    numba 0.68). The stage inputs live in twelve separate 1-D arrays (zeros when undriven): one
+    (3, 4, m) array made the loop scalar, 4.3x slower."""
     m = hi - lo
     driven = held.shape[0] > 0
     kc = _chunk_coefficients(k, lo, hi)
@@ -295,12 +251,90 @@ def _integrate_chunk(
     w1 = y0[2, lo:hi].copy()
     w2 = y0[3, lo:hi].copy()
     d = y0[4, lo:hi].copy()
-    u = np.zeros((3, 4, m))  # this step's inputs: stage (start, midpoint, end), channel, member
+    a0, a1, a2, a3 = np.zeros(m), np.zeros(m), np.zeros(m), np.zeros(m)  # start of the step
+    b0, b1, b2, b3 = np.zeros(m), np.zeros(m), np.zeros(m), np.zeros(m)  # midpoint
+    c0, c1, c2, c3 = np.zeros(m), np.zeros(m), np.zeros(m), np.zeros(m)  # end
     for i in range(m):
         for q in range(5):
             out[0, q, lo + i] = y0[q, lo + i]
     for step in range(nstep):
-        _advance(p1, p2, w1, w2, d, u, held, step0 + step, lo, kc, h, driven)
+        if driven:
+            t = step0 + step
+            for i in range(m):
+                a0[i], a1[i], a2[i], a3[i] = (
+                    held[t, 0, 0, lo + i],
+                    held[t, 0, 1, lo + i],
+                    held[t, 0, 2, lo + i],
+                    held[t, 0, 3, lo + i],
+                )
+                b0[i], b1[i], b2[i], b3[i] = (
+                    held[t, 1, 0, lo + i],
+                    held[t, 1, 1, lo + i],
+                    held[t, 1, 2, lo + i],
+                    held[t, 1, 3, lo + i],
+                )
+                c0[i], c1[i], c2[i], c3[i] = (
+                    held[t, 2, 0, lo + i],
+                    held[t, 2, 1, lo + i],
+                    held[t, 2, 2, lo + i],
+                    held[t, 2, 3, lo + i],
+                )
+        for i in range(m):
+            u0 = (a0[i], a1[i], a2[i], a3[i])
+            um = (b0[i], b1[i], b2[i], b3[i])
+            u1 = (c0[i], c1[i], c2[i], c3[i])
+            pa, pb, pc, pe, pf = _rk4(p1[i], p2[i], w1[i], w2[i], d[i], h, _member(kc, i), u0, um, u1)
+            p1[i] = pa
+            p2[i] = pb
+            w1[i] = pc
+            w2[i] = pe
+            d[i] = pf
+        if (step + 1) % every == 0:
+            row = (step + 1) // every
+            for i in range(m):
+                out[row, 0, lo + i] = p1[i]
+                out[row, 1, lo + i] = p2[i]
+                out[row, 2, lo + i] = w1[i]
+                out[row, 3, lo + i] = w2[i]
+                out[row, 4, lo + i] = d[i]
+
+
+@numba.njit(inline="always", cache=True)
+def _integrate_chunk_undriven(
+    k: FloatArray,
+    y0: FloatArray,
+    held: FloatArray,
+    step0: int,
+    nstep: int,
+    h: float,
+    every: int,
+    out: FloatArray,
+    lo: int,
+    hi: int,
+) -> None:
+    """``_integrate_chunk`` without inputs: constant zero inputs, so the drive terms fold away and
+    the members vectorise (4.3x faster than reading zeros from the input arrays, 0.21 against
+    0.90 s CPU for 2000 cases of 3000 steps). A kernel of its own, so each compiles only the
+    path it runs (both paths in one kernel took 122 s of CPU to compile)."""
+    m = hi - lo
+    kc = _chunk_coefficients(k, lo, hi)
+    p1 = y0[0, lo:hi].copy()
+    p2 = y0[1, lo:hi].copy()
+    w1 = y0[2, lo:hi].copy()
+    w2 = y0[3, lo:hi].copy()
+    d = y0[4, lo:hi].copy()
+    zero = (0.0, 0.0, 0.0, 0.0)
+    for i in range(m):
+        for q in range(5):
+            out[0, q, lo + i] = y0[q, lo + i]
+    for step in range(nstep):
+        for i in range(m):
+            pa, pb, pc, pe, pf = _rk4(p1[i], p2[i], w1[i], w2[i], d[i], h, _member(kc, i), zero, zero, zero)
+            p1[i] = pa
+            p2[i] = pb
+            w1[i] = pc
+            w2[i] = pe
+            d[i] = pf
         if (step + 1) % every == 0:
             row = (step + 1) // every
             for i in range(m):
@@ -334,6 +368,24 @@ def _integrate_kernel(
         _integrate_chunk(k, y0, held, step0, nstep, h, every, out, ci * chunk, min(n, ci * chunk + chunk))
 
 
+@numba.njit(parallel=True, cache=True)
+def _integrate_kernel_undriven(
+    k: FloatArray,
+    y0: FloatArray,
+    held: FloatArray,
+    step0: int,
+    nstep: int,
+    h: float,
+    every: int,
+    out: FloatArray,
+    chunk: int,
+) -> None:
+    """``_integrate_kernel`` for undriven batches (held empty)."""
+    n = y0.shape[1]
+    for ci in numba.prange((n + chunk - 1) // chunk):
+        _integrate_chunk_undriven(k, y0, held, step0, nstep, h, every, out, ci * chunk, min(n, ci * chunk + chunk))
+
+
 @numba.njit(cache=True)
 def _integrate_serial(
     k: FloatArray,
@@ -354,151 +406,22 @@ def _integrate_serial(
         _integrate_chunk(k, y0, held, step0, nstep, h, every, out, ci * chunk, min(n, ci * chunk + chunk))
 
 
-# --- a sweep's pass: the features' reductions on the fly, no stored trajectory -----------------
-
-# Rows of ``_summary_kernel``'s ``stats`` (nstat, nbatch): per pendulum n = 1, 2 the largest |phi_n|
-# over the run, over the head window (samples 0..head) and its sample, over the tail window (the last
-# head + 1 samples) and its sample; the total energy at the first sample, its largest value over the
-# samples and at the last; the end state; 1.0 where a sample was not finite.
-SUMMARY_ROWS = (
-    "amp1", "amp2", "head1", "head2", "head1_index", "head2_index", "tail1", "tail2", "tail1_index",
-    "tail2_index", "energy_start", "energy_max", "energy_end", "phi1_end", "phi2_end", "omega1_end",
-    "omega2_end", "dissipated_end", "nonfinite",
-)  # fmt: skip
-
-
-@numba.njit(inline="always", cache=True)
-def _energy(p1: float, p2: float, w1: float, w2: float, c: tuple[float, ...]) -> float:
-    """Kinetic + potential energy above rest, J (``closed_form.kinetic_energy`` +
-    ``potential_energy``, the same terms; d = phi2 - phi1)."""
-    s1, c1 = sincos(p1)
-    s2, c2 = sincos(p2)
-    sd = s2 * c1 - c2 * s1
-    cd = c2 * c1 + s2 * s1
-    springs = c[_KS] * (1.0 - cd) - c[_KC] * sd + c[_FS] * (1.0 - c2) - c[_FC] * s2
-    potential = c[_G1] * (1.0 - c1) + c[_G2] * (1.0 - c2) + springs
-    return 0.5 * (c[_J1] * w1 * w1 + c[_J2] * w2 * w2) + potential
-
-
-@numba.njit(inline="always", cache=True)
-def _fold(
-    r: int, last: int, head: int, p1: FloatArray, p2: FloatArray, w1: FloatArray, w2: FloatArray,
-    kc: tuple[FloatArray, ...], acc: FloatArray,
-) -> None:  # fmt: skip
-    """Fold sample r (0..last) of a chunk's members into its accumulators acc (len(SUMMARY_ROWS),
-    m): the window tests are the same for every member, so each loop over the members is
-    branch-free and vectorises (first of equal maxima kept, as numpy's argmax; NaN never wins,
-    and row "nonfinite" notes it)."""
-    m = len(p1)
-    for i in range(m):
-        a1 = abs(p1[i])
-        a2 = abs(p2[i])
-        e = _energy(p1[i], p2[i], w1[i], w2[i], _member(kc, i))
-        acc[0, i] = a1 if (r == 0 or a1 > acc[0, i]) else acc[0, i]
-        acc[1, i] = a2 if (r == 0 or a2 > acc[1, i]) else acc[1, i]
-        acc[11, i] = e if (r == 0 or e > acc[11, i]) else acc[11, i]
-        finite = math.isfinite(p1[i]) and math.isfinite(p2[i]) and math.isfinite(w1[i]) and math.isfinite(w2[i])
-        acc[18, i] = acc[18, i] if finite else 1.0
-        if r == 0:
-            acc[10, i] = e
-        if r == last:
-            acc[12, i] = e
-    if r <= head:
-        for i in range(m):
-            a1 = abs(p1[i])
-            a2 = abs(p2[i])
-            new1 = r == 0 or a1 > acc[2, i]
-            new2 = r == 0 or a2 > acc[3, i]
-            acc[2, i] = a1 if new1 else acc[2, i]
-            acc[4, i] = r if new1 else acc[4, i]
-            acc[3, i] = a2 if new2 else acc[3, i]
-            acc[5, i] = r if new2 else acc[5, i]
-    if r >= last - head:
-        for i in range(m):
-            a1 = abs(p1[i])
-            a2 = abs(p2[i])
-            new1 = r == last - head or a1 > acc[6, i]
-            new2 = r == last - head or a2 > acc[7, i]
-            acc[6, i] = a1 if new1 else acc[6, i]
-            acc[8, i] = r if new1 else acc[8, i]
-            acc[7, i] = a2 if new2 else acc[7, i]
-            acc[9, i] = r if new2 else acc[9, i]
-
-
-@numba.njit(inline="always", cache=True)
-def _summary_chunk(
+@numba.njit(cache=True)
+def _integrate_serial_undriven(
     k: FloatArray,
     y0: FloatArray,
     held: FloatArray,
+    step0: int,
     nstep: int,
     h: float,
     every: int,
-    head: int,
-    phi_out: FloatArray,
-    stats: FloatArray,
-    lo: int,
-    hi: int,
-) -> None:
-    """Members lo..hi-1 of ``_summary_kernel``, side by side (SIMD). Inlined into the parallel
-    kernel: compiled on its own (a plain njit function) the same loop ran 2.5x slower (measured,
-    numba 0.68, 2026-11-26)."""
-    m = hi - lo
-    last = nstep // every
-    driven = held.shape[0] > 0
-    keep_phi = phi_out.shape[0] > 0
-    kc = _chunk_coefficients(k, lo, hi)
-    p1 = y0[0, lo:hi].copy()
-    p2 = y0[1, lo:hi].copy()
-    w1 = y0[2, lo:hi].copy()
-    w2 = y0[3, lo:hi].copy()
-    d = y0[4, lo:hi].copy()
-    u = np.zeros((3, 4, m))
-    acc = np.zeros((stats.shape[0], m))
-    _fold(0, last, head, p1, p2, w1, w2, kc, acc)
-    if keep_phi:
-        for i in range(m):
-            phi_out[lo + i, 0, 0] = p1[i]
-            phi_out[lo + i, 1, 0] = p2[i]
-    for step in range(nstep):
-        _advance(p1, p2, w1, w2, d, u, held, step, lo, kc, h, driven)
-        if (step + 1) % every == 0:
-            r = (step + 1) // every
-            _fold(r, last, head, p1, p2, w1, w2, kc, acc)
-            if keep_phi:
-                for i in range(m):
-                    phi_out[lo + i, 0, r] = p1[i]
-                    phi_out[lo + i, 1, r] = p2[i]
-    for i in range(m):
-        acc[13, i] = p1[i]
-        acc[14, i] = p2[i]
-        acc[15, i] = w1[i]
-        acc[16, i] = w2[i]
-        acc[17, i] = d[i]
-    for q in range(stats.shape[0]):
-        for i in range(m):
-            stats[q, lo + i] = acc[q, i]
-
-
-@numba.njit(parallel=True, cache=True)
-def _summary_kernel(
-    k: FloatArray,
-    y0: FloatArray,
-    held: FloatArray,
-    nstep: int,
-    h: float,
-    every: int,
-    head: int,
+    out: FloatArray,
     chunk: int,
-    phi_out: FloatArray,
-    stats: FloatArray,
 ) -> None:
-    """``_integrate_kernel``'s pass (same chunks, same steps, bit for bit), keeping only what a
-    sweep's features need: at every ``every``-th step (samples r = 0..nstep // every) each member's
-    sample is folded into ``stats`` (len(SUMMARY_ROWS), nbatch) and, when phi_out is
-    (nbatch, 2, nsave) rather than empty, its angles stored there (the frequency's input)."""
+    """``_integrate_serial`` for undriven batches (held empty)."""
     n = y0.shape[1]
-    for ci in numba.prange((n + chunk - 1) // chunk):
-        _summary_chunk(k, y0, held, nstep, h, every, head, phi_out, stats, ci * chunk, min(n, ci * chunk + chunk))
+    for ci in range((n + chunk - 1) // chunk):
+        _integrate_chunk_undriven(k, y0, held, step0, nstep, h, every, out, ci * chunk, min(n, ci * chunk + chunk))
 
 
 # --- rates at given instants, with their exact sensitivities (the damping fit) -----------------
