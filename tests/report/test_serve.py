@@ -95,6 +95,23 @@ def _start_server(rrd: Path, port: int, how: str) -> tuple[subprocess.Popen, str
     return proc, line
 
 
+def _stop(proc: subprocess.Popen, sig: int = signal.SIGINT) -> tuple[str, str]:
+    """Send ``sig`` to the server process and wait for it (60 s). If it does not end, kill it and
+    every process below it (the rerun server it started) before the timeout is raised: a failing
+    test leaves nothing running."""
+    below = list(descendants(proc.pid))
+    proc.send_signal(sig)
+    try:
+        return proc.communicate(timeout=60)
+    except subprocess.TimeoutExpired:
+        for pid in [*descendants(proc.pid), *below]:
+            with contextlib.suppress(OSError):
+                os.kill(pid, signal.SIGKILL)
+        proc.kill()
+        proc.communicate()
+        raise
+
+
 def _wait_gone(pids, timeout_s=10.0) -> list[int]:
     deadline = time.monotonic() + timeout_s
     alive = list(pids)
@@ -126,8 +143,7 @@ def test_serving_is_announced_once_both_ports_listen_on_loopback_and_the_url_ope
         children = descendants(proc.pid)
         assert any("--serve-web" in c for c in children.values())
     finally:
-        proc.send_signal(signal.SIGINT)
-        out, err = proc.communicate(timeout=60)
+        out, err = _stop(proc)
     assert proc.returncode == 0 and "stopped by SIGINT" in out, err
     assert _wait_gone(children) == []
     assert listening_addresses(port) == [] and listening_addresses(port + 1) == []
@@ -157,8 +173,7 @@ def test_the_served_viewer_and_pendsim_sit_idle_while_nobody_watches(rrd):
         busy = (_cpu_ticks(pids) - before) / os.sysconf("SC_CLK_TCK") / (time.monotonic() - start)
         assert busy < 0.25, f"{busy:.0%} of a core while idle"  # a spinning thread: about 100 %
     finally:
-        proc.send_signal(signal.SIGINT)
-        out, err = proc.communicate(timeout=60)
+        out, err = _stop(proc)
     assert proc.returncode == 0 and "stopped by SIGINT" in out, err
 
 
