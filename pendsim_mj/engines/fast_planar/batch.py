@@ -103,6 +103,23 @@ def _held(inputs: FloatArray | None, nbatch: int, nstep: int) -> FloatArray:
     return np.ascontiguousarray(u.transpose(1, 2, 3, 0))
 
 
+def _checked_batch(
+    coef: FloatArray, phi0_rad: FloatArray, omega0_rad_s: FloatArray, nstep: int, save_every: int
+) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """The constants (NCOEF, nbatch) and start states as float arrays, checked; save_every a whole
+    number >= 1 that divides nstep.
+
+    Raises:
+      ParameterError: a shape or save_every out of its range.
+    """
+    phi0 = np.asarray(phi0_rad, dtype=np.float64)
+    omega0 = np.asarray(omega0_rad_s, dtype=np.float64)
+    k = _check_coef(coef, len(phi0))
+    if isinstance(save_every, bool) or not isinstance(save_every, int) or save_every < 1 or nstep % save_every:
+        raise ParameterError(f"save_every must be a whole number >= 1 that divides nstep = {nstep}, got {save_every!r}")
+    return k, phi0, omega0
+
+
 def integrate(
     coef: FloatArray,
     phi0_rad: FloatArray,
@@ -133,12 +150,8 @@ def integrate(
       t = i * save_every * dt_s, the layout of ``reference.integrate``. A member that diverged holds
       non-finite values from then on; nothing is raised here.
     """
-    phi0 = np.asarray(phi0_rad, dtype=np.float64)
-    omega0 = np.asarray(omega0_rad_s, dtype=np.float64)
+    k, phi0, omega0 = _checked_batch(coef, phi0_rad, omega0_rad_s, nstep, save_every)
     nbatch = len(phi0)
-    k = _check_coef(coef, nbatch)
-    if isinstance(save_every, bool) or not isinstance(save_every, int) or save_every < 1 or nstep % save_every:
-        raise ParameterError(f"save_every must be a whole number >= 1 that divides nstep = {nstep}, got {save_every!r}")
     held = _held(inputs, nbatch, nstep)
     return _run(k, _initial_state(phi0, omega0), held, 0, int(nstep), float(dt_s), save_every, nthread)
 
@@ -187,12 +200,8 @@ def summarise(
       the end state, 1.0 where a sample was not finite); phi (nbatch, 2, nstep // save_every + 1)
       rad, or None.
     """
-    phi0 = np.asarray(phi0_rad, dtype=np.float64)
-    omega0 = np.asarray(omega0_rad_s, dtype=np.float64)
+    k, phi0, omega0 = _checked_batch(coef, phi0_rad, omega0_rad_s, nstep, save_every)
     nbatch = len(phi0)
-    k = _check_coef(coef, nbatch)
-    if isinstance(save_every, bool) or not isinstance(save_every, int) or save_every < 1 or nstep % save_every:
-        raise ParameterError(f"save_every must be a whole number >= 1 that divides nstep = {nstep}, got {save_every!r}")
     last = nstep // save_every
     if not 1 <= head_samples < last:
         raise ParameterError(f"head_samples must be 1 .. {last - 1} for {last + 1} samples, got {head_samples!r}")
