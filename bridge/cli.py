@@ -7,7 +7,6 @@ import contextlib
 import os
 import signal
 import sys
-import threading
 from collections.abc import Iterator, Sequence
 
 from pendsim_mj import __version__, compile_notice
@@ -16,7 +15,7 @@ from pendsim_mj.errors import PendsimError
 from . import heap
 from .io.outputs import describe_os_error, replace_hint_as
 from .options import Parser, UsageError
-from .signals import interrupts_deferred
+from .signals import interrupts_deferred, signal_handlers
 
 EXIT_USAGE = 2
 EXIT_INTERRUPTED = 130  # 128 + SIGINT
@@ -52,10 +51,6 @@ def _one_line(text: object) -> str:
 @contextlib.contextmanager
 def _termination_unwinds() -> Iterator[None]:
     """Within the block, SIGTERM and SIGHUP raise ``Terminated`` (main thread only)."""
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
-
     installer = os.getpid()
 
     def terminate(signum: int, frame: object) -> None:
@@ -65,12 +60,8 @@ def _termination_unwinds() -> Iterator[None]:
             return
         raise Terminated(signal.Signals(signum).name)
 
-    previous = {s: signal.signal(s, terminate) for s in (signal.SIGTERM, signal.SIGHUP)}
-    try:
+    with signal_handlers(dict.fromkeys((signal.SIGTERM, signal.SIGHUP), terminate)):
         yield
-    finally:
-        for s, handler in previous.items():
-            signal.signal(s, handler)
 
 
 def _say_compiling(line: str) -> None:

@@ -14,9 +14,44 @@ from __future__ import annotations
 import contextlib
 import signal
 import threading
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator, Mapping
+from typing import Any
 
 DEFERRED = (signal.SIGINT, signal.SIGTERM)
+
+
+Handler = Callable[[int, Any], Any] | int | signal.Handlers | None
+
+
+@contextlib.contextmanager
+def signal_handlers(handlers: Mapping[int, Handler]) -> Iterator[bool]:
+    """Within the block, each signal is handled by its handler (a function, ``signal.SIG_DFL`` or
+    ``signal.SIG_IGN``); after it, every handler from before is back, however the block ends, even
+    when a signal's handler raises while they are being installed or restored (the restoring goes
+    on, then the exception). Left behind, an ignored SIGINT would be inherited by every process
+    started later, which then cannot be stopped with Ctrl-C. Main thread only (where Python lets
+    handlers be set); elsewhere nothing changes and the block gets False."""
+    if threading.current_thread() is not threading.main_thread():
+        yield False
+        return
+    previous: list[tuple[int, Handler]] = []
+    try:
+        for signum, handler in handlers.items():
+            previous.append((signum, signal.getsignal(signum)))
+            signal.signal(signum, handler)
+        yield True
+    finally:
+        _restore(previous)
+
+
+def _restore(previous: list[tuple[int, Handler]]) -> None:
+    if not previous:
+        return
+    (signum, handler), rest = previous[0], previous[1:]
+    try:
+        signal.signal(signum, handler)
+    finally:
+        _restore(rest)
 
 
 @contextlib.contextmanager
@@ -25,19 +60,14 @@ def interrupts_deferred() -> Iterator[None]:
     raised again (``signal.raise_signal``) when the block ends, normally or not, so that the
     handlers installed before (Python's KeyboardInterrupt, a command's own) act on it then.
     Outside the main thread (where signal handlers cannot be set): no effect."""
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
     noted: list[int] = []
 
     def note(signum: int, frame: object) -> None:
         noted.append(signum)
 
-    previous = {s: signal.signal(s, note) for s in DEFERRED}
     try:
-        yield
+        with signal_handlers(dict.fromkeys(DEFERRED, note)):
+            yield
     finally:
-        for s, handler in previous.items():
-            signal.signal(s, handler)
         if noted:
             signal.raise_signal(noted[0])

@@ -36,7 +36,6 @@ import json
 import math
 import signal
 import socket
-import threading
 import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
@@ -49,6 +48,7 @@ from pendsim_mj.sensors.bno055 import SAMPLE_RATE_HZ, ImuSamples, sample_imu
 
 from ..io.outputs import atomic_output
 from ..run.record import RecordSpec, simulate_for
+from ..signals import signal_handlers
 from .packets import GROUP_SLICES, ROW_FIELDS, CsvCodec, JsonCodec, StreamFormat, V1Codec
 from .ports import DEFAULT_NODES, NodeSpec, check_nodes
 
@@ -361,15 +361,8 @@ class EmulatorResult:
 @contextlib.contextmanager
 def _stop_on_signals() -> Iterator[list[int]]:
     stop: list[int] = []
-    if threading.current_thread() is not threading.main_thread():
+    with signal_handlers(dict.fromkeys((signal.SIGINT, signal.SIGTERM), lambda signum, frame: stop.append(signum))):
         yield stop
-        return
-    previous = {s: signal.signal(s, lambda signum, frame: stop.append(signum)) for s in (signal.SIGINT, signal.SIGTERM)}
-    try:
-        yield stop
-    finally:
-        for s, h in previous.items():
-            signal.signal(s, h)
 
 
 def run(

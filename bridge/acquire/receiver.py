@@ -34,7 +34,6 @@ import signal
 import socket
 import struct
 import sys
-import threading
 import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
@@ -52,6 +51,7 @@ from pendsim_mj.units import NS_PER_S, nanoseconds, seconds
 from ..errors import OutputError
 from ..io import ros2
 from ..io.outputs import describe_os_error, publish, replace_hint, temporary_sibling
+from ..signals import signal_handlers
 from .accounting import NodeCounters, NodeStream
 from .clock import MAX_DRIFT_PPM, ClockFit, ClockRelation, jitter_summary_ms, residuals_s
 from .packets import PacketError, StreamFormat
@@ -247,20 +247,13 @@ def _is_loopback(address: str) -> bool:
 def _stop_signals() -> Iterator[list[str]]:
     """SIGINT and SIGTERM set a flag (the loop ends cleanly) instead of raising; restored after."""
     reason: list[str] = []
-    if threading.current_thread() is not threading.main_thread():
-        yield reason
-        return
     names = {signal.SIGINT: "interrupted", signal.SIGTERM: "terminated"}
 
     def handler(signum: int, frame: object) -> None:
         reason.append(names[signal.Signals(signum)])
 
-    previous = {s: signal.signal(s, handler) for s in names}
-    try:
+    with signal_handlers(dict.fromkeys(names, handler)):
         yield reason
-    finally:
-        for s, h in previous.items():
-            signal.signal(s, h)
 
 
 def _utc_iso(t_ns: int) -> str:

@@ -55,7 +55,8 @@ def register(sub: argparse._SubParsersAction[options.Parser]) -> None:
         type=options.choice(("planar", "spatial"), "unknown --model {value!r}; allowed: {allowed}"),
         choices=("planar", "spatial"),
         default="planar",
-        help="planar (default); spatial is not available yet for calibration",
+        help="planar (default), or spatial: the support's tilt stiffness and damping fitted with the rig, on both "
+        "nodes' gyros, all three axes (free decays only; the planes' offset from the stated rig, else 50 mm)",
     )
     p.add_argument(
         "--law",
@@ -109,11 +110,10 @@ def register(sub: argparse._SubParsersAction[options.Parser]) -> None:
 
 def _checked(args: argparse.Namespace) -> dict[str, float]:
     """The options' combinations checked (each alone is checked by its parser); the fixed values."""
-    if args.model == "spatial":
+    if args.model == "spatial" and args.added:
         raise ParameterError(
-            "--model spatial: calibration on the spatial model is not available yet (fitting the tilt after a planar "
-            "calibration leaves the in-plane parameters wrong for it); calibrate with the planar model (the default: "
-            "it names spatial motion when the gyros show it) and check with 'pendsim validate --model spatial'"
+            "--added-mass with --model spatial: not available (the spatial model's inertia tensor of a loaded "
+            "pendulum is not modelled); calibrate the recordings with a known mass on the planar model"
         )
     if args.release_s is not None and len(args.paths) > 1:
         raise ParameterError("--release-s applies to one recording; with several, each one's release is found")
@@ -151,10 +151,12 @@ def run(args: argparse.Namespace) -> int:
         checks=not args.no_checks,
         added={index: (pendulum, mass, radius) for index, pendulum, mass, radius in args.added},
         progress=lambda line: print(line, file=sys.stderr),
+        model=args.model,
     )
     print(report_text(report), end="")
     written = write_outputs(report, out_dir, replace=args.force)
-    use = f"pendsim validate {args.paths[0]} --params-file {out_dir / 'params.json'}"
+    spatial = " --model spatial" if args.model == "spatial" else ""
+    use = f"pendsim validate {args.paths[0]} --params-file {out_dir / 'params.json'}{spatial}"
     print(f"wrote {', '.join(str(p) for p in written)} (use: {use})")
     for line in report.model_error[:1]:
         print(f"pendsim: calibration: {line}", file=sys.stderr)

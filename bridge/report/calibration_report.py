@@ -54,6 +54,7 @@ def report_json(report: CalibrationReport) -> dict[str, Any]:
     cal = report.calibration
     return {
         "recordings": list(report.paths),
+        "model": cal.model,
         "law": cal.law,
         "fixed": dict(report.fixed),
         "free": list(cal.free),
@@ -89,9 +90,11 @@ def report_json(report: CalibrationReport) -> dict[str, Any]:
 def report_text(report: CalibrationReport) -> str:
     """The plain-words report (printed, and calibration.md)."""
     cal = report.calibration
-    out = [f"# Calibration of {len(report.paths)} recording(s), planar model, {cal.law} damping", ""]
+    out = [f"# Calibration of {len(report.paths)} recording(s), {cal.model} model, {cal.law} damping", ""]
     out.append(
-        f"Residual after calibration: {cal.residual_rms_sigma:.2f} gyro noise sigmas rms "
+        f"Residual after calibration: {cal.residual_rms_sigma:.2f} gyro noise sigmas rms"
+        + (" (all three axes of both gyros)" if cal.model == "spatial" else "")
+        + " "
         f"({cal.iterations} iterations, {cal.seconds:.1f} s)."
     )
     out += ["", "## Determined (95 % intervals)", ""]
@@ -118,7 +121,8 @@ def report_text(report: CalibrationReport) -> str:
         out += ["", "## Which recording would determine more", ""]
         out += [f"- {s.describe()}" for s in report.suggestions]
     if report.before:
-        out += ["", "## Validation (MuJoCo from the estimated start, whole run)", ""]
+        model = "the spatial MuJoCo model" if cal.model == "spatial" else "MuJoCo"
+        out += ["", f"## Validation ({model} from the estimated start, whole run)", ""]
         out.append(
             "| recording | rig | max abs dphi1 (rad) | max abs domega2 (rad/s) | IAE phi1 (rad s) | df phi1 (%) |"
         )

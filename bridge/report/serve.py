@@ -32,7 +32,6 @@ import socket
 import subprocess
 import sys
 import tempfile
-import threading
 import time
 import uuid
 from collections.abc import Callable, Iterator
@@ -40,6 +39,7 @@ from pathlib import Path
 from typing import IO
 
 from ..errors import ProcessError
+from ..signals import signal_handlers
 
 STARTUP_TIMEOUT_S = 30.0
 """How long the served viewer may take to listen on both ports (it takes about 1 s)."""
@@ -191,10 +191,6 @@ class Stopped(BaseException):
 @contextlib.contextmanager
 def _signals_stop() -> Iterator[None]:
     """Within the block, SIGTERM and SIGHUP raise ``Stopped`` (main thread only)."""
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
-
     installer = os.getpid()
 
     def raise_stopped(signum: int, frame: object) -> None:
@@ -204,26 +200,26 @@ def _signals_stop() -> Iterator[None]:
             return
         raise Stopped(signal.Signals(signum).name)
 
-    previous = {s: signal.signal(s, raise_stopped) for s in (signal.SIGTERM, signal.SIGHUP)}
-    try:
+    with signal_handlers(dict.fromkeys((signal.SIGTERM, signal.SIGHUP), raise_stopped)):
         yield
-    finally:
-        for s, handler in previous.items():
-            signal.signal(s, handler)
 
 
 @contextlib.contextmanager
-def _signals_ignored() -> Iterator[None]:
-    """Within the block, SIGINT, SIGTERM and SIGHUP wait (so that stopping is never cut short)."""
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
-    previous = {s: signal.signal(s, signal.SIG_IGN) for s in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)}
+def _signals_wait() -> Iterator[None]:
+    """Within the block, SIGINT, SIGTERM and SIGHUP wait (so that stopping is never cut short);
+    the first one is delivered when it ends. (Ignoring them instead would lose a Ctrl-C, and an
+    ignored SIGINT left behind is inherited by every process started later.)"""
+    noted: list[int] = []
+
+    def note(signum: int, frame: object) -> None:
+        noted.append(signum)
+
     try:
-        yield
+        with signal_handlers(dict.fromkeys((signal.SIGINT, signal.SIGTERM, signal.SIGHUP), note)):
+            yield
     finally:
-        for s, handler in previous.items():
-            signal.signal(s, handler)
+        if noted:
+            signal.raise_signal(noted[0])
 
 
 def stop_group(proc: subprocess.Popen[bytes], *, timeout_s: float = STOP_TIMEOUT_S) -> None:
@@ -231,7 +227,7 @@ def stop_group(proc: subprocess.Popen[bytes], *, timeout_s: float = STOP_TIMEOUT
     reap ``proc``. The leader is reaped only after the last signal to the group, so the group id
     cannot have been reused."""
     pgid = proc.pid
-    with _signals_ignored():
+    with _signals_wait():
         with contextlib.suppress(ProcessLookupError):
             os.killpg(pgid, signal.SIGTERM)
         deadline = time.monotonic() + timeout_s

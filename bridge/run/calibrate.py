@@ -8,6 +8,7 @@ validations that show what it changed, and writes the parameter file and the rep
 from __future__ import annotations
 
 import dataclasses
+import math
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 
@@ -18,14 +19,16 @@ from pendsim_mj.calibration.design import suggest
 from pendsim_mj.calibration.fit import LOSSES
 from pendsim_mj.calibration.information import describe_held
 from pendsim_mj.calibration.parameters import ParameterSpace, added_mass_constants
+from pendsim_mj.calibration.spatial import SpatialRun, calibrate_spatial
 from pendsim_mj.errors import ParameterError
 from pendsim_mj.estimation.alignment import DEFAULT_MAX_GAP_S
 from pendsim_mj.estimation.measured_run import MeasuredRun
 from pendsim_mj.rig.params import RigParams
 
-from ..io.measured import align_recording, recording_drive
+from ..io.measured import align_recording, node_samples, recording_drive
 from ..io.recording import DRIVE_TOPIC, NODES, imu_topic, read_recording
 from ..report.calibration_report import CalibrationReport, Metrics
+from .spatial_validate import RELEASE_AT_START_RAD_S, gyro_in_swing_frames, spatial_params, tilt_start_of
 from .validate import validate
 
 MODEL_ERROR_SIGMAS = 1.5  # a residual rms above this many noise sigmas after calibration is model error
@@ -35,9 +38,16 @@ SPATIAL_SIGMAS = 3.0  # rotation across the hinge above this many gyro noise sig
 INCONSISTENT_RATIO = 1.3  # a recording whose joint-fit residual is this much above its own fit's: another rig
 
 
-def _metrics(path: Path, params: RigParams, rig: str, damping: str) -> Metrics:
-    report = validate(path, params=params, damping=damping)
-    case = report.case("mujoco", "estimated", "whole").comparisons
+MODELS = ("planar", "spatial")
+MID_SWING_RAD_S = 0.5  # a spatial recording starting faster than this: the support's tilt there is unknown
+REALIGN_ROUNDS = 3  # the spatial calibration's rounds of alignment with the rig it found
+REALIGNED_S = 1e-4  # ... until no node's value instants move by more than this, s
+
+
+def _metrics(path: Path, params: RigParams, rig: str, damping: str, model: str = "planar") -> Metrics:
+    report = validate(path, params=params, damping=damping, model=model)
+    engine = "mujoco-spatial" if model == "spatial" else "mujoco"
+    case = report.case(engine, "estimated", "whole").comparisons
     phi1, omega2 = case["phi1"], case["omega2"]
     return Metrics(str(path), rig, phi1.max_abs, omega2.max_abs, phi1.iae, phi1.delta_f)
 
@@ -63,6 +73,148 @@ def load_runs(
     return runs
 
 
+def load_spatial_runs(
+    paths: Sequence[Path], params: RigParams, *, release_s: float | None = None, max_gap_s: float = DEFAULT_MAX_GAP_S
+) -> list[SpatialRun]:
+    """Each recording aligned with ``params`` (the spatial model's rig) as a ``SpatialRun``: both
+    nodes' gyros in their swing frames, all three axes. Free decays only, released from rest
+    (or at the recording's start)."""
+    out = []
+    for path in paths:
+        rec = read_recording(path, topics=[*(imu_topic(n) for n in NODES), DRIVE_TOPIC])
+        if rec.drive_input_s is not None:
+            raise ParameterError(
+                f"{path} is a driven recording (a /drive topic); --model spatial calibrates free decays only: "
+                "calibrate it with the planar model (drop --model spatial)"
+            )
+        covariance = [n.gyro_covariance for n in node_samples(rec)]
+        run = align_recording(rec, params, release_s=release_s, max_gap_s=max_gap_s)
+        fastest = max(abs(w) for w in run.start.omega_rad_s)
+        if run.start.kind != "release" and fastest > MID_SWING_RAD_S:
+            raise ParameterError(
+                f"{path}: starts mid-swing ({fastest:.2f} rad/s at its start); --model spatial needs the release "
+                "(the support's tilt there is unknown): record from before the release"
+            )
+        t, gyro, sigma = gyro_in_swing_frames(run, covariance)
+        # a recording that starts at the release begins "in motion" but all but at rest: a release
+        # at its start, its instant fitted (as identify --model spatial takes it)
+        moving = run.start.kind != "release" and fastest >= RELEASE_AT_START_RAD_S
+        out.append(
+            SpatialRun(
+                str(path), t, gyro, sigma, run.start.phi_rad, run.start.omega_rad_s if moving else (0.0, 0.0),
+                moving, run.relative_timing_range_s, tilt_start_of(rec),
+            )
+        )  # fmt: skip
+        del rec
+    return out
+
+
+def _instants_moved_s(a: Sequence[SpatialRun], b: Sequence[SpatialRun]) -> float:
+    out = 0.0
+    for x, y in zip(a, b, strict=True):
+        if x.value_t_s.shape != y.value_t_s.shape:
+            return math.inf
+        out = max(out, float(np.nanmax(np.abs(x.value_t_s - y.value_t_s))))
+    return out
+
+
+def calibrate_spatial_recordings(
+    paths: Sequence[Path],
+    params: RigParams,
+    *,
+    law: str = "viscous",
+    free: Sequence[str] | None = None,
+    fixed: Mapping[str, float] | None = None,
+    release_s: float | None = None,
+    max_gap_s: float = DEFAULT_MAX_GAP_S,
+    progress: Callable[[str], None] | None = None,
+) -> tuple[Calibration, list[SpatialRun]]:
+    """The spatial calibration (``pendsim_mj.calibration.spatial``) of the recordings: aligned
+    with the stated rig, calibrated, aligned again with the calibrated rig (the alignment's timing
+    of each node's values depends on the model a little) and calibrated again from there, until
+    no value instant moves by more than ``REALIGNED_S`` (at most ``REALIGN_ROUNDS`` rounds).
+    Returns the calibration and the recordings as it last aligned them."""
+    say = progress or (lambda line: None)
+    stated = spatial_params(params)
+    rig = stated.with_mapping(fixed or {})
+    runs = load_spatial_runs(paths, rig, release_s=release_s, max_gap_s=max_gap_s)
+    start = None
+    seconds, iterations = 0.0, 0
+    for _ in range(REALIGN_ROUNDS):
+        cal = calibrate_spatial(
+            runs, stated, law=law, free=free, fixed=fixed, start=start, refine=start is not None, progress=say
+        )
+        seconds, iterations = seconds + cal.seconds, iterations + cal.iterations
+        again = load_spatial_runs(paths, cal.params, release_s=release_s, max_gap_s=max_gap_s)
+        moved = _instants_moved_s(runs, again)
+        if moved <= REALIGNED_S:
+            return dataclasses.replace(cal, seconds=seconds, iterations=iterations), runs
+        say(f"calibrate (spatial): aligned again with the calibrated rig (value instants moved {1000 * moved:.2f} ms)")
+        runs, start = again, cal.overrides()
+    raise ParameterError(
+        f"the spatial calibration did not settle: after {REALIGN_ROUNDS} rounds the alignment with the calibrated rig "
+        f"still moves the nodes' value instants by {1000 * moved:.2f} ms; check the recordings with "
+        "'pendsim validate --model spatial'"
+    )
+
+
+def _spatial_report(
+    paths: Sequence[Path],
+    params: RigParams,
+    *,
+    law: str,
+    free: Sequence[str] | None,
+    fixed: Mapping[str, float] | None,
+    release_s: float | None,
+    max_gap_s: float,
+    checks: bool,
+    progress: Callable[[str], None] | None,
+) -> CalibrationReport:
+    """``calibrate_recordings`` on the spatial model: the same checks, each with the spatial model
+    (validation ``--model spatial``, the left-out fits, the damping law tested)."""
+    say = progress or (lambda line: None)
+    stated = spatial_params(params)
+    cal, runs = calibrate_spatial_recordings(
+        paths, params, law=law, free=free, fixed=fixed, release_s=release_s, max_gap_s=max_gap_s, progress=say
+    )
+
+    def fit(subset: Sequence[SpatialRun], law: str = law) -> Calibration:
+        # from the joint fit's rig (a subset of the same rig's recordings, or a law tested on them)
+        return calibrate_spatial(subset, stated, law=law, free=free, fixed=fixed, start=cal.overrides())
+
+    _consistency(runs, cal, fit)
+    space = ParameterSpace(cal.stated, cal.free)
+    words = describe_held(cal.undetermined, cal.free, space.scale_direction(cal.x))
+    before: list[Metrics] = []
+    after: list[Metrics] = []
+    left_out: list[Metrics] = []
+    if checks:
+        for path in paths:
+            say(f"calibrate: validating {path} with the stated and the calibrated rig (spatial model)")
+            losses = {n: v for n, v in cal.overrides().items() if n in LOSSES}
+            before.append(_metrics(path, cal.stated.with_mapping(losses), "stated", "recorded", model="spatial"))
+            after.append(_metrics(path, cal.params, "calibrated", "recorded", model="spatial"))
+        if len(runs) > 1:
+            for k, path in enumerate(paths):
+                say(f"calibrate: cross-validation, {path} left out")
+                other = fit([r for i, r in enumerate(runs) if i != k])
+                left_out.append(_metrics(path, other.params, "left out", "recorded", model="spatial"))
+    sigma = float(np.mean([np.mean(r.gyro_sigma_rad_s) for r in runs]))
+    duration = float(np.median([r.duration_s for r in runs]))
+    suggestions = suggest(cal, sigma_rad_s=sigma, duration_s=min(duration, 120.0)) if cal.undetermined else []
+    return CalibrationReport(
+        calibration=cal,
+        paths=tuple(str(p) for p in paths),
+        held_words=tuple(words),
+        before=tuple(before),
+        after=tuple(after),
+        left_out=tuple(left_out),
+        model_error=tuple(_model_error(cal, runs, fit, {})),
+        suggestions=tuple(suggestions),
+        fixed=tuple(sorted((fixed or {}).items())),
+    )
+
+
 def off_hinge_sigmas(run: MeasuredRun) -> float:
     """How much the gyros turn about axes across the hinge, in their noise sigmas rms (the larger
     node's): about 1 for a planar swing (noise alone), far above it when the support tilts (the
@@ -86,7 +238,9 @@ def _refuse_repeats(runs: Sequence[CalibrationRun]) -> None:
                 raise ParameterError(f"{a.name} and {b.name} hold the same data; give each recording once")
 
 
-def _consistency(runs: Sequence[CalibrationRun], joint: Calibration, fit: Callable[..., Calibration]) -> None:
+def _consistency(
+    runs: Sequence[CalibrationRun] | Sequence[SpatialRun], joint: Calibration, fit: Callable[..., Calibration]
+) -> None:
     """Recordings of different rigs: one explained to the noise alone but not with the others."""
     if len(runs) < 2:
         return
@@ -100,7 +254,10 @@ def _consistency(runs: Sequence[CalibrationRun], joint: Calibration, fit: Callab
 
 
 def _model_error(
-    cal: Calibration, runs: Sequence[CalibrationRun], fit: Callable[..., Calibration], off_hinge: Mapping[str, float]
+    cal: Calibration,
+    runs: Sequence[CalibrationRun] | Sequence[SpatialRun],
+    fit: Callable[..., Calibration],
+    off_hinge: Mapping[str, float],
 ) -> list[str]:
     """Name the cause of a residual far above the noise, by testing the alternatives the planar
     model can test (the damping law); what it cannot is said as such."""
@@ -111,7 +268,7 @@ def _model_error(
         return []
     lines = [
         f"model error: after calibration the residual is {worst:.2f} noise sigmas rms and not white (Ljung-Box p "
-        f"{white:.2g}): what the planar model with these parameters cannot explain; its intervals do not hold"
+        f"{white:.2g}): what the {cal.model} model with these parameters cannot explain; its intervals do not hold"
     ]
     if cal.law != "both":
         other = fit(runs, law="both")
@@ -147,10 +304,24 @@ def calibrate_recordings(
     checks: bool = True,
     added: Mapping[int, tuple[int, float, float]] | None = None,
     progress: Callable[[str], None] | None = None,
+    model: str = "planar",
 ) -> CalibrationReport:
     """Calibrate the rig on the recordings and check the result (module docstring); ``checks``
     False: no validations, no left-out fits (the calibration alone). ``added``: recording index ->
-    (pendulum, kg, m) of a known mass clamped on it while it was recorded."""
+    (pendulum, kg, m) of a known mass clamped on it while it was recorded. ``model``: "planar"
+    or "spatial" (``calibrate_spatial_recordings``)."""
+    if model not in MODELS:
+        raise ParameterError(f"model must be one of {', '.join(MODELS)}, got {model!r}")
+    if model == "spatial":
+        if added:
+            raise ParameterError(
+                "--added-mass with --model spatial: not available (the spatial model's inertia tensor of a loaded "
+                "pendulum is not modelled); calibrate the recordings with a known mass on the planar model"
+            )
+        return _spatial_report(
+            paths, params, law=law, free=free, fixed=fixed, release_s=release_s, max_gap_s=max_gap_s, checks=checks,
+            progress=progress,
+        )  # fmt: skip
     say = progress or (lambda line: None)
     off_hinge: dict[str, float] = {}
     runs = load_runs(paths, params, release_s=release_s, max_gap_s=max_gap_s, off_hinge=off_hinge)

@@ -36,6 +36,7 @@ from ..io.mcap.writer import BulkMcapWriter
 from ..io.outputs import atomic_output
 from ..io.recording_layout import RunInfo
 from ..io.recording_writer import RecordingWriter
+from ..signals import signal_handlers
 
 Model = Literal["planar", "spatial", "static"]
 MODELS: tuple[Model, ...] = ("planar", "spatial", "static")
@@ -264,19 +265,12 @@ def record(
 def _signals_set(stop: threading.Event) -> Iterator[None]:
     """SIGINT (Ctrl-C) and SIGTERM set ``stop`` while recording (main thread only): the
     recording ends after the block in progress, between writes, and keeps what it recorded."""
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
 
     def handler(signum: int, frame: object) -> None:
         stop.set()
 
-    previous = {s: signal.signal(s, handler) for s in (signal.SIGINT, signal.SIGTERM)}
-    try:
+    with signal_handlers(dict.fromkeys((signal.SIGINT, signal.SIGTERM), handler)):
         yield
-    finally:
-        for s, h in previous.items():
-            signal.signal(s, h)
 
 
 FLUSH_MARGIN_S = 1.0  # messages of the last second of a block wait for the next flush (clock skew)

@@ -39,7 +39,6 @@ import shutil
 import signal
 import socket
 import struct
-import threading
 import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
@@ -57,6 +56,7 @@ from pendsim_mj.sweep.run import TaskResult, light_path, run_task
 
 from ..errors import OutputError
 from ..io.outputs import atomic_output, output_error
+from ..signals import signal_handlers
 
 STORE_VERSION = 1
 META_KEY = b"pendsim.sweep"
@@ -606,18 +606,12 @@ def _run_dask(
 def _terminate_as_interrupt() -> Iterator[None]:
     """While active, SIGTERM raises KeyboardInterrupt (as Ctrl-C does), so every cluster and
     process started inside is closed by its context manager; the previous handler comes back."""
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
 
     def interrupt(signum: int, frame: object) -> None:
         raise KeyboardInterrupt
 
-    previous = signal.signal(signal.SIGTERM, interrupt)
-    try:
+    with signal_handlers({signal.SIGTERM: interrupt}):
         yield
-    finally:
-        signal.signal(signal.SIGTERM, previous)
 
 
 @contextlib.contextmanager

@@ -9,6 +9,8 @@ Modules and their jobs:
 - ``fit``: the joint fit of several recordings (``calibrate``, ``CalibrationRun``,
   ``Calibration``).
 - ``design``: which further recording would determine best what is left open.
+- ``spatial``: the same on the spatial model, the support's tilt fitted with the rig
+  (``calibrate_spatial``, ``SpatialRun``).
 
 Importing this package imports none of them (no numba or scipy): each name below is imported
 from its module on first use (``pendsim_mj.lazy``).
@@ -28,11 +30,15 @@ _LAZY = {
     "DEFAULT_FREE": "pendsim_mj.calibration.parameters",
     "PLANAR_PARAMETERS": "pendsim_mj.calibration.parameters",
     "QUANTITIES": "pendsim_mj.calibration.parameters",
+    "SPATIAL_PARAMETERS": "pendsim_mj.calibration.parameters",
+    "SpatialRun": "pendsim_mj.calibration.spatial",
+    "calibrate_spatial": "pendsim_mj.calibration.spatial",
 }
 
 if TYPE_CHECKING:
     from pendsim_mj.calibration.fit import Calibration, CalibrationRun, Determination, calibrate
-    from pendsim_mj.calibration.parameters import DEFAULT_FREE, PLANAR_PARAMETERS, QUANTITIES
+    from pendsim_mj.calibration.parameters import DEFAULT_FREE, PLANAR_PARAMETERS, QUANTITIES, SPATIAL_PARAMETERS
+    from pendsim_mj.calibration.spatial import SpatialRun, calibrate_spatial
 else:
     __getattr__, __dir__ = lazy.exports(__name__, _LAZY)
 
@@ -40,8 +46,11 @@ __all__ = [
     "DEFAULT_FREE",
     "PLANAR_PARAMETERS",
     "QUANTITIES",
+    "SPATIAL_PARAMETERS",
     "Calibration",
     "CalibrationRun",
     "Determination",
+    "SpatialRun",
     "calibrate",
+    "calibrate_spatial",
 ]

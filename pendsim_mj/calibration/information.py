@@ -15,7 +15,8 @@ A direction is **determined** when its half-width is below ``DETERMINED_HALF_WID
 the fit moves the rig only along those, and holds the rest at the stated values. A quantity
 (``parameters.QUANTITIES`` or a free parameter) is determined when the held directions cannot move
 it by more than ``HELD_BIAS_FRACTION`` of its interval, with each held direction anywhere within
-``PLAUSIBLE_CHANGE`` of the stated rig.
+``PLAUSIBLE_CHANGE`` of the stated rig, or by no more than ``NEGLIGIBLE_BIAS`` of its value (then
+its interval is widened by that bias).
 """
 
 from __future__ import annotations
@@ -32,6 +33,9 @@ Floats = NDArray[np.float64]
 DETERMINED_HALF_WIDTH = 0.01  # a direction known to within 1 % (relative) is fitted, others are held
 PLAUSIBLE_CHANGE = 0.05  # how far a rig built to the drawings may differ from them (relative), for the held bias
 HELD_BIAS_FRACTION = 0.2  # a quantity the held directions can move by more than this of its interval is not determined
+# ... unless that is below this fraction of its value (a fifth of DETERMINED_HALF_WIDTH): then it is
+# determined with its interval widened by the bias
+NEGLIGIBLE_BIAS = HELD_BIAS_FRACTION * DETERMINED_HALF_WIDTH
 Z95 = 1.959964
 _IN_SPAN = 1e-4  # a vector this close (relative) to the held directions' span lies in it
 
@@ -90,11 +94,31 @@ def directions(information: Floats, residual_variance: float) -> list[Direction]
     return out
 
 
-def held_bias(gradient: Floats, held: Sequence[Direction]) -> float:
+def held_bias(gradient: Floats, held: Sequence[Direction], shifts: Sequence[Floats] | None = None) -> float:
     """The most the held directions can move a quantity of gradient d q / d x (nfree,): each held
     direction v anywhere within PLAUSIBLE_CHANGE per parameter (|x_i| <= 0.05: |x . v| <= 0.05
-    |v|_1)."""
-    return float(sum(abs(float(gradient @ d.vector)) * PLAUSIBLE_CHANGE * float(np.abs(d.vector).sum()) for d in held))
+    |v|_1). ``shifts``: what the fit makes of a unit step along each held direction (``compensated``)
+    where the model is not exactly blind to it; default: the direction itself."""
+    moved = shifts if shifts is not None else [d.vector for d in held]
+    return float(
+        sum(
+            abs(float(gradient @ m)) * PLAUSIBLE_CHANGE * float(np.abs(d.vector).sum())
+            for d, m in zip(held, moved, strict=True)
+        )
+    )
+
+
+def compensated(held: Floats, determined: Sequence[Floats], information: Floats) -> Floats:
+    """The change of x (nfree,) that a rig differing by ``held`` (a held direction, unit step)
+    leaves in the fit: the held part stays at the stated value, so the fitted directions move to
+    make up for what the model does see of it (least squares with the information S:
+    d = -(D' S D)^-1 D' S h), and the estimate is off by h + D d from that rig. Zero compensation
+    where the model is blind to h (S h = 0, the planar model's common scale)."""
+    if not determined:
+        return np.asarray(held, dtype=float)
+    d = np.column_stack(determined)
+    shift = -np.linalg.lstsq(d.T @ information @ d, d.T @ information @ held, rcond=None)[0]
+    return np.asarray(held + d @ shift, dtype=float)
 
 
 def describe_held(held: Sequence[Direction], names: Sequence[str], scale: Floats | None) -> list[str]:

@@ -53,6 +53,9 @@ PLANAR_PARAMETERS = (
     "friction1_n_m",
     "friction2_n_m",
 )
+# What the spatial model adds (``rig.model.SPATIAL``): the support's tilt about the horizontal axis
+# across the pivot. They enter no planar force-law constant; the spatial calibration frees them.
+SPATIAL_PARAMETERS = ("tilt_stiffness_n_m_rad", "tilt_damping_n_m_s_rad")
 # Free by default: what differs between rigs built from the same drawings (springs, inertias,
 # centres of mass, the anchors' asymmetries). Held by default: the masses and g (weighed and
 # known), and the anchor lengths that enter only in products with a spring's stiffness (c1 l01 l04:
@@ -75,6 +78,8 @@ class Quantity:
       name: identifier (JSON key); label: how the report writes it; unit: its unit.
       of: its value from the force-law constants (NCOEF,) (``fast_planar.coefficients``).
       parameter: the RigParams field it is, or "" for a derived ratio.
+      over: with ``parameter``, the field it is divided by (a ratio of two parameters, e.g. the
+        tilt stiffness over J1), "" for the parameter itself.
     """
 
     name: str
@@ -82,6 +87,7 @@ class Quantity:
     unit: str
     of: Callable[[Floats], float]
     parameter: str = ""
+    over: str = ""
 
 
 def _row(name: str) -> int:
@@ -113,6 +119,20 @@ QUANTITIES = (
     Quantity("b2_per_j2", "b2 / J2", "1/s", _ratio("b2_n_m_s", "j2_kg_m2")),
     Quantity("friction1_per_j1", "F1 / J1", "1/s^2", _ratio("friction1_n_m", "j1_kg_m2")),
     Quantity("friction2_per_j2", "F2 / J2", "1/s^2", _ratio("friction2_n_m", "j2_kg_m2")),
+)
+
+
+def _unused(c: Floats) -> float:
+    return float("nan")
+
+
+# What the spatial model adds that a swing determines: the tilt's stiffness and damping over an
+# inertia (the common scale of all moments and inertias stays out of sight, as in the planar model).
+SPATIAL_QUANTITIES = (
+    Quantity(
+        "tilt_stiffness_per_j1", "k_tilt / J1", "1/s^2", _unused, parameter="tilt_stiffness_n_m_rad", over="j1_kg_m2"
+    ),
+    Quantity("tilt_damping_per_j1", "c_tilt / J1", "1/s", _unused, parameter="tilt_damping_n_m_s_rad", over="j1_kg_m2"),
 )
 
 
@@ -148,10 +168,11 @@ class ParameterSpace:
     """
 
     def __init__(self, stated: RigParams, free: Sequence[str]) -> None:
-        unknown = [n for n in free if n not in PLANAR_PARAMETERS]
+        unknown = [n for n in free if n not in (*PLANAR_PARAMETERS, *SPATIAL_PARAMETERS)]
         if unknown:
             raise ParameterError(
-                f"cannot calibrate {unknown[0]!r}; the planar model depends on: {', '.join(PLANAR_PARAMETERS)}"
+                f"cannot calibrate {unknown[0]!r}; the planar model depends on: {', '.join(PLANAR_PARAMETERS)} "
+                f"(the spatial model also on {', '.join(SPATIAL_PARAMETERS)})"
             )
         if len(set(free)) != len(free):
             raise ParameterError("each free parameter once")
@@ -197,13 +218,17 @@ class ParameterSpace:
 
     def scale_direction(self, x: Floats) -> Floats | None:
         """The x (nfree,) that scales every nonzero force-law constant by one factor (1 % per unit),
-        or None where the free parameters cannot (an inertia or a mass held)."""
+        or None where the free parameters cannot (an inertia or a mass held). The spatial model's
+        tilt stiffness and damping (moments per angle and rate) scale with the moments."""
         jac = self.coefficient_jacobian(x)
         coef = self.coefficients(x)
         target = 0.01 * coef
         solution, *_ = np.linalg.lstsq(jac, target, rcond=None)
         if np.linalg.norm(jac @ solution - target) > 1e-6 * np.linalg.norm(target):
             return None
+        for i, name in enumerate(self.free):
+            if name in SPATIAL_PARAMETERS:
+                solution[i] = 0.01 * (1.0 + x[i])  # x is relative to the stated value: 1 % of the current one
         return np.asarray(solution, dtype=float)
 
     def valid_along(self, x: Floats, directions: Sequence[Floats]) -> Floats:
@@ -230,6 +255,15 @@ class ParameterSpace:
     def quantity_gradient(self, quantity: Quantity, x: Floats) -> Floats:
         """d quantity / d x, (nfree,)."""
         x = np.asarray(x, dtype=float)
+        if quantity.over:
+            grad = np.zeros(len(self.free))
+            for i in range(len(self.free)):
+                step = np.zeros(len(self.free))
+                step[i] = _FD_STEP
+                grad[i] = (self.quantity_value(quantity, x + step) - self.quantity_value(quantity, x - step)) / (
+                    2 * _FD_STEP
+                )
+            return grad
         if quantity.parameter:
             out = np.zeros(len(self.free))
             if quantity.parameter in self.free:
@@ -247,7 +281,8 @@ class ParameterSpace:
 
     def quantity_value(self, quantity: Quantity, x: Floats) -> float:
         if quantity.parameter:
-            return self.values(x).get(quantity.parameter, self.stated.as_dict()[quantity.parameter])
+            values = self.stated.as_dict() | self.values(x)
+            return values[quantity.parameter] / (values[quantity.over] if quantity.over else 1.0)
         return quantity.of(self.coefficients(x))
 
 

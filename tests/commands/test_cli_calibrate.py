@@ -76,7 +76,7 @@ def test_the_commands_parameter_list_is_the_librarys():
     [
         (["--fix", "j3_kg_m2=0.02"], "unknown parameter 'j3_kg_m2'"),
         (["--free", "rod_length_m"], "not a parameter of the planar model"),
-        (["--model", "spatial"], "not available yet"),
+        (["--model", "spatial", "--added-mass", "1:M1:0.05@0.4"], "--added-mass with --model spatial: not available"),
         (["--fix", "j1_kg_m2=0.026", "--fix", "j1_kg_m2=0.027"], "--fix j1_kg_m2 given twice"),
         (["--fix", "j1_kg_m2=0.026", "--free", "j1_kg_m2"], "both fixed (--fix) and freed (--free)"),
         (["{rec}"], "hold the same data; give each recording once"),
@@ -113,21 +113,6 @@ def test_a_recording_with_a_known_torque_fixes_the_scale_a_free_swing_leaves_ope
         assert q["determined"], name
         assert abs(q["value"] - true[name]) <= q["half_width95"], q
     assert all(r["residual_rms_sigma"] < 1.1 for r in report["runs"])
-
-
-def test_a_spatial_recording_is_named_as_model_error_with_its_cause_tested(tmp_path, capsys):
-    """The planar model cannot explain a rig whose support tilts: calibrate says so (exit 1) and
-    names spatial motion from the gyros' rotation across the hinge, not from a guess."""
-    rec = tmp_path / "spatial.mcap"
-    assert main(["record", "-o", str(rec), "--model", "spatial", "--offset-m", "0.05", "--duration-s", "20"]) == 0
-    out = tmp_path / "cal"
-    assert main(["calibrate", str(rec), "-o", str(out), "--no-checks"]) == 1
-    captured = capsys.readouterr()
-    err = captured.err.strip().splitlines()
-    assert err[-1].startswith("pendsim: calibration: model error")
-    assert "the support tilts, spatial motion" in captured.out
-    assert "dry friction does not explain it" in captured.out
-    assert (out / "params.json").is_file()  # written: the report says what is wrong with it
 
 
 def test_a_recording_with_a_known_added_mass_fixes_the_scale(recording, tmp_path, capsys):
