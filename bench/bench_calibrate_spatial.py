@@ -27,19 +27,25 @@ from pendsim_bridge.run.calibrate import calibrate_recordings
 from pendsim_bridge.run.validate import validate
 from pendsim_mj.calibration.fit import LOSSES
 from pendsim_mj.calibration.parameters import QUANTITIES, SPATIAL_QUANTITIES, ParameterSpace, parameter_quantity
+from pendsim_mj.errors import ParameterError
 from pendsim_mj.rig.params import RigParams
 
 DRAWN = ("c1_n_m", "c2_n_m", "j1_kg_m2", "j2_kg_m2", "oc1_m", "oc2_m")
 
 
 def drawn_rig(seed: int) -> dict[str, float]:
+    """A rig drawn within the ranges above (drawn again where it is no rig: J below m OC^2)."""
     rng = np.random.default_rng(seed)
     paper = RigParams().as_dict()
-    rig = {n: paper[n] * (1 + rng.uniform(-0.05, 0.05)) for n in DRAWN}
-    rig["tilt_stiffness_n_m_rad"] = 2.0 * (1 + rng.uniform(-0.3, 0.3))
-    rig["tilt_damping_n_m_s_rad"] = 0.0007 * (1 + rng.uniform(-0.3, 0.3))
-    rig["phi1_deg"] = float(rng.uniform(25, 35))
-    return rig
+    while True:
+        rig = {n: paper[n] * (1 + rng.uniform(-0.05, 0.05)) for n in DRAWN}
+        rig["tilt_stiffness_n_m_rad"] = 2.0 * (1 + rng.uniform(-0.3, 0.3))
+        rig["tilt_damping_n_m_s_rad"] = 0.0007 * (1 + rng.uniform(-0.3, 0.3))
+        try:
+            RigParams().with_mapping(rig)
+        except ParameterError:
+            continue
+        return rig | {"phi1_deg": float(rng.uniform(25, 35))}
 
 
 def max_dphi1(path: Path, params: RigParams) -> float:
@@ -51,11 +57,12 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__)
     parser.add_argument("--rigs", type=int, default=10)
     parser.add_argument("--duration-s", type=float, default=40.0)
+    parser.add_argument("--first-seed", type=int, default=0)
     args = parser.parse_args()
     inside = total = 0
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
-        for seed in range(args.rigs):
+        for seed in range(args.first_seed, args.first_seed + args.rigs):
             rig = drawn_rig(seed)
             phi1 = rig.pop("phi1_deg")
             rig_file = Path(tmp) / f"rig{seed}.json"
@@ -96,7 +103,7 @@ def main() -> None:
                 "cpu_spatial_s": round(spatial_cpu, 1), "cpu_planar_s": round(planar_cpu, 1),
             }  # fmt: skip
             rows.append(row)
-            print(json.dumps(row), flush=True)
+            print("\n" + json.dumps(row), flush=True)
     cpu = [r["cpu_spatial_s"] / r["cpu_planar_s"] for r in rows]
     print(
         f"coverage: {inside} of {total} determined quantities within their 95 % intervals "

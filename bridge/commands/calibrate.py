@@ -16,6 +16,7 @@ PLANAR_PARAMETERS = (
     "c1_n_m", "c2_n_m", "j1_kg_m2", "j2_kg_m2", "oc1_m", "oc2_m", "m1_kg", "m2_kg", "l01_m", "l04_m", "l24_m",
     "l34_m", "l05_m", "l08_m", "l68_m", "l78_m", "g_m_s2", "b1_n_m_s", "b2_n_m_s", "friction1_n_m", "friction2_n_m",
 )  # fmt: skip
+SPATIAL_PARAMETERS = ("tilt_stiffness_n_m_rad", "tilt_damping_n_m_s_rad", "plane_offset_m")  # ditto
 OUTPUTS = ("params.json", "calibration.json", "calibration.md", "calibration.png")
 
 
@@ -40,8 +41,9 @@ def register(sub: argparse._SubParsersAction[options.Parser]) -> None:
         "calibrate",
         help="fit the rig's springs, inertias and centres of mass to one or several recordings",
         description="Fit the rig's physical parameters (c1, c2, J1, J2, OC1, OC2, the anchors' asymmetries and the "
-        "hinge damping) to one or several recordings at once on the planar model, each recording with its own "
-        "start state. Only what the recordings determine is fitted (from the Fisher information: its directions "
+        "hinge damping) to one or several recordings at once on the planar model (--model spatial: on the "
+        "spatial model, with the support's tilt stiffness and damping), each recording with its own start state. "
+        "Only what the recordings determine is fitted (from the Fisher information: its directions "
         "and intervals); the rest is held at the stated values and named. Writes DIR/params.json (for "
         "--params-file of simulate, record, validate, identify, view and analyze), DIR/calibration.json, "
         "DIR/calibration.md and DIR/calibration.png: what was determined, to what interval, what was not and "
@@ -78,13 +80,15 @@ def register(sub: argparse._SubParsersAction[options.Parser]) -> None:
     p.add_argument(
         "--free",
         type=options.choice(
-            PLANAR_PARAMETERS, "--free {value!r} is not a parameter of the planar model; allowed: {allowed}"
+            PLANAR_PARAMETERS + SPATIAL_PARAMETERS,
+            "--free {value!r} is not a parameter of the planar or spatial model; allowed: {allowed}",
         ),
         action="append",
         default=[],
         metavar="NAME",
         help="also fit this parameter (default: c1_n_m, c2_n_m, j1_kg_m2, j2_kg_m2, oc1_m, oc2_m, l24_m, l68_m "
-        "and the damping); repeatable",
+        "and the damping; with --model spatial also the tilt's stiffness and damping, and plane_offset_m when "
+        "named); repeatable",
     )
     p.add_argument(
         "--added-mass",
@@ -110,6 +114,9 @@ def register(sub: argparse._SubParsersAction[options.Parser]) -> None:
 
 def _checked(args: argparse.Namespace) -> dict[str, float]:
     """The options' combinations checked (each alone is checked by its parser); the fixed values."""
+    spatial_only = [name for name in args.free if name in SPATIAL_PARAMETERS]
+    if args.model != "spatial" and spatial_only:
+        raise ParameterError(f"--free {spatial_only[0]}: a parameter of the spatial model only; add --model spatial")
     if args.model == "spatial" and args.added:
         raise ParameterError(
             "--added-mass with --model spatial: not available (the spatial model's inertia tensor of a loaded "

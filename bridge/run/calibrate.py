@@ -18,7 +18,7 @@ from pendsim_mj.calibration import Calibration, CalibrationRun, calibrate
 from pendsim_mj.calibration.design import suggest
 from pendsim_mj.calibration.fit import LOSSES
 from pendsim_mj.calibration.information import describe_held
-from pendsim_mj.calibration.parameters import ParameterSpace, added_mass_constants
+from pendsim_mj.calibration.parameters import SPATIAL_PARAMETERS, ParameterSpace, added_mass_constants
 from pendsim_mj.calibration.spatial import SpatialRun, calibrate_spatial
 from pendsim_mj.errors import ParameterError
 from pendsim_mj.estimation.alignment import DEFAULT_MAX_GAP_S
@@ -42,6 +42,7 @@ MODELS = ("planar", "spatial")
 MID_SWING_RAD_S = 0.5  # a spatial recording starting faster than this: the support's tilt there is unknown
 REALIGN_ROUNDS = 3  # the spatial calibration's rounds of alignment with the rig it found
 REALIGNED_S = 1e-4  # ... until no node's value instants move by more than this, s
+RETRY_SIGMAS = 1.5  # a spatial fit from the planar calibration's rig left above this: also tried from the stated rig
 
 
 def _metrics(path: Path, params: RigParams, rig: str, damping: str, model: str = "planar") -> Metrics:
@@ -129,28 +130,47 @@ def calibrate_spatial_recordings(
     max_gap_s: float = DEFAULT_MAX_GAP_S,
     progress: Callable[[str], None] | None = None,
 ) -> tuple[Calibration, list[SpatialRun]]:
-    """The spatial calibration (``pendsim_mj.calibration.spatial``) of the recordings: aligned
-    with the stated rig, calibrated, aligned again with the calibrated rig (the alignment's timing
-    of each node's values depends on the model a little) and calibrated again from there, until
-    no value instant moves by more than ``REALIGNED_S`` (at most ``REALIGN_ROUNDS`` rounds).
+    """The spatial calibration (``pendsim_mj.calibration.spatial``) of the recordings.
+
+    Started from the planar calibration of the same recordings (its rig, the recordings aligned
+    with it); where that ends above ``RETRY_SIGMAS`` also from the stated rig, and the better fit
+    kept. Then the recordings are aligned again with the calibrated rig (the alignment's timing of
+    each node's values depends on the model a little) and the fit refined from there, until no
+    value instant moves by more than ``REALIGNED_S`` (at most ``REALIGN_ROUNDS`` rounds).
     Returns the calibration and the recordings as it last aligned them."""
     say = progress or (lambda line: None)
     stated = spatial_params(params)
     rig = stated.with_mapping(fixed or {})
-    runs = load_spatial_runs(paths, rig, release_s=release_s, max_gap_s=max_gap_s)
-    start = None
-    seconds, iterations = 0.0, 0
+    planar_free = None if free is None else [n for n in free if n not in SPATIAL_PARAMETERS]
+    stated_runs = load_spatial_runs(paths, rig, release_s=release_s, max_gap_s=max_gap_s)  # refuses what it cannot fit
+    planar = calibrate(
+        load_runs(paths, rig, release_s=release_s, max_gap_s=max_gap_s), rig, law=law, free=planar_free, fixed=fixed
+    )
+    say(
+        f"calibrate (spatial): from the planar calibration's rig ({planar.residual_rms_sigma:.2f} sigmas on the hinges)"
+    )
+    start = {n: v for n, v in planar.overrides().items() if n not in SPATIAL_PARAMETERS}
+    runs = load_spatial_runs(paths, stated.with_mapping(start), release_s=release_s, max_gap_s=max_gap_s)
+    cal = calibrate_spatial(runs, stated, law=law, free=free, fixed=fixed, start=start, progress=say)
+    seconds, iterations = cal.seconds, cal.iterations
+    if cal.residual_rms_sigma > RETRY_SIGMAS:
+        say(f"calibrate (spatial): {cal.residual_rms_sigma:.2f} sigmas from the planar rig; from the stated rig too")
+        other_runs = stated_runs
+        other = calibrate_spatial(other_runs, stated, law=law, free=free, fixed=fixed, progress=say)
+        seconds, iterations = seconds + other.seconds, iterations + other.iterations
+        if other.residual_rms_sigma < cal.residual_rms_sigma:
+            cal, runs = other, other_runs
     for _ in range(REALIGN_ROUNDS):
-        cal = calibrate_spatial(
-            runs, stated, law=law, free=free, fixed=fixed, start=start, refine=start is not None, progress=say
-        )
-        seconds, iterations = seconds + cal.seconds, iterations + cal.iterations
         again = load_spatial_runs(paths, cal.params, release_s=release_s, max_gap_s=max_gap_s)
         moved = _instants_moved_s(runs, again)
         if moved <= REALIGNED_S:
             return dataclasses.replace(cal, seconds=seconds, iterations=iterations), runs
         say(f"calibrate (spatial): aligned again with the calibrated rig (value instants moved {1000 * moved:.2f} ms)")
-        runs, start = again, cal.overrides()
+        runs = again
+        cal = calibrate_spatial(
+            runs, stated, law=law, free=free, fixed=fixed, start=cal.overrides(), refine=True, progress=say
+        )
+        seconds, iterations = seconds + cal.seconds, iterations + cal.iterations
     raise ParameterError(
         f"the spatial calibration did not settle: after {REALIGN_ROUNDS} rounds the alignment with the calibrated rig "
         f"still moves the nodes' value instants by {1000 * moved:.2f} ms; check the recordings with "
@@ -248,7 +268,7 @@ def _consistency(
         alone = fit([run]).residual_rms_sigma
         if result.residual_rms_sigma > INCONSISTENT_RATIO * alone and alone < MODEL_ERROR_SIGMAS:
             raise ParameterError(
-                f"{run.name} is not of the same rig as the other recordings: alone it is explained to "
+                f"{result.name} is not of the same rig as the other recordings: alone it is explained to "
                 f"{alone:.2f} noise sigmas, with them to {result.residual_rms_sigma:.2f}; calibrate each rig on its own"
             )
 

@@ -54,8 +54,12 @@ PLANAR_PARAMETERS = (
     "friction2_n_m",
 )
 # What the spatial model adds (``rig.model.SPATIAL``): the support's tilt about the horizontal axis
-# across the pivot. They enter no planar force-law constant; the spatial calibration frees them.
-SPATIAL_PARAMETERS = ("tilt_stiffness_n_m_rad", "tilt_damping_n_m_s_rad")
+# across the pivot, and the offset between the pendulums' planes. They enter no planar force-law
+# constant. The spatial calibration frees the tilt's two by default (``SPATIAL_FREE``); the offset,
+# a length a ruler measures, only when asked.
+SPATIAL_PARAMETERS = ("tilt_stiffness_n_m_rad", "tilt_damping_n_m_s_rad", "plane_offset_m")
+SPATIAL_FREE = ("tilt_stiffness_n_m_rad", "tilt_damping_n_m_s_rad")
+_TILT_MOMENTS = SPATIAL_FREE  # moments per angle and per rate: they scale with the moments
 # Free by default: what differs between rigs built from the same drawings (springs, inertias,
 # centres of mass, the anchors' asymmetries). Held by default: the masses and g (weighed and
 # known), and the anchor lengths that enter only in products with a spring's stiffness (c1 l01 l04:
@@ -227,7 +231,7 @@ class ParameterSpace:
         if np.linalg.norm(jac @ solution - target) > 1e-6 * np.linalg.norm(target):
             return None
         for i, name in enumerate(self.free):
-            if name in SPATIAL_PARAMETERS:
+            if name in _TILT_MOMENTS:
                 solution[i] = 0.01 * (1.0 + x[i])  # x is relative to the stated value: 1 % of the current one
         return np.asarray(solution, dtype=float)
 

@@ -69,13 +69,17 @@ def test_the_commands_parameter_list_is_the_librarys():
     from pendsim_mj.calibration import PLANAR_PARAMETERS
 
     assert calibrate.PLANAR_PARAMETERS == PLANAR_PARAMETERS
+    from pendsim_mj.calibration import SPATIAL_PARAMETERS
+
+    assert calibrate.SPATIAL_PARAMETERS == SPATIAL_PARAMETERS
 
 
 @pytest.mark.parametrize(
     ("extra", "message"),
     [
         (["--fix", "j3_kg_m2=0.02"], "unknown parameter 'j3_kg_m2'"),
-        (["--free", "rod_length_m"], "not a parameter of the planar model"),
+        (["--free", "rod_length_m"], "not a parameter of the planar or spatial model"),
+        (["--free", "plane_offset_m"], "a parameter of the spatial model only; add --model spatial"),
         (["--model", "spatial", "--added-mass", "1:M1:0.05@0.4"], "--added-mass with --model spatial: not available"),
         (["--fix", "j1_kg_m2=0.026", "--fix", "j1_kg_m2=0.027"], "--fix j1_kg_m2 given twice"),
         (["--fix", "j1_kg_m2=0.026", "--free", "j1_kg_m2"], "both fixed (--fix) and freed (--free)"),
