@@ -202,6 +202,23 @@ def _spatial_report(
         # from the joint fit's rig (a subset of the same rig's recordings, or a law tested on them)
         return calibrate_spatial(subset, stated, law=law, free=free, fixed=fixed, start=cal.overrides())
 
+    return _report(cal, runs, paths, fit, checks=checks, say=say, off_hinge={}, fixed=fixed)
+
+
+def _report(
+    cal: Calibration,
+    runs: Sequence[CalibrationRun] | Sequence[SpatialRun],
+    paths: Sequence[Path],
+    fit: Callable[..., Calibration],
+    *,
+    checks: bool,
+    say: Callable[[str], None],
+    off_hinge: Mapping[str, float],
+    fixed: Mapping[str, float] | None,
+) -> CalibrationReport:
+    """The calibration checked, on its own model (``cal.model``): recordings of different rigs
+    refused, the held directions in words, each recording validated with the stated and the
+    calibrated rig and left out (``checks``), the model error tested, the next experiment."""
     _consistency(runs, cal, fit)
     space = ParameterSpace(cal.stated, cal.free)
     words = describe_held(cal.undetermined, cal.free, space.scale_direction(cal.x))
@@ -209,16 +226,17 @@ def _spatial_report(
     after: list[Metrics] = []
     left_out: list[Metrics] = []
     if checks:
+        shown = " (spatial model)" if cal.model == "spatial" else ""
         for path in paths:
-            say(f"calibrate: validating {path} with the stated and the calibrated rig (spatial model)")
+            say(f"calibrate: validating {path} with the stated and the calibrated rig{shown}")
             losses = {n: v for n, v in cal.overrides().items() if n in LOSSES}
-            before.append(_metrics(path, cal.stated.with_mapping(losses), "stated", "recorded", model="spatial"))
-            after.append(_metrics(path, cal.params, "calibrated", "recorded", model="spatial"))
+            before.append(_metrics(path, cal.stated.with_mapping(losses), "stated", "recorded", model=cal.model))
+            after.append(_metrics(path, cal.params, "calibrated", "recorded", model=cal.model))
         if len(runs) > 1:
             for k, path in enumerate(paths):
                 say(f"calibrate: cross-validation, {path} left out")
                 other = fit([r for i, r in enumerate(runs) if i != k])
-                left_out.append(_metrics(path, other.params, "left out", "recorded", model="spatial"))
+                left_out.append(_metrics(path, other.params, "left out", "recorded", model=cal.model))
     sigma = float(np.mean([np.mean(r.gyro_sigma_rad_s) for r in runs]))
     duration = float(np.median([r.duration_s for r in runs]))
     suggestions = suggest(cal, sigma_rad_s=sigma, duration_s=min(duration, 120.0)) if cal.undetermined else []
@@ -229,7 +247,7 @@ def _spatial_report(
         before=tuple(before),
         after=tuple(after),
         left_out=tuple(left_out),
-        model_error=tuple(_model_error(cal, runs, fit, {})),
+        model_error=tuple(_model_error(cal, runs, fit, off_hinge)),
         suggestions=tuple(suggestions),
         fixed=tuple(sorted((fixed or {}).items())),
     )
@@ -371,34 +389,4 @@ def calibrate_recordings(
                           max_gap_s=max_gap_s)  # fmt: skip
         runs = with_masses([again.pop(0) if run.drive else run for run in runs])
     cal = calibrate(runs, params, law=law, free=free, fixed=fixed, start=start, progress=say)
-    _consistency(runs, cal, fit)
-    space = ParameterSpace(cal.stated, cal.free)
-    words = describe_held(cal.undetermined, cal.free, space.scale_direction(cal.x))
-    before: list[Metrics] = []
-    after: list[Metrics] = []
-    left_out: list[Metrics] = []
-    if checks:
-        for path in paths:
-            say(f"calibrate: validating {path} with the stated and the calibrated rig")
-            losses = {n: v for n, v in cal.overrides().items() if n in LOSSES}
-            before.append(_metrics(path, cal.stated.with_mapping(losses), "stated", "recorded"))
-            after.append(_metrics(path, cal.params, "calibrated", "recorded"))
-        if len(runs) > 1:
-            for k, path in enumerate(paths):
-                say(f"calibrate: cross-validation, {path} left out")
-                other = fit([r for i, r in enumerate(runs) if i != k])
-                left_out.append(_metrics(path, other.params, "left out", "recorded"))
-    sigma = float(np.mean([np.mean(r.gyro_sigma_rad_s) for r in runs]))
-    duration = float(np.median([r.duration_s for r in runs]))
-    suggestions = suggest(cal, sigma_rad_s=sigma, duration_s=min(duration, 120.0)) if cal.undetermined else []
-    return CalibrationReport(
-        calibration=cal,
-        paths=tuple(str(p) for p in paths),
-        held_words=tuple(words),
-        before=tuple(before),
-        after=tuple(after),
-        left_out=tuple(left_out),
-        model_error=tuple(_model_error(cal, runs, fit, off_hinge)),
-        suggestions=tuple(suggestions),
-        fixed=tuple(sorted((fixed or {}).items())),
-    )
+    return _report(cal, runs, paths, fit, checks=checks, say=say, off_hinge=off_hinge, fixed=fixed)
