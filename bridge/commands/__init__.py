@@ -9,6 +9,7 @@ from . import (
     analyze,
     calibrate,
     compare,
+    control,
     demo,
     identify,
     import_,
@@ -26,6 +27,6 @@ from . import (
 
 COMMANDS = (
     demo, simulate, record, acquire, nodes, import_, inspect, validate, identify, calibrate, view, replay, compare,
-    analyze, sweep, allan, recover, info,
+    analyze, sweep, control, allan, recover, info,
 )  # fmt: skip
 """In the order ``pendsim --help`` lists them."""

@@ -20,6 +20,10 @@ recorded in ``pendsim/run``; the arrays read back count ns from that start):
   inputs held over the step that starts at its log time (``pendsim_mj.rig.drives``): data =
   [torque_m1 N m, torque_m2 N m, support_x m/s^2, pivot_z m/s^2], one layout dimension whose
   label lists them (DRIVE_LABEL).
+- ``/control`` (closed loops, ``pendsim control``): std_msgs/msg/Float64MultiArray at every
+  control step: what the controller saw (angles, rates, each node's sample age) and its state
+  (the torques it asked for and applied, its own quantities), the columns named with their units
+  in the layout label; metadata ``pendsim/control`` (controller, design, limits, metrics).
 
 Metadata records ``pendsim/run``, ``pendsim/rig_parameters``, ``pendsim/imu``, and for a driven
 run ``pendsim/drive`` (each driven input's signal as JSON, the channel order, the sampling);
@@ -51,10 +55,10 @@ from pendsim_mj.units import NS_PER_S, seconds
 from . import ros2
 from .mcap.reader import ChannelData, McapFile, scan_mcap
 from .mcap.writer import BulkMcapWriter
+from .recording_layout import CONTROL_TOPIC, DRIVE_LAYOUT, JOINT_NAMES, SPATIAL_JOINT_NAMES, TF_LAYOUT
 
 # ``X as X``: the layout's names a script uses with a recording, exported here too
 from .recording_layout import DEFAULT_START_NS as DEFAULT_START_NS
-from .recording_layout import DRIVE_LAYOUT, JOINT_NAMES, SPATIAL_JOINT_NAMES, TF_LAYOUT
 from .recording_layout import DRIVE_TOPIC as DRIVE_TOPIC
 from .recording_layout import MJCF_ATTACHMENT as MJCF_ATTACHMENT
 from .recording_layout import NODES as NODES
@@ -310,6 +314,7 @@ EXPECTED_SCHEMAS = {
     "/tf": "tf2_msgs/msg/TFMessage",
     "/tf_static": "tf2_msgs/msg/TFMessage",
     DRIVE_TOPIC: "std_msgs/msg/Float64MultiArray",
+    CONTROL_TOPIC: "std_msgs/msg/Float64MultiArray",
 }
 
 

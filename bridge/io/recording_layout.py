@@ -36,6 +36,34 @@ DRIVE_LABEL = ",".join(CHANNEL_LABELS)
 DRIVE_LAYOUT = ros2.float64_multiarray_layout(DRIVE_LABEL, NCHANNEL)
 
 
+CONTROL_TOPIC = "/control"
+CONTROL_METADATA = "pendsim/control"
+
+
+@dataclasses.dataclass(frozen=True)
+class ControlTopic:
+    """A closed loop's ``/control`` topic: what the controller saw and did at each control step
+    (log time = the step's start), one Float64MultiArray per step whose layout label lists
+    ``names`` (units in the names), and the loop's description for ``pendsim/control``.
+
+    Attributes:
+      names: the columns.
+      t_s: (n,) each step's start from the release, s.
+      values: (n, len(names)).
+      metadata: JSON-able text per key (controller, gains, limits, metrics).
+    """
+
+    names: tuple[str, ...]
+    t_s: object
+    values: object
+    metadata: dict[str, str]
+
+
+def control_layout(names: tuple[str, ...]) -> ros2.FixedCdr:
+    """The /control message layout for these columns."""
+    return ros2.float64_multiarray_layout(",".join(names), len(names))
+
+
 def imu_topic(node: str) -> str:
     return f"/imu/{node}"
 

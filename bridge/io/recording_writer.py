@@ -37,6 +37,8 @@ from pendsim_mj.units import nanoseconds, split_ns
 from . import ros2
 from .mcap.writer import BulkMcapWriter
 from .recording_layout import (
+    CONTROL_METADATA,
+    CONTROL_TOPIC,
     DRIVE_LABEL,
     DRIVE_LAYOUT,
     DRIVE_TOPIC,
@@ -48,7 +50,9 @@ from .recording_layout import (
     STATIC_TF_LAYOUT,
     STATIC_WORLD_TF_LAYOUT,
     TF_LAYOUT,
+    ControlTopic,
     RunInfo,
+    control_layout,
     imu_topic,
 )
 
@@ -96,6 +100,8 @@ class RecordingWriter:
       static: a static noise test (IMU topics and a static world -> m1, m2; no /tf, /joint_states).
       spatial: the spatial variant (/joint_states lists the tilt joints too).
       drive: the run's drive (``/drive`` topic and ``pendsim/drive`` metadata), or None.
+      control: a closed loop's ``/control`` topic and ``pendsim/control`` metadata, or None
+        (written whole at the start; the writer's flushes put it in log-time order).
     """
 
     def __init__(
@@ -111,6 +117,7 @@ class RecordingWriter:
         static: bool = False,
         spatial: bool = False,
         drive: Drive | None = None,
+        control: ControlTopic | None = None,
     ) -> None:
         self.w, self.params, self.config, self.run = w, params, config, run
         self.drive = drive
@@ -149,6 +156,19 @@ class RecordingWriter:
             "/tf_static", sid["tf2_msgs/msg/TFMessage"], "cdr", {"offered_qos_profiles": TRANSIENT_LOCAL_QOS}
         )
         w.write_messages(self.ch["tf_static"], [self.start_time_ns], self._static_tf())
+        if control is not None and not static:
+            self._write_control(control, sid["std_msgs/msg/Float64MultiArray"])
+
+    def _write_control(self, control: ControlTopic, schema_id: int) -> None:
+        w = self.w
+        w.add_metadata(CONTROL_METADATA, control.metadata)
+        channel = w.register_channel(CONTROL_TOPIC, schema_id, "cdr")
+        values = np.asarray(control.values, dtype=float)
+        t_ns = _ns(np.asarray(control.t_s, dtype=float) + self.run.release_time_s, self.start_time_ns)
+        n, k = values.shape
+        size = np.full(n, k)
+        payload = control_layout(control.names).encode(n, size=size, stride=size, data_offset=np.zeros(n), data=values)
+        w.write_messages(channel, t_ns, payload)
 
     # -- IMU topics ----------------------------------------------------------------------------
     def write_imu(self, imu: ImuSamples) -> None:

@@ -34,7 +34,7 @@ from pendsim_mj.units import NS_PER_S
 
 from ..io.mcap.writer import BulkMcapWriter
 from ..io.outputs import atomic_output
-from ..io.recording_layout import RunInfo
+from ..io.recording_layout import ControlTopic, RunInfo
 from ..io.recording_writer import RecordingWriter
 from ..signals import signal_handlers
 
@@ -59,6 +59,8 @@ class RecordSpec:
       compression: chunk compression of the MCAP file.
       drive: torques and support motion from the release on (``pendsim_mj.rig.drives``), recorded
         as the /drive topic and the pendsim/drive metadata; None for a free run.
+      control: a closed loop's /control topic (``pendsim control``: the drive is then the loop's
+        inputs replayed), or None.
     """
 
     params: RigParams = DEFAULT_PARAMS
@@ -72,6 +74,7 @@ class RecordSpec:
     imu: Bno055 = dataclasses.field(default_factory=Bno055)
     compression: str = "zstd"
     drive: Drive | None = None
+    control: ControlTopic | None = None
 
     def __post_init__(self) -> None:
         if self.model not in MODELS:
@@ -224,6 +227,7 @@ def record(
         rw = RecordingWriter(
             w, params=spec.params, config=spec.imu, run=run, mjcf_xml=mjcf, start_time_ns=start,
             compression=spec.compression, static=static, spatial=spec.model == "spatial", drive=spec.drive,
+            control=spec.control,
         )  # fmt: skip
         given = 0  # samples of a block handed to the writer in full, not yet counted
         per_node = np.zeros(2, dtype=int)  # messages written per node (lost packets are not)

@@ -62,7 +62,11 @@ class Controller(Protocol):
     name: str
     motors: tuple[str, ...]
     torque_limit_n_m: float
-    log_names: tuple[str, ...]
+
+    @property
+    def log_names(self) -> tuple[str, ...]:
+        """The columns of ``log``."""
+        ...
 
     def reset(self) -> None:
         """Forget any internal state (a new run)."""

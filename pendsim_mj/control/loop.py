@@ -51,7 +51,7 @@ class LoopMetrics:
       peak_torque_n_m: (2,) largest |tau| per motor, N m.
       saturated_share: share of steps in which a motor was at its limit.
       largest_ratio_m2_m1: largest ratio of M2's to M1's swing amplitude over 1 s windows
-        (beating: energy moving from M1 to M2).
+        while M1 swings (beating: energy moving from M1 to M2).
     """
 
     decay_s: Floats
@@ -151,13 +151,16 @@ class ClosedLoop:
         )
 
 
-def _largest_ratio(t_s: Floats, states: Floats, window_s: float = 1.0) -> float:
-    """Largest ratio of M2's to M1's peak |phi| over whole windows of ``window_s``."""
+def _largest_ratio(t_s: Floats, states: Floats, window_s: float = 1.0, swinging: float = 0.1) -> float:
+    """Largest ratio of M2's to M1's peak |phi| over whole windows of ``window_s`` in which M1
+    still swings (its peak at least ``swinging`` of its largest: once both are damped to the
+    noise, their ratio says nothing about beating)."""
     per = max(1, round(window_s / float(t_s[1] - t_s[0]))) if len(t_s) > 1 else 1
     n = (len(states) // per) * per
     if n == 0:
         return math.nan
     peaks = np.abs(states[:n, :2]).reshape(-1, per, 2).max(axis=1)
+    peaks = peaks[peaks[:, 0] >= swinging * np.max(peaks[:, 0])]
     with np.errstate(divide="ignore", invalid="ignore"):
         ratio = peaks[:, 1] / peaks[:, 0]
     return float(np.nanmax(ratio)) if np.any(np.isfinite(ratio)) else math.nan

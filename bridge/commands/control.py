@@ -1,0 +1,188 @@
+"""pendsim control: run a controller on the simulated rig in closed loop, compare it with the
+open loop, and record it."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+from pathlib import Path
+
+from pendsim_mj.control.controllers import CONTROLLERS, MOTORS
+from pendsim_mj.errors import ParameterError
+from pendsim_mj.rig.params import DEFAULT_PARAMS
+from pendsim_mj.sensors.bno055 import Bno055
+
+from .. import options
+from ..run.control import OBSERVERS, ControlResult, ControlSpec, run_control
+from .node_options import add_imperfection_options, imperfections_from
+
+LOOP_ENGINES = ("mujoco", "fast")
+MAX_GAIN = 1e4  # N m per rad (or per rad/s): far beyond anything a 0.05 N m motor can use
+
+
+def register(sub: argparse._SubParsersAction[options.Parser]) -> None:
+    p = sub.add_parser(
+        "control",
+        help="run a controller on the simulated rig in closed loop and compare it with the open loop",
+        description="Close the loop on the simulated rig: every 10 ms the controller reads the state (exactly, or as "
+        "the BNO055 nodes deliver it with --observe nodes) and sets the motor torques, held over the step. Prints "
+        "each mode's decay time (to 1/e) against the open loop, the energy used and the peak torque; with -o, writes "
+        "a recording (/drive: the torques; /control: what the controller saw and did) that validate, view and "
+        "replay open. Controllers: lqr (active damping of both modes), scheduled-lqr (gains scheduled on the "
+        "amplitude), energy (each mode's energy to a target: damp, or hold --target-amplitude-deg), beating (no "
+        "energy exchange between the pendulums: M2 held still while M1 swings), none (the open loop).",
+    )
+    p.add_argument(
+        "controller",
+        type=options.choice(tuple(CONTROLLERS), "unknown controller {value!r}; allowed: {allowed}"),
+        choices=tuple(CONTROLLERS),
+        help="the controller",
+    )
+    p.add_argument("-o", "--output", type=Path, help="record the closed loop to this .mcap file")
+    options.add_force_option(p, "the output file")
+    options.add_run_options(p)
+    p.set_defaults(duration_s=30.0)
+    p.add_argument(
+        "--design-params-file",
+        type=options.input_file,
+        help="JSON parameter overrides of the rig the controller is designed for (e.g. 'pendsim calibrate' "
+        "params.json; default: the simulated rig itself)",
+    )
+    p.add_argument(
+        "--motors",
+        type=options.choice(("m1,m2", "m1", "m2"), "unknown motors {value!r}; allowed: {allowed}"),
+        default="m1,m2",
+        help="the motors: m1,m2 (default), m1 or m2",
+    )
+    p.add_argument(
+        "--torque-limit-n-m",
+        type=options.float_in(1e-4, 2.0, "N m", name="--torque-limit-n-m"),
+        default=0.05,
+        help="each motor's torque limit, N m (default 0.05)",
+    )
+    p.add_argument(
+        "--input-weight",
+        type=options.float_in(1e-6, 1e6, name="--input-weight"),
+        default=10.0,
+        help="lqr: the weight R of the torque in the cost (J per (N m)^2; larger is gentler; default 10)",
+    )
+    p.add_argument(
+        "--gain-file",
+        type=options.input_file,
+        help="lqr: a JSON matrix of gains (one row per motor; columns phi1, phi2 in N m/rad, omega1, omega2 in "
+        "N m s/rad), checked to stabilise the linearised rig, instead of the design",
+    )
+    p.add_argument(
+        "--target-amplitude-deg",
+        type=options.float_in(0.0, 80.0, "deg", name="--target-amplitude-deg"),
+        default=0.0,
+        help="energy: hold mode 1 at this amplitude (deg of M1) and damp mode 2 (default 0: damp both)",
+    )
+    p.add_argument(
+        "--observe",
+        type=options.choice(OBSERVERS, "unknown observation {value!r}; allowed: {allowed}"),
+        choices=OBSERVERS,
+        default="state",
+        help="what the controller reads: state (exact; default) or nodes (80 Hz, the BNO055 noise, and the "
+        "--packet-loss and --latency-s below)",
+    )
+    p.add_argument("--seed", type=options.int_in(0, 2**63 - 1), default=0, help="seed of the node noise")
+    p.add_argument("--no-open-loop", action="store_true", help="skip the open-loop run (no decay comparison; faster)")
+    add_imperfection_options(p)
+    p.set_defaults(handler=run)
+
+
+def _gain(path: Path, rows: int) -> tuple[tuple[float, ...], ...]:
+    try:
+        value = json.loads(path.read_text())
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise ParameterError(f"--gain-file {path}: not a JSON matrix ({exc})") from None
+    ok = (
+        isinstance(value, list)
+        and len(value) == rows
+        and all(isinstance(r, list) and len(r) == 4 for r in value)
+        and all(isinstance(v, (int, float)) and not isinstance(v, bool) for r in value for v in r)
+    )
+    if not ok:
+        raise ParameterError(f"--gain-file {path}: need {rows} rows (one per motor) of 4 numbers")
+    if not all(math.isfinite(v) and abs(v) <= MAX_GAIN for r in value for v in r):
+        raise ParameterError(f"--gain-file {path}: every gain must be finite and within +-{MAX_GAIN:g}")
+    return tuple(tuple(float(v) for v in r) for r in value)
+
+
+def spec_from(args: argparse.Namespace) -> ControlSpec:
+    """The ControlSpec the options describe."""
+    if args.engine not in LOOP_ENGINES:
+        raise options.UsageError(f"--engine {args.engine}: a closed loop runs on {' or '.join(LOOP_ENGINES)}")
+    motors = tuple(args.motors.split(","))
+    unknown = [m for m in motors if m not in MOTORS]
+    if unknown:
+        raise options.UsageError(f"--motors: unknown motor {unknown[0]!r}; allowed: m1, m2")
+    params = options.params_from(args)
+    design = (
+        DEFAULT_PARAMS.with_mapping(options.read_params_file(args.design_params_file))
+        if args.design_params_file is not None
+        else None
+    )
+    imperfect, mounts = imperfections_from(args)
+    imu = Bno055(seed=args.seed, mount_quat_wxyz=mounts, imperfections=imperfect)
+    phi0, omega0 = options.initial_state_from(args)
+    return ControlSpec(
+        controller=args.controller, params=params, design_params=design, phi0_rad=phi0, omega0_rad_s=omega0,
+        duration_s=args.duration_s, dt_s=args.dt_s, engine=args.engine, motors=motors,
+        torque_limit_n_m=args.torque_limit_n_m, input_weight=args.input_weight,
+        gain=_gain(args.gain_file, len(motors)) if args.gain_file is not None else None,
+        target_amplitudes_rad=(math.radians(args.target_amplitude_deg), 0.0), observe=args.observe, imu=imu,
+        open_loop=not args.no_open_loop,
+    )  # fmt: skip
+
+
+def _decay(value: float) -> str:
+    return f"{value:.2f} s" if math.isfinite(value) else ("not excited" if math.isnan(value) else "not within the run")
+
+
+def summary(result: ControlResult) -> list[str]:
+    """The lines the command prints."""
+    m, loop = result.metrics, result.loop
+    lines = [
+        f"{loop.controller} on the {loop.engine} engine, motors {'+'.join(loop.motors)} (limit "
+        f"{loop.torque_limit_n_m:g} N m), observing the {loop.observer}, {loop.t_s[-1]:g} s",
+        "  mode   start amplitude   decay to 1/e   open loop      shorter by",
+    ]
+    speed = result.speedup()
+    for i in range(2):
+        open_ = _decay(float(result.open_loop.decay_s[i])) if result.open_loop is not None else "-"
+        ratio = f"{speed[i]:.1f}x" if math.isfinite(speed[i]) else "-"
+        lines.append(
+            f"  {i + 1}      {math.degrees(m.start_amplitudes_rad[i]):8.2f} deg    {_decay(float(m.decay_s[i])):>14}"
+            f"   {open_:>14}   {ratio}"
+        )
+    final1, final2 = (math.degrees(a) for a in m.final_amplitudes_rad)
+    lines.append(
+        f"  final amplitudes {final1:.3f} / {final2:.3f}"
+        f" deg; energy used {m.energy_used_j:.4f} J; peak torque {m.peak_torque_n_m[0]:.4f} / "
+        f"{m.peak_torque_n_m[1]:.4f} N m; at the limit {100 * m.saturated_share:.1f} % of steps; "
+        f"largest M2/M1 swing {m.largest_ratio_m2_m1:.3f}"
+    )
+    return lines
+
+
+def run(args: argparse.Namespace) -> int:
+    from tqdm import tqdm  # start-up: loaded when the command runs
+
+    options.check_output(args.output, (".mcap",), force=args.force)
+    spec = spec_from(args)
+    with tqdm(total=spec.duration_s, unit="s", desc="closed loop", disable=None, leave=False) as bar:
+        last = [0.0]
+
+        def progress(done_s: float) -> None:
+            bar.update(done_s - last[0])
+            last[0] = done_s
+
+        result = run_control(spec, args.output, replace=args.force, progress=progress)
+    for line in summary(result):
+        print(line)
+    if result.recording is not None:
+        print(f"wrote {result.recording.path}: {result.recording.size_bytes / 1e6:.2f} MB")
+    return 0
