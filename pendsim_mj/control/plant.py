@@ -116,6 +116,7 @@ class FastPlant:
         self.nenv, self.dt_s, self.t_s = nenv, _check_dt(dt_s), 0.0
         self.params = plist
         self.coef = coefficients(plist)  # (NCOEF, nenv)
+        self._coef_one = self.coef[:, 0].copy()  # (NCOEF,): one rig's constants as scalars
         self._x = np.zeros((4, nenv))  # rows: phi1, phi2, omega1, omega2 (columns are members)
 
     def reset(self, phi0_rad: ArrayLike, omega0_rad_s: ArrayLike = (0.0, 0.0)) -> Floats:
@@ -139,6 +140,9 @@ class FastPlant:
     def advance(self, u: Floats) -> None:
         """One RK4 step with inputs ``u`` (4, nenv) held over it, unchecked (the vectorised
         environment's inner loop)."""
+        if self.nenv == 1:
+            self._advance_one(u[:, 0])
+            return
         h = self.dt_s
         x = self._x
         k1 = self._rates(x, u)
@@ -148,6 +152,24 @@ class FastPlant:
         self._x = x + (h / 6.0) * (k1 + 2.0 * (k2 + k3) + k4)
         self.t_s += h
 
+    def _advance_one(self, u: Floats) -> None:
+        """The same step for one rig on scalars (the same closed forms; six times less numpy
+        overhead per call than on arrays of one member)."""
+        h, c = self.dt_s, self._coef_one
+        p1, p2, w1, w2 = (float(v) for v in self._x[:, 0])
+
+        def rates(a: float, b: float, wa: float, wb: float) -> tuple[float, float, float, float]:
+            acc1, acc2 = accelerations(a, b, wa, wb, c, u)  # type: ignore[arg-type]
+            return wa, wb, float(acc1), float(acc2)
+
+        k1 = rates(p1, p2, w1, w2)
+        k2 = rates(p1 + 0.5 * h * k1[0], p2 + 0.5 * h * k1[1], w1 + 0.5 * h * k1[2], w2 + 0.5 * h * k1[3])
+        k3 = rates(p1 + 0.5 * h * k2[0], p2 + 0.5 * h * k2[1], w1 + 0.5 * h * k2[2], w2 + 0.5 * h * k2[3])
+        k4 = rates(p1 + h * k3[0], p2 + h * k3[1], w1 + h * k3[2], w2 + h * k3[3])
+        x = (p1, p2, w1, w2)
+        self._x[:, 0] = [x[i] + (h / 6.0) * (k1[i] + 2.0 * (k2[i] + k3[i]) + k4[i]) for i in range(4)]
+        self.t_s += h
+
     @property
     def columns(self) -> Floats:
         """The state as (4, nenv), not copied (rows phi1, phi2, omega1, omega2)."""
@@ -155,7 +177,7 @@ class FastPlant:
 
     @property
     def state(self) -> Floats:
-        return np.ascontiguousarray(self._x.T)
+        return self._x.T.copy()  # a copy (a (4, 1) transpose is already contiguous: no copy otherwise)
 
     def energy_j(self) -> Floats:
         x = self._x
