@@ -1,17 +1,22 @@
 """The rig's state at every instant from its nodes, as they arrive: an unscented Kalman filter on
 the planar model (the live twin's estimator).
 
-State x = (phi1, phi2, omega1, omega2) (rad, rad/s) with covariance P (4, 4).
+State x = (phi1, phi2, omega1, omega2) (rad, rad/s), followed by the tracked parameters
+(``TRACKABLE``, any of them: the hinges' damping b1, b2 in N m s/rad and dry friction F1, F2 in
+N m, the coupling springs' moment constant K_s = 2 c1 l01 l04 in N m, and each node's angle offset
+on its mount in rad), with covariance P. A tracked parameter is a random walk (its rate of change
+``drift_per_s`` per sqrt(s)): the filter follows a slow drift or a step, with its interval.
 
-- **Prediction** to each sample's instant: the sigma points (Merwe's scaled set, 2n + 1 = 9) are
+- **Prediction** to each sample's instant: the sigma points (Merwe's scaled set, 2n + 1) are
   advanced by one classical RK4 step of the fast engine's force law (``control.plant.FastPlant``,
-  the reference's equations in closed form) over the interval (at most one node period, 12.5 ms),
+  the reference's equations in closed form, each point with its own tracked parameters) over the
+  interval (at most one node period, 12.5 ms),
   with the motor torques applied over it (a controller's, or none). Process noise: an unknown
   white torque on each hinge of spectral density ``torque_noise_n_m`` ^2 per Hz (the model's error
   and the unmodelled disturbances), discretised over the interval (its exact covariance for a
   double integrator per hinge, scaled by 1/J).
 - **Update** with one node's sample: its swing angle (the fused orientation's angle about the
-  hinge) and its gyro's rate about the hinge, z = (phi_n, omega_n), linear in x: the Kalman update
+  hinge) and its gyro's rate about the hinge, z = (phi_n + offset_n, omega_n), linear in x: the Kalman update
   is exact (Joseph form). Noise: the BNO055 model's gyro sigma on the hinge axis and the
   orientation's quantisation plus its fusion error (``observe.NodeObserver``'s numbers).
 - **Innovations** nu = z - H x and their covariance S are kept with each update: on a healthy rig
@@ -31,6 +36,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from pendsim_mj.control.plant import FastPlant
+from pendsim_mj.engines.fast_planar.closed_form import COEFFICIENTS
 from pendsim_mj.errors import ParameterError, PendsimError
 from pendsim_mj.rig.params import DEFAULT_PARAMS, RigParams
 from pendsim_mj.sensors.bno055 import QUAT_LSB, Bno055
@@ -39,6 +45,23 @@ Floats = NDArray[np.float64]
 NSTATE = 4
 HINGE_AXIS = 2  # the sensor axis along the hinge (z) in the default mount
 DEFAULT_TORQUE_NOISE_N_M = 2e-4  # N m / sqrt(Hz): white torque standing for the model's error
+
+# name -> (the force law's coefficient it sets, or None for a node's angle offset; its unit; the
+# default drift per sqrt(s): a step of the issue's size is followed within tens of seconds)
+TRACKABLE: dict[str, tuple[str | None, str, float]] = {
+    "b1_n_m_s": ("b1_n_m_s", "N m s/rad", 2e-5),
+    "b2_n_m_s": ("b2_n_m_s", "N m s/rad", 2e-5),
+    "friction1_n_m": ("friction1_n_m", "N m", 1e-5),
+    "friction2_n_m": ("friction2_n_m", "N m", 1e-5),
+    "coupling_sin_n_m": ("coupling_sin_n_m", "N m", 5e-4),
+    "offset_m1_rad": (None, "rad", 1e-3),
+    "offset_m2_rad": (None, "rad", 1e-3),
+}
+"""The parameters the estimator can track: name -> (coefficient of ``fast_planar.closed_form``,
+unit, default drift per sqrt(s))."""
+
+
+_COUPLING = COEFFICIENTS.index("coupling_sin_n_m")
 
 
 class StaleSample(PendsimError):
@@ -79,6 +102,8 @@ class RigEstimator:
       params: the rig (e.g. ``pendsim calibrate``'s).
       nodes: the node model (its noise sets the measurement noise).
       torque_noise_n_m: process noise, N m / sqrt(Hz) on each hinge.
+      track: names of ``TRACKABLE`` to follow as states (none: the rig's parameters are known).
+      drift_per_s: each tracked parameter's random-walk rate, unit per sqrt(s) (default: TRACKABLE's).
       alpha, beta, kappa: the sigma points' spread (Merwe's scaled set).
     """
 
@@ -88,6 +113,8 @@ class RigEstimator:
         *,
         nodes: Bno055 | None = None,
         torque_noise_n_m: float = DEFAULT_TORQUE_NOISE_N_M,
+        track: tuple[str, ...] = (),
+        drift_per_s: dict[str, float] | None = None,
         alpha: float = 1e-3,
         beta: float = 2.0,
         kappa: float = 0.0,
@@ -101,24 +128,51 @@ class RigEstimator:
         quantisation = 2 * QUAT_LSB / math.sqrt(12.0) if nodes.noise else 1e-7
         angle = math.hypot(quantisation, nodes.imperfections.fusion_error_rad)
         self.measurement_sigma = np.array([angle, gyro])
-        self._scale, self._wm, self._wc = _sigma_weights(NSTATE, alpha, beta, kappa)
-        self._plant = FastPlant(params, nenv=2 * NSTATE + 1)
+        unknown = [name for name in track if name not in TRACKABLE]
+        if unknown or len(set(track)) != len(track):
+            raise ParameterError(f"cannot track {unknown or track}; trackable: {', '.join(TRACKABLE)}")
+        self.track = tuple(track)
+        drift = {name: TRACKABLE[name][2] for name in self.track} | (drift_per_s or {})
+        self.drift_per_s = np.array([drift[name] for name in self.track])
+        self.n = NSTATE + len(self.track)
+        self._rows = [COEFFICIENTS.index(TRACKABLE[name][0] or "") if TRACKABLE[name][0] else -1 for name in self.track]
+        self._offsets = {int(name[8]) - 1: NSTATE + i for i, name in enumerate(self.track) if name.startswith("offset")}
+        self._scale, self._wm, self._wc = _sigma_weights(self.n, alpha, beta, kappa)
+        self._plant = FastPlant(params, nenv=2 * self.n + 1)
+        self._coef = self._plant.coef.copy()
         self._inertia = np.array([params.j1_kg_m2, params.j2_kg_m2])
         self.t_s = 0.0
-        self.x = np.zeros(NSTATE)
-        self.p = np.eye(NSTATE)
+        self.x = np.zeros(self.n)
+        self.p = np.eye(self.n)
 
-    def start(self, t_s: float, x0: ArrayLike, sigma0: ArrayLike = (0.05, 0.05, 0.2, 0.2)) -> None:
-        """Start at ``t_s`` from x0 (4,) with standard deviations sigma0 (4,) (rad, rad/s)."""
-        self.t_s = float(t_s)
-        self.x = np.asarray(x0, dtype=float).copy()
-        self.p = np.diag(np.square(np.asarray(sigma0, dtype=float)))
-        if self.x.shape != (NSTATE,) or not np.all(np.isfinite(self.x)):
+    def stated(self, name: str) -> float:
+        """A tracked parameter's value in the rig the estimator was given (0 for an offset)."""
+        row = TRACKABLE[name][0]
+        return 0.0 if row is None else float(self._coef[COEFFICIENTS.index(row), 0])
+
+    def start(
+        self,
+        t_s: float,
+        x0: ArrayLike,
+        sigma0: ArrayLike = (0.05, 0.05, 0.2, 0.2),
+        parameter_sigma0: ArrayLike | None = None,
+    ) -> None:
+        """Start at ``t_s`` from x0 (4,) with standard deviations sigma0 (4,) (rad, rad/s); the
+        tracked parameters start at the rig's values with ``parameter_sigma0`` (default: 20 s of
+        drift)."""
+        x = np.asarray(x0, dtype=float)
+        if x.shape != (NSTATE,) or not np.all(np.isfinite(x)):
             raise ParameterError(f"the start state must be 4 finite numbers, got {x0!r}")
+        spread = self.drift_per_s * math.sqrt(20.0) if parameter_sigma0 is None else np.asarray(parameter_sigma0)
+        self.t_s = float(t_s)
+        self.x = np.concatenate([x, [self.stated(name) for name in self.track]])
+        self.p = np.diag(np.square(np.concatenate([np.asarray(sigma0, dtype=float), spread])))
 
     def _process_noise(self, h: float) -> Floats:
-        """Covariance added over h by a white torque on each hinge (double integrator per hinge)."""
-        q = np.zeros((NSTATE, NSTATE))
+        """Covariance added over h by a white torque on each hinge (double integrator per hinge)
+        and by the tracked parameters' random walks."""
+        q = np.zeros((self.n, self.n))
+        q[NSTATE:, NSTATE:] = np.diag(self.drift_per_s**2 * h)
         for k in range(2):
             s = (self.torque_noise_n_m / self._inertia[k]) ** 2  # rad^2/s^3
             q[k, k] = s * h**3 / 3.0
@@ -134,16 +188,20 @@ class RigEstimator:
             raise StaleSample(f"a sample at {t_s:.6f} s is older than the estimate at {self.t_s:.6f} s")
         if h <= 0:
             return
-        root = np.linalg.cholesky(self._scale * self.p + 1e-18 * np.eye(NSTATE))
-        points = np.concatenate([self.x[None], self.x + root.T, self.x - root.T])  # (9, 4)
+        root = np.linalg.cholesky(self._scale * self.p + 1e-18 * np.eye(self.n))
+        points = np.concatenate([self.x[None], self.x + root.T, self.x - root.T])  # (2n + 1, n)
         tau = np.asarray(torques_n_m, dtype=float)
         u = np.zeros((4, len(points)))
         u[0], u[1] = tau[0], tau[1]
         plant = self._plant
         plant.dt_s = h
-        plant.columns[:] = points.T
+        for i, row in enumerate(self._rows):
+            if row >= 0:  # each sigma point with its own parameters; no negative damping or friction
+                plant.coef[row] = points[:, NSTATE + i] if row == _COUPLING else np.maximum(points[:, NSTATE + i], 0.0)
+        plant.columns[:] = points[:, :NSTATE].T
         plant.advance(u)
-        moved = plant.columns.T  # (9, 4)
+        moved = points.copy()
+        moved[:, :NSTATE] = plant.columns.T
         mean = self._wm @ moved
         d = moved - mean
         self.x = mean
@@ -158,20 +216,29 @@ class RigEstimator:
         if node not in (0, 1):
             raise ParameterError(f"node must be 0 (M1) or 1 (M2), got {node!r}")
         self.predict(t_s, torques_n_m)
-        index = [node, 2 + node]
+        h = np.zeros((2, self.n))
+        h[0, node] = h[1, 2 + node] = 1.0
+        if node in self._offsets:
+            h[0, self._offsets[node]] = 1.0  # the node reads its angle plus its mount's offset
         z = np.array([phi_rad, omega_rad_s], dtype=float)
         r = np.diag(self.measurement_sigma**2)
-        nu = z - self.x[index]
+        nu = z - h @ self.x
         nu[0] = (nu[0] + math.pi) % (2 * math.pi) - math.pi  # an angle's innovation wraps
-        s = self.p[np.ix_(index, index)] + r
-        gain = np.linalg.solve(s, self.p[index, :]).T  # (4, 2) = P H' S^-1
+        ph = self.p @ h.T
+        s = h @ ph + r
+        gain = np.linalg.solve(s, ph.T).T  # (n, 2) = P H' S^-1
         self.x = self.x + gain @ nu
-        keep = np.eye(NSTATE)
-        keep[:, index] -= gain
+        keep = np.eye(self.n) - gain @ h
         self.p = keep @ self.p @ keep.T + gain @ r @ gain.T  # Joseph form
         return Update(self.t_s, node, nu, s, float(nu @ np.linalg.solve(s, nu)))
 
     @property
     def sigma(self) -> Floats:
-        """(4,) the estimate's standard deviations, rad and rad/s."""
+        """(n,) the estimate's standard deviations (the state's rad and rad/s, then the tracked
+        parameters' units)."""
         return np.sqrt(np.diag(self.p))
+
+    def parameters(self) -> dict[str, tuple[float, float]]:
+        """Each tracked parameter's estimate and standard deviation, its unit (``TRACKABLE``)."""
+        sigma = self.sigma
+        return {name: (float(self.x[NSTATE + i]), float(sigma[NSTATE + i])) for i, name in enumerate(self.track)}
