@@ -1,11 +1,14 @@
-"""The live twin: the rig's state estimated from its nodes as they arrive (issue 25; the
-estimator so far: no change detection, command or live views yet).
+"""The live twin: the rig's state estimated from its nodes as they arrive, and its health (issue
+25; the library so far: no command, emulated faults or live views yet).
 
 - ``estimator``: ``RigEstimator``, an unscented Kalman filter on the planar model (sigma points
   advanced by the fast engine's force law, exact linear update with each node's swing angle and
   hinge rate), its innovations and their normalised squares (``Update``), and the parameters it
   can track as random walks with their intervals (``TRACKABLE``: damping, dry friction, the
   coupling springs, each node's mount offset).
+- ``health``: ``HealthMonitor``, alarms when a tracked parameter leaves its reference by more than
+  a threshold of its standard deviation for a while (``Alarm``: which parameter, what it means on
+  the rig, since when, by how much).
 
 Importing this package imports nothing heavy (the estimator loads on first use).
 """
@@ -17,6 +20,8 @@ from typing import TYPE_CHECKING
 from pendsim_mj import lazy
 
 _LAZY = {
+    "Alarm": "pendsim_mj.twin.health",
+    "HealthMonitor": "pendsim_mj.twin.health",
     "TRACKABLE": "pendsim_mj.twin.estimator",
     "RigEstimator": "pendsim_mj.twin.estimator",
     "StaleSample": "pendsim_mj.twin.estimator",
@@ -25,7 +30,8 @@ _LAZY = {
 
 if TYPE_CHECKING:
     from pendsim_mj.twin.estimator import TRACKABLE, RigEstimator, StaleSample, Update
+    from pendsim_mj.twin.health import Alarm, HealthMonitor
 else:
     __getattr__, __dir__ = lazy.exports(__name__, _LAZY)
 
-__all__ = ["TRACKABLE", "RigEstimator", "StaleSample", "Update"]
+__all__ = ["TRACKABLE", "Alarm", "HealthMonitor", "RigEstimator", "StaleSample", "Update"]

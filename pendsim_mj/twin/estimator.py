@@ -51,17 +51,14 @@ DEFAULT_TORQUE_NOISE_N_M = 2e-4  # N m / sqrt(Hz): white torque standing for the
 TRACKABLE: dict[str, tuple[str | None, str, float]] = {
     "b1_n_m_s": ("b1_n_m_s", "N m s/rad", 2e-5),
     "b2_n_m_s": ("b2_n_m_s", "N m s/rad", 2e-5),
-    "friction1_n_m": ("friction1_n_m", "N m", 1e-5),
-    "friction2_n_m": ("friction2_n_m", "N m", 1e-5),
+    "friction1_n_m": ("friction1_n_m", "N m", 3e-5),
+    "friction2_n_m": ("friction2_n_m", "N m", 3e-5),
     "coupling_sin_n_m": ("coupling_sin_n_m", "N m", 5e-4),
     "offset_m1_rad": (None, "rad", 1e-3),
     "offset_m2_rad": (None, "rad", 1e-3),
 }
 """The parameters the estimator can track: name -> (coefficient of ``fast_planar.closed_form``,
 unit, default drift per sqrt(s))."""
-
-
-_COUPLING = COEFFICIENTS.index("coupling_sin_n_m")
 
 
 class StaleSample(PendsimError):
@@ -196,8 +193,8 @@ class RigEstimator:
         plant = self._plant
         plant.dt_s = h
         for i, row in enumerate(self._rows):
-            if row >= 0:  # each sigma point with its own parameters; no negative damping or friction
-                plant.coef[row] = points[:, NSTATE + i] if row == _COUPLING else np.maximum(points[:, NSTATE + i], 0.0)
+            if row >= 0:  # each sigma point with its own parameters (unclipped: a spread about 0 stays symmetric)
+                plant.coef[row] = points[:, NSTATE + i]
         plant.columns[:] = points[:, :NSTATE].T
         plant.advance(u)
         moved = points.copy()
