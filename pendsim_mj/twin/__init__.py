@@ -5,7 +5,8 @@
   advanced by the fast engine's force law, exact linear update with each node's swing angle and
   hinge rate), its innovations and their normalised squares (``Update``), and the parameters it
   can track as random walks with their intervals (``TRACKABLE``: damping, dry friction, the
-  coupling springs, each node's mount offset).
+  coupling springs, each node's mount offset), and ``forecast`` (the motion over the next seconds
+  with its uncertainty).
 - ``health``: ``HealthMonitor``, alarms when a tracked parameter leaves its reference by more than
   a threshold of its standard deviation for a while (``Alarm``: which parameter, what it means on
   the rig, since when, by how much).
@@ -23,15 +24,16 @@ _LAZY = {
     "Alarm": "pendsim_mj.twin.health",
     "HealthMonitor": "pendsim_mj.twin.health",
     "TRACKABLE": "pendsim_mj.twin.estimator",
+    "Forecast": "pendsim_mj.twin.estimator",
     "RigEstimator": "pendsim_mj.twin.estimator",
     "StaleSample": "pendsim_mj.twin.estimator",
     "Update": "pendsim_mj.twin.estimator",
 }
 
 if TYPE_CHECKING:
-    from pendsim_mj.twin.estimator import TRACKABLE, RigEstimator, StaleSample, Update
+    from pendsim_mj.twin.estimator import TRACKABLE, Forecast, RigEstimator, StaleSample, Update
     from pendsim_mj.twin.health import Alarm, HealthMonitor
 else:
     __getattr__, __dir__ = lazy.exports(__name__, _LAZY)
 
-__all__ = ["TRACKABLE", "Alarm", "HealthMonitor", "RigEstimator", "StaleSample", "Update"]
+__all__ = ["TRACKABLE", "Alarm", "Forecast", "HealthMonitor", "RigEstimator", "StaleSample", "Update"]

@@ -83,6 +83,21 @@ class Update:
     nis: float
 
 
+@dataclasses.dataclass(frozen=True)
+class Forecast:
+    """The predicted motion.
+
+    Attributes:
+      t_s: (k,) instants from the estimate's time on, s.
+      mean: (k, 4) predicted phi1, phi2 (rad), omega1, omega2 (rad/s).
+      sigma: (k, 4) their standard deviations.
+    """
+
+    t_s: Floats
+    mean: Floats
+    sigma: Floats
+
+
 def _sigma_weights(n: int, alpha: float, beta: float, kappa: float) -> tuple[float, Floats, Floats]:
     lam = alpha * alpha * (n + kappa) - n
     wm = np.full(2 * n + 1, 0.5 / (n + lam))
@@ -234,6 +249,27 @@ class RigEstimator:
         """(n,) the estimate's standard deviations (the state's rad and rad/s, then the tracked
         parameters' units)."""
         return np.sqrt(np.diag(self.p))
+
+    def forecast(self, horizon_s: float, *, step_s: float = 0.0125) -> Forecast:
+        """The motion predicted from now over ``horizon_s`` with its uncertainty: the filter's
+        prediction carried on without measurements (no torques), every ``step_s``; the estimate
+        itself is left as it is."""
+        if not (math.isfinite(horizon_s) and 0 < horizon_s <= 600):
+            raise ParameterError(f"the forecast horizon must be in (0, 600] s, got {horizon_s!r}")
+        if not (math.isfinite(step_s) and 0 < step_s <= 0.0125):
+            raise ParameterError(f"the forecast step must be in (0, 0.0125] s, got {step_s!r}")
+        saved = (self.t_s, self.x.copy(), self.p.copy())
+        n = max(1, math.ceil(horizon_s / step_s - 1e-9))
+        times, means, sigmas = [self.t_s], [self.x[:NSTATE].copy()], [self.sigma[:NSTATE]]
+        try:
+            for k in range(1, n + 1):
+                self.predict(saved[0] + min(k * step_s, horizon_s))
+                times.append(self.t_s)
+                means.append(self.x[:NSTATE].copy())
+                sigmas.append(self.sigma[:NSTATE])
+        finally:
+            self.t_s, self.x, self.p = saved
+        return Forecast(np.array(times), np.array(means), np.array(sigmas))
 
     def parameters(self) -> dict[str, tuple[float, float]]:
         """Each tracked parameter's estimate and standard deviation, its unit (``TRACKABLE``)."""

@@ -106,3 +106,20 @@ def test_tracked_parameters_follow_a_changed_rig_each_to_its_own_parameter():
         assert abs(value - truth[name]) < 3 * sigma, (name, value, truth[name], sigma)
     assert found["b1_n_m_s"][1] < 0.2 * paper.b1_n_m_s  # determined: the doubling is 5 sigma and more
     assert found["coupling_sin_n_m"][1] < 0.01 * truth["coupling_sin_n_m"]
+
+
+def test_the_forecast_holds_what_happened_within_its_band_and_its_band_grows(measured):
+    """Stop feeding the estimator at 8 s and forecast 4 s: the simulation's angles lie within the
+    forecast's 3-sigma band, and the band widens with the horizon."""
+    truth, nodes, t_s, phi, omega = measured
+    estimator = RigEstimator(DEFAULT_PARAMS, nodes=nodes)
+    estimator.start(t_s[0], [phi[0, 0], phi[0, 1], omega[0, 0], omega[0, 1]])
+    stop = int(np.searchsorted(t_s, 8.0))
+    _run(estimator, t_s[: stop + 1], phi[: stop + 1], omega[: stop + 1])
+    before = estimator.x.copy()
+    forecast = estimator.forecast(4.0)
+    np.testing.assert_array_equal(estimator.x, before)  # the estimate is left as it was
+    true_phi = np.stack([np.interp(forecast.t_s, truth.t_s, truth.phi_rad[:, n]) for n in range(2)], axis=1)
+    error = np.abs(forecast.mean[:, :2] - true_phi)
+    assert np.all(error < 3 * forecast.sigma[:, :2] + 1e-6)
+    assert np.all(forecast.sigma[-1, :2] > 2 * forecast.sigma[0, :2])
