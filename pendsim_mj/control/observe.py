@@ -24,7 +24,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from pendsim_mj.errors import ParameterError
-from pendsim_mj.sensors.bno055 import QUAT_LSB, Bno055
+from pendsim_mj.sensors.bno055 import SWING_ANGLE_SIGMA_RAD, Bno055
 
 Floats = NDArray[np.float64]
 HINGE_AXIS = 2  # the sensor axis along the hinge (z) in the default mount
@@ -75,9 +75,9 @@ class NodeObserver:
         imp = config.imperfections
         noisy = config.noise
         self.gyro_sigma_rad_s = float(config.noise_model.gyro_sigma_rad_s[HINGE_AXIS]) if noisy else 0.0
-        # the quaternion's quantisation as an angle ((2 LSB)^2 / 12, as the covariance fields) and
-        # the fusion error's rms
-        quantisation = 2 * QUAT_LSB / math.sqrt(12.0) if noisy else 0.0
+        # the quaternion's quantisation as a swing angle (bno055.SWING_ANGLE_SIGMA_RAD) and the
+        # fusion error's rms
+        quantisation = SWING_ANGLE_SIGMA_RAD if noisy else 0.0
         self.angle_sigma_rad = math.hypot(quantisation, imp.fusion_error_rad)
         self.latency_s = imp.latency_s
         self.loss_share = imp.packet_loss

