@@ -7,18 +7,24 @@ import argparse
 import json
 import math
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-from pendsim_mj.control.controllers import CONTROLLERS, MOTORS
+from pendsim_mj.control.names import CONTROLLER_NAMES, LOOP_ENGINES, MOTOR_NAMES, OBSERVERS
 from pendsim_mj.errors import ParameterError
-from pendsim_mj.rig.params import DEFAULT_PARAMS
+from pendsim_mj.rig.params import DEFAULT_PARAMS, RigParams
 from pendsim_mj.sensors.bno055 import Bno055
 
 from .. import options
-from ..run.control import OBSERVERS, ControlResult, ControlSpec, run_control
 from .node_options import add_imperfection_options, imperfections_from
 
-LOOP_ENGINES = ("mujoco", "fast")
+if TYPE_CHECKING:
+    from ..run.control import ControlResult, ControlSpec
+
 MAX_GAIN = 1e4  # N m per rad (or per rad/s): far beyond anything a 0.05 N m motor can use
+NODE_OPTIONS = ("--packet-loss", "--loss-burst-samples", "--latency-s", "--fusion-error-deg")
+"""What changes what the controller reads of the nodes (their values and timing; the mounts and
+clocks are taken as calibrated, as acquire's alignment does)."""
+MOTOR_SETS = ("m1,m2", "m2,m1", "m1", "m2")
 
 
 def register(sub: argparse._SubParsersAction[options.Parser]) -> None:
@@ -35,14 +41,22 @@ def register(sub: argparse._SubParsersAction[options.Parser]) -> None:
     )
     p.add_argument(
         "controller",
-        type=options.choice(tuple(CONTROLLERS), "unknown controller {value!r}; allowed: {allowed}"),
-        choices=tuple(CONTROLLERS),
+        type=options.choice(CONTROLLER_NAMES, "unknown controller {value!r}; allowed: {allowed}"),
+        choices=CONTROLLER_NAMES,
         help="the controller",
     )
     p.add_argument("-o", "--output", type=Path, help="record the closed loop to this .mcap file")
     options.add_force_option(p, "the output file")
     options.add_run_options(p)
     p.set_defaults(duration_s=30.0)
+    p._option_string_actions["--duration-s"].help = "length of the closed loop, s (default 30)"
+    p._option_string_actions[
+        "--dt-s"
+    ].help = "the control period, which is also the engine's step, s (default 0.01; at most 0.02)"
+    engine = p._option_string_actions["--engine"]
+    engine.type = options.choice(LOOP_ENGINES, "unknown engine {value!r} for a closed loop; allowed: {allowed}")
+    engine.choices = LOOP_ENGINES
+    engine.help = "mujoco (the MJCF model; default) or fast (the planar equations stepped in numpy)"
     p.add_argument(
         "--design-params-file",
         type=options.input_file,
@@ -51,9 +65,9 @@ def register(sub: argparse._SubParsersAction[options.Parser]) -> None:
     )
     p.add_argument(
         "--motors",
-        type=options.choice(("m1,m2", "m1", "m2"), "unknown motors {value!r}; allowed: {allowed}"),
+        type=options.choice(MOTOR_SETS, "unknown motors {value!r}; allowed: m1,m2 (both), m1, m2"),
         default="m1,m2",
-        help="the motors: m1,m2 (default), m1 or m2",
+        help="the motors: m1,m2 (both; default), m1 or m2",
     )
     p.add_argument(
         "--torque-limit-n-m",
@@ -64,8 +78,8 @@ def register(sub: argparse._SubParsersAction[options.Parser]) -> None:
     p.add_argument(
         "--input-weight",
         type=options.float_in(1e-6, 1e6, name="--input-weight"),
-        default=10.0,
-        help="lqr: the weight R of the torque in the cost (J per (N m)^2; larger is gentler; default 10)",
+        help="lqr, scheduled-lqr: the weight R of the torque in the cost (J per (N m)^2; larger is gentler; "
+        "default 10)",
     )
     p.add_argument(
         "--gain-file",
@@ -85,11 +99,11 @@ def register(sub: argparse._SubParsersAction[options.Parser]) -> None:
         choices=OBSERVERS,
         default="state",
         help="what the controller reads: state (exact; default) or nodes (80 Hz, the BNO055 noise, and the "
-        "--packet-loss and --latency-s below)",
+        "--packet-loss, --latency-s and --fusion-error-deg below)",
     )
     p.add_argument("--seed", type=options.int_in(0, 2**63 - 1), default=0, help="seed of the node noise")
     p.add_argument("--no-open-loop", action="store_true", help="skip the open-loop run (no decay comparison; faster)")
-    add_imperfection_options(p)
+    add_imperfection_options(p, only=NODE_OPTIONS)
     p.set_defaults(handler=run)
 
 
@@ -105,26 +119,38 @@ def _gain(path: Path, rows: int) -> tuple[tuple[float, ...], ...]:
         and all(isinstance(v, (int, float)) and not isinstance(v, bool) for r in value for v in r)
     )
     if not ok:
-        raise ParameterError(f"--gain-file {path}: need {rows} rows (one per motor) of 4 numbers")
+        raise ParameterError(
+            f"--gain-file {path}: need {rows} row{'s' if rows > 1 else ''} (one per motor) of 4 numbers"
+        )
     if not all(math.isfinite(v) and abs(v) <= MAX_GAIN for r in value for v in r):
         raise ParameterError(f"--gain-file {path}: every gain must be finite and within +-{MAX_GAIN:g}")
     return tuple(tuple(float(v) for v in r) for r in value)
 
 
+def _design(path: Path | None) -> RigParams | None:
+    """The rig the controller is designed for: --design-params-file's overrides of the paper's."""
+    if path is None:
+        return None
+    try:
+        return DEFAULT_PARAMS.with_mapping(options.read_params_file(path))
+    except ParameterError as exc:
+        raise ParameterError(f"--design-params-file {path}: {exc}") from None
+
+
 def spec_from(args: argparse.Namespace) -> ControlSpec:
     """The ControlSpec the options describe."""
-    if args.engine not in LOOP_ENGINES:
-        raise options.UsageError(f"--engine {args.engine}: a closed loop runs on {' or '.join(LOOP_ENGINES)}")
-    motors = tuple(args.motors.split(","))
-    unknown = [m for m in motors if m not in MOTORS]
-    if unknown:
-        raise options.UsageError(f"--motors: unknown motor {unknown[0]!r}; allowed: m1, m2")
+    from ..run.control import ControlSpec  # start-up: the control room loads scipy when the command runs
+
+    motors = tuple(m for m in MOTOR_NAMES if m in args.motors.split(","))
+    if args.observe != "nodes":
+        given = [flag for flag in NODE_OPTIONS if getattr(args, flag[2:].replace("-", "_")) != 0.0]
+        given = [flag for flag in given if flag != "--loss-burst-samples" or args.packet_loss > 0]
+        if given:
+            raise options.UsageError(f"{given[0]} describes the nodes the controller reads: add --observe nodes")
+    if args.target_amplitude_deg and args.controller != "energy":
+        raise options.UsageError("--target-amplitude-deg is for the energy controller")
     params = options.params_from(args)
-    design = (
-        DEFAULT_PARAMS.with_mapping(options.read_params_file(args.design_params_file))
-        if args.design_params_file is not None
-        else None
-    )
+    design = _design(args.design_params_file)
     imperfect, mounts = imperfections_from(args)
     imu = Bno055(seed=args.seed, mount_quat_wxyz=mounts, imperfections=imperfect)
     phi0, omega0 = options.initial_state_from(args)
@@ -147,7 +173,8 @@ def summary(result: ControlResult) -> list[str]:
     m, loop = result.metrics, result.loop
     lines = [
         f"{loop.controller} on the {loop.engine} engine, motors {'+'.join(loop.motors)} (limit "
-        f"{loop.torque_limit_n_m:g} N m), observing the {loop.observer}, {loop.t_s[-1]:g} s",
+        f"{loop.torque_limit_n_m:g} N m), reading the {loop.observer} every {1000 * loop.dt_s:g} ms, "
+        f"{loop.t_s[-1]:g} s",
         "  mode   start amplitude   decay to 1/e   open loop      shorter by",
     ]
     speed = result.speedup()
@@ -158,18 +185,28 @@ def summary(result: ControlResult) -> list[str]:
             f"  {i + 1}      {math.degrees(m.start_amplitudes_rad[i]):8.2f} deg    {_decay(float(m.decay_s[i])):>14}"
             f"   {open_:>14}   {ratio}"
         )
-    final1, final2 = (math.degrees(a) for a in m.final_amplitudes_rad)
+    if result.held_amplitude_rad is not None:
+        held, target = math.degrees(result.held_amplitude_rad), math.degrees(result.target_amplitude_rad)
+        lines.append(f"  mode 1 held at {held:.2f} deg over the last 5 s (target {target:g} deg)")
+    swing1, swing2 = (math.degrees(a) for a in m.final_swing_rad)
     lines.append(
-        f"  final amplitudes {final1:.3f} / {final2:.3f}"
-        f" deg; energy used {m.energy_used_j:.4f} J; peak torque {m.peak_torque_n_m[0]:.4f} / "
-        f"{m.peak_torque_n_m[1]:.4f} N m; at the limit {100 * m.saturated_share:.1f} % of steps; "
-        f"largest M2/M1 swing {m.largest_ratio_m2_m1:.3f}"
+        f"  last second's swing M1 {swing1:.3f} deg, M2 {swing2:.3f} deg; energy used {m.energy_used_j:.4f} J; "
+        f"peak torque {m.peak_torque_n_m[0]:.4f} / {m.peak_torque_n_m[1]:.4f} N m; at the limit "
+        f"{100 * m.saturated_share:.1f} % of steps"
     )
+    if (
+        loop.states[0, 0] != 0
+        and abs(loop.states[0, 0]) >= abs(loop.states[0, 1])
+        and math.isfinite(m.largest_ratio_m2_m1)
+    ):
+        lines.append(f"  M2's swing at most {m.largest_ratio_m2_m1:.3f} of M1's while M1 swings")
     return lines
 
 
 def run(args: argparse.Namespace) -> int:
     from tqdm import tqdm  # start-up: loaded when the command runs
+
+    from ..run.control import run_control  # start-up: the control room loads scipy when the command runs
 
     options.check_output(args.output, (".mcap",), force=args.force)
     spec = spec_from(args)

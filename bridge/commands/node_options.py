@@ -8,6 +8,8 @@ from __future__ import annotations
 
 import argparse
 import math
+from collections.abc import Collection
+from typing import Any
 
 import numpy as np
 
@@ -108,89 +110,78 @@ def axis_remap(text: str) -> tuple[int, int]:
     return config, sign
 
 
-def add_imperfection_options(p: argparse.ArgumentParser, *, transport: bool = True) -> None:
+def _imperfection_options() -> list[tuple[str, bool, dict[str, Any]]]:
+    """(flag, a transport option, argparse keywords) of every imperfection option."""
+    return [
+        ("--heading-deg", False, dict(
+            type=options.float_in(-360.0, 360.0, "deg"), default=0.0,
+            help="NDOF heading: the orientation's world frame turned by this angle about the vertical (magnetic north)",
+        )),
+        ("--mount-misalignment-deg", False, dict(
+            type=options.float_in(0.0, 45.0, "deg"), default=0.0, metavar="A",
+            help="each node glued on turned by A deg about a random axis (drawn from --seed)",
+        )),
+        ("--axis-remap", False, dict(
+            type=axis_remap, default=(0x24, 0x00), metavar="CONFIG,SIGN",
+            help="both nodes' AXIS_MAP_CONFIG,AXIS_MAP_SIGN registers, e.g. 0x21,0x04 (default 0x24,0x00: none)",
+        )),
+        ("--fusion-error-deg", False, dict(
+            type=options.float_in(0.0, 10.0, "deg"), default=0.0, metavar="E",
+            help="rms per axis of a slowly varying error of the fused orientation (periods around 30 s), deg",
+        )),
+        ("--packet-loss", True, dict(
+            type=options.float_in(0.0, 0.9), default=0.0, metavar="P",
+            help="share of each node's samples lost in transport, in bursts (e.g. 0.05)",
+        )),
+        ("--loss-burst-samples", True, dict(
+            type=options.float_in(1.0, 1000.0), default=3.0, metavar="L",
+            help="mean length of a burst of lost samples (default 3; 1: independent losses)",
+        )),
+        ("--clock-drift-ppm", True, dict(
+            type=options.float_in(-1000.0, 1000.0, "ppm"), default=0.0, metavar="PPM",
+            help="M2's node clock runs this much faster than M1's (its stamps are on its own clock)",
+        )),
+        ("--latency-s", True, dict(
+            type=options.float_in(0.0, 1.0, "s"), default=0.0,
+            help="mean transport latency (exponential) between sampling and logging, s",
+        )),
+        ("--hold-wobble-deg", False, dict(
+            type=options.float_in(0.0, 5.0, "deg"), default=0.0,
+            help="with --hold-s: rms angle the hand moves the held pendulums by (slow drift plus 8-12 Hz tremor), deg",
+        )),
+    ]  # fmt: skip
+
+
+def add_imperfection_options(
+    p: argparse.ArgumentParser, *, transport: bool = True, only: Collection[str] | None = None
+) -> None:
     """What real nodes add (pendsim_mj.sensors.imperfections); all off by default. Without ``transport``,
     only what changes the values (heading, mount, axis remap, fusion error, hold wobble): loss,
-    clock drift and latency are then the caller's (``pendsim nodes`` sends real packets)."""
+    clock drift and latency are then the caller's (``pendsim nodes`` sends real packets). ``only``:
+    just these flags (a command whose runs the others would not change); ``imperfections_from``
+    takes the missing ones as off."""
     g = p.add_argument_group("imperfections of real nodes (all off by default; the paper is silent on them)")
-    g.add_argument(
-        "--heading-deg",
-        type=options.float_in(-360.0, 360.0, "deg"),
-        default=0.0,
-        help="NDOF heading: the orientation's world frame turned by this angle about the vertical (magnetic north)",
-    )
-    g.add_argument(
-        "--mount-misalignment-deg",
-        type=options.float_in(0.0, 45.0, "deg"),
-        default=0.0,
-        metavar="A",
-        help="each node glued on turned by A deg about a random axis (drawn from --seed)",
-    )
-    g.add_argument(
-        "--axis-remap",
-        type=axis_remap,
-        default=(0x24, 0x00),
-        metavar="CONFIG,SIGN",
-        help="both nodes' AXIS_MAP_CONFIG,AXIS_MAP_SIGN registers, e.g. 0x21,0x04 (default 0x24,0x00: none)",
-    )
-    g.add_argument(
-        "--fusion-error-deg",
-        type=options.float_in(0.0, 10.0, "deg"),
-        default=0.0,
-        metavar="E",
-        help="rms per axis of a slowly varying error of the fused orientation (periods around 30 s), deg",
-    )
-    if transport:
-        g.add_argument(
-            "--packet-loss",
-            type=options.float_in(0.0, 0.9),
-            default=0.0,
-            metavar="P",
-            help="share of each node's samples lost in transport, in bursts (e.g. 0.05)",
-        )
-        g.add_argument(
-            "--loss-burst-samples",
-            type=options.float_in(1.0, 1000.0),
-            default=3.0,
-            metavar="L",
-            help="mean length of a burst of lost samples (default 3; 1: independent losses)",
-        )
-        g.add_argument(
-            "--clock-drift-ppm",
-            type=options.float_in(-1000.0, 1000.0, "ppm"),
-            default=0.0,
-            metavar="PPM",
-            help="M2's node clock runs this much faster than M1's (its stamps are on its own clock)",
-        )
-        g.add_argument(
-            "--latency-s",
-            type=options.float_in(0.0, 1.0, "s"),
-            default=0.0,
-            help="mean transport latency (exponential) between sampling and logging, s",
-        )
-    g.add_argument(
-        "--hold-wobble-deg",
-        type=options.float_in(0.0, 5.0, "deg"),
-        default=0.0,
-        help="with --hold-s: rms angle the hand moves the held pendulums by (slow drift plus 8-12 Hz tremor), deg",
-    )
+    for flag, is_transport, keywords in _imperfection_options():
+        if (transport or not is_transport) and (only is None or flag in only):
+            g.add_argument(flag, **keywords)
 
 
 def imperfections_from(args: argparse.Namespace) -> tuple[Imperfections, tuple[tuple[float, float, float, float], ...]]:
     """The Imperfections and the two mount rotations the options describe."""
-    config, sign = args.axis_remap
+    config, sign = getattr(args, "axis_remap", (0x24, 0x00))
+    loss = getattr(args, "packet_loss", 0.0)
     imperfect = Imperfections(
-        heading_rad=math.radians(args.heading_deg),
+        heading_rad=math.radians(getattr(args, "heading_deg", 0.0)),
         axis_map_config=(config, config),
         axis_map_sign=(sign, sign),
-        fusion_error_rad=math.radians(args.fusion_error_deg),
-        packet_loss=getattr(args, "packet_loss", 0.0),
-        loss_burst_samples=args.loss_burst_samples if getattr(args, "packet_loss", 0.0) > 0 else 1.0,
-        clock_drift_ppm=(0.0, args.clock_drift_ppm) if hasattr(args, "latency_s") else (0.0, 0.0),
+        fusion_error_rad=math.radians(getattr(args, "fusion_error_deg", 0.0)),
+        packet_loss=loss,
+        loss_burst_samples=args.loss_burst_samples if loss > 0 else 1.0,
+        clock_drift_ppm=(0.0, getattr(args, "clock_drift_ppm", 0.0)),
         latency_s=getattr(args, "latency_s", 0.0),
-        hold_wobble_rad=math.radians(args.hold_wobble_deg),
+        hold_wobble_rad=math.radians(getattr(args, "hold_wobble_deg", 0.0)),
     )
     rng = np.random.default_rng([args.seed, 5])
-    angle = math.radians(args.mount_misalignment_deg)
+    angle = math.radians(getattr(args, "mount_misalignment_deg", 0.0))
     mounts = tuple(random_mount(angle, rng) if angle else (1.0, 0.0, 0.0, 0.0) for _ in range(2))
     return imperfect, mounts

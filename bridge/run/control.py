@@ -34,6 +34,7 @@ from pendsim_mj.control.controllers import (
 )
 from pendsim_mj.control.linear import linearise
 from pendsim_mj.control.loop import ClosedLoop, LoopMetrics, closed_loop
+from pendsim_mj.control.names import OBSERVERS
 from pendsim_mj.control.observe import NodeObserver, StateObserver
 from pendsim_mj.control.plant import PLANT_ENGINES, replay_drive
 from pendsim_mj.errors import ParameterError
@@ -43,8 +44,8 @@ from pendsim_mj.sensors.bno055 import Bno055
 from ..io.recording_layout import ControlTopic
 from .record import RecordResult, RecordSpec, record
 
-OBSERVERS = ("state", "nodes")
 OPEN_LOOP_LONGEST_S = 1200.0
+LONGEST_PERIOD_S = 0.02  # s: RK4 at 20 ms damps the faster mode by under 1e-3 over its open-loop decay
 
 
 @dataclasses.dataclass(frozen=True)
@@ -62,7 +63,8 @@ class ControlSpec:
       engine: "mujoco" or "fast".
       motors: the motors the controller uses ("m1", "m2").
       torque_limit_n_m: each motor's limit, N m.
-      input_weight: LQR's R = input_weight I.
+      input_weight: LQR's R = input_weight I (None: 10; only for the LQR controllers without
+        ``gain``).
       gain: (len(motors), 4) LQR gains to use instead of the design (checked to stabilise).
       target_amplitudes_rad: the energy regulator's mode amplitudes to hold, rad.
       observe: "state" (exact) or "nodes" (what the BNO055 nodes deliver: ``imu``'s noise, loss,
@@ -81,7 +83,7 @@ class ControlSpec:
     engine: str = "mujoco"
     motors: tuple[str, ...] = ("m1", "m2")
     torque_limit_n_m: float = 0.05
-    input_weight: float = 10.0
+    input_weight: float | None = None
     gain: tuple[tuple[float, ...], ...] | None = None
     target_amplitudes_rad: tuple[float, float] = (0.0, 0.0)
     observe: str = "state"
@@ -95,8 +97,16 @@ class ControlSpec:
             raise ParameterError(f"unknown engine {self.engine!r} for a closed loop; allowed: mujoco, fast")
         if self.observe not in OBSERVERS:
             raise ParameterError(f"unknown observation {self.observe!r}; allowed: {', '.join(OBSERVERS)}")
-        if self.gain is not None and self.controller not in ("lqr", "scheduled-lqr"):
-            raise ParameterError("gains are for the lqr controller")
+        lqr = self.controller in ("lqr", "scheduled-lqr")
+        if self.gain is not None and not lqr:
+            raise ParameterError("gains are for the lqr and scheduled-lqr controllers")
+        if self.input_weight is not None and (not lqr or self.gain is not None):
+            raise ParameterError("an input weight is for the lqr design (not with given gains or other controllers)")
+        if not (0 < self.dt_s <= LONGEST_PERIOD_S):
+            raise ParameterError(
+                f"the control period (--dt-s) must be in (0, {LONGEST_PERIOD_S}] s, got {self.dt_s:g} s: longer "
+                "steps damp the rig numerically and skew the comparison with the open loop"
+            )
         if any(self.target_amplitudes_rad) and self.controller != "energy":
             raise ParameterError("a target amplitude is for the energy controller")
 
@@ -112,7 +122,8 @@ def make_controller(spec: ControlSpec) -> Controller:
         )
     if cls is LQR or cls is ScheduledLQR:
         gain = None if spec.gain is None else np.asarray(spec.gain, dtype=float)
-        return cls(design, input_weight=spec.input_weight, gain=gain, motors=motors, torque_limit_n_m=limit, dt_s=dt)
+        weight = 10.0 if spec.input_weight is None else spec.input_weight
+        return cls(design, input_weight=weight, gain=gain, motors=motors, torque_limit_n_m=limit, dt_s=dt)
     if cls is BeatingSuppressor:
         if spec.motors != ("m1", "m2"):
             raise ParameterError("the beating suppressor needs both motors (m1, m2)")
@@ -129,6 +140,8 @@ class ControlResult:
       open_loop: the open loop's metrics from the same release (None when not run).
       open_loop_s: how long the open loop ran, s.
       recording: the written recording, or None.
+      target_amplitude_rad: the energy controller's mode-1 target (0: none).
+      held_amplitude_rad: mode 1's mean amplitude over the last 5 s where a target was held, rad.
     """
 
     loop: ClosedLoop
@@ -136,6 +149,8 @@ class ControlResult:
     open_loop: LoopMetrics | None
     open_loop_s: float
     recording: RecordResult | None
+    target_amplitude_rad: float = 0.0
+    held_amplitude_rad: float | None = None
 
     def speedup(self) -> tuple[float, float]:
         """Open-loop decay time over closed-loop decay time, per mode (nan where not measured)."""
@@ -205,6 +220,13 @@ def run_control(
       SimulationDiverged: the plant diverged. OutputError: the output exists or writing failed.
     """
     controller = make_controller(spec)
+    if isinstance(controller, EnergyRegulator):
+        start = linearise(spec.params).mode_amplitudes_rad(np.array([*spec.phi0_rad, *spec.omega0_rad_s]))
+        if spec.target_amplitudes_rad[0] > 0 and start[0] < math.radians(0.5):
+            raise ParameterError(
+                "the energy controller holds a mode's amplitude by pushing along its motion, and mode 1 starts "
+                f"still ({math.degrees(start[0]):.2f} deg): release it, e.g. --phi1-deg 5"
+            )
     observer = NodeObserver(spec.imu, dt_s=spec.dt_s, seed=spec.imu.seed) if spec.observe == "nodes" else None
     loop = closed_loop(
         controller, engine=spec.engine, params=spec.params, phi0_rad=spec.phi0_rad,
@@ -221,4 +243,9 @@ def run_control(
             imu=spec.imu, drive=drive if drive else None, control=control_topic(loop, spec, controller, metrics),
         )  # fmt: skip
         recorded = record(rec, output, replace=replace)
-    return ControlResult(loop, metrics, open_metrics, open_s, recorded)
+    target = spec.target_amplitudes_rad[0] if isinstance(controller, EnergyRegulator) else 0.0
+    held: float | None = None
+    if target > 0:
+        last = loop.states[-max(2, round(5.0 / spec.dt_s)) :]
+        held = float(np.mean(linearise(spec.params).mode_amplitudes_rad(last)[:, 0]))
+    return ControlResult(loop, metrics, open_metrics, open_s, recorded, target, held)

@@ -25,8 +25,8 @@ from pendsim_mj.calibration import information as info
 from pendsim_mj.calibration.fit import Calibration, CalibrationRun, _Problem, determine
 from pendsim_mj.calibration.parameters import ParameterSpace, added_mass_constants
 from pendsim_mj.engines import fast_planar
+from pendsim_mj.engines.linearised import linear_modes
 from pendsim_mj.estimation.planar_fit import FIT_DT_S
-from pendsim_mj.nonlinear.linear import linear_modes
 from pendsim_mj.rig.drives import Drive, Sine, stage_inputs
 from pendsim_mj.rig.params import RigParams
 

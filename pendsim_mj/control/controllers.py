@@ -44,13 +44,14 @@ from scipy.linalg import solve_discrete_are
 from scipy.special import j1
 
 from pendsim_mj.control.linear import LinearRig, linearise
+from pendsim_mj.control.names import CONTROLLER_NAMES, MOTOR_NAMES
 from pendsim_mj.engines.fast_planar.closed_form import coefficients, spring_moments
 from pendsim_mj.errors import ParameterError
 from pendsim_mj.rig.drives import Target
 from pendsim_mj.rig.params import DEFAULT_PARAMS, RigParams
 
 Floats = NDArray[np.float64]
-MOTORS = {"m1": Target.TORQUE_M1, "m2": Target.TORQUE_M2}
+MOTORS = dict(zip(MOTOR_NAMES, (Target.TORQUE_M1, Target.TORQUE_M2), strict=True))
 """The motors a controller may use: one at each hinge."""
 DEFAULT_TORQUE_LIMIT_N_M = 0.05
 """The default torque limit of each motor, N m (the issue's 0.05 N m)."""
@@ -419,3 +420,4 @@ CONTROLLERS: dict[str, type[_Base]] = {
     BeatingSuppressor.name: BeatingSuppressor,
 }
 """The controllers by name (the names ``pendsim control`` takes)."""
+assert tuple(CONTROLLERS) == CONTROLLER_NAMES, "names.CONTROLLER_NAMES lists CONTROLLERS' keys in order"

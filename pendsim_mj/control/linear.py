@@ -4,7 +4,7 @@ modes' amplitudes of a nonlinear run.
 
 x = (phi1, phi2, omega1, omega2) (rad, rad/s); u = the drives' channels (``drives.Target``:
 tau1, tau2 in N m, support_x, pivot_z in m/s^2). From the linearised equations of
-``nonlinear.linear`` (M q'' + C q' + K q = tau; K = springs + gravity):
+``engines.linearised`` (M q'' + C q' + K q = tau; K = springs + gravity):
 
     A = [[0, I], [-M^-1 K, -M^-1 C]],   B = [[0], [M^-1 T]],
 
@@ -28,8 +28,8 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.linalg import expm
 
+from pendsim_mj.engines.linearised import LinearModes, linear_modes
 from pendsim_mj.errors import ParameterError
-from pendsim_mj.nonlinear.linear import LinearModes, linear_modes
 from pendsim_mj.rig.drives import NCHANNEL, Target
 from pendsim_mj.rig.params import RigParams
 

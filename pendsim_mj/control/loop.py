@@ -52,6 +52,7 @@ class LoopMetrics:
       saturated_share: share of steps in which a motor was at its limit.
       largest_ratio_m2_m1: largest ratio of M2's to M1's swing amplitude over 1 s windows
         while M1 swings (beating: energy moving from M1 to M2).
+      final_swing_rad: (2,) each pendulum's largest |phi| over the last second, rad.
     """
 
     decay_s: Floats
@@ -61,6 +62,7 @@ class LoopMetrics:
     peak_torque_n_m: Floats
     saturated_share: float
     largest_ratio_m2_m1: float
+    final_swing_rad: Floats
 
     def as_dict(self) -> dict[str, object]:
         return {
@@ -74,7 +76,9 @@ class LoopMetrics:
             "peak_torque_m1_n_m": float(self.peak_torque_n_m[0]),
             "peak_torque_m2_n_m": float(self.peak_torque_n_m[1]),
             "saturated_share": self.saturated_share,
-            "largest_ratio_m2_m1": self.largest_ratio_m2_m1,
+            "largest_ratio_m2_m1": _num(self.largest_ratio_m2_m1),
+            "final_swing_m1_deg": math.degrees(self.final_swing_rad[0]),
+            "final_swing_m2_deg": math.degrees(self.final_swing_rad[1]),
         }
 
 
@@ -148,6 +152,7 @@ class ClosedLoop:
             peak_torque_n_m=np.max(np.abs(torque), axis=0) if len(torque) else np.zeros(2),
             saturated_share=float(np.mean(np.any(at_limit, axis=1))) if len(torque) else 0.0,
             largest_ratio_m2_m1=_largest_ratio(self.t_s, self.states),
+            final_swing_rad=np.max(np.abs(self.states[-max(1, round(1.0 / self.dt_s)) - 1 :, :2]), axis=0),
         )
 
 

@@ -26,6 +26,7 @@ from typing import Protocol
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from pendsim_mj.control.names import LOOP_ENGINES
 from pendsim_mj.engines.fast_planar.closed_form import (
     accelerations,
     coefficients,
@@ -37,8 +38,8 @@ from pendsim_mj.rig.drives import NCHANNEL, Drive, Target, drive_from_held_input
 from pendsim_mj.rig.params import DEFAULT_PARAMS, RigParams
 
 Floats = NDArray[np.float64]
-PLANT_ENGINES = ("fast", "mujoco")
-"""The engines a plant runs on: the fast planar engine's force law, or MuJoCo."""
+PLANT_ENGINES = LOOP_ENGINES
+"""The engines a plant runs on: MuJoCo, or the fast planar engine's force law."""
 
 
 class Plant(Protocol):

@@ -10,6 +10,8 @@
 - ``dispatch``: ``run`` / ``run_batch`` / ``run_blocks`` by engine name, ``ENGINES`` (name ->
   batch entry point, as the command line names them).
 - ``trajectory``: ``Trajectory``, the result: arrays (nbatch, n, ...) or (n, ...) in SI units.
+- ``linearised``: the rig linearised about rest from the reference's equations (``linear_modes``:
+  M, C, K, the normal modes), for the nonlinear analyses, the identification and control design.
 
 Importing this package imports neither MuJoCo nor numba (each takes seconds): a name is imported
 from its module when first used.

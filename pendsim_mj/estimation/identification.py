@@ -32,10 +32,10 @@ from typing import TYPE_CHECKING
 import mujoco
 import numpy as np
 
+from pendsim_mj.engines.linearised import linear_modes
 from pendsim_mj.errors import ParameterError
 from pendsim_mj.estimation.analysis import log_decrement_damping, peak_amplitudes
 from pendsim_mj.estimation.least_squares import sysid_least_squares
-from pendsim_mj.nonlinear.linear import linear_modes
 from pendsim_mj.rig.drives import Drive
 from pendsim_mj.rig.model import HINGES, build_spec
 from pendsim_mj.rig.params import PARAMETER_LIMITS, RigParams
@@ -373,7 +373,7 @@ def modal_decrement(t_s: np.ndarray, phi_rad: np.ndarray, params: RigParams, win
     """b1, b2 from the decay of each normal mode's amplitude (the per-mode log decrement).
 
     phi (n, 2) is projected onto the modal coordinates of the rig linearised at rest
-    (``nonlinear.linear.linear_modes``: M = diag(J1, J2), stiffness of gravity and springs; the
+    (``engines.linearised.linear_modes``: M = diag(J1, J2), stiffness of gravity and springs; the
     same parameters as the fit), q = Phi^-1 phi with mass-normalised shapes Phi (Phi^T M Phi = I).
     Each q_i's half-cycle peaks (``analysis.peak_amplitudes``) over ``window_s`` from the first
     give its decay rate sigma_i: the slope of ln(peak) by least squares. The modal damping

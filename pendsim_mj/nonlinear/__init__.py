@@ -12,15 +12,16 @@
 - ``sync``: phase-locking index and frequency ratio of the two pendulums.
 
 Shared parts: ``flow`` (batched ``mujoco.rollout`` of the state), ``periodic`` (shooting for
-forced orbits, Floquet multipliers), ``continuation`` (pseudo-arclength), ``linear`` (the
-linearised rig from the reference equations). Every result is a frozen dataclass;
+forced orbits, Floquet multipliers), ``continuation`` (pseudo-arclength); the linearised rig
+(``linear_modes``) lives with the engines (``pendsim_mj.engines.linearised``), below every room
+that uses it. Every result is a frozen dataclass;
 the command line (``pendsim analyze``) writes them as JSON/CSV and plots. The state is
 x = (phi1, phi2, omega1, omega2) in rad and rad/s throughout.
 """
 
+from pendsim_mj.engines.linearised import LinearModes, linear_modes
 from pendsim_mj.nonlinear.backbone import Backbone, backbone
 from pendsim_mj.nonlinear.bifurcation import PoincareDiagram, PoincareSweep, poincare_sweep
-from pendsim_mj.nonlinear.linear import LinearModes, linear_modes
 from pendsim_mj.nonlinear.lyapunov import Lyapunov, largest_lyapunov
 from pendsim_mj.nonlinear.response import (
     Agreement,

@@ -31,11 +31,11 @@ from collections.abc import Callable
 import numpy as np
 from numpy.typing import NDArray
 
+from pendsim_mj.engines.linearised import linear_modes
 from pendsim_mj.errors import ParameterError
 from pendsim_mj.estimation.analysis import zero_crossing_hz
 from pendsim_mj.nonlinear.continuation import Point, Settings, continue_branch, newton
 from pendsim_mj.nonlinear.flow import RigFlow
-from pendsim_mj.nonlinear.linear import linear_modes
 from pendsim_mj.nonlinear.periodic import multipliers_of, peak_amplitude
 from pendsim_mj.rig.params import RigParams
 

@@ -48,9 +48,9 @@ from collections.abc import Callable
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from pendsim_mj.engines.linearised import LinearModes, linear_modes
 from pendsim_mj.errors import ParameterError
 from pendsim_mj.nonlinear.flow import RigFlow
-from pendsim_mj.nonlinear.linear import LinearModes, linear_modes
 from pendsim_mj.nonlinear.periodic import period_inputs
 from pendsim_mj.rig.drives import Drive, Sine, Target
 from pendsim_mj.rig.params import RigParams

@@ -77,9 +77,14 @@ def test_validate_and_view_open_a_control_recording(recorded, tmp_path):
     ("args", "message"),
     [
         (["control", "pid"], "unknown controller 'pid'"),
-        (["control", "lqr", "--engine", "reference"], "a closed loop runs on mujoco or fast"),
+        (["control", "lqr", "--engine", "reference"], "unknown engine 'reference' for a closed loop"),
         (["control", "lqr", "--motors", "m3"], "unknown motors 'm3'"),
         (["control", "energy", "--torque-limit-n-m", "0"], "--torque-limit-n-m"),
+        (["control", "lqr", "--dt-s", "0.1"], "the control period (--dt-s) must be in (0, 0.02] s"),
+        (["control", "lqr", "--packet-loss", "0.05"], "add --observe nodes"),
+        (["control", "energy", "--input-weight", "3"], "an input weight is for the lqr design"),
+        (["control", "lqr", "--target-amplitude-deg", "10"], "for the energy controller"),
+        (["control", "energy", "--target-amplitude-deg", "20", "--phi1-deg", "0"], "mode 1 starts still"),
     ],
 )
 def test_bad_options_get_one_line_and_exit_2(args, message, tmp_path, capsys, monkeypatch):

@@ -12,10 +12,10 @@ from mujoco import rollout
 
 from pendsim_bridge.io.trajectory_file import save_trajectory
 from pendsim_mj.engines import reference
+from pendsim_mj.engines.linearised import linear_modes
 from pendsim_mj.engines.simulation import simulate
 from pendsim_mj.errors import ModelError, ParameterError
 from pendsim_mj.nonlinear.flow import RigFlow
-from pendsim_mj.nonlinear.linear import linear_modes
 from pendsim_mj.rig.drives import (
     CHANNEL_LABELS,
     Chirp,

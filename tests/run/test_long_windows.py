@@ -13,11 +13,11 @@ from pendsim_bridge.io.recording import NODES, imu_topic, read_recording
 from pendsim_bridge.report import figure_lines
 from pendsim_bridge.run.record import RecordSpec, record
 from pendsim_bridge.run.validate import model_series, validate
+from pendsim_mj.engines.linearised import linear_modes
 from pendsim_mj.estimation import analysis
 from pendsim_mj.estimation.analysis import hann_magnitude, padded_length, spectral_peak_hz
 from pendsim_mj.estimation.swing_frame import ANGLE_BLOCK, SwingFrame, relative_axis, twist_angle
 from pendsim_mj.estimation.validation import SERIES, WINDOW_SAMPLES, compare, resample
-from pendsim_mj.nonlinear.linear import linear_modes
 from pendsim_mj.rig.params import DEFAULT_PARAMS
 from pendsim_mj.sensors import rotations
 from pendsim_mj.sensors.bno055 import Bno055
