@@ -95,12 +95,11 @@ class NodeObserver:
         return self.observe(0.0, np.asarray(x0, dtype=float), np.asarray(x0, dtype=float))
 
     def _lose(self, node: int) -> bool:
-        """The burst process: stay lost with 1 - 1/burst, start a loss at the rate that gives the share."""
+        """The burst process (``loss_chain``) of one node."""
         if self.loss_share <= 0:
             return False
-        stay = 1.0 - 1.0 / self.burst_samples
-        start = self.loss_share * (1.0 - stay) / (1.0 - self.loss_share)
-        p = stay if self._lost[node] else min(start, 1.0)
+        start, stay = loss_chain(self.loss_share, self.burst_samples)
+        p = stay if self._lost[node] else start
         self._lost[node] = bool(self._rng.random() < p)
         return self._lost[node]
 
@@ -112,7 +111,7 @@ class NodeObserver:
             taken = self._next_sample * self.period_s
             self._next_sample += 1
             s = 1.0 if t_s == 0 else min(max((taken - t0) / self.dt_s, 0.0), 1.0)
-            phi, omega = _between(x_prev, x_now, s, self.dt_s)
+            phi, omega = between(x_prev, x_now, s, self.dt_s)
             for node in range(2):
                 if self._lose(node):
                     continue
@@ -140,9 +139,18 @@ class NodeObserver:
         return Observation(state, age)
 
 
-def _between(x0: Floats, x1: Floats, s: float, dt_s: float) -> tuple[Floats, Floats]:
+def loss_chain(share: float, burst_samples: float) -> tuple[float, float]:
+    """The two-state burst process of a node's losses (module docstring): (probability that a
+    sample is lost after a received one, probability that it is lost after a lost one). A lost
+    run then lasts ``burst_samples`` samples on average (stay = 1 - 1 / burst) and the long-run
+    lost share is ``share`` (start = share (1 - stay) / (1 - share), at most 1)."""
+    stay = 1.0 - 1.0 / burst_samples
+    return min(share * (1.0 - stay) / (1.0 - share), 1.0), stay
+
+
+def between(x0: Floats, x1: Floats, s: float | Floats, dt_s: float) -> tuple[Floats, Floats]:
     """Angles (cubic Hermite from both ends' angles and rates) and rates (linear) at the fraction
-    s of a step from x0 to x1."""
+    s of a step from x0 to x1 (states (4,) with s a number, or columns (4, n) with s (n,))."""
     h00, h10, h01, h11 = 2 * s**3 - 3 * s**2 + 1, s**3 - 2 * s**2 + s, -2 * s**3 + 3 * s**2, s**3 - s**2
     phi = h00 * x0[:2] + h10 * dt_s * x0[2:] + h01 * x1[:2] + h11 * dt_s * x1[2:]
     omega = (1 - s) * x0[2:] + s * x1[2:]
