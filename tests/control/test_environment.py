@@ -235,7 +235,7 @@ def test_the_vector_env_s_node_noise_and_timing_are_the_node_model_s():
 @pytest.mark.parametrize(
     ("options", "message"),
     [
-        ({"engine": "bullet"}, "unknown engine 'bullet'; allowed: fast, mujoco"),
+        ({"engine": "bullet"}, "unknown engine 'bullet'; allowed: mujoco, fast"),
         ({"task": "swing-up"}, "unknown task 'swing-up'; allowed: damp, hold, still-m2, no-beating, tongue"),
         ({"actions": ("pivot_z",)}, "actions must be distinct channels among torque_m1, torque_m2, support_x"),
         ({"observation": "camera"}, "unknown observation 'camera'; allowed: state, nodes"),
