@@ -9,7 +9,7 @@ hold; then the same with ``--busy`` busy CPU loops beside them (default 2). Each
 - the loop's jitter: each tick's start after its scheduled instant; and its compute per tick;
 - the emulator's side: node packets sent after their instants, commands read after their
   arrival (the kernel's stamp), commands to zero-torque events;
-- the decay (to 1/e) of both modes over UDP;
+- the decay (to 1/e) of both modes over UDP, and the share of CPU time a hypervisor took (steal);
 
 against a baseline measured in the same run: a bare UDP echo round trip on loopback (a second
 process that sends each datagram back, 100 a second), the floor any loop over these sockets has.
@@ -140,8 +140,18 @@ def run_once(folder: Path, seconds: float, realtime: bool) -> dict[str, object]:
         "safe": safe,
         "skipped": result.skipped_ticks,
         "decay": decay,
-        "realtime": not any("not permitted" in text for _, text in result.events),
+        "realtime": realtime and not any("not permitted" in text for _, text in result.events),
     }
+
+
+def cpu_ticks() -> tuple[int, int]:
+    """(steal, total) jiffies of all CPUs since boot (Linux /proc/stat; (0, 0) elsewhere): the time
+    a hypervisor ran other guests on this machine's virtual CPUs, which no priority inside it beats."""
+    try:
+        fields = [int(v) for v in Path("/proc/stat").read_text().split("\n", 1)[0].split()[1:]]
+    except (OSError, ValueError):
+        return 0, 0
+    return (fields[7] if len(fields) > 7 else 0), sum(fields)
 
 
 def busy_loops(count: int) -> list[subprocess.Popen[bytes]]:
@@ -159,9 +169,11 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         for busy in (0, args.busy):
             loops = busy_loops(busy)
+            steal0, total0 = cpu_ticks()
             try:
                 r = run_once(Path(tmp), args.seconds, not args.no_realtime)
             finally:
+                steal1, total1 = cpu_ticks()
                 for p in loops:
                     p.kill()
                     p.wait()
@@ -175,6 +187,8 @@ def main() -> None:
             print(f"  node packet send lateness       {p50_p99_ms(r['send_lateness'])}")
             print(f"  command read after arrival      {p50_p99_ms(r['read_lateness'])}")
             print(f"  ticks skipped {r['skipped']}; zero-torque events {r['safe'] or 'none'}")
+            steal = (steal1 - steal0) / (total1 - total0) if total1 > total0 else math.nan
+            print(f"  CPU time stolen by the hypervisor during the run: {100 * steal:.1f} %")
             print(f"  decay to 1/e over UDP: mode 1 {r['decay'][0]:.3f} s, mode 2 {r['decay'][1]:.3f} s")
 
 
