@@ -15,6 +15,8 @@ their emulation (``pendsim nodes``) and lab files (``pendsim import``).
 - ``unit_check``: the units of imported values checked against their physics (the gyro against
   the orientation's rotation, gravity's magnitude).
 - ``emulator``: the two nodes emulated from a simulated run (``pendsim nodes``).
+- ``udp_loop``: the closed loop over UDP: the actuator's packets and rules, the emulated rig with
+  motors (``pendsim nodes --motor``), the controller's side (``rig_loop.run_rig_loop``).
 
-Docs: docs/acquisition.md (with the pendsim-v1 byte table).
+Docs: docs/acquisition.md (with the pendsim-v1 byte table); docs/control.md (the loop over UDP).
 """

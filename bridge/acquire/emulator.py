@@ -100,6 +100,23 @@ class NodeClock:
         if self.phase_s is not None and not (math.isfinite(self.phase_s) and self.phase_s >= 0):
             raise ParameterError(f"clock phase must be >= 0 s, got {self.phase_s!r}")
 
+    def resolved(self, rng: np.random.Generator, period_s: float) -> NodeClock:
+        """This clock with its offset (10-600 s) and phase (within one period) drawn from ``rng``
+        where not given (offset first)."""
+        offset_s = self.offset_s if self.offset_s is not None else float(rng.uniform(10.0, 600.0))
+        phase_s = self.phase_s if self.phase_s is not None else float(rng.uniform(0.0, period_s))
+        return NodeClock(self.drift_ppm, offset_s, phase_s)
+
+    def instants(self, k: NDArray[np.int64], period_s: float) -> tuple[NDArray[np.float64], NDArray[np.int64]]:
+        """Samples k (n,) of a resolved clock: their true instants (s since the stream's start)
+        and device times (us). The node samples when its clock reaches D0 + (1 + drift) phase + k
+        period, at t_k = phase + k period / (1 + drift)."""
+        assert self.offset_s is not None and self.phase_s is not None, "resolve the clock first"
+        rate = 1.0 + self.drift_ppm * 1e-6
+        t_s = np.asarray(self.phase_s + k * period_s / rate, dtype=np.float64)
+        device_us = np.rint((self.offset_s + rate * self.phase_s + k * period_s) * 1e6).astype(np.int64)
+        return t_s, device_us
+
 
 @dataclasses.dataclass(frozen=True)
 class EmulatorSpec:
@@ -186,7 +203,12 @@ def node_rows(samples: ImuSamples, node_index: int, t_s: NDArray[np.float64]) ->
     """The node's readings at true instants t_s (s since the start of the samples): the latest
     fused value at or before each, from 100 Hz ``samples``; (K, len(ROW_FIELDS))."""
     j = np.clip(np.floor(t_s * samples.config.sample_rate_hz + 1e-9).astype(np.int64), 0, len(samples.t_s) - 1)
-    rows = np.empty((len(t_s), len(ROW_FIELDS)))
+    return sample_rows(samples, node_index, j)
+
+
+def sample_rows(samples: ImuSamples, node_index: int, j: NDArray[np.int64]) -> NDArray[np.float64]:
+    """The node's samples number j (K,) as packet rows (K, len(ROW_FIELDS)), SI."""
+    rows = np.empty((len(j), len(ROW_FIELDS)))
     rows[:, GROUP_SLICES["quat"]] = samples.quat_wxyz[j, node_index]
     rows[:, GROUP_SLICES["gyro"]] = samples.gyro_rad_s[j, node_index]
     rows[:, GROUP_SLICES["accel"]] = samples.accel_m_s2[j, node_index]
@@ -210,15 +232,12 @@ def plan(spec: EmulatorSpec, samples: ImuSamples | None = None) -> Plan:
     period_s = 1.0 / spec.rate_hz
     streams, datagrams = [], []
     for node in spec.nodes:
-        given = spec.clock(node.name)
-        offset_s = given.offset_s if given.offset_s is not None else float(rng.uniform(10.0, 600.0))
-        phase_s = given.phase_s if given.phase_s is not None else float(rng.uniform(0.0, period_s))
-        clock = NodeClock(given.drift_ppm, offset_s, phase_s)
+        clock = spec.clock(node.name).resolved(rng, period_s)
+        assert clock.phase_s is not None
         rate = 1.0 + clock.drift_ppm * 1e-6
-        count = math.floor((spec.total_s - phase_s) * rate / period_s + 1e-9) + 1
+        count = math.floor((spec.total_s - clock.phase_s) * rate / period_s + 1e-9) + 1
         k = np.arange(max(count, 0), dtype=np.int64)
-        t_s = np.asarray(phase_s + k * period_s / rate, dtype=np.float64)
-        device_us = np.rint((offset_s + rate * phase_s + k * period_s) * 1e6).astype(np.int64)
+        t_s, device_us = clock.instants(k, period_s)
         rows = node_rows(samples, node.node_id - 1, t_s)  # m1 is pendulum M1, m2 is M2
         stream = NodeStreamPlan(node.name, k, device_us, t_s, rows, clock)
         streams.append(stream)

@@ -305,6 +305,15 @@ EARTH_FIELD_UT = np.array([0.0, 22.0, -42.0])  # a mid-latitude field in the fus
 INT16 = (-32768, 32767)
 
 
+def _i16(value: float) -> int:
+    """One value as ``_int16`` stores it: NaN 0, rounded half to even, clipped to int16."""
+    if value != value:
+        return 0
+    if not math.isfinite(value):
+        return INT16[1] if value > 0 else INT16[0]
+    return min(max(round(value), INT16[0]), INT16[1])
+
+
 def _int16(values: np.ndarray) -> np.ndarray:
     return np.clip(np.rint(np.nan_to_num(values)), *INT16).astype(np.int16)
 
@@ -360,8 +369,41 @@ class V1Codec:
         return Packet(v[5], v[6], row)
 
     def encode(self, seq: int, device_time_us: int, row: np.ndarray, *, node_id: int | None = None) -> bytes:
-        """A packet as a node fills it (see ``encode_many``)."""
-        return self.encode_many(np.array([seq]), np.array([device_time_us]), np.asarray(row)[None], node_id=node_id)[0]
+        """A packet as a node fills it: the bytes of ``encode_many`` for one row (tested on random
+        and extreme rows), computed in plain Python, about 30 times faster than a batch of one
+        (what a live sender such as the emulated rig with motors needs)."""
+        v = [float(x) for x in np.asarray(row, dtype=float)]
+        w, x, y, z = v[0:4] if all(math.isfinite(q) for q in v[0:4]) else (1.0, 0.0, 0.0, 0.0)
+        euler = (
+            math.degrees(math.atan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))),
+            math.degrees(math.atan2(2 * (w * x + y * z), 1 - 2 * (x * x + y * y))),
+            math.degrees(math.asin(min(max(2 * (w * y - z * x), -1.0), 1.0))),
+        )
+        # rotate_into_frame: R^T e, R's rows as rotations.to_matrix builds them
+        r = (
+            (1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)),
+            (2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)),
+            (2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)),
+        )
+        e = EARTH_FIELD_UT
+        mag = [(r[0][i] * e[0] + r[1][i] * e[1] + r[2][i] * e[2]) / MAG_LSB_UT for i in range(3)]
+        calib = 0
+        for level in v[ROW_INDEX["cal_sys"] : ROW_INDEX["cal_mag"] + 1]:
+            calib = (calib << 2) | ((int(level) if math.isfinite(level) else 0) & 3)
+        registers = (
+            *(_i16(a / ACCEL_LSB_M_S2) for a in v[GROUP_SLICES["accel"]]),
+            *(_i16(m) for m in mag),
+            *(_i16(g / GYRO_LSB_RAD_S) for g in v[GROUP_SLICES["gyro"]]),
+            *(_i16(d / EULER_LSB_DEG) for d in euler),
+            *(_i16(q / QUAT_LSB) for q in (w, x, y, z)),
+            *(_i16(a / ACCEL_LSB_M_S2) for a in v[GROUP_SLICES["linear"]]),
+            *(_i16(a / ACCEL_LSB_M_S2) for a in v[GROUP_SLICES["gravity"]]),
+        )
+        head = _V1_PACKET.pack(
+            V1_MAGIC, V1_VERSION, self.node_id if node_id is None else node_id, V1_UNIT_SEL, 0, seq % 2**32,
+            device_time_us % 2**64, *registers, 25, calib, 0,
+        )  # fmt: skip
+        return head[:-4] + _V1_CRC.pack(zlib.crc32(memoryview(head)[:-4]))
 
     def encode_many(
         self,

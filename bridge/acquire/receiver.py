@@ -37,7 +37,7 @@ import sys
 import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
-from typing import Protocol
+from typing import Any, Protocol
 
 import numpy as np
 from numpy.typing import NDArray
@@ -214,6 +214,17 @@ class _Node:
 
 
 def _bind(spec: NodeSpec, address: str) -> socket.socket:
+    return listen_udp(address, spec.port, what=f"node {spec.name}", option="--node")
+
+
+def listen_udp(address: str, port: int, *, what: str, option: str) -> socket.socket:
+    """A non-blocking UDP socket bound to ``address``:``port`` with a large receive buffer and, on
+    Linux, the kernel's arrival stamps and drop count on (``read_stamped``).
+
+    Raises:
+      ParameterError: the port cannot be bound, in one line naming ``what`` listens there and the
+        ``option`` that chooses another port (a port in use: "address already in use").
+    """
     family = socket.AF_INET6 if ":" in address else socket.AF_INET
     sock = socket.socket(family, socket.SOCK_DGRAM)
     try:
@@ -223,17 +234,54 @@ def _bind(spec: NodeSpec, address: str) -> socket.socket:
             with contextlib.suppress(OSError):
                 sock.setsockopt(socket.SOL_SOCKET, SO_TIMESTAMPNS, 1)
                 sock.setsockopt(socket.SOL_SOCKET, SO_RXQ_OVFL, 1)
-        sock.bind((address, spec.port))
+        sock.bind((address, port))
         sock.setblocking(False)
     except OSError as exc:
         sock.close()
         cause = (
-            "address already in use (another program listens there); choose another port with --node"
+            f"address already in use (another program listens there); choose another port with {option}"
             if exc.errno == errno.EADDRINUSE
             else describe_os_error(exc)
         )
-        raise ParameterError(f"cannot listen on {address}:{spec.port} for node {spec.name}: {cause}") from None
+        raise ParameterError(f"cannot listen on {address}:{port} for {what}: {cause}") from None
     return sock
+
+
+@dataclasses.dataclass(frozen=True)
+class Stamped:
+    """A datagram read from a socket: its bytes, when it arrived (host monotonic ns: the kernel's
+    stamp where there is one, else when it was read), its sender, and the socket's count of
+    datagrams its full buffer dropped so far (None: not reported)."""
+
+    data: bytes
+    arrival_ns: int
+    address: Any
+    dropped: int | None
+
+
+def read_stamped(sock: socket.socket, limit: int = DRAIN_LIMIT) -> list[Stamped]:
+    """What waits on a non-blocking socket (at most ``limit`` datagrams), each with its arrival
+    time: the kernel's stamp (SO_TIMESTAMPNS, CLOCK_REALTIME) mapped onto the monotonic clock, so
+    that a loop that falls behind does not shift arrival times."""
+    realtime_to_monotonic = time.monotonic_ns() - time.time_ns()
+    out = []
+    for _ in range(limit):
+        try:
+            data, ancillary, _, address = sock.recvmsg(MAX_DATAGRAM, ANCILLARY_BYTES)
+        except (BlockingIOError, InterruptedError):
+            break
+        except OSError:  # e.g. ICMP errors reported on the socket: nothing to read
+            break
+        arrival_ns = 0
+        dropped = None
+        for level, kind, value in ancillary:
+            if level == socket.SOL_SOCKET and kind == SO_TIMESTAMPNS and len(value) >= 16:
+                sec, nsec = TIMESPEC.unpack_from(value)
+                arrival_ns = sec * NS_PER_S + nsec + realtime_to_monotonic
+            elif level == socket.SOL_SOCKET and kind == SO_RXQ_OVFL and len(value) >= 4:
+                dropped = int.from_bytes(value[:4], sys.byteorder)
+        out.append(Stamped(data, arrival_ns or time.monotonic_ns(), address, dropped))
+    return out
 
 
 def _is_loopback(address: str) -> bool:
@@ -470,22 +518,10 @@ def _drain(node: _Node, start_ns: int) -> None:
     the kernel's stamp where there is one)."""
     sock = node.sock
     assert sock is not None
-    realtime_to_monotonic = time.monotonic_ns() - time.time_ns()
-    for _ in range(DRAIN_LIMIT):
-        try:
-            data, ancillary, _, _ = sock.recvmsg(MAX_DATAGRAM, ANCILLARY_BYTES)
-        except (BlockingIOError, InterruptedError):
-            return
-        except OSError:  # e.g. ICMP errors reported on the socket: nothing to read
-            return
-        arrival_ns = 0
-        for level, kind, value in ancillary:
-            if level == socket.SOL_SOCKET and kind == SO_TIMESTAMPNS and len(value) >= 16:
-                sec, nsec = TIMESPEC.unpack_from(value)
-                arrival_ns = sec * NS_PER_S + nsec + realtime_to_monotonic
-            elif level == socket.SOL_SOCKET and kind == SO_RXQ_OVFL and len(value) >= 4:
-                node.host_dropped = int.from_bytes(value[:4], sys.byteorder)
-        accepted = node.receive(data, arrival_ns or time.monotonic_ns(), start_ns)
+    for datagram in read_stamped(sock):
+        if datagram.dropped is not None:
+            node.host_dropped = datagram.dropped
+        accepted = node.receive(datagram.data, datagram.arrival_ns, start_ns)
         node.last_read_ns = time.monotonic_ns()
         if accepted:
             node.last_sample_ns = node.last_read_ns
@@ -733,4 +769,4 @@ def summary(result: AcquireResult) -> str:
     return "\n".join(lines)
 
 
-__all__ = ["AcquireResult", "AcquireSpec", "NodeResult", "acquire", "summary"]
+__all__ = ["AcquireResult", "AcquireSpec", "NodeResult", "Stamped", "acquire", "listen_udp", "read_stamped", "summary"]

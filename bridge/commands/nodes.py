@@ -99,6 +99,7 @@ def register(sub: argparse._SubParsersAction[options.Parser]) -> None:
         help="write what was sent to this file, JSON lines (.jsonl) or CSV (.csv): the name must end in one of them",
     )
     p.add_argument("--force", action="store_true", help="replace the log file if it exists")
+    add_motor_options(p)
     p.set_defaults(handler=run)
 
 
@@ -140,11 +141,122 @@ def run(args: argparse.Namespace) -> int:
     from ..acquire.emulator import LOG_SUFFIXES, plan, summary  # start-up: MuJoCo, when the command runs
     from ..acquire.emulator import run as send
 
+    if args.motor:
+        return run_motor(args)
+    given = [flag for flag, dest in MOTOR_OPTIONS if getattr(args, dest) not in (None, [])]
+    if given:
+        raise options.UsageError(f"{given[0]} is for the rig with motors: add --motor")
     if args.log is not None:
         options.check_output(args.log, LOG_SUFFIXES, force=args.force)
     spec = spec_from(args)
     if not math.isfinite(spec.total_s):
         raise options.UsageError("the run must have a finite duration")
     result = send(spec, log=args.log, replace_log=args.force, prepared=plan(spec))
+    print(summary(result))
+    return 0
+
+
+MOTOR_OPTIONS = (
+    ("--actuator-port", "actuator_port"),
+    ("--actuator-bind", "actuator_bind"),
+    ("--command-latency-ms", "command_latency_ms"),
+    ("--command-jitter-ms", "command_jitter_ms"),
+    ("--torque-limit-n-m", "torque_limit_n_m"),
+    ("--command-period-ms", "command_period_ms"),
+    ("--watchdog-margin-ms", "watchdog_margin_ms"),
+    ("--silent-after-s", "silent_after_s"),
+)
+"""The options of the rig with motors (``--motor``), as (flag, dest)."""
+
+
+def add_motor_options(p: argparse.ArgumentParser) -> None:
+    """--motor and the actuator's options (docs/control.md, "The loop over UDP")."""
+    g = p.add_argument_group("the rig with motors (--motor: a controller closes the loop over UDP)")
+    g.add_argument(
+        "--motor",
+        action="store_true",
+        help="play the rig with a motor at each hinge, live: the rig moves with the torques the actuator node "
+        "applies, the nodes send what they measure, the actuator takes commands on --actuator-port",
+    )
+    g.add_argument(
+        "--actuator-port",
+        type=options.int_in(1, 65535),
+        help="the actuator's UDP port for commands (default 5603)",
+    )
+    g.add_argument(
+        "--actuator-bind",
+        type=options.bind_address,
+        help="the address the actuator listens on (default 127.0.0.1: this machine only)",
+    )
+    g.add_argument(
+        "--command-latency-ms",
+        type=options.float_in(0.0, 1000.0, "ms"),
+        help="from a command's arrival to its torque, ms (default 2)",
+    )
+    g.add_argument(
+        "--command-jitter-ms",
+        type=options.float_in(0.0, 1000.0, "ms"),
+        help="mean of the exponential delay added to the latency, first in first out, ms (default 0.5)",
+    )
+    g.add_argument(
+        "--torque-limit-n-m",
+        type=options.float_in(0.0, 10.0, "N m", low_open=True, name="--torque-limit-n-m"),
+        help="each motor's limit: a command above it gives zero torque, N m (default 0.05)",
+    )
+    g.add_argument(
+        "--command-period-ms",
+        type=options.float_in(1.0, 100.0, "ms"),
+        help="the controller's period the watchdog expects, ms (default 10)",
+    )
+    g.add_argument(
+        "--watchdog-margin-ms",
+        type=options.float_in(0.0, 1000.0, "ms"),
+        help="no valid command for the period plus this: zero torque, ms (default 10)",
+    )
+    g.add_argument(
+        "--silent-after-s",
+        type=options.argument(per_node("--silent-after-s", 0.0, 1e6, "s"), "[NAME=]S"),
+        action="append",
+        default=[],
+        metavar="[NAME=]S",
+        help="a node stops sending this long after the start, s (m2=5: a node going silent; repeatable)",
+    )
+
+
+def run_motor(args: argparse.Namespace) -> int:
+    """``pendsim nodes --motor``: the emulated rig with motors until its duration ends."""
+    from ..acquire.udp_loop.actuator import ActuatorSpec  # start-up: MuJoCo, when the command runs
+    from ..acquire.udp_loop.motor_rig import LOG_SUFFIX, MotorRigSpec, run_motor_rig, summary
+
+    if args.log is not None:
+        options.check_output(args.log, (LOG_SUFFIX,), force=args.force)
+    emulated = spec_from(args)
+    names = [n.name for n in emulated.nodes]
+    silent: dict[str, float] = {}
+    for name, value in args.silent_after_s:
+        for target in [name] if name is not None else names:
+            if target not in names:
+                raise options.UsageError(f"--silent-after-s {name}=...: node {name} is not sent to (--node)")
+            silent[target] = value
+
+    def given(value: float | None, default: float) -> float:
+        return default if value is None else value
+
+    actuator = ActuatorSpec(
+        torque_limit_n_m=given(args.torque_limit_n_m, 0.05),
+        command_latency_s=given(args.command_latency_ms, 2.0) * 1e-3,
+        command_jitter_s=given(args.command_jitter_ms, 0.5) * 1e-3,
+        command_period_s=given(args.command_period_ms, 10.0) * 1e-3,
+        watchdog_margin_s=given(args.watchdog_margin_ms, 10.0) * 1e-3,
+        seed=args.seed,
+    )
+    spec = MotorRigSpec(
+        nodes=emulated,
+        actuator=actuator,
+        actuator_bind=args.actuator_bind or "127.0.0.1",
+        actuator_port=args.actuator_port or 5603,
+        silent_after_s=tuple(silent.items()),
+    )
+    result = run_motor_rig(spec, log=args.log, replace_log=args.force)
     print(summary(result))
     return 0

@@ -536,20 +536,24 @@ def _measure_readings(
     quat = readings["imu_quat_wxyz"]
     imperfect = config.imperfections
 
-    # Mount: offset by rigid-body kinematics, then the mount rotation.
+    # Mount: offset by rigid-body kinematics, then the mount rotation (each skipped where it is
+    # none: the same values, cheaper for a live loop's few samples at a time).
     d = np.asarray(config.mount_offset_m, dtype=float)  # (2, 3)
-    accel = accel + np.cross(angacc, d) + np.cross(gyro, np.cross(gyro, d))
+    if np.any(d):
+        accel = accel + np.cross(angacc, d) + np.cross(gyro, np.cross(gyro, d))
     q_mount = np.asarray(config.mount_quat_wxyz, dtype=float)  # (2, 4)
-    r_mount = rotations.to_matrix(q_mount)  # (2, 3, 3)
-    accel = np.einsum("kji,mkj->mki", r_mount, accel)
-    gyro = np.einsum("kji,mkj->mki", r_mount, gyro)
-    quat = rotations.multiply(quat, np.broadcast_to(q_mount, quat.shape))
+    if np.any(q_mount != (1.0, 0.0, 0.0, 0.0)):
+        r_mount = rotations.to_matrix(q_mount)  # (2, 3, 3)
+        accel = np.einsum("kji,mkj->mki", r_mount, accel)
+        gyro = np.einsum("kji,mkj->mki", r_mount, gyro)
+        quat = rotations.multiply(quat, np.broadcast_to(q_mount, quat.shape))
     if imperfect.fusion_error_rad > 0:  # the fused orientation is off by a slowly varying small angle
         quat = rotations.multiply(quat, _fusion_error(config, value_t))
 
     gravity = rotations.rotate_into_frame(quat, np.array([0.0, 0.0, g_m_s2]))
-    remaps = [imp.axis_remap_matrix(imperfect.axis_map_config[n], imperfect.axis_map_sign[n]) for n in range(2)]
-    if any(not np.array_equal(p, np.eye(3)) for p in remaps):
+    identity = imp.DEFAULT_AXIS_MAP_CONFIG
+    if any(imperfect.axis_map_config[n] != identity or imperfect.axis_map_sign[n] for n in range(2)):  # remapped
+        remaps = [imp.axis_remap_matrix(imperfect.axis_map_config[n], imperfect.axis_map_sign[n]) for n in range(2)]
         p = np.stack(remaps)  # (2, 3, 3): output = P @ chip axes
         accel, gyro, gravity = (np.einsum("kij,mkj->mki", p, v) for v in (accel, gyro, gravity))
         q_remap = np.stack([imp.remap_quaternion(r) for r in remaps])
@@ -674,3 +678,80 @@ class _NoiseStreams:
             _quantize(quat, QUAT_LSB),
             _quantize(gravity, ACCEL_LSB_M_S2),
         )
+
+
+def hinge_readings(
+    params: RigParams, phi_rad: np.ndarray, omega_rad_s: np.ndarray, alpha_rad_s2: np.ndarray
+) -> dict[str, np.ndarray]:
+    """Both nodes' ideal readings on the planar rig at given states, in closed form, without MuJoCo:
+    MuJoCo's IMU sensors of the model's mount at the disk centres (``simulation.evaluate_states``
+    gives the same to rounding, tested), for a live loop that computes them as it goes.
+
+    The orientation is the pendulum's swing by phi about the hinge times the site's rest frame
+    (``rotations.pendulum_quat_wxyz``, ``rotations.IMU_SITE_QUAT_WXYZ``); the gyro reads omega on z;
+    the accelerometer reads gravity's specific force in the sensor's axes, (g sin phi, g cos phi, 0)
+    (spec RIG.md section 6), plus the disk centre's kinematic acceleration (r phi'' tangential on
+    x, r phi'^2 toward the pivot on y).
+
+    Args:
+      params: the rig (g, the disk centres' radii OM1, OM2).
+      phi_rad, omega_rad_s, alpha_rad_s2: (m, 2) angles, rates and angular accelerations.
+
+    Returns:
+      dict with ``imu_accel_m_s2``, ``imu_gyro_rad_s``, ``imu_angacc_rad_s2`` (m, 2, 3) and
+      ``imu_quat_wxyz`` (m, 2, 4), as ``evaluate_states``.
+    """
+    phi = np.asarray(phi_rad, dtype=float)
+    omega = np.asarray(omega_rad_s, dtype=float)
+    alpha = np.asarray(alpha_rad_s2, dtype=float)
+    if phi.ndim != 2 or phi.shape[1] != 2 or omega.shape != phi.shape or alpha.shape != phi.shape:
+        raise ParameterError(
+            f"angles, rates and accelerations must have shape (m, 2), got {phi.shape}, {omega.shape}, {alpha.shape}"
+        )
+    site = np.broadcast_to(rotations.IMU_SITE_QUAT_WXYZ, (*phi.shape, 4))
+    quat = rotations.multiply(rotations.pendulum_quat_wxyz(phi), site)
+    radius = np.array([params.om1_m, params.om2_m])
+    zeros = np.zeros_like(phi)
+    g = params.g_m_s2
+    accel = np.stack([g * np.sin(phi) + radius * alpha, g * np.cos(phi) + radius * omega**2, zeros], axis=-1)
+    return {
+        "imu_accel_m_s2": accel,
+        "imu_gyro_rad_s": np.stack([zeros, zeros, omega], axis=-1),
+        "imu_angacc_rad_s2": np.stack([zeros, zeros, alpha], axis=-1),
+        "imu_quat_wxyz": quat,
+    }
+
+
+class LiveImu:
+    """Both nodes measured a few samples at a time from ideal readings a live loop computes (the
+    emulated rig with motors): the mount, axis remap, heading, noise, clipping and quantisation of
+    ``sample_imu``, the noise drawn from one run's streams as the samples come (seeded: the same
+    calls give the same values). A sample's value is its instant's (the caller picks the instant:
+    the latest fused tick, or the sample's own).
+
+    Imperfections drawn over a whole run (fusion error, packet loss, latency) and bias instability
+    (flicker noise, synthesised for a whole run at once) cannot be drawn live and are refused.
+
+    Args:
+      config: the node model.
+      g_m_s2: gravity, m/s^2 (the gravity vector output).
+    """
+
+    def __init__(self, config: Bno055, g_m_s2: float) -> None:
+        n = config.noise_model
+        if not streamable(config) or (
+            config.noise and (any(n.accel_bias_instability_m_s2) or any(n.gyro_bias_instability_rad_s))
+        ):
+            raise ParameterError(
+                "a live node model cannot draw fusion error, packet loss, latency or bias instability (whole-run "
+                "processes); the emulator's own network faults stand for loss and latency"
+            )
+        self.config, self.g_m_s2 = config, float(g_m_s2)
+        self._noise = _NoiseStreams(config, 0) if config.noise else None
+
+    def measure(self, readings: dict[str, np.ndarray], t_s: np.ndarray) -> ImuSamples:
+        """Both nodes' measured samples of ideal ``readings`` ((m, 2, ...), ``hinge_readings``)
+        taken at instants ``t_s`` (m,), s."""
+        t = np.asarray(t_s, dtype=float)
+        instants = np.stack([t, t], axis=1)
+        return _measure_readings(readings, t, instants, self.g_m_s2, self.config, instants, noise=self._noise)
