@@ -177,7 +177,11 @@ def imperfections_from(args: argparse.Namespace) -> tuple[Imperfections, tuple[t
         fusion_error_rad=math.radians(getattr(args, "fusion_error_deg", 0.0)),
         packet_loss=loss,
         loss_burst_samples=args.loss_burst_samples if loss > 0 else 1.0,
-        clock_drift_ppm=(0.0, getattr(args, "clock_drift_ppm", 0.0)),
+        # a transport option only where the transport options were given (``pendsim nodes`` has
+        # a per-node --clock-drift-ppm of its own and no --latency-s)
+        clock_drift_ppm=(0.0, args.clock_drift_ppm)
+        if hasattr(args, "latency_s") and hasattr(args, "clock_drift_ppm")
+        else (0.0, 0.0),
         latency_s=getattr(args, "latency_s", 0.0),
         hold_wobble_rad=math.radians(getattr(args, "hold_wobble_deg", 0.0)),
     )
