@@ -15,9 +15,10 @@ from pendsim_mj.rig.params import DEFAULT_PARAMS, RigParams
 from pendsim_mj.sensors.bno055 import Bno055
 
 from .. import options
-from .node_options import add_imperfection_options, imperfections_from
+from .node_options import add_imperfection_options, imperfections_from, nodes_from, parse_node
 
 if TYPE_CHECKING:
+    from ..acquire.udp_loop.rig_loop import RigLoopResult
     from ..run.control import ControlResult, ControlSpec
 
 MAX_GAIN = 1e4  # N m per rad (or per rad/s): far beyond anything a 0.05 N m motor can use
@@ -104,6 +105,28 @@ def register(sub: argparse._SubParsersAction[options.Parser]) -> None:
     p.add_argument("--seed", type=options.int_in(0, 2**63 - 1), default=0, help="seed of the node noise")
     p.add_argument("--no-open-loop", action="store_true", help="skip the open-loop run (no decay comparison; faster)")
     add_imperfection_options(p, only=NODE_OPTIONS)
+    g = p.add_argument_group("on the rig over UDP (--rig; 'pendsim nodes --motor' emulates it)")
+    g.add_argument(
+        "--rig",
+        action="store_true",
+        help="close the loop on the rig instead of the simulation: read its two nodes as acquire does and send "
+        "commands to its actuator node (docs/control.md, 'The loop over UDP'); --duration-s, then a stop",
+    )
+    g.add_argument(
+        "--node",
+        dest="nodes",
+        type=options.argument(parse_node, "NAME=PORT"),
+        action="append",
+        metavar="NAME=PORT",
+        help="with --rig: a node and the UDP port it sends to (repeatable; default m1=5601 m2=5602)",
+    )
+    g.add_argument("--bind", help="with --rig: address the node ports listen on (default 127.0.0.1: this machine only)")
+    g.add_argument("--actuator-host", help="with --rig: the actuator node's address (default 127.0.0.1)")
+    g.add_argument(
+        "--actuator-port",
+        type=options.int_in(1, 65535),
+        help="with --rig: the actuator node's UDP port for commands (default 5603)",
+    )
     p.set_defaults(handler=run)
 
 
@@ -203,13 +226,72 @@ def summary(result: ControlResult) -> list[str]:
     return lines
 
 
+RIG_ONLY = ("--node", "--bind", "--actuator-host", "--actuator-port")
+
+
+def rig_summary(result: RigLoopResult) -> list[str]:
+    """The lines ``--rig`` prints: what the controller read and did, and the loop's timing."""
+    import numpy as np
+
+    from pendsim_mj.control.linear import decay_time_s, linearise
+
+    seen = np.all(np.isfinite(result.states), axis=1)
+    lines = [
+        f"{result.controller} on the rig over UDP, motors {'+'.join(result.motors)} (limit "
+        f"{result.torque_limit_n_m:g} N m), every {1000 * result.dt_s:g} ms; {len(result.t_s)} ticks, ended: "
+        f"{result.stop}"
+    ]
+    if np.count_nonzero(seen) > 1:
+        t, x = result.t_s[seen], result.states[seen]
+        amplitudes = linearise(DEFAULT_PARAMS).mode_amplitudes_rad(x)
+        for i in range(2):
+            decay = decay_time_s(t - t[0], amplitudes[:, i])
+            lines.append(
+                f"  mode {i + 1}: {math.degrees(amplitudes[0, i]):.2f} deg at the first reading, decay to 1/e "
+                f"{_decay(decay)} (from the nodes' readings)"
+            )
+    timing = result.timing()
+    peak1, peak2 = (float(np.max(np.abs(result.torques_n_m[:, k]))) for k in range(2))
+    lines.append(
+        f"  peak torque {peak1:.4f} / {peak2:.4f} N m; command -> status {timing.round_trip_ms[0]:.2f} ms median "
+        f"({timing.round_trip_ms[1]:.2f} p99); oldest sample -> command {timing.sample_to_command_ms[0]:.1f} ms; "
+        f"tick lateness {timing.tick_lateness_ms[0]:.2f} ms ({timing.tick_lateness_ms[1]:.2f} p99); "
+        f"{result.skipped_ticks} ticks skipped"
+    )
+    return lines
+
+
+def _run_rig(args: argparse.Namespace, spec: ControlSpec) -> int:
+    from ..acquire.udp_loop.rig_loop import run_rig_loop  # start-up: the loop loads when it runs
+    from ..run.control import make_controller
+
+    if args.output is not None:
+        raise options.UsageError("-o with --rig: the loop writes no recording (the emulated rig's --log does)")
+    if args.observe != "state" or args.engine != "mujoco":
+        raise options.UsageError("--observe and --engine are for the simulated loop; --rig reads the real nodes")
+    actuator = (args.actuator_host or "127.0.0.1", args.actuator_port or 5603)
+    result = run_rig_loop(
+        make_controller(spec), nodes=nodes_from(args), bind=args.bind or "127.0.0.1", actuator=actuator,
+        duration_s=spec.duration_s, dt_s=spec.dt_s,
+    )  # fmt: skip
+    for line in rig_summary(result):
+        print(line)
+    return 0
+
+
 def run(args: argparse.Namespace) -> int:
     from tqdm import tqdm  # start-up: loaded when the command runs
 
     from ..run.control import run_control  # start-up: the control room loads scipy when the command runs
 
-    options.check_output(args.output, (".mcap",), force=args.force)
     spec = spec_from(args)
+    if args.rig:
+        return _run_rig(args, spec)
+    given = [flag for flag, dest in zip(RIG_ONLY, ("nodes", "bind", "actuator_host", "actuator_port"), strict=True)
+             if getattr(args, dest) is not None]  # fmt: skip
+    if given:
+        raise options.UsageError(f"{given[0]} is for the loop on the rig: add --rig")
+    options.check_output(args.output, (".mcap",), force=args.force)
     with tqdm(total=spec.duration_s, unit="s", desc="closed loop", disable=None, leave=False) as bar:
         last = [0.0]
 

@@ -407,3 +407,45 @@ def test_a_port_in_use_is_one_line_and_exit_2(tmp_path):
         check.close()
     finally:
         busy.close()
+
+
+def test_pendsim_control_rig_runs_the_loop_on_the_emulated_rig_and_reports_its_timing(tmp_path, capsys):
+    """The command a lab types: `pendsim control lqr --rig` against `pendsim nodes --motor`: it
+    damps the rig (read back from the rig's own log) and prints the decay and the loop's timing."""
+    from pendsim_bridge.cli import main
+
+    ports = free_udp_ports(3)
+    p1, p2, pa = ports
+    rig = _rig(tmp_path, ports, duration_s=5.0, hold_s=1.0)
+    try:
+        args = ["control", "lqr", "--rig", "--node", f"m1={p1}", "--node", f"m2={p2}", "--actuator-port", str(pa),
+                "--duration-s", "4"]  # fmt: skip
+        assert main(args) == 0
+        assert rig.finish() == 0, rig.err
+    finally:
+        rig.kill()
+    out = capsys.readouterr().out
+    assert "lqr on the rig over UDP" in out and "command -> status" in out and "decay to 1/e" in out
+    _, rows = read_log(tmp_path / "rig.jsonl")
+    steps = [r for r in rows if r["kind"] == "step"]
+    swing = np.array([abs(r["phi1_rad"]) for r in steps[-100:]])  # the rig's last 0.1 s
+    assert np.max(swing) < math.radians(1.0)  # from 30 deg, damped in 3 s
+    assert max(abs(r["tau1_n_m"]) for r in steps) <= 0.05 * (1 + 1e-6)
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["--bind", "0.0.0.0"], "--bind is for the loop on the rig: add --rig"),
+        (["--rig", "-o", "run.mcap"], "-o with --rig"),
+        (["--rig", "--observe", "nodes"], "--rig reads the real nodes"),
+    ],
+)
+def test_the_rigs_options_are_refused_where_they_do_not_apply(args, message, tmp_path, capsys, monkeypatch):
+    from pendsim_bridge.cli import main
+
+    monkeypatch.chdir(tmp_path)
+    assert main(["control", "lqr", *args]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and message in err[0]
+    assert list(tmp_path.iterdir()) == []

@@ -46,6 +46,7 @@ UNTYPED = {
     "--parameters": None,  # names
     "--bind": None,  # an address (acquire; tests/acquire)
     "--host": None,  # an address (nodes; tests/acquire)
+    "--actuator-host": None,  # an address (control --rig; tests/acquire/test_control_udp.py)
 }
 # Types whose value is a form with numbers inside: the absurd value goes into each template.
 TEMPLATES = {
