@@ -292,7 +292,7 @@ def _is_loopback(address: str) -> bool:
 
 
 @contextlib.contextmanager
-def _stop_signals() -> Iterator[list[str]]:
+def stop_signals() -> Iterator[list[str]]:
     """SIGINT and SIGTERM set a flag (the loop ends cleanly) instead of raising; restored after."""
     reason: list[str] = []
     names = {signal.SIGINT: "interrupted", signal.SIGTERM: "terminated"}
@@ -455,7 +455,7 @@ def _run(
     diag_marks = [0] * len(nodes)
     stop_reason = "duration"
     try:
-        with _stop_signals() as stop:
+        with stop_signals() as stop:
             while True:
                 now = time.monotonic_ns()
                 if stop:

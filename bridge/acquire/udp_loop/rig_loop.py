@@ -26,11 +26,10 @@ import contextlib
 import dataclasses
 import math
 import selectors
-import signal
 import socket
 import sys
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
 
 import numpy as np
 from numpy.typing import NDArray
@@ -41,10 +40,9 @@ from pendsim_mj.estimation.swing_frame import SwingFrame
 from pendsim_mj.rig.params import DEFAULT_PARAMS
 from pendsim_mj.sensors.bno055 import SAMPLE_RATE_HZ
 
-from ...signals import signal_handlers
 from ..packets import StreamFormat
 from ..ports import DEFAULT_NODES, NodeSpec, check_nodes
-from ..receiver import listen_udp, read_stamped
+from ..receiver import listen_udp, read_stamped, stop_signals
 from .actuator import DEFAULT_ACTUATOR_PORT
 from .node_view import SILENT_S, VALUE_AGE_S, NodeView, ViewCounters, model_frames
 from .packets import MAX_TORQUE_N_M, ActuatorPacketError, Command, Status, decode_status, encode_command
@@ -146,20 +144,6 @@ class RigLoopResult:
 
 def _stderr(line: str) -> None:
     print(line, file=sys.stderr, flush=True)
-
-
-@contextlib.contextmanager
-def _stop_signals() -> Iterator[list[str]]:
-    """SIGINT and SIGTERM set a flag (the loop ends cleanly: a stop sent first); restored after.
-    Outside the main thread nothing is installed (``signal_handlers``)."""
-    reason: list[str] = []
-    names = {signal.SIGINT: "interrupted", signal.SIGTERM: "terminated"}
-
-    def handler(signum: int, frame: object) -> None:
-        reason.append(names[signal.Signals(signum)])
-
-    with signal_handlers(dict.fromkeys(names, handler)):
-        yield reason
 
 
 class _Loop:
@@ -401,7 +385,7 @@ def run_rig_loop(
             f"{', '.join(f'{v.spec.name} on {bind}:{v.spec.port}' for v in views)}; actuator {host}:{port}"
         )
         k = 0
-        with _stop_signals() as signalled, realtime(realtime_priority) as granted:
+        with stop_signals() as signalled, realtime(realtime_priority) as granted:
             if realtime_priority and not granted:
                 loop.said("note: real-time scheduling not permitted (needs root or CAP_SYS_NICE): normal priority")
             while True:
