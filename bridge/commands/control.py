@@ -6,6 +6,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import sys
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -236,24 +237,28 @@ def rig_summary(result: RigLoopResult) -> list[str]:
     from pendsim_mj.control.linear import decay_time_s, linearise
 
     seen = np.all(np.isfinite(result.states), axis=1)
+    applied = np.array([s.torques_n_m for s in result.statuses]).reshape(-1, 2)
     lines = [
         f"{result.controller} on the rig over UDP, motors {'+'.join(result.motors)} (limit "
         f"{result.torque_limit_n_m:g} N m), every {1000 * result.dt_s:g} ms; {len(result.t_s)} ticks, ended: "
         f"{result.stop}"
     ]
     if np.count_nonzero(seen) > 1:
+        # from the swing's largest total amplitude on (a hold before the release is no decay)
         t, x = result.t_s[seen], result.states[seen]
         amplitudes = linearise(DEFAULT_PARAMS).mode_amplitudes_rad(x)
+        first = int(np.argmax(np.hypot(amplitudes[:, 0], amplitudes[:, 1])))
         for i in range(2):
-            decay = decay_time_s(t - t[0], amplitudes[:, i])
+            decay = decay_time_s(t[first:] - t[first], amplitudes[first:, i])
             lines.append(
-                f"  mode {i + 1}: {math.degrees(amplitudes[0, i]):.2f} deg at the first reading, decay to 1/e "
-                f"{_decay(decay)} (from the nodes' readings)"
+                f"  mode {i + 1}: {math.degrees(amplitudes[first, i]):.2f} deg at {t[first]:.2f} s (the swing's "
+                f"largest), decay to 1/e {_decay(decay)} (from the nodes' readings)"
             )
     timing = result.timing()
-    peak1, peak2 = (float(np.max(np.abs(result.torques_n_m[:, k]))) for k in range(2))
+    peak1, peak2 = (float(np.max(np.abs(applied[:, k]), initial=0.0)) for k in range(2))
     lines.append(
-        f"  peak torque {peak1:.4f} / {peak2:.4f} N m; command -> status {timing.round_trip_ms[0]:.2f} ms median "
+        f"  peak torque applied (the actuator's statuses) {peak1:.4f} / {peak2:.4f} N m; "
+        f"command -> status {timing.round_trip_ms[0]:.2f} ms median "
         f"({timing.round_trip_ms[1]:.2f} p99); oldest sample -> command {timing.sample_to_command_ms[0]:.1f} ms; "
         f"tick lateness {timing.tick_lateness_ms[0]:.2f} ms ({timing.tick_lateness_ms[1]:.2f} p99); "
         f"{result.skipped_ticks} ticks skipped"
@@ -262,6 +267,8 @@ def rig_summary(result: RigLoopResult) -> list[str]:
 
 
 def _run_rig(args: argparse.Namespace, spec: ControlSpec) -> int:
+    import numpy as np
+
     from ..acquire.udp_loop.rig_loop import run_rig_loop  # start-up: the loop loads when it runs
     from ..run.control import make_controller
 
@@ -276,6 +283,16 @@ def _run_rig(args: argparse.Namespace, spec: ControlSpec) -> int:
     )  # fmt: skip
     for line in rig_summary(result):
         print(line)
+    failure = ""
+    if not np.any(np.all(np.isfinite(result.states), axis=1)):
+        failure = "no sample came from both nodes: nothing was controlled (are they sending to --node's ports?)"
+    elif not result.statuses:
+        failure = "the actuator never answered: nothing was applied (is it listening on --actuator-port?)"
+    elif result.stop == "actuator_limit":
+        failure = "the actuator's torque limit is below the controller's: give --torque-limit-n-m its limit"
+    if failure:
+        print(f"pendsim: {failure}", file=sys.stderr)
+        return 1
     return 0
 
 

@@ -450,3 +450,28 @@ def test_the_rigs_options_are_refused_where_they_do_not_apply(args, message, tmp
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and message in err[0]
     assert list(tmp_path.iterdir()) == []
+
+
+def test_a_controller_run_again_starts_a_new_session_at_the_actuator():
+    """A controller numbers its commands from 0 each run: after the previous run's stop and a
+    pause, the actuator takes the new run's commands (within a run, an old number stays stale)."""
+    a = Actuator(ActuatorSpec(command_latency_s=0.0, command_jitter_s=0.0))
+    for k in range(5):
+        a.receive(encode_command(Command(k, 1_000_000 + 10_000 * k, (0.01, 0.0))), 1.0 + 0.01 * k, 1.0 + 0.01 * k)
+    a.receive(encode_command(Command(5, 1_050_000, (0.0, 0.0), True, "shutdown")), 1.05, 1.05)
+    events, _ = a.receive(encode_command(Command(3, 1_060_000, (0.01, 0.0))), 1.06, 1.06)
+    assert [e.reason for e in events] == ["stale"]  # the same run: a reordered old command
+    events, _ = a.receive(encode_command(Command(0, 9_000_000, (0.02, 0.0))), 3.0, 3.0)  # a new run, 2 s later
+    assert [e.reason for e in events] == ["queued"]
+    assert a.advance(3.01)[-1].kind == "apply" and a.torques_n_m == pytest.approx((0.02, 0.0))
+
+
+def test_the_rig_loop_with_nothing_sending_says_so_and_exits_1(capsys):
+    from pendsim_bridge.cli import main
+
+    p1, p2, pa = free_udp_ports(3)
+    args = ["control", "lqr", "--rig", "--node", f"m1={p1}", "--node", f"m2={p2}", "--actuator-port", str(pa),
+            "--duration-s", "0.5"]  # fmt: skip
+    assert main(args) == 1
+    err = capsys.readouterr().err
+    assert "pendsim: no sample came from both nodes: nothing was controlled" in err

@@ -22,6 +22,9 @@
   command (its sequence number not newer than the newest taken: reordered or repeated) is
   counted and otherwise ignored, so that no single datagram can move or stop the motor; a stream
   of them ends in the watchdog's timeout.
+- **Sessions**: a valid command more than ``SESSION_GAP_S`` after the previous one, with the motors
+  at zero, starts a new session: its sequence numbers and clock are learnt afresh (a controller
+  run again numbers its commands from 0).
 
 Every valid command gets a status in answer; every change of state is a status too.
 """
@@ -142,6 +145,11 @@ class Event:
         return out
 
 
+SESSION_GAP_S = 0.5
+"""s: a valid command this long after the previous one, the motors at zero, starts a new session
+(a controller restarted numbers its commands from 0 again: otherwise all would be stale)."""
+
+
 class Actuator:
     """The actuator's state machine (module docstring); times are s on one monotonic clock."""
 
@@ -194,6 +202,10 @@ class Actuator:
             return Event("command", arrival_s, command.seq, command.torques_n_m, decision, arrival_s=arrival_s,
                          age_s=age_s, read_s=read_s)  # fmt: skip
 
+        if self.state == "safe" and self.last_valid_s is not None and arrival_s - self.last_valid_s > SESSION_GAP_S:
+            # a new controller (or the same one after a long silence): its sequence and clock start
+            # afresh; within a session a sequence number not newer than the last is stale
+            self.last_seq, self._clock = None, ClockFit()
         if self.last_seq is not None and not newer(command.seq, self.last_seq):
             self.stale_commands += 1
             return [noted("stale")]

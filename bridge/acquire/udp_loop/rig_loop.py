@@ -103,7 +103,8 @@ class RigLoopResult:
       nodes: per node, its counters.
       bad_statuses: datagrams on the command socket that were no valid status, per reason.
       skipped_ticks: ticks skipped because the loop was more than a period late.
-      stop: "duration", "interrupted" (SIGINT), "terminated" (SIGTERM) or "stopped" (asked to).
+      stop: "duration", "interrupted" (SIGINT), "terminated" (SIGTERM), "stopped" (asked to) or
+        "actuator_limit" (the actuator refused a torque above its own limit: the loop stops).
     """
 
     controller: str
@@ -160,6 +161,7 @@ class _Loop:
         self.controller, self.views, self.sock, self.dt_s, self.say = controller, views, command_sock, dt_s, say
         self.start_ns = time.monotonic_ns()
         self.seq = 0
+        self.refused_limit = False
         self.sent_ns: dict[int, int] = {}  # seq -> when sent (the latest SENT_KEPT)
         self.round_trip: dict[int, float] = {}
         self.rows: list[tuple[float, float, float, int, Floats, Floats, Floats, str, Floats]] = []
@@ -203,6 +205,12 @@ class _Loop:
             sent = self.sent_ns.get(status.seq)
             if sent is not None and status.seq not in self.round_trip:
                 self.round_trip[status.seq] = (datagram.arrival_ns - sent) * 1e-9
+            if status.state == "safe" and status.reason == "limit" and not self.refused_limit:
+                self.refused_limit = True
+                self.said(
+                    f"actuator: refused a torque above its limit, which is below this controller's "
+                    f"{self.controller.torque_limit_n_m:g} N m: stopping (give the controller the actuator's limit)"
+                )
             if (status.state, status.reason) != self.actuator_state:
                 self.actuator_state = (status.state, status.reason)
                 if status.state == "safe":
@@ -395,6 +403,9 @@ def run_rig_loop(
                     break
                 if should_stop is not None and should_stop():
                     stop = "stopped"
+                    break
+                if loop.refused_limit:
+                    stop = "actuator_limit"
                     break
                 if duration_s is not None and now >= duration_s:
                     break
