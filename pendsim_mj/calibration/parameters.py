@@ -183,6 +183,7 @@ class ParameterSpace:
         self.stated = stated
         self.free = tuple(free)
         values = stated.as_dict()
+        self._stated_row = np.array([values[n] for n in FIELD_NAMES])  # every field, for ``coefficients``
         self.stated_values = np.array([values[n] for n in self.free])
         self._index = [FIELD_NAMES.index(n) for n in self.free]
         self.scale = np.array(
@@ -205,7 +206,7 @@ class ParameterSpace:
         """The force-law constants at x, (NCOEF,), without the rig's checks: along a direction no
         swing sees, a fit may pass through parameters no rig has (an inertia below m OC^2) and
         still be right in everything it determines (``valid_along`` brings it back)."""
-        row = np.array([self.stated.as_dict()[n] for n in FIELD_NAMES])
+        row = self._stated_row.copy()
         row[self._index] = self.stated_values + self.scale * np.asarray(x, dtype=float)
         return coefficients(ParamColumns(row[None, :]))[:, 0]
 

@@ -148,7 +148,8 @@ class _Rollouts:
         self._models: dict[bytes, mujoco.MjModel] = {}
 
     def model(self, params: RigParams) -> mujoco.MjModel:
-        key = np.array([params.as_dict()[n] for n in sorted(params.as_dict())]).tobytes()
+        values = params.as_dict()
+        key = np.array([values[n] for n in sorted(values)]).tobytes()
         if key not in self._models:
             if len(self._models) > 64:
                 self._models.clear()

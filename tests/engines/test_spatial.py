@@ -24,14 +24,21 @@ def test_offset_zero_with_the_tilt_freedoms_reproduces_the_planar_model():
     assert np.max(np.abs(spatial.tilt_rad)) < 1e-12  # in-plane forces only: nothing tilts
 
 
+@pytest.fixture(scope="module")
+def planar_reference():
+    """The planar reference's 120 s from PHI0 (no offset, no MuJoCo): the truth of every offset below,
+    solved once (the numpy RK4 loop takes seconds)."""
+    return reference.solve(DEFAULT_PARAMS, PHI0, (0.0, 0.0), 120.0)
+
+
 @pytest.mark.parametrize("offset_m", PLANE_OFFSET_PRESETS_M)
-def test_a_plane_offset_with_rigid_hinges_leaves_the_in_plane_motion_unchanged(offset_m):
+def test_a_plane_offset_with_rigid_hinges_leaves_the_in_plane_motion_unchanged(offset_m, planar_reference):
     # The moment about the pivot axis a is a . (r x F), F = c (p_j - p_i). A triple product with a
     # uses only the components perpendicular to a; the offset changes only components along a.
     # So the moments, and phi(t), are exactly the planar ones; the tensions grow to c sqrt(L^2 + d^2).
     params = DEFAULT_PARAMS.with_overrides(plane_offset_m=offset_m)
     offset = simulate(params, PHI0, (0.0, 0.0), 120.0)
-    planar = reference.solve(DEFAULT_PARAMS, PHI0, (0.0, 0.0), 120.0)  # no offset, no MuJoCo
+    planar = planar_reference  # no offset, no MuJoCo
     assert np.max(np.abs(offset.phi_rad - planar.phi_rad)) < 1e-9
     expected = params.c1_n_m * np.sqrt(planar.spring_length_m[:, :2] ** 2 + offset_m**2)
     np.testing.assert_allclose(offset.spring_force_n[:, :2], expected, rtol=1e-12)

@@ -35,6 +35,13 @@ def recordings(tmp_path_factory):
     return folder
 
 
+@pytest.fixture(scope="module")
+def validated(recordings):
+    """The run's validation (it draws nothing: the figures are drawn from it by each test, through
+    its own save_figure), made once for the two tests that draw them."""
+    return validate(recordings / "run.mcap", damping="recorded")
+
+
 def _overlaps(a, b) -> bool:
     return a.x0 < b.x1 and b.x0 < a.x1 and a.y0 < b.y1 and b.y0 < a.y1
 
@@ -50,7 +57,7 @@ def _check_legends(figure) -> int:
     return len(legends)
 
 
-def test_every_png_legend_lies_outside_the_plot_areas(recordings, tmp_path, monkeypatch):
+def test_every_png_legend_lies_outside_the_plot_areas(recordings, validated, tmp_path, monkeypatch):
     checked = []
     original = figures.save_figure
 
@@ -59,8 +66,7 @@ def test_every_png_legend_lies_outside_the_plot_areas(recordings, tmp_path, monk
         return original(figure, path, **kwargs)
 
     monkeypatch.setattr(figures, "save_figure", check_then_save)
-    report = validate(recordings / "run.mcap", damping="recorded")
-    plots.validation_figures(report, tmp_path / "validation")
+    plots.validation_figures(validated, tmp_path / "validation")
     comparison = compare_planar_spatial(
         DEFAULT_PARAMS.with_overrides(plane_offset_m=0.05), (0.5, 0.0), 2.0, variant=Variant(tilt=True)
     )
@@ -100,7 +106,7 @@ def test_every_png_is_written_by_save_figure_alone():
     assert savers == ["report/figures.py"]
 
 
-def test_whole_run_figures_show_the_differences_under_the_overlay(recordings, tmp_path, monkeypatch):
+def test_whole_run_figures_show_the_differences_under_the_overlay(validated, tmp_path, monkeypatch):
     saved = {}
     original = figures.save_figure
 
@@ -109,7 +115,7 @@ def test_whole_run_figures_show_the_differences_under_the_overlay(recordings, tm
         return original(figure, path, **kwargs)
 
     monkeypatch.setattr(figures, "save_figure", keep_then_save)
-    report = validate(recordings / "run.mcap", damping="recorded")
+    report = validated
     plots.validation_figures(report, tmp_path / "validation")
     whole = {name: axes for name, axes in saved.items() if "whole" in name}
     assert set(whole) == {"fig12_phi1_whole.png", "fig15_omega2_whole.png"}

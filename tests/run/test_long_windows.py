@@ -40,15 +40,41 @@ def mostly_at_rest(tmp_path_factory):
     return path
 
 
+# What several tests below take of the one recording, made once (each is deterministic, and none
+# of the tests changes what it is given): its validation, its IMU topics read as float64 and as
+# float32, and the float64 ones aligned.
+TOPICS = [imu_topic(n) for n in NODES]
+
+
+@pytest.fixture(scope="module")
+def validated(mostly_at_rest):
+    return validate(mostly_at_rest, damping="recorded")
+
+
+@pytest.fixture(scope="module")
+def read64(mostly_at_rest):
+    return read_recording(mostly_at_rest, topics=TOPICS)
+
+
+@pytest.fixture(scope="module")
+def read32(mostly_at_rest):
+    return read_recording(mostly_at_rest, topics=TOPICS, sensor_float32=True)
+
+
+@pytest.fixture(scope="module")
+def aligned64(read64):
+    return align_recording(read64, PARAMS)
+
+
 def _degrees_between(a, b) -> float:
     return math.degrees(math.acos(min(1.0, float(np.dot(a, b)))))
 
 
-def test_a_run_mostly_at_rest_finds_the_mounts_it_was_recorded_with(mostly_at_rest):
+def test_a_run_mostly_at_rest_finds_the_mounts_it_was_recorded_with(aligned64):
     # Truth: the mount rotation R turns body vectors into sensor axes as R^T v; in the body the
     # hinge is +z and the pivot is +y (sensors.sample_imu). Fitted over the whole 20 minutes, the
     # hours-long rest's noise flipped M2's frame (mirrored, 89 mm from its hinge).
-    run = align_recording(read_recording(mostly_at_rest, topics=[imu_topic(n) for n in NODES]), PARAMS)
+    run = aligned64
     radii = (PARAMS.om1_m, PARAMS.om2_m)
     for k, node in enumerate(run.nodes):
         r = rotations.to_matrix(np.asarray(MOUNTS[k]))
@@ -62,12 +88,12 @@ def test_a_run_mostly_at_rest_finds_the_mounts_it_was_recorded_with(mostly_at_re
     assert run.start.kind == "release" and run.start.unexplained < 0.01
 
 
-def test_whole_run_frequencies_of_a_decay_lost_in_noise_are_the_swing_s(mostly_at_rest):
+def test_whole_run_frequencies_of_a_decay_lost_in_noise_are_the_swing_s(validated):
     # After the swing has decayed, sparse noise excursions beyond the hysteresis band used to
     # count as crossings minutes apart (omega1 measured near 0.1 Hz on a 1 h recording). Truths:
     # the noiseless reference solver from the same start over the same run, and, as most of the
     # counted cycles are small, the rig's small-angle normal modes (linearised reference).
-    report = validate(mostly_at_rest, damping="recorded")
+    report = validated
     whole = report.case("reference", "estimated", "whole").comparisons
     for name in ("phi1", "omega1", "tangential_m1"):
         assert whole[name].f_measured_hz == pytest.approx(whole[name].f_computed_hz, rel=0.01), name
@@ -185,21 +211,24 @@ def test_a_long_whole_run_line_is_drawn_as_its_envelope_broken_at_gaps():
     np.testing.assert_array_equal(short_y, y[:9600])
 
 
-def test_whole_run_figure_lines_kept_when_compared_are_the_envelopes_of_the_whole_series(mostly_at_rest):
+def test_whole_run_figure_lines_kept_when_compared_are_the_envelopes_of_the_whole_series(validated, read32):
     # validate keeps no whole-run series, only what Figures 12 and 15 draw, reduced when each
     # comparison is made; the truth is the envelope of the whole series, taken afterwards from
     # the run aligned again and each model run resampled whole (as the figures drew them before)
-    report = validate(mostly_at_rest, damping="recorded")
-    topics = [imu_topic(n) for n in NODES]
-    rec = read_recording(mostly_at_rest, topics=topics, sensor_float32=True)
-    run = align_recording(rec, PARAMS, float32_values=True)
+    report = validated
+    run = align_recording(read32, PARAMS, float32_values=True)
     gap = run.max_gap_s
     starts = {"estimated": (run.start.phi_rad, run.start.omega_rad_s), "nominal": ((math.pi / 6, 0.0), (0.0, 0.0))}
     drawn = {("mujoco", "estimated"), ("reference", "estimated"), ("mujoco", "nominal")}
     assert set(report.lines) == {(e, r, q) for e, r in drawn for q in ("phi1", "omega2")}
+    models = {}  # each model run (20 minutes) computed once, for both of its quantities
     for (engine, release, quantity), lines in report.lines.items():
         assert all(len(getattr(report.case(engine, release).comparisons[quantity], n)) == 0 for n in SERIES)
-        t_model, values = model_series(engine, report.params, starts[release], run.duration_s + 0.02, dtype=np.float32)
+        if (engine, release) not in models:
+            models[engine, release] = model_series(
+                engine, report.params, starts[release], run.duration_s + 0.02, dtype=np.float32
+            )
+        t_model, values = models[engine, release]
         t, measured, at = run.series(quantity)
         assert len(t) > figure_lines.ENVELOPE_ABOVE  # 20 minutes at 80 Hz: drawn as envelopes
         computed = resample(t_model, values[quantity], np.clip(at, 0.0, t_model[-1])).astype(np.float32)
@@ -228,12 +257,10 @@ def test_angles_block_by_block_equal_the_whole_run_unwrapped_twist():
     np.testing.assert_allclose(frame.angle(quat), whole, rtol=0, atol=1e-12)
 
 
-def test_sensor_values_read_as_float32_align_as_the_float64_ones(mostly_at_rest):
+def test_sensor_values_read_as_float32_align_as_the_float64_ones(read64, read32, aligned64):
     # the BNO055's 16-bit outputs in float32: the same values to 1e-7 of each, the run aligned from
     # them the same to far below the sensor's resolution (quaternion LSB 6e-5, gyro 1.1e-3 rad/s)
-    topics = [imu_topic(n) for n in NODES]
-    full = read_recording(mostly_at_rest, topics=topics)
-    half = read_recording(mostly_at_rest, topics=topics, sensor_float32=True)
+    full, half = read64, read32
     for n in NODES:
         a, b = full.imu[n], half.imu[n]
         np.testing.assert_array_equal(b.t_ns, a.t_ns)
@@ -241,7 +268,7 @@ def test_sensor_values_read_as_float32_align_as_the_float64_ones(mostly_at_rest)
         for name in ("quat_wxyz", "gyro_rad_s", "accel_m_s2"):
             assert getattr(b, name).dtype == np.float32
             np.testing.assert_array_equal(getattr(b, name), getattr(a, name).astype(np.float32))
-    run64, run32 = align_recording(full, PARAMS), align_recording(half, PARAMS)
+    run64, run32 = aligned64, align_recording(half, PARAMS)
     assert run32.start.time_s == pytest.approx(run64.start.time_s, abs=1e-6)
     for n64, n32 in zip(run64.nodes, run32.nodes, strict=True):
         assert n32.phi_rad.dtype == np.float64
