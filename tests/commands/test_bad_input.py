@@ -16,6 +16,7 @@ from pathlib import Path
 
 import pytest
 
+from pendsim_bridge import cli
 from pendsim_bridge.cli import build_parser, main
 
 EXE = str(Path(sys.executable).with_name("pendsim"))
@@ -198,8 +199,17 @@ def _snapshot(folder: Path) -> dict[str, tuple[int, int, int, int]]:
     return found
 
 
+@pytest.fixture(scope="module")
+def parser():
+    return build_parser()
+
+
 @pytest.mark.parametrize(("command", "args"), CASES, ids=[shlex.join([c, *a])[:90] for c, a in CASES])
-def test_bad_command_line_is_one_error_line_exit_2_and_touches_nothing(workspace, capsys, command, args):
+def test_bad_command_line_is_one_error_line_exit_2_and_touches_nothing(
+    workspace, parser, monkeypatch, capsys, command, args
+):
+    # the same parser, built once for speed (as in test_option_ranges): each main() here only parses
+    monkeypatch.setattr(cli, "build_parser", lambda: parser)
     before = _snapshot(workspace)
     assert all((workspace / name).read_bytes() == content for name, content in KEPT.items())
     assert main([command, *args]) == 2

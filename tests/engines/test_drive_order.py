@@ -8,6 +8,7 @@ integrator of the closed-form right-hand side); the order is measured from step 
 error at the end of a 20 s run from 30 deg shrinks 16x per halving at fourth order, 4x at second.
 """
 
+import functools
 import math
 
 import numpy as np
@@ -61,6 +62,13 @@ def exact() -> dict[str, np.ndarray]:
     return {name: _exact_end(drive) for name, drive in DRIVES.items()}
 
 
+@functools.cache
+def _driven(engine: str, case: str, dt_s: float):
+    """One driven run of a planar engine (deterministic), solved once for the tests that compare it:
+    the 10 ms runs serve both the convergence test and the agreement test."""
+    return ENGINES[engine](DEFAULT_PARAMS, PHI0, (0.0, 0.0), DURATION_S, dt_s, drive=DRIVES[case])
+
+
 def _ratios(errors: list[float]) -> list[float]:
     return [errors[i] / errors[i + 1] for i in range(len(errors) - 1)]
 
@@ -70,12 +78,7 @@ def _ratios(errors: list[float]) -> list[float]:
 def test_driven_runs_converge_at_fourth_order_with_the_drive_at_the_stage_times(engine, case, exact):
     # measured (2-core container): parametric 4.3e-6, 2.7e-7, 1.7e-8 rad (ratios 15.95, 15.99);
     # torque 2.5e-6, 1.6e-7, 1.0e-8 rad (ratios 15.2, 15.6); the ratios tend to 16 as dt shrinks
-    solve = ENGINES[engine]
-    errors = [
-        float(np.max(np.abs(solve(DEFAULT_PARAMS, PHI0, (0.0, 0.0), DURATION_S, dt, drive=DRIVES[case]).phi_rad[-1]
-                            - exact[case])))
-        for dt in STEPS_S
-    ]  # fmt: skip
+    errors = [float(np.max(np.abs(_driven(engine, case, dt).phi_rad[-1] - exact[case]))) for dt in STEPS_S]
     first, second = _ratios(errors)
     assert 13.0 < first < 17.5 and 14.5 < second < 17.5, errors
     assert errors[0] < 1e-5  # 10 ms: under 6e-4 deg after 20 s (held: 1.5e-3 rad)
@@ -118,8 +121,7 @@ def test_one_rk4_step_with_stage_inputs_equals_the_reference_to_1e_12_rad():
 @pytest.mark.parametrize("case", list(DRIVES))
 def test_driven_runs_of_the_reference_and_the_fast_engine_agree_to_1e_12_rad(case):
     # measured: 5.5e-14 rad (parametric), 1.9e-14 rad (torque) over 20 s at 10 ms
-    ref = reference.solve(DEFAULT_PARAMS, PHI0, (0.0, 0.0), DURATION_S, 0.01, drive=DRIVES[case])
-    fast = fast_planar.solve(DEFAULT_PARAMS, PHI0, (0.0, 0.0), DURATION_S, 0.01, drive=DRIVES[case])
+    ref, fast = _driven("reference", case, 0.01), _driven("fast", case, 0.01)
     assert np.max(np.abs(fast.phi_rad - ref.phi_rad)) < 1e-12
     np.testing.assert_array_equal(fast.drive_input, ref.drive_input)
 

@@ -43,9 +43,16 @@ def unequal(tmp_path_factory):
     return _record(tmp_path_factory.mktemp("u") / "unequal.mcap", 9e-4, 3e-4, 4)
 
 
-def test_the_release_instant_and_angle_are_found_from_the_imus_alone(proportional):
+@pytest.fixture(scope="module")
+def proportional_aligned(proportional):
+    """The proportional recording's rig and its aligned run (deterministic; read only by the tests)."""
     rec = read_recording(proportional)
-    run = align_recording(rec, recorded_params(rec))
+    params = recorded_params(rec)
+    return params, align_recording(rec, params)
+
+
+def test_the_release_instant_and_angle_are_found_from_the_imus_alone(proportional_aligned):
+    _, run = proportional_aligned
     assert run.start.kind == "release"
     assert run.release_time_s == pytest.approx(HOLD_S, abs=0.004)  # sample period 12.5 ms
     assert math.degrees(run.release_angle_rad[0]) == pytest.approx(RELEASE_DEG, abs=0.1)
@@ -54,10 +61,8 @@ def test_the_release_instant_and_angle_are_found_from_the_imus_alone(proportiona
         assert node.t_s[0] >= 0 and node.t_s[0] < 0.0125
 
 
-def test_log_decrement_recovers_proportional_damping(proportional):
-    rec = read_recording(proportional)
-    params = recorded_params(rec)
-    run = align_recording(rec, params)
+def test_log_decrement_recovers_proportional_damping(proportional_aligned):
+    params, run = proportional_aligned
     t = np.stack([run.nodes[0].t_s, run.nodes[1].t_s], axis=1)
     phi = np.stack([run.nodes[0].phi_rad, run.nodes[1].phi_rad], axis=1)
     b = [d.b_n_m_s for d in log_decrement(t, phi, params)]
