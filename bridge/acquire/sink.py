@@ -75,6 +75,7 @@ class RecordingSink:
         self.path = Path(path)
         self.groups = groups
         self.messages = 0
+        self.dropped = 0  # messages of other topics given older than what the file held (``add``)
         self.written_upto_ns = -1  # every message up to this log time is in the file
         self._imu_layout = {n: ros2.imu_layout(f"imu_{n}") for n in nodes}
         self._vec_layout = {n: ros2.vector3_stamped_layout(f"imu_{n}") for n in nodes}
@@ -93,6 +94,7 @@ class RecordingSink:
             w.add_metadata("pendsim/rig_parameters", {k: repr(v) for k, v in params.as_dict().items()})
             w.add_attachment(MJCF_ATTACHMENT, "application/xml", mjcf_xml.encode(), start_time_ns)
             sid = {name: w.register_schema(name, "ros2msg", text) for name, text in ros2.SCHEMAS.items()}
+            self._schemas = sid
             vec, cal = sid["geometry_msgs/msg/Vector3Stamped"], sid["std_msgs/msg/UInt8MultiArray"]
             self._channels: dict[str, int] = {}
             for n in nodes:
@@ -119,6 +121,21 @@ class RecordingSink:
     def _add(self, channel: int, t_ns: NDArray[np.int64], payloads: NDArray[np.uint8]) -> None:
         if len(t_ns):
             self._buffer.setdefault(channel, []).append((t_ns, payloads))
+
+    def register(self, topic: str, schema: str) -> int:
+        """Another topic of a ``ros2.SCHEMAS`` message type (CDR); its channel id for ``add``."""
+        with self._errors():
+            return self._writer.register_channel(topic, self._schemas[schema], "cdr")
+
+    def add(self, channel: int, t_ns: NDArray[np.int64], payloads: NDArray[np.uint8]) -> None:
+        """n messages (payloads (n, size)) of a registered topic at log times t_ns (n,), buffered
+        until ``flush``; those older than what the file holds are dropped (the count is returned
+        by ``flush``'s caller's bookkeeping: ``dropped``)."""
+        t_ns = np.asarray(t_ns, dtype=np.int64)
+        taken = t_ns >= self.written_upto_ns
+        self.dropped += int(np.sum(~taken))
+        self._add(channel, t_ns[taken], payloads[taken])
+        self.messages += int(np.sum(taken))
 
     def add_samples(
         self, node: str, t_ns: NDArray[np.int64], rows: NDArray[np.float64], stamp_ns: NDArray[np.int64] | None = None

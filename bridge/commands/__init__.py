@@ -21,12 +21,13 @@ from . import (
     replay,
     simulate,
     sweep,
+    twin,
     validate,
     view,
 )
 
 COMMANDS = (
     demo, simulate, record, acquire, nodes, import_, inspect, validate, identify, calibrate, view, replay, compare,
-    analyze, sweep, control, allan, recover, info,
+    analyze, sweep, control, twin, allan, recover, info,
 )  # fmt: skip
 """In the order ``pendsim --help`` lists them."""

@@ -49,8 +49,16 @@ class Estimates:
     @staticmethod
     def empty() -> Estimates:
         z = np.zeros((0,))
-        return Estimates(z, np.zeros(0, np.int64), z.reshape(0, 2), z.reshape(0, 4), z.reshape(0, 4), z.reshape(0, 2),
-                         z.reshape(0, 2), z)  # fmt: skip
+        return Estimates(
+            z,
+            np.zeros(0, np.int64),
+            z.reshape(0, 2),
+            z.reshape(0, 4),
+            z.reshape(0, 4),
+            z.reshape(0, 2),
+            z.reshape(0, 2),
+            z,
+        )
 
     @staticmethod
     def concatenate(parts: list[Estimates]) -> Estimates:

@@ -1,0 +1,167 @@
+"""``pendsim twin`` on live packets: both nodes' UDP streams into the twin's pipeline
+(``run.twin.TwinPipeline``) as they arrive.
+
+Each node's datagrams are received as the controller's loop receives them
+(``node_view.NodeView``: stamped with the kernel's arrival time, decoded with every field
+range-checked, the node's clock fit mapping device time to the host's monotonic clock; a sample is
+used at once when it is the node's newest and fits the node's timeline). A used sample goes to the
+pipeline with its instant (device time mapped to host time, s since the twin's start) and its
+arrival; the pipeline puts both nodes in one time order and takes them into the twin. The twin's
+clock is the host's monotonic clock from the start; its recording's log times are UTC from there.
+
+Packets that the timeline decides later were off it, and reordered packets (older than the
+node's newest used), are not used (counted per node in the summary's metadata).
+"""
+
+from __future__ import annotations
+
+import math
+import selectors
+import socket
+import sys
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+
+from pendsim_mj.errors import ParameterError
+from pendsim_mj.estimation.swing_frame import SwingFrame
+from pendsim_mj.sensors.bno055 import SAMPLE_RATE_HZ
+from pendsim_mj.twin.session import TwinSession
+
+from ..packets import StreamFormat
+from ..ports import DEFAULT_NODES, NodeSpec, check_nodes
+from ..receiver import listen_udp, read_stamped, stop_signals
+from ..udp_loop.node_view import NodeView
+from .pipeline import TwinPipeline, TwinResult, TwinSpec, TwinView, close_sink, open_sink, status_text
+
+
+def _stderr(line: str) -> None:
+    print(line, file=sys.stderr, flush=True)
+
+
+def run_twin_live(
+    spec: TwinSpec,
+    *,
+    frames: tuple[SwingFrame, SwingFrame],
+    output: Path | None,
+    replace: bool = False,
+    nodes: tuple[NodeSpec, ...] = DEFAULT_NODES,
+    bind: str = "127.0.0.1",
+    stream: StreamFormat | None = None,
+    rate_hz: float = SAMPLE_RATE_HZ,
+    duration_s: float | None = None,
+    views: tuple[TwinView, ...] = (),
+    should_stop: Callable[[], bool] | None = None,
+    say: Callable[[str], None] = _stderr,
+    status: Callable[[str], None] | None = None,
+) -> TwinResult:
+    """Run the twin on the nodes' packets until ``duration_s``, Ctrl-C, SIGTERM or ``should_stop``.
+
+    Raises:
+      ParameterError: a port cannot be bound (nothing is written).
+      OutputError: the output exists, or writing failed.
+      RecordingError: no node sample arrived (nothing is written).
+    """
+    nodes = check_nodes(tuple(nodes))
+    if [n.name for n in nodes] != ["m1", "m2"]:
+        raise ParameterError("the twin needs both nodes, m1 and m2")
+    stream = stream if stream is not None else StreamFormat()
+    node_views = [NodeView(n, stream, rate_hz, frames[i]) for i, n in enumerate(nodes)]
+    selector = selectors.DefaultSelector()
+    socks: list[socket.socket] = []
+    partial: Path | None = None
+    try:
+        for view in node_views:
+            socks.append(listen_udp(bind, view.spec.port, what=f"node {view.spec.name}", option="--node"))
+            selector.register(socks[-1], selectors.EVENT_READ, view)
+        start_ns = time.monotonic_ns()
+        start_utc_ns = time.time_ns()
+        sink = None
+        if output is not None:
+            sink, partial = open_sink(
+                output,
+                replace=replace,
+                spec=spec,
+                source="live",
+                groups=stream.groups(),
+                node_names=("m1", "m2"),
+                start_utc_ns=start_utc_ns,
+            )
+        session = TwinSession(
+            spec.params,
+            frames=frames,
+            track=spec.track,
+            forecast_horizon_s=spec.forecast_horizon_s,
+            forecast_every_s=spec.forecast_every_s,
+            threshold=spec.threshold,
+            persist_s=spec.persist_s,
+            baseline_s=spec.baseline_s,
+            value_age_s=spec.value_age_s,
+        )
+        pipeline = TwinPipeline(
+            spec, session, sink=sink, node_names=("m1", "m2"), start_utc_ns=start_utc_ns, views=views
+        )
+
+        def now_s() -> float:
+            return (time.monotonic_ns() - start_ns) * 1e-9
+
+        say(
+            f"twin: listening on {', '.join(f'{v.spec.name} {bind}:{v.spec.port}' for v in node_views)}"
+            + (f"; writing {partial} until done, then {output}" if output is not None else "")
+        )
+        stop = "duration"
+        with stop_signals() as signalled:
+            while True:
+                now = now_s()
+                if signalled:
+                    stop = signalled[0]
+                    break
+                if should_stop is not None and should_stop():
+                    stop = "stopped"
+                    break
+                if duration_s is not None and now >= duration_s:
+                    break
+                wait = 0.005 if pipeline.merger.waiting() else 0.05
+                if duration_s is not None:
+                    wait = min(wait, max(0.0, duration_s - now))
+                for key, _ in selector.select(wait):
+                    view = key.data
+                    for datagram in read_stamped(key.fileobj):  # type: ignore[arg-type]
+                        if view.receive(datagram.data, datagram.arrival_ns, start_ns):
+                            assert view.newest is not None
+                            _, taken_s, row, _, _ = view.newest
+                            node = 0 if view is node_views[0] else 1
+                            arrived = (datagram.arrival_ns - start_ns) * 1e-9
+                            pipeline.push(node, taken_s, np.asarray(row, dtype=float), arrived)
+                now = now_s()
+                pipeline.step(now, clock=now_s)
+                for view in node_views:
+                    view.settle(now)
+                if pipeline.tick(now, session.estimator.t_s) and status is not None:
+                    status(status_text(pipeline, now))
+        pipeline.finish()
+        duration = now_s()
+        messages = 0
+        path = None
+        if sink is not None and output is not None and partial is not None:
+            messages = close_sink(pipeline, partial, output, replace=replace, stop_reason=stop, duration_s=duration)
+            path = output
+        elif session._samples == [0, 0]:
+            from pendsim_mj.errors import RecordingError
+
+            raise RecordingError("no node sample arrived")
+        return TwinResult(
+            path, duration, stop, session.summary(), tuple(pipeline.merger.late), pipeline.latency_ms(), messages
+        )
+    finally:
+        selector.close()
+        for s in socks:
+            s.close()
+        for v in views:
+            v.close()
+        _ = math
+
+
+__all__ = ["run_twin_live"]

@@ -1,0 +1,493 @@
+"""``pendsim twin``: the twin beside the rig, on live packets (``acquire.udp_loop.twin_loop``) or on
+a recording replayed at its own pace (``replay``), through one pipeline (``TwinPipeline``):
+
+1. each node sample (its instant on the twin's clock, its row) goes into the merger
+   (``pendsim_mj.twin.merge``: both nodes in one time order);
+2. what the merger releases goes to the recording's measured topics (``/imu/mN``: the layout of
+   ``pendsim acquire``, so ``validate``, ``view`` and ``replay`` read it) and into the twin
+   (``pendsim_mj.twin.session.TwinSession``);
+3. what the twin produced goes to the recording's twin topics (``io.twin_topics``) and to the live
+   views; once a second, ``/diagnostics`` (the health status) and the status line; every half
+   second the file is written up to what can no longer change and handed to the OS, so a killed
+   twin loses at most about a second (the temporary file is for ``pendsim recover``).
+
+The recording is written under a temporary name beside the output and published when complete.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+import sys
+from collections.abc import Callable
+from pathlib import Path
+from typing import Protocol
+
+import numpy as np
+from numpy.typing import NDArray
+
+from pendsim_mj import __version__
+from pendsim_mj.errors import RecordingError
+from pendsim_mj.rig.params import DEFAULT_PARAMS, RigParams
+from pendsim_mj.twin.estimator import TRACKABLE, Forecast
+from pendsim_mj.twin.health import WHAT, Alarm
+from pendsim_mj.twin.merge import DEFAULT_HOLD_S, SampleMerger
+from pendsim_mj.twin.outputs import Estimates, ParameterCheck
+from pendsim_mj.twin.session import DEFAULT_TRACK, VALUE_AGE_S, TwinSession, TwinSummary
+from pendsim_mj.units import nanoseconds, seconds
+
+from ...errors import OutputError
+from ...io import ros2, twin_topics
+from ...io.outputs import describe_os_error, publish, replace_hint, temporary_sibling
+from ..sink import RecordingSink
+
+FLUSH_S = 0.5
+DIAGNOSTICS_S = 1.0
+VIEW_S = 0.05  # live views are sent this often
+KEEP_S = 0.1  # the file is written up to this long before the newest sample released
+
+
+class TwinView(Protocol):
+    """A live view of the twin (``report.twin_views``)."""
+
+    def add_estimates(self, est: Estimates) -> None: ...
+
+    def add_forecast(self, made_at_s: float, forecast: Forecast) -> None: ...
+
+    def add_parameters(self, check: ParameterCheck) -> None: ...
+
+    def add_alarm(self, alarm: Alarm) -> None: ...
+
+    def add_diagnostics(self, t_s: float, statuses: list[ros2.DiagnosticStatus]) -> None: ...
+
+    def send(self) -> None: ...
+
+    def close(self) -> None: ...
+
+
+@dataclasses.dataclass(frozen=True)
+class TwinSpec:
+    """How the twin runs.
+
+    Attributes:
+      params: the rig the twin models.
+      track: the parameters tracked and monitored (``pendsim_mj.twin.TRACKABLE``).
+      forecast_horizon_s, forecast_every_s: the forecasts.
+      threshold, persist_s, baseline_s: the health monitor's.
+      hold_s: the merger's longest wait for the other node, s.
+      value_age_s: how much older a node's value is than its stamp, s (a BNO055 in NDOF mode: half
+        its 10 ms fusion period on average).
+    """
+
+    params: RigParams = DEFAULT_PARAMS
+    track: tuple[str, ...] = DEFAULT_TRACK
+    forecast_horizon_s: float = 2.0
+    forecast_every_s: float = 1.0
+    threshold: float = 5.0
+    persist_s: float = 3.0
+    baseline_s: float = 0.0
+    hold_s: float = DEFAULT_HOLD_S
+    value_age_s: float = VALUE_AGE_S
+
+    def metadata(self, source: str) -> dict[str, str]:
+        return {
+            "source": source,
+            "track": ",".join(self.track),
+            "forecast_horizon_s": repr(self.forecast_horizon_s),
+            "forecast_every_s": repr(self.forecast_every_s),
+            "threshold_sigma": repr(self.threshold),
+            "persist_s": repr(self.persist_s),
+            "baseline_s": repr(self.baseline_s),
+            "hold_s": repr(self.hold_s),
+            "value_age_s": repr(self.value_age_s),
+            "pendsim_version": __version__,
+        }
+
+
+@dataclasses.dataclass(frozen=True)
+class TwinResult:
+    """A twin's run.
+
+    Attributes:
+      path: the recording written (None: none asked for).
+      duration_s: how long it ran (wall time), s.
+      stop_reason: "duration", "end of recording", "interrupted", "terminated".
+      summary: the twin's figures.
+      late: samples that came after later ones had been taken in (node, t_s).
+      latency_ms: (p50, p99) from a sample's arrival to its estimate (live; NaN in a replay as fast
+        as possible).
+      messages: messages written.
+    """
+
+    path: Path | None
+    duration_s: float
+    stop_reason: str
+    summary: TwinSummary
+    late: tuple[tuple[int, float], ...]
+    latency_ms: tuple[float, float]
+    messages: int
+
+
+def _stderr(line: str) -> None:
+    print(line, file=sys.stderr, flush=True)
+
+
+class TwinPipeline:
+    """Samples in, the twin's outputs out (module docstring).
+
+    Args:
+      spec: how the twin runs.
+      session: the twin.
+      sink: the recording (``acquire.sink.RecordingSink`` with ``diagnostics``), or None.
+      node_names: the nodes' names, M1's first.
+      start_utc_ns: UTC of the twin's t = 0 (log times are this plus the instants).
+      views: live views.
+      skip: (node, t_s) of samples to leave out (a replay of a twin's recording: those that came
+        too late live).
+    """
+
+    def __init__(
+        self,
+        spec: TwinSpec,
+        session: TwinSession,
+        *,
+        sink: RecordingSink | None,
+        node_names: tuple[str, str],
+        start_utc_ns: int,
+        views: tuple[TwinView, ...] = (),
+        skip: frozenset[tuple[int, int]] = frozenset(),
+    ) -> None:
+        self.spec, self.session, self.sink, self.views = spec, session, sink, views
+        self.node_names, self.start_utc_ns = node_names, start_utc_ns
+        self.merger: SampleMerger[tuple[NDArray[np.float64], tuple[float, float]]] = SampleMerger(spec.hold_s)
+        self.skip = skip
+        self._channels: dict[str, int] = {}
+        self._forecast_points = 0
+        if sink is not None:
+            self._register()
+        self.latency_s: list[float] = []
+        self._now_arrivals: list[float] = []
+        self._next_flush_s = -math.inf
+        self._next_diag_s = -math.inf
+        self._next_view_s = -math.inf
+        self.alarms: list[Alarm] = []
+
+    def _register(self) -> None:
+        sink = self.sink
+        assert sink is not None
+        names = tuple(n for n in self.spec.track)
+        self._estimate_layout = twin_topics.layout(twin_topics.ESTIMATE_COLUMNS)
+        self._parameter_layout = twin_topics.layout(twin_topics.parameter_columns(names))
+        self._forecast_points = max(1, math.ceil(self.spec.forecast_horizon_s / 0.0125 - 1e-9) + 1)
+        self._forecast_layout = twin_topics.layout(twin_topics.forecast_columns(self._forecast_points))
+        for topic in (twin_topics.ESTIMATE_TOPIC, twin_topics.PARAMETERS_TOPIC, twin_topics.FORECAST_TOPIC):
+            self._channels[topic] = sink.register(topic, twin_topics.SCHEMA)
+
+    def push(
+        self,
+        node: int,
+        t_s: float,
+        row: NDArray[np.float64],
+        arrived_s: float,
+        torques_n_m: tuple[float, float] = (0.0, 0.0),
+    ) -> None:
+        """A node's sample: its instant (s on the twin's clock), its packet row
+        (``acquire.packets.ROW_FIELDS``), when it came (s, the same clock as ``step``'s now)."""
+        t_ns = nanoseconds(t_s)
+        if (node, t_ns) in self.skip:
+            return
+        # the instant as the recording keeps it (whole ns): a replay of the recording gives the same numbers
+        self.merger.push(node, seconds(t_ns), (row, torques_n_m), arrived_s)
+
+    def step(self, now_s: float, *, final: bool = False, clock: Callable[[], float] | None = None) -> None:
+        """Release what may go, take it into the twin, write and show what it produced;
+        ``clock`` (s, the arrivals' clock) stamps when each estimate was ready (latency)."""
+        from ..packets import GROUP_SLICES
+
+        released = self.merger.pop(now_s, final=final)
+        if not released:
+            return
+        quat, gyro = GROUP_SLICES["quat"], GROUP_SLICES["gyro"]
+        for held in released:
+            row, torques = held.item
+            if self.sink is not None:
+                t_ns = np.array([self.start_utc_ns + nanoseconds(held.t_s)], np.int64)
+                self.sink.add_samples(self.node_names[held.node], t_ns, row[None])
+            taken = self.session.take(held.node, held.t_s, row[quat], row[gyro], torques)
+            if taken and clock is not None:
+                self.latency_s.append(clock() - held.arrived_s)
+        self._publish(self.session.drain())
+
+    def _publish(self, out: object) -> None:
+        from pendsim_mj.twin.session import TwinOutput
+
+        assert isinstance(out, TwinOutput)
+        est = out.estimates
+        sink = self.sink
+        if sink is not None:
+            base = self.start_utc_ns
+            if len(est):
+                sink.add(
+                    self._channels[twin_topics.ESTIMATE_TOPIC],
+                    base + nanoseconds(est.t_s),
+                    twin_topics.encode(self._estimate_layout, twin_topics.estimate_values(est)),
+                )
+            for check in out.checks:
+                sink.add(
+                    self._channels[twin_topics.PARAMETERS_TOPIC],
+                    np.array([base + nanoseconds(check.t_s)]),
+                    twin_topics.encode(self._parameter_layout, twin_topics.parameter_values(check)),
+                )
+            for made, forecast in out.forecasts:
+                values = twin_topics.forecast_values(forecast, self._forecast_points)
+                sink.add(
+                    self._channels[twin_topics.FORECAST_TOPIC],
+                    np.array([base + nanoseconds(made)]),
+                    twin_topics.encode(self._forecast_layout, values),
+                )
+        for alarm in out.alarms:
+            self.alarms.append(alarm)
+            if sink is not None:
+                self._diagnostics(alarm.t_s)
+        for view in self.views:
+            if len(est):
+                view.add_estimates(est)
+            for made, forecast in out.forecasts:
+                view.add_forecast(made, forecast)
+            for check in out.checks:
+                view.add_parameters(check)
+            for alarm in out.alarms:
+                view.add_alarm(alarm)
+
+    def statuses(self) -> list[ros2.DiagnosticStatus]:
+        """The health status: one per tracked parameter and one for the estimator."""
+        session = self.session
+        out = []
+        found = session.estimator.parameters() if not math.isnan(session.started_s) else {}
+        monitor = session.monitor
+        for name in self.spec.track:
+            value, sigma = found.get(name, (math.nan, math.nan))
+            reference = monitor.reference.get(name, math.nan) if monitor and monitor.reference else math.nan
+            z = (value - reference) / sigma if sigma and math.isfinite(reference) else math.nan
+            alarm = monitor.alarmed.get(name) if monitor else None
+            level = 2 if alarm else (1 if abs(z) > 2 else 0)
+            message = (
+                alarm.describe() if alarm else ("waiting for the estimate" if math.isnan(z) else "as its reference")
+            )
+            unit = TRACKABLE[name][1]
+            out.append(
+                ros2.DiagnosticStatus(
+                    level,
+                    f"pendsim twin: {name}",
+                    message,
+                    WHAT[name],
+                    (
+                        ("value", f"{value:.6g}"),
+                        ("sigma", f"{sigma:.3g}"),
+                        ("reference", f"{reference:.6g}"),
+                        ("z", f"{z:.2f}"),
+                        ("unit", unit),
+                    ),
+                )
+            )
+        started = not math.isnan(session.started_s)
+        out.append(
+            ros2.DiagnosticStatus(
+                0 if started else 1,
+                "pendsim twin: estimator",
+                "tracking" if started else "waiting for both nodes",
+                "estimator",
+                (
+                    ("t_s", f"{session.estimator.t_s:.3f}"),
+                    ("samples_m1", str(session._samples[0])),
+                    ("samples_m2", str(session._samples[1])),
+                    ("late", str(len(self.merger.late))),
+                ),
+            )
+        )
+        return out
+
+    def _diagnostics(self, t_s: float) -> None:
+        statuses = self.statuses()
+        if self.sink is not None:
+            t_ns = self.start_utc_ns + nanoseconds(t_s)
+            self.sink.add_diagnostics(t_ns, statuses)
+        for view in self.views:
+            view.add_diagnostics(t_s, statuses)
+
+    def tick(self, now_s: float, t_s: float) -> bool:
+        """Periodic work at ``now_s`` (the loop's clock) with the twin's time ``t_s``: diagnostics
+        once a second, the views' batches, the file written up to what cannot change. True once
+        a second (for a status line)."""
+        second = False
+        if now_s >= self._next_diag_s:
+            self._next_diag_s = now_s + DIAGNOSTICS_S
+            self._diagnostics(max(t_s, 0.0))
+            second = True
+        if now_s >= self._next_view_s:
+            self._next_view_s = now_s + VIEW_S
+            for view in self.views:
+                view.send()
+        if now_s >= self._next_flush_s and self.sink is not None:
+            self._next_flush_s = now_s + FLUSH_S
+            released = self.merger.released_s
+            if math.isfinite(released):
+                self.sink.flush(self.start_utc_ns + nanoseconds(released - KEEP_S))
+        return second
+
+    def finish(self) -> None:
+        """Everything waiting released and taken in, the last diagnostics, the views' last batch."""
+        self.step(math.inf, final=True)
+        self._diagnostics(max(self.session.estimator.t_s, 0.0))
+        for view in self.views:
+            view.send()
+
+    def latency_ms(self) -> tuple[float, float]:
+        if not self.latency_s:
+            return math.nan, math.nan
+        p50, p99 = np.percentile(np.array(self.latency_s), [50, 99]) * 1e3
+        return float(p50), float(p99)
+
+    def result_metadata(self, summary: TwinSummary, stop_reason: str, duration_s: float) -> dict[str, str]:
+        score = summary.forecast
+        return {
+            "stop_reason": stop_reason,
+            "duration_s": f"{duration_s:.3f}",
+            "started_s": repr(summary.started_s),
+            "samples": json.dumps(list(summary.samples)),
+            "nis_mean": json.dumps([_finite_or_none(v) for v in summary.nis_mean]),
+            "whiteness_p": json.dumps([_finite_or_none(v) for v in summary.whiteness_p]),
+            "forecast": json.dumps(
+                {
+                    "horizon_s": list(score.horizon_s),
+                    "count": list(score.count),
+                    "rms_error_rad": [_finite_or_none(v) for v in score.rms_error_rad],
+                    "within_3_sigma": [_finite_or_none(v) for v in score.within_3_sigma],
+                }
+            ),
+            "alarms": json.dumps([dataclasses.asdict(a) | {"text": a.describe()} for a in summary.alarms]),
+            "parameters": json.dumps({k: list(v) for k, v in summary.parameters.items()}),
+            "late": json.dumps([[n, nanoseconds(t)] for n, t in self.merger.late]),
+            "latency_ms": json.dumps([_finite_or_none(v) for v in self.latency_ms()]),
+        }
+
+
+def _finite_or_none(value: float) -> float | None:
+    return float(value) if math.isfinite(value) else None
+
+
+def open_sink(
+    output: Path,
+    *,
+    replace: bool,
+    spec: TwinSpec,
+    source: str,
+    groups: tuple[str, ...],
+    node_names: tuple[str, str],
+    start_utc_ns: int,
+    extra_metadata: dict[str, dict[str, str]] | None = None,
+) -> tuple[RecordingSink, Path]:
+    """The recording's sink under a temporary name beside ``output``: (sink, its path)."""
+    from pendsim_mj.rig.model import exact_mjcf  # start-up: MuJoCo, once the twin runs
+
+    if not replace and (output.exists() or output.is_symlink()):
+        raise OutputError(f"output {str(output)!r} exists; choose another name or pass {replace_hint()} to replace it")
+    try:
+        partial = temporary_sibling(output)
+    except OSError as exc:
+        raise OutputError(f"cannot write {str(output)!r}: {describe_os_error(exc)}") from None
+    metadata = {twin_topics.TWIN_METADATA: spec.metadata(source)} | (extra_metadata or {})
+    try:
+        sink = RecordingSink(
+            partial,
+            nodes=node_names,
+            groups=groups,
+            params=spec.params,
+            mjcf_xml=exact_mjcf(spec.params),
+            metadata=metadata,
+            start_time_ns=start_utc_ns,
+            diagnostics=True,
+        )
+    except OutputError:
+        partial.unlink(missing_ok=True)
+        raise
+    return sink, partial
+
+
+def close_sink(
+    pipeline: TwinPipeline, partial: Path, output: Path, *, replace: bool, stop_reason: str, duration_s: float
+) -> int:
+    """Write the result's metadata, close and publish the recording; the messages written."""
+    sink = pipeline.sink
+    assert sink is not None
+    summary = pipeline.session.summary()
+    sink.add_metadata(twin_topics.TWIN_RESULT_METADATA, pipeline.result_metadata(summary, stop_reason, duration_s))
+    sink.close()
+    messages = int(sink.messages)
+    if pipeline.session._samples == [0, 0]:
+        partial.unlink(missing_ok=True)
+        raise RecordingError("no node sample arrived: nothing was written")
+    try:
+        publish(partial, output, replace=replace)
+    except OSError as exc:
+        raise OutputError(
+            f"cannot publish {str(output)!r}: {describe_os_error(exc)}; the recording is in {str(partial)!r}"
+        ) from None
+    return messages
+
+
+def status_text(pipeline: TwinPipeline, elapsed_s: float) -> str:
+    s = pipeline.session
+    nis = [np.mean(v[-160:]) if v else math.nan for v in s._nis]
+    alarms = len(pipeline.alarms)
+    state = (
+        "waiting for both nodes"
+        if math.isnan(s.started_s)
+        else (f"phi1 {math.degrees(s.estimator.x[0]):+6.1f} deg  phi2 {math.degrees(s.estimator.x[1]):+6.1f} deg")
+    )
+    return (
+        f"{elapsed_s:6.1f} s  samples m1 {s._samples[0]} m2 {s._samples[1]}  {state}  "
+        f"NIS {nis[0]:.2f}/{nis[1]:.2f}  alarms {alarms}"
+    )
+
+
+def summary_text(result: TwinResult) -> str:
+    """What a twin's run found, for the terminal."""
+    s = result.summary
+    lines = [
+        f"twin: {result.stop_reason} after {result.duration_s:.1f} s; samples m1 {s.samples[0]}, m2 {s.samples[1]}"
+    ]
+    if math.isnan(s.started_s):
+        lines.append("the estimator never started: it needs a sample from each node")
+        return "\n".join(lines)
+    lines.append(
+        "innovations: mean NIS m1 {:.2f}, m2 {:.2f} (2 on a healthy rig); whiteness p m1 {}, m2 {}".format(
+            *s.nis_mean, *(f"{p:.3f}" if math.isfinite(p) else "n/a (too few)" for p in s.whiteness_p)
+        )
+    )
+    f = s.forecast
+    scored = [
+        (h, n, e, w) for h, n, e, w in zip(f.horizon_s, f.count, f.rms_error_rad, f.within_3_sigma, strict=True) if n
+    ]
+    if scored:
+        lines.append(
+            "forecast, measured afterwards: "
+            + "; ".join(
+                f"<= {h:g} s: rms {math.degrees(e):.3f} deg, {100 * w:.0f} % within 3 sigma" for h, _, e, w in scored
+            )
+        )
+    for name, (value, sigma) in s.parameters.items():
+        lines.append(f"  {name:<18} {value:.5g} +- {2 * sigma:.2g} {TRACKABLE[name][1]}")
+    lines.append(f"alarms: {len(s.alarms)}" + "".join(f"\n  {a.describe()}" for a in s.alarms))
+    if result.late:
+        lines.append(f"{len(result.late)} samples came after later ones had been taken in; left out")
+    if math.isfinite(result.latency_ms[0]):
+        p50, p99 = result.latency_ms
+        lines.append(f"latency, sample arrival -> estimate: median {p50:.1f} ms, p99 {p99:.1f} ms")
+    if result.path is not None:
+        lines.append(f"wrote {result.path} ({result.messages} messages)")
+    return "\n".join(lines)
+
+
+__all__ = ["TwinPipeline", "TwinResult", "TwinSpec", "TwinView", "summary_text"]

@@ -1,0 +1,197 @@
+"""``pendsim twin --replay REC``: the twin on a recording, its samples fed at the recording's own
+pace (``speed`` 1), faster, or as fast as it can (``speed`` 0), through the same pipeline as live
+(``twin.TwinPipeline``), so that a replay gives what the live run gave.
+
+The samples' instants are the recording's log times (a recording by ``pendsim acquire``: its
+nodes' stamps through the clock relation it fitted, as ``validate`` reads them), on the
+recording's clock; the twin's recording keeps that clock (same UTC start). A recording written by
+the twin itself lists the samples that came too late live; they are left out here too. A driven
+recording's torques (``/drive``) are the motor torques the twin's model is given.
+
+Refused (``RecordingError``, one line): a file that is not a readable recording, one without both
+nodes' IMU topics, a recording of another rig (its ``pendsim/rig_parameters`` differ from the
+twin's), a drive other than hinge torques.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+from numpy.typing import NDArray
+
+from pendsim_mj.errors import RecordingError
+from pendsim_mj.estimation.swing_frame import SwingFrame
+from pendsim_mj.rig.params import RigParams
+from pendsim_mj.twin.session import TwinSession
+from pendsim_mj.units import nanoseconds
+
+from ...io import twin_topics
+from ...io.measured import fusion_rate_of, node_samples
+from ...io.recording import read_recording
+from ...io.recording_layout import DRIVE_TOPIC, imu_topic
+from .pipeline import TwinPipeline, TwinResult, TwinSpec, TwinView, close_sink, open_sink, status_text
+
+RIG_TOLERANCE = 1e-9  # relative: parameters that differ by more are another rig
+
+
+def differing_parameters(recorded: RigParams, twin: RigParams) -> list[str]:
+    """The parameters in which two rigs differ (relative tolerance ``RIG_TOLERANCE``)."""
+    a, b = recorded.as_dict(), twin.as_dict()
+    out = []
+    for name, value in a.items():
+        other = b.get(name)
+        if isinstance(value, (int, float)) and isinstance(other, (int, float)):
+            if abs(value - other) > RIG_TOLERANCE * max(abs(value), abs(other), 1e-300):
+                out.append(f"{name} {value:.6g} (twin {other:.6g})")
+        elif value != other:
+            out.append(f"{name} {value!r} (twin {other!r})")
+    return out
+
+
+def _late_samples(metadata: dict[str, dict[str, str]]) -> frozenset[tuple[int, int]]:
+    text = metadata.get(twin_topics.TWIN_RESULT_METADATA, {}).get("late")
+    if not text:
+        return frozenset()
+    try:
+        return frozenset((int(n), int(t)) for n, t in json.loads(text))
+    except (ValueError, TypeError):
+        raise RecordingError("the recording's pendsim/twin_result 'late' entry is not a list of [node, t_ns]") from None
+
+
+def _value_age_s(metadata: dict[str, dict[str, str]], fusion_hz: float | None) -> float:
+    """How much older the recording's values are than their stamps: as the twin that wrote it took
+    them, else from its node model (None: values at their own instants)."""
+    text = metadata.get(twin_topics.TWIN_METADATA, {}).get("value_age_s")
+    if text is not None:
+        try:
+            value = float(text)
+        except ValueError:
+            value = math.nan
+        if not (math.isfinite(value) and 0 <= value <= 1):
+            raise RecordingError(f"the recording's pendsim/twin value_age_s {text!r} is not a number in [0, 1] s")
+        return value
+    return 0.0 if fusion_hz is None else 0.5 / fusion_hz
+
+
+def replay(
+    spec: TwinSpec,
+    recording: str | Path,
+    *,
+    frames: tuple[SwingFrame, SwingFrame],
+    output: Path | None,
+    replace: bool = False,
+    speed: float = 1.0,
+    views: tuple[TwinView, ...] = (),
+    say: Callable[[str], None] = print,
+    status: Callable[[str], None] | None = None,
+) -> TwinResult:
+    """Run the twin on a recording (module docstring); ``speed`` 0: as fast as it can."""
+    from ..packets import GROUP_SLICES, ROW_FIELDS
+
+    path = Path(recording)
+    rec = read_recording(path, topics={imu_topic("m1"), imu_topic("m2"), DRIVE_TOPIC})
+    if "pendsim/rig_parameters" in rec.metadata:
+        differ = differing_parameters(rec.params(), spec.params)
+        if differ:
+            raise RecordingError(
+                f"{path} is a recording of another rig: {'; '.join(differ[:3])}"
+                f"{' ...' if len(differ) > 3 else ''}; give the twin that rig (--params-file) to replay it"
+            )
+    m1, m2 = node_samples(rec)
+    torque_t, torque = None, None
+    drive = rec.drive_input_s
+    if drive is not None:
+        torque_t, held = drive
+        if np.any(held[:, 2:] != 0):
+            raise RecordingError(f"{path}: its drive moves the support; the twin models hinge torques only")
+        torque = held[:, :2]
+    skip = _late_samples(rec.metadata)
+    rows: list[NDArray[np.float64]] = []
+    for samples in (m1, m2):
+        r = np.zeros((len(samples.log_t_s), len(ROW_FIELDS)))
+        r[:, GROUP_SLICES["quat"]] = samples.quat_wxyz
+        r[:, GROUP_SLICES["gyro"]] = samples.gyro_rad_s
+        r[:, GROUP_SLICES["accel"]] = samples.accel_m_s2
+        rows.append(r)
+    times = np.concatenate([m1.log_t_s, m2.log_t_s]).astype(float)
+    node = np.concatenate([np.zeros(len(m1.log_t_s), np.int64), np.ones(len(m2.log_t_s), np.int64)])
+    index = np.concatenate([np.arange(len(m1.log_t_s)), np.arange(len(m2.log_t_s))])
+    order = np.lexsort((node, times))
+    if not np.all(np.isfinite(times)):
+        raise RecordingError(f"{path}: a sample's time is not finite")
+    start_utc_ns = int(rec.start_time_ns)
+    spec = dataclasses.replace(spec, value_age_s=_value_age_s(rec.metadata, fusion_rate_of(rec)))
+    del rec
+    sink, partial = None, None
+    if output is not None:
+        sink, partial = open_sink(
+            output,
+            replace=replace,
+            spec=spec,
+            source=f"replay of {path.name}",
+            groups=("quat", "gyro", "accel"),
+            node_names=("m1", "m2"),
+            start_utc_ns=start_utc_ns,
+        )
+    session = TwinSession(
+        spec.params,
+        frames=frames,
+        track=spec.track,
+        forecast_horizon_s=spec.forecast_horizon_s,
+        forecast_every_s=spec.forecast_every_s,
+        threshold=spec.threshold,
+        persist_s=spec.persist_s,
+        baseline_s=spec.baseline_s,
+        value_age_s=spec.value_age_s,
+    )
+    pipeline = TwinPipeline(
+        spec, session, sink=sink, node_names=("m1", "m2"), start_utc_ns=start_utc_ns, views=views, skip=skip
+    )
+    say(
+        f"twin: replaying {path} ({len(times)} samples"
+        + (f", {speed:g}x its pace)" if speed else ", as fast as it can)")
+        + (f"; writing {partial} until done, then {output}" if output is not None else "")
+    )
+    from ..receiver import stop_signals
+
+    wall0 = time.monotonic()
+    t_first = float(times[order[0]]) if len(order) else 0.0
+    stop = "end of recording"
+    with stop_signals() as signalled:
+        for i in order:
+            if signalled:
+                stop = signalled[0]
+                break
+            t = float(times[i])
+            if speed > 0:
+                delay = wall0 + (t - t_first) / speed - time.monotonic()
+                if delay > 0:
+                    time.sleep(delay)
+            n = int(node[i])
+            torques = (0.0, 0.0)
+            if torque is not None and torque_t is not None:
+                k = int(np.searchsorted(torque_t, t - session.measurements[n].value_age_s, side="right")) - 1
+                if k >= 0:
+                    torques = (float(torque[k, 0]), float(torque[k, 1]))
+            pipeline.push(n, t, rows[n][index[i]], t, torques)
+            pipeline.step(t)
+            if pipeline.tick(time.monotonic() - wall0 if speed else t, session.estimator.t_s) and status:
+                status(status_text(pipeline, t - t_first))
+    pipeline.finish()
+    duration = time.monotonic() - wall0
+    messages, written = 0, None
+    if sink is not None and partial is not None and output is not None:
+        messages = close_sink(pipeline, partial, output, replace=replace, stop_reason=stop, duration_s=duration)
+        written = output
+    for v in views:
+        v.close()
+    _ = (math, nanoseconds)
+    return TwinResult(
+        written, duration, stop, session.summary(), tuple(pipeline.merger.late), (math.nan, math.nan), messages
+    )

@@ -1,0 +1,375 @@
+"""The twin beside the rig, sample by sample: what ``pendsim twin`` runs on live packets and on a
+replayed recording alike (the caller puts both nodes' samples into one time order:
+``merge.SampleMerger``).
+
+For each node sample (its instant, orientation and gyro):
+
+1. the node's measurement (``NodeMeasurement``): the swing angle about the hinge and the hinge
+   rate from the node's swing frame, and the instant the value stands for (a BNO055 node's value
+   is on average ``value_age_s`` older than its stamp);
+2. the estimator (``estimator.RigEstimator``) starts once both nodes have given a sample (the
+   state from their values), then takes each sample in (``Estimates``);
+3. the health monitor (``health.HealthMonitor``) checks the tracked parameters once a second
+   (``ParameterCheck``, ``Alarm``);
+4. every ``forecast_every_s`` a forecast over ``forecast_horizon_s`` (``Forecast``), scored
+   afterwards against what the nodes measured (``ForecastScore``: per horizon, the error's rms
+   and the share of measurements within the forecast's 3-sigma band).
+
+``drain()`` hands out what was produced since the last call; ``summary()`` gives the run's
+figures (innovations' whiteness, forecast scores, alarms).
+"""
+
+from __future__ import annotations
+
+import collections
+import dataclasses
+import math
+from collections.abc import Sequence
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from pendsim_mj.engines.fast_planar.closed_form import accelerations
+from pendsim_mj.errors import ParameterError
+from pendsim_mj.estimation.planar_fit import ljung_box_p
+from pendsim_mj.estimation.swing_frame import SwingFrame
+from pendsim_mj.rig.params import DEFAULT_PARAMS, RigParams
+from pendsim_mj.sensors.bno055 import FUSION_RATE_HZ, Bno055
+from pendsim_mj.twin.estimator import NSTATE, TRACKABLE, Forecast, RigEstimator
+from pendsim_mj.twin.health import DEFAULT_PERSIST_S, DEFAULT_THRESHOLD, Alarm, HealthMonitor
+from pendsim_mj.twin.outputs import Estimates, ParameterCheck
+
+Floats = NDArray[np.float64]
+DEFAULT_TRACK = tuple(TRACKABLE)
+VALUE_AGE_S = 0.5 / FUSION_RATE_HZ  # a BNO055 sample's value: on average half a fusion period older than its stamp
+HORIZON_BINS_S = (0.25, 0.5, 1.0, 2.0, 5.0)  # forecast scores per horizon up to each of these
+FREE_WINDOW = 8  # samples per node (0.1 s at 80 Hz) over which a node's motion is compared with free motion
+HELD_ALPHA_RAD_S2 = 0.5  # a node whose free acceleration would exceed this but whose measured one is
+# less than half of it is held (a hand, a stop)
+INTERVENTION_NIS = 200.0  # mean NIS over INTERVENTION_WINDOW updates above this: the rig was touched
+INTERVENTION_WINDOW = 40
+SNAPSHOT_S = 1.0  # the tracked parameters are kept this often, to go back to after an intervention
+
+
+class NodeMeasurement:
+    """One node's samples as the estimator takes them: (value instant s, phi rad, omega rad/s)
+    from (stamp instant s, quat (4,), gyro (3,)), through the node's swing frame."""
+
+    def __init__(self, frame: SwingFrame, *, value_age_s: float = VALUE_AGE_S) -> None:
+        self.frame = frame
+        self.value_age_s = float(value_age_s)
+
+    def take(self, t_s: float, quat_wxyz: ArrayLike, gyro_rad_s: ArrayLike) -> tuple[float, float, float] | None:
+        phi = float(self.frame.angle(np.asarray(quat_wxyz, dtype=float)[None])[0])
+        omega = float(self.frame.rate(np.asarray(gyro_rad_s, dtype=float)[None])[0])
+        return t_s - self.value_age_s, phi, omega
+
+
+@dataclasses.dataclass(frozen=True)
+class ForecastScore:
+    """How the forecasts held, per horizon bin (``HORIZON_BINS_S``: up to each bound).
+
+    Attributes:
+      horizon_s: (k,) each bin's upper bound, s.
+      count: (k,) measurements scored in it.
+      rms_error_rad: (k,) rms of measured minus forecast swing angle.
+      within_3_sigma: (k,) share of those within the forecast's 3-sigma band (its standard
+        deviation and the measurement's together).
+    """
+
+    horizon_s: tuple[float, ...]
+    count: tuple[int, ...]
+    rms_error_rad: tuple[float, ...]
+    within_3_sigma: tuple[float, ...]
+
+
+@dataclasses.dataclass(frozen=True)
+class TwinOutput:
+    """What the twin produced since the last ``drain``."""
+
+    estimates: Estimates
+    forecasts: tuple[tuple[float, Forecast], ...]  # (made at, s; the forecast)
+    checks: tuple[ParameterCheck, ...]
+    alarms: tuple[Alarm, ...]
+    events: tuple[tuple[float, str], ...] = ()  # (t_s, "tracking" | "held" | "released" | "touched")
+
+
+@dataclasses.dataclass(frozen=True)
+class TwinSummary:
+    """A run's figures.
+
+    Attributes:
+      samples: per node, samples taken in.
+      started_s: when the estimator started (NaN: never).
+      nis_mean: per node, the mean normalised innovation squared (2 on a healthy rig).
+      whiteness_p: per node, the Ljung-Box p-value of the normalised angle innovations after
+        ``settle_s`` (NaN: too few).
+      forecast: the forecasts' scores.
+      alarms: the alarms raised.
+      parameters: each tracked parameter's final (value, sigma).
+    """
+
+    samples: tuple[int, int]
+    started_s: float
+    nis_mean: tuple[float, float]
+    whiteness_p: tuple[float, float]
+    forecast: ForecastScore
+    alarms: tuple[Alarm, ...]
+    parameters: dict[str, tuple[float, float]]
+
+
+class TwinSession:
+    """The twin of the module docstring.
+
+    Args:
+      params: the rig (e.g. ``pendsim calibrate``'s).
+      frames: each node's swing frame.
+      nodes: the node model (its noise sets the measurement noise).
+      track: the parameters to track and monitor (``TRACKABLE``; () for none: no health checks).
+      forecast_horizon_s: how far each forecast reaches, s (0: none).
+      forecast_every_s: how often a forecast is made, s.
+      threshold, persist_s, baseline_s: the health monitor's (``HealthMonitor``).
+      settle_s: innovations before this long after the start are left out of the whiteness test.
+      value_age_s: how much older a sample's value is than its stamp, s.
+    """
+
+    def __init__(
+        self,
+        params: RigParams = DEFAULT_PARAMS,
+        *,
+        frames: Sequence[SwingFrame],
+        nodes: Bno055 | None = None,
+        track: tuple[str, ...] = DEFAULT_TRACK,
+        forecast_horizon_s: float = 2.0,
+        forecast_every_s: float = 1.0,
+        threshold: float = DEFAULT_THRESHOLD,
+        persist_s: float = DEFAULT_PERSIST_S,
+        baseline_s: float = 0.0,
+        settle_s: float = 2.0,
+        value_age_s: float = VALUE_AGE_S,
+    ) -> None:
+        if len(frames) != 2:
+            raise ParameterError(f"the twin needs both nodes' frames, got {len(frames)}")
+        if not (math.isfinite(forecast_horizon_s) and 0 <= forecast_horizon_s <= 60):
+            raise ParameterError(f"the forecast horizon must be in [0, 60] s, got {forecast_horizon_s!r}")
+        if not (math.isfinite(forecast_every_s) and 0.1 <= forecast_every_s <= 3600):
+            raise ParameterError(f"the forecast period must be in [0.1, 3600] s, got {forecast_every_s!r}")
+        self.params = params
+        self.estimator = RigEstimator(params, nodes=nodes, track=track)
+        self.measurements = [NodeMeasurement(f, value_age_s=value_age_s) for f in frames]
+        self.threshold, self.persist_s, self.baseline_s = threshold, persist_s, baseline_s
+        self.monitor: HealthMonitor | None = None
+        self.forecast_horizon_s, self.forecast_every_s = float(forecast_horizon_s), float(forecast_every_s)
+        self.settle_s = float(settle_s)
+        self.started_s = math.nan
+        self._recent: list[collections.deque[tuple[float, float, float]]] = [
+            collections.deque(maxlen=FREE_WINDOW) for _ in range(2)
+        ]
+        self._recent_nis: collections.deque[float] = collections.deque(maxlen=INTERVENTION_WINDOW)
+        self._snapshots: collections.deque[tuple[float, Floats, Floats]] = collections.deque(maxlen=3)
+        self.events: list[tuple[float, str]] = []  # (t_s, what happened): held, released, touched
+        self._events_out: list[tuple[float, str]] = []
+        self._tracking = False
+        self._checks_from_s = -math.inf
+        self._rows: list[tuple] = []
+        self._forecasts: list[tuple[float, Forecast]] = []
+        self._checks: list[ParameterCheck] = []
+        self._alarms: list[Alarm] = []
+        self._all_alarms: list[Alarm] = []
+        self._next_forecast_s = math.inf
+        self._open_forecasts: list[Forecast] = []
+        self._samples = [0, 0]
+        self._nis: list[list[float]] = [[], []]
+        self._normalised: list[list[float]] = [[], []]
+        nbins = len(HORIZON_BINS_S)
+        self._score_n, self._score_sq, self._score_in = np.zeros(nbins), np.zeros(nbins), np.zeros(nbins)
+
+    def take(
+        self, node: int, t_s: float, quat_wxyz: ArrayLike, gyro_rad_s: ArrayLike, torques_n_m: ArrayLike = (0.0, 0.0)
+    ) -> bool:
+        """One node's sample at ``t_s`` (its stamp's instant, s; samples in time order); False if
+        it was not taken in (before the start, or older than the estimate)."""
+        if node not in (0, 1):
+            raise ParameterError(f"node must be 0 (M1) or 1 (M2), got {node!r}")
+        self._samples[node] += 1
+        value = self.measurements[node].take(t_s, quat_wxyz, gyro_rad_s)
+        if value is None:
+            return False
+        t_v, phi, omega = value
+        self._recent[node].append((t_v, phi, omega))
+        if not self._tracking:
+            return self._start_when_free(t_v)
+        if t_v < self.estimator.t_s:
+            return False
+        self._score(node, t_v, phi)
+        update = self.estimator.update(t_v, node, phi, omega, torques_n_m=torques_n_m)
+        x, sigma = self.estimator.x, self.estimator.sigma
+        s_sigma = np.sqrt(np.diag(update.covariance))
+        self._rows.append(
+            (t_v, node, phi, omega, *x[:NSTATE], *sigma[:NSTATE], *update.innovation, *s_sigma, update.nis)
+        )
+        if t_v - self.started_s >= self.settle_s:
+            self._nis[node].append(update.nis)
+            self._normalised[node].append(update.innovation[0] / s_sigma[0])
+        self._recent_nis.append(update.nis)
+        if len(self._recent_nis) == INTERVENTION_WINDOW and np.mean(self._recent_nis) > INTERVENTION_NIS:
+            self._touched(t_v)
+            return True
+        if not self._snapshots or t_v - self._snapshots[-1][0] >= SNAPSHOT_S:
+            self._snapshots.append((t_v, self.estimator.x[NSTATE:].copy(), self.estimator.p[NSTATE:, NSTATE:].copy()))
+        if self.monitor is not None and t_v >= self._checks_from_s:
+            before = len(self.monitor.history)
+            alarms = self.monitor.check()
+            self._alarms += alarms
+            self._all_alarms += alarms
+            if len(self.monitor.history) > before:
+                self._checks.append(self._parameter_check())
+        if t_v >= self._next_forecast_s:
+            self._next_forecast_s = t_v + self.forecast_every_s
+            forecast = self.estimator.forecast(self.forecast_horizon_s)
+            self._forecasts.append((t_v, forecast))
+            self._open_forecasts.append(forecast)
+        return True
+
+    def _held(self) -> bool:
+        """Whether a node is held: over the last ``FREE_WINDOW`` samples its rate changes much less
+        than the free rig's would (a pendulum held away from rest by a hand or a stop)."""
+        means = []
+        for recent in self._recent:
+            r = np.array(recent)
+            means.append(r.mean(axis=0))
+        c = self.estimator._coef[:, :1]
+        alpha = accelerations(
+            np.array([means[0][1]]), np.array([means[1][1]]), np.array([means[0][2]]), np.array([means[1][2]]), c
+        )
+        for k, recent in enumerate(self._recent):
+            r = np.array(recent)
+            measured = np.polyfit(r[:, 0] - r[0, 0], r[:, 2], 1)[0]
+            free = float(alpha[k][0])
+            if abs(free) > HELD_ALPHA_RAD_S2 and abs(measured - free) > 0.5 * abs(free):
+                return True
+        return False
+
+    def _start_when_free(self, t_v: float) -> bool:
+        """Start (or restart) the estimate from the nodes' newest values once neither is held."""
+        if any(len(r) < FREE_WINDOW for r in self._recent):
+            return False
+        if self._held():
+            if not self.events or self.events[-1][1] != "held":
+                self._event(t_v, "held")
+            return False
+        (t1, phi1, omega1), (t2, phi2, omega2) = self._recent[0][-1], self._recent[1][-1]
+        t0 = max(t1, t2)
+        x0 = [phi1 + omega1 * (t0 - t1), phi2 + omega2 * (t0 - t2), omega1, omega2]
+        restart = not math.isnan(self.started_s)
+        kept = self._snapshots[0] if restart and self._snapshots else None
+        self.estimator.start(t0, x0)
+        if kept is not None:
+            self.estimator.x[NSTATE:], self.estimator.p[NSTATE:, NSTATE:] = kept[1], kept[2]
+        self._tracking = True
+        self._recent_nis.clear()
+        self._event(t0, "released" if self.events else "tracking")
+        if not restart:
+            self.started_s = t0
+            if self.estimator.track:
+                self.monitor = HealthMonitor(
+                    self.estimator, baseline_s=self.baseline_s, threshold=self.threshold, persist_s=self.persist_s
+                )
+        else:
+            self._checks_from_s = t0 + 1.0  # the health checks wait for the estimate to settle again
+        if self.forecast_horizon_s > 0:
+            self._next_forecast_s = t0 + self.forecast_every_s
+        return True
+
+    def _touched(self, t_v: float) -> None:
+        """The innovations say the rig no longer moves as the model does (a hand on it): stop the
+        estimate until it is free again; the tracked parameters go back to before."""
+        self._tracking = False
+        self._open_forecasts = []
+        self._next_forecast_s = math.inf
+        self._event(t_v, "touched")
+
+    def _event(self, t_s: float, what: str) -> None:
+        self.events.append((t_s, what))
+        self._events_out.append((t_s, what))
+
+    def _parameter_check(self) -> ParameterCheck:
+        assert self.monitor is not None
+        found = self.estimator.parameters()
+        names = tuple(found)
+        value = np.array([found[n][0] for n in names])
+        sigma = np.array([found[n][1] for n in names])
+        ref = self.monitor.reference
+        reference = np.array([ref[n] for n in names]) if ref is not None else np.full(len(names), np.nan)
+        return ParameterCheck(self.estimator.t_s, names, value, sigma, reference, (value - reference) / sigma)
+
+    def _score(self, node: int, t_v: float, phi: float) -> None:
+        """Score the open forecasts against this measurement (before it is taken in)."""
+        keep = []
+        r = self.estimator.measurement_sigma[0]
+        offset = self._offset(node) if self._open_forecasts else 0.0
+        for f in self._open_forecasts:
+            if t_v > f.t_s[-1]:
+                continue
+            keep.append(f)
+            horizon = t_v - f.t_s[0]
+            if horizon <= 0:
+                continue
+            mean = float(np.interp(t_v, f.t_s, f.mean[:, node]))
+            sd = math.hypot(float(np.interp(t_v, f.t_s, f.sigma[:, node])), r)
+            error = phi - offset - mean
+            b = int(np.searchsorted(HORIZON_BINS_S, horizon))
+            if b < len(HORIZON_BINS_S):
+                self._score_n[b] += 1
+                self._score_sq[b] += error * error
+                self._score_in[b] += abs(error) <= 3 * sd
+        self._open_forecasts = keep
+
+    def _offset(self, node: int) -> float:
+        name = f"offset_m{node + 1}_rad"
+        return self.estimator.parameters()[name][0] if name in self.estimator.track else 0.0
+
+    def drain(self) -> TwinOutput:
+        """What was produced since the last call."""
+        rows = np.array(self._rows, dtype=float).reshape(-1, 17)
+        est = (
+            Estimates(
+                t_s=rows[:, 0],
+                node=rows[:, 1].astype(np.int64),
+                measured=rows[:, 2:4],
+                state=rows[:, 4:8],
+                sigma=rows[:, 8:12],
+                innovation=rows[:, 12:14],
+                innovation_sigma=rows[:, 14:16],
+                nis=rows[:, 16],
+            )
+            if len(rows)
+            else Estimates.empty()
+        )
+        out = TwinOutput(est, tuple(self._forecasts), tuple(self._checks), tuple(self._alarms), tuple(self._events_out))
+        self._rows, self._forecasts, self._checks, self._alarms, self._events_out = [], [], [], [], []
+        return out
+
+    def forecast_score(self) -> ForecastScore:
+        n = self._score_n
+        with np.errstate(invalid="ignore", divide="ignore"):
+            rms = np.sqrt(self._score_sq / n)
+            within = self._score_in / n
+        return ForecastScore(
+            HORIZON_BINS_S, tuple(int(v) for v in n), tuple(float(v) for v in rms), tuple(float(v) for v in within)
+        )
+
+    def summary(self) -> TwinSummary:
+        def p(values: list[float]) -> float:
+            return ljung_box_p(np.array(values)) if len(values) >= 200 else math.nan
+
+        nis = tuple(float(np.mean(v)) if v else math.nan for v in self._nis)
+        return TwinSummary(
+            samples=(self._samples[0], self._samples[1]),
+            started_s=self.started_s,
+            nis_mean=(nis[0], nis[1]),
+            whiteness_p=(p(self._normalised[0]), p(self._normalised[1])),
+            forecast=self.forecast_score(),
+            alarms=tuple(self._all_alarms),
+            parameters=self.estimator.parameters() if not math.isnan(self.started_s) else {},
+        )

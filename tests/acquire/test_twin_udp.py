@@ -1,0 +1,107 @@
+"""pendsim twin on live packets over real loopback UDP (the emulator in this process, the twin a
+real subprocess): a replay of the twin's own recording gives its live estimates again, exactly; a
+killed twin leaves a recoverable file that lacks at most about a second; a port in use is one
+line."""
+
+from __future__ import annotations
+
+import json
+import signal
+import socket
+import threading
+import time
+
+import numpy as np
+from acquire_helpers import Pendsim, free_udp_ports
+from mcap.reader import make_reader
+from mcap_ros2.decoder import DecoderFactory
+
+from pendsim_bridge.acquire.emulator import plan
+from pendsim_bridge.acquire.emulator import run as run_nodes
+from pendsim_bridge.cli import build_parser, main
+from pendsim_bridge.commands.nodes import spec_from
+from pendsim_bridge.io import twin_topics
+from pendsim_bridge.io.recording import read_recording
+
+
+def _emulate(args: list[str]) -> threading.Thread:
+    spec = spec_from(build_parser().parse_args(["nodes", *args]))
+    thread = threading.Thread(target=run_nodes, args=(spec,), kwargs={"say": print, "prepared": plan(spec)})
+    thread.start()
+    return thread
+
+
+def _estimates(path) -> np.ndarray:
+    with open(path, "rb") as f:
+        reader = make_reader(f, decoder_factories=[DecoderFactory()])
+        rows = [[m.log_time, *msg.data] for _, _, m, msg in reader.iter_decoded_messages([twin_topics.ESTIMATE_TOPIC])]
+    return np.array(rows, dtype=float)
+
+
+def _metadata(path) -> dict[str, dict[str, str]]:
+    with open(path, "rb") as f:
+        return {m.name: m.metadata for m in make_reader(f).iter_metadata()}
+
+
+def test_a_replay_of_the_live_twins_recording_gives_its_estimates_again(tmp_path):
+    p1, p2 = free_udp_ports(2)
+    ports = ["--node", f"m1={p1}", "--node", f"m2={p2}"]
+    twin = Pendsim(["twin", "-o", "live.mcap", "--duration-s", "7", *ports], cwd=tmp_path)
+    try:
+        twin.wait_for("twin: listening")
+        sender = _emulate(["--duration-s", "6", "--hold-s", "1", *ports])
+        assert twin.finish() == 0, twin.err
+        sender.join()
+    finally:
+        twin.kill()
+    live = _estimates(tmp_path / "live.mcap")
+    assert len(live) > 600  # both nodes at 80 Hz for the ~5 s after the release
+    meta = _metadata(tmp_path / "live.mcap")[twin_topics.TWIN_RESULT_METADATA]
+    p50, p99 = json.loads(meta["latency_ms"])
+    assert 0 < p50 <= p99  # measured per sample, from its arrival to its estimate
+    assert any("latency, sample arrival -> estimate" in line for line in twin.out)
+    replay = ["twin", "--replay", str(tmp_path / "live.mcap"), "--speed", "0", "-o", str(tmp_path / "again.mcap")]
+    assert main(replay) == 0
+    again = _estimates(tmp_path / "again.mcap")
+    assert again.shape == live.shape and np.array_equal(again, live)
+
+
+def test_a_killed_twin_leaves_a_recoverable_file_that_lacks_at_most_about_a_second(tmp_path):
+    p1, p2 = free_udp_ports(2)
+    ports = ["--node", f"m1={p1}", "--node", f"m2={p2}"]
+    twin = Pendsim(["twin", "-o", "live.mcap", *ports], cwd=tmp_path)
+    try:
+        twin.wait_for("twin: listening")
+        sender = _emulate(["--duration-s", "6", "--hold-s", "1", *ports])
+        deadline = time.monotonic() + 60
+        while not list(tmp_path.glob(".live.mcap.*.partial.mcap")) and time.monotonic() < deadline:
+            time.sleep(0.05)
+        time.sleep(4.0)
+        twin.signal(signal.SIGKILL)
+        assert twin.finish() == -signal.SIGKILL
+        sender.join()
+    finally:
+        twin.kill()
+    assert not (tmp_path / "live.mcap").exists()
+    (partial,) = tmp_path.glob(".live.mcap.*.partial.mcap")
+    assert main(["recover", str(partial), str(tmp_path / "fixed.mcap")]) == 0
+    rec = read_recording(tmp_path / "fixed.mcap")
+    est = _estimates(tmp_path / "fixed.mcap")
+    for node in ("m1", "m2"):
+        t = rec.imu[node].t_ns
+        assert (t[-1] - t[0]) * 1e-9 >= 4.0 - 1.5, node  # 4 s of samples before the kill, less about a second
+    assert len(est) and (est[-1, 0] - rec.start_time_ns - rec.imu["m1"].t_ns[0]) * 1e-9 >= 4.0 - 2.5
+
+
+def test_a_port_in_use_is_one_line_and_exit_2(tmp_path, capsys):
+    taken = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    taken.bind(("127.0.0.1", 0))
+    try:
+        port = taken.getsockname()[1]
+        (free,) = free_udp_ports(1)
+        code = main(["twin", "-o", str(tmp_path / "t.mcap"), "--node", f"m1={port}", "--node", f"m2={free}"])
+    finally:
+        taken.close()
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and err.startswith("pendsim: error:") and "\n" not in err and str(port) in err
+    assert list(tmp_path.iterdir()) == []
