@@ -9,7 +9,6 @@ ended with the acquisition.
 
 from __future__ import annotations
 
-import os
 import subprocess
 import time
 from pathlib import Path
@@ -96,7 +95,7 @@ class LiveView:
         if serve is not None:
             bind, port = serve
             try:
-                self._server = self._start_server(bind, port)
+                self._server = serving.start_live_server(bind, port)
             except ProcessError:
                 if self._rrd_partial is not None:
                     self._rrd_partial.unlink(missing_ok=True)
@@ -105,34 +104,6 @@ class LiveView:
             self.url = serving.viewer_url(bind, port, port + 1)
         rr.set_sinks(*sinks, default_blueprint=blueprint(nodes))
         log_rig_geometry(mujoco.MjModel.from_xml_string(mjcf_xml))
-
-    @staticmethod
-    def _start_server(bind: str, port: int) -> subprocess.Popen[bytes]:
-        """Rerun's web viewer with no file (the SDK streams into it), in its own process group
-        (``serve``: ended as a group, and with pendsim even if pendsim is killed); returns once
-        both ports listen, owned by that group."""
-        ports = (port, port + 1)
-        for p in ports:
-            serving.check_port_free(bind, p)
-        command = [
-            *serving.rerun_command(), "--serve-web", "--bind", bind, "--web-viewer-port", str(port),
-            "--port", str(port + 1),
-        ]  # fmt: skip
-        server = subprocess.Popen(
-            command,
-            stdin=subprocess.DEVNULL,
-            stdout=subprocess.DEVNULL,
-            stderr=subprocess.DEVNULL,
-            start_new_session=True,
-            preexec_fn=serving.die_with_parent(os.getpid()),
-        )
-        deadline = time.monotonic() + serving.STARTUP_TIMEOUT_S
-        while not serving.listening(server.pid, ports, bind):
-            if server.poll() is not None or time.monotonic() > deadline:
-                serving.stop_group(server)
-                raise ProcessError(f"the Rerun web viewer did not start on {bind} ports {port} and {port + 1}")
-            time.sleep(0.1)
-        return server
 
     def add(self, node: str, t_ns: NDArray[np.int64], rows: NDArray[np.float64]) -> None:
         if self._t0_ns is None:

@@ -132,6 +132,20 @@ def _listening_inodes(port: int) -> set[int]:
     return found
 
 
+def listening_here(port: int) -> bool:
+    """True if this process holds a socket listening on TCP ``port`` (Linux /proc; elsewhere False)."""
+    if not Path("/proc/net/tcp").exists():
+        return False
+    own: set[int] = set()
+    with contextlib.suppress(OSError):
+        for fd in os.scandir("/proc/self/fd"):
+            with contextlib.suppress(OSError):
+                target = os.readlink(fd.path)
+                if target.startswith("socket:["):
+                    own.add(int(target[8:-1]))
+    return bool(_listening_inodes(port) & own)
+
+
 def listening(pgid: int, ports: tuple[int, ...], bind: str) -> bool:
     """True if every port is listening, held by process group ``pgid`` where Linux's /proc tells
     (else: accepts a connection)."""
@@ -317,6 +331,37 @@ def served_viewer(
                 raise ProcessError(f"the Rerun server stopped: {_last_line(log)}")
         finally:
             stop_group(proc)
+
+
+def start_live_server(bind: str, port: int) -> subprocess.Popen[bytes]:
+    """Rerun's web viewer with no file, for a live view that streams into it (the SDK's gRPC sink
+    on ``port + 1``): in its own process group (end it with ``stop_group``; it also ends if pendsim
+    is killed); returns once both ports listen, owned by that group.
+
+    Raises:
+      ProcessError: a port in use, an address not of this machine, or a server that did not start.
+    """
+    ports = (port, port + 1)
+    for p in ports:
+        check_port_free(bind, p)
+    command = [
+        *rerun_command(), "--serve-web", "--bind", bind, "--web-viewer-port", str(port), "--port", str(port + 1),
+    ]  # fmt: skip
+    server = subprocess.Popen(
+        command,
+        stdin=subprocess.DEVNULL,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+        start_new_session=True,
+        preexec_fn=die_with_parent(os.getpid()),
+    )
+    deadline = time.monotonic() + STARTUP_TIMEOUT_S
+    while not listening(server.pid, ports, bind):
+        if server.poll() is not None or time.monotonic() > deadline:
+            stop_group(server)
+            raise ProcessError(f"the Rerun web viewer did not start on {bind} ports {port} and {port + 1}")
+        time.sleep(0.1)
+    return server
 
 
 SEND_TIMEOUT_S = 300.0
