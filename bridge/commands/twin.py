@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -12,9 +13,10 @@ from .node_options import add_stream_options, nodes_from, stream_from
 if TYPE_CHECKING:
     from pendsim_mj.rig.params import RigParams
 
-    from ..acquire.twin.pipeline import TwinView
+    from ..report.twin_views import TwinView
 
 TRACK_ALL = "all"
+NODES = ("m1", "m2")
 
 
 def track_list(text: str) -> tuple[str, ...]:
@@ -130,35 +132,41 @@ def register(sub: argparse._SubParsersAction[options.Parser]) -> None:
     p.set_defaults(handler=run)
 
 
-def _views(args: argparse.Namespace, params: RigParams) -> tuple[TwinView, ...]:
-    """The live views the options ask for."""
-    views: list[TwinView] = []
-    try:
-        if args.rerun is not None or args.spawn or args.serve:
-            from ..report.twin_views import TwinRerunView  # start-up: Rerun, only for a live view
+def _views_for(args: argparse.Namespace, params: RigParams) -> Callable[[int], tuple[TwinView, ...]] | None:
+    """What opens the live views the options ask for, once the twin's start is known (None: none)."""
+    if args.rerun is None and not args.spawn and not args.serve and args.foxglove is None:
+        return None
 
-            view = TwinRerunView(
-                params, rrd=args.rerun, spawn=args.spawn, serve=(args.bind, args.port) if args.serve else None
-            )
-            views.append(view)
-            if getattr(view, "url", None):
-                print(f"live view: {view.url}", flush=True)
-        if args.foxglove is not None:
-            from ..report.twin_views import TwinFoxgloveView
+    def open_views(start_utc_ns: int) -> tuple[TwinView, ...]:
+        from pendsim_mj.rig.model import exact_mjcf  # start-up: MuJoCo and the viewers, only for a live view
 
-            fox = TwinFoxgloveView(bind=args.bind, port=args.foxglove)
-            views.append(fox)
-            print(f"foxglove: ws://{args.bind}:{args.foxglove}", flush=True)
-    except BaseException:
-        for v in views:
-            v.close()
-        raise
-    return tuple(views)
+        mjcf = exact_mjcf(params)
+        views: list[TwinView] = []
+        try:
+            if args.rerun is not None or args.spawn or args.serve:
+                from ..report.twin_rerun import TwinRerunView
+
+                serve = (args.bind, args.port) if args.serve else None
+                rerun = TwinRerunView(start_utc_ns, NODES, mjcf, rrd=args.rerun, spawn=args.spawn, serve=serve)
+                views.append(rerun)
+                if rerun.url is not None:
+                    print(f"live view: {rerun.url}", flush=True)
+            if args.foxglove is not None:
+                from ..report.twin_foxglove import TwinFoxgloveView
+
+                fox = TwinFoxgloveView(start_utc_ns, NODES, mjcf_xml=mjcf, bind=args.bind, port=args.foxglove)
+                views.append(fox)
+                print(f"foxglove: {fox.url} (Foxglove: Open connection, Foxglove WebSocket)", flush=True)
+        except BaseException:
+            for v in views:
+                v.close()
+            raise
+        return tuple(views)
+
+    return open_views
 
 
 def run(args: argparse.Namespace) -> int:
-    from pendsim_mj.estimation.swing_frame import SwingFrame  # noqa: F401  (start-up: numpy only)
-
     from ..acquire.twin.pipeline import TwinSpec, summary_text
     from ..acquire.udp_loop.node_view import model_frames  # start-up: loaded when the command runs
 
@@ -183,37 +191,33 @@ def run(args: argparse.Namespace) -> int:
         hold_s=args.hold_ms * 1e-3,
     )
     frames = model_frames(params)
-    views = _views(args, params)
-    try:
-        if args.replay is not None:
-            from ..acquire.twin.replay import replay
+    views_for = _views_for(args, params)
+    if args.replay is not None:
+        from ..acquire.twin.replay import replay
 
-            result = replay(
-                spec,
-                args.replay,
-                frames=frames,
-                output=args.output,
-                replace=args.force,
-                speed=1.0 if args.speed is None else args.speed,
-                views=views,
-            )
-        else:
-            from ..acquire.twin.live import run_twin_live
+        result = replay(
+            spec,
+            args.replay,
+            frames=frames,
+            output=args.output,
+            replace=args.force,
+            speed=1.0 if args.speed is None else args.speed,
+            views_for=views_for,
+        )
+    else:
+        from ..acquire.twin.live import run_twin_live
 
-            result = run_twin_live(
-                spec,
-                frames=frames,
-                output=args.output,
-                replace=args.force,
-                nodes=nodes_from(args),
-                bind=args.bind,
-                stream=stream_from(args),
-                rate_hz=args.rate_hz,
-                duration_s=args.duration_s,
-                views=views,
-            )
-    finally:
-        for v in views:
-            v.close()
+        result = run_twin_live(
+            spec,
+            frames=frames,
+            output=args.output,
+            replace=args.force,
+            nodes=nodes_from(args),
+            bind=args.bind,
+            stream=stream_from(args),
+            rate_hz=args.rate_hz,
+            duration_s=args.duration_s,
+            views_for=views_for,
+        )
     print(summary_text(result))
     return 0

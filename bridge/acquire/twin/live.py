@@ -15,7 +15,6 @@ node's newest used), are not used (counted per node in the summary's metadata).
 
 from __future__ import annotations
 
-import math
 import selectors
 import socket
 import sys
@@ -30,11 +29,12 @@ from pendsim_mj.estimation.swing_frame import SwingFrame
 from pendsim_mj.sensors.bno055 import SAMPLE_RATE_HZ
 from pendsim_mj.twin.session import TwinSession
 
+from ...report.twin_views import TwinView
 from ..packets import StreamFormat
 from ..ports import DEFAULT_NODES, NodeSpec, check_nodes
 from ..receiver import listen_udp, read_stamped, stop_signals
 from ..udp_loop.node_view import NodeView
-from .pipeline import TwinPipeline, TwinResult, TwinSpec, TwinView, close_sink, open_sink, status_text
+from .pipeline import TwinPipeline, TwinResult, TwinSpec, close_sink, open_sink, status_text
 
 
 def _stderr(line: str) -> None:
@@ -52,12 +52,13 @@ def run_twin_live(
     stream: StreamFormat | None = None,
     rate_hz: float = SAMPLE_RATE_HZ,
     duration_s: float | None = None,
-    views: tuple[TwinView, ...] = (),
+    views_for: Callable[[int], tuple[TwinView, ...]] | None = None,
     should_stop: Callable[[], bool] | None = None,
     say: Callable[[str], None] = _stderr,
     status: Callable[[str], None] | None = None,
 ) -> TwinResult:
-    """Run the twin on the nodes' packets until ``duration_s``, Ctrl-C, SIGTERM or ``should_stop``.
+    """Run the twin on the nodes' packets until ``duration_s``, Ctrl-C, SIGTERM or ``should_stop``;
+    ``views_for(start_utc_ns)`` opens the live views (closed at the end, on every exit path).
 
     Raises:
       ParameterError: a port cannot be bound (nothing is written).
@@ -72,12 +73,14 @@ def run_twin_live(
     selector = selectors.DefaultSelector()
     socks: list[socket.socket] = []
     partial: Path | None = None
+    views: tuple[TwinView, ...] = ()
     try:
         for view in node_views:
             socks.append(listen_udp(bind, view.spec.port, what=f"node {view.spec.name}", option="--node"))
             selector.register(socks[-1], selectors.EVENT_READ, view)
         start_ns = time.monotonic_ns()
         start_utc_ns = time.time_ns()
+        views = views_for(start_utc_ns) if views_for is not None else ()
         sink = None
         if output is not None:
             sink, partial = open_sink(
@@ -161,7 +164,6 @@ def run_twin_live(
             s.close()
         for v in views:
             v.close()
-        _ = math
 
 
 __all__ = ["run_twin_live"]

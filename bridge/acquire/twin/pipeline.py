@@ -22,7 +22,6 @@ import math
 import sys
 from collections.abc import Callable
 from pathlib import Path
-from typing import Protocol
 
 import numpy as np
 from numpy.typing import NDArray
@@ -30,40 +29,22 @@ from numpy.typing import NDArray
 from pendsim_mj import __version__
 from pendsim_mj.errors import RecordingError
 from pendsim_mj.rig.params import DEFAULT_PARAMS, RigParams
-from pendsim_mj.twin.estimator import TRACKABLE, Forecast
+from pendsim_mj.twin.estimator import TRACKABLE
 from pendsim_mj.twin.health import WHAT, Alarm
 from pendsim_mj.twin.merge import DEFAULT_HOLD_S, SampleMerger
-from pendsim_mj.twin.outputs import Estimates, ParameterCheck
 from pendsim_mj.twin.session import DEFAULT_TRACK, VALUE_AGE_S, TwinSession, TwinSummary
 from pendsim_mj.units import nanoseconds, seconds
 
 from ...errors import OutputError
 from ...io import ros2, twin_topics
 from ...io.outputs import describe_os_error, publish, replace_hint, temporary_sibling
+from ...report.twin_views import TwinView
 from ..sink import RecordingSink
 
 FLUSH_S = 0.5
 DIAGNOSTICS_S = 1.0
 VIEW_S = 0.05  # live views are sent this often
 KEEP_S = 0.1  # the file is written up to this long before the newest sample released
-
-
-class TwinView(Protocol):
-    """A live view of the twin (``report.twin_views``)."""
-
-    def add_estimates(self, est: Estimates) -> None: ...
-
-    def add_forecast(self, made_at_s: float, forecast: Forecast) -> None: ...
-
-    def add_parameters(self, check: ParameterCheck) -> None: ...
-
-    def add_alarm(self, alarm: Alarm) -> None: ...
-
-    def add_diagnostics(self, t_s: float, statuses: list[ros2.DiagnosticStatus]) -> None: ...
-
-    def send(self) -> None: ...
-
-    def close(self) -> None: ...
 
 
 @dataclasses.dataclass(frozen=True)
@@ -490,4 +471,4 @@ def summary_text(result: TwinResult) -> str:
     return "\n".join(lines)
 
 
-__all__ = ["TwinPipeline", "TwinResult", "TwinSpec", "TwinView", "summary_text"]
+__all__ = ["TwinPipeline", "TwinResult", "TwinSpec", "summary_text"]

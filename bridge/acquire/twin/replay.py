@@ -29,13 +29,13 @@ from pendsim_mj.errors import RecordingError
 from pendsim_mj.estimation.swing_frame import SwingFrame
 from pendsim_mj.rig.params import RigParams
 from pendsim_mj.twin.session import TwinSession
-from pendsim_mj.units import nanoseconds
 
 from ...io import twin_topics
 from ...io.measured import fusion_rate_of, node_samples
 from ...io.recording import read_recording
 from ...io.recording_layout import DRIVE_TOPIC, imu_topic
-from .pipeline import TwinPipeline, TwinResult, TwinSpec, TwinView, close_sink, open_sink, status_text
+from ...report.twin_views import TwinView
+from .pipeline import TwinPipeline, TwinResult, TwinSpec, close_sink, open_sink, status_text
 
 RIG_TOLERANCE = 1e-9  # relative: parameters that differ by more are another rig
 
@@ -87,11 +87,12 @@ def replay(
     output: Path | None,
     replace: bool = False,
     speed: float = 1.0,
-    views: tuple[TwinView, ...] = (),
+    views_for: Callable[[int], tuple[TwinView, ...]] | None = None,
     say: Callable[[str], None] = print,
     status: Callable[[str], None] | None = None,
 ) -> TwinResult:
-    """Run the twin on a recording (module docstring); ``speed`` 0: as fast as it can."""
+    """Run the twin on a recording (module docstring); ``speed`` 0: as fast as it can;
+    ``views_for(start_utc_ns)`` opens the live views (closed at the end, on every exit path)."""
     from ..packets import GROUP_SLICES, ROW_FIELDS
 
     path = Path(recording)
@@ -128,6 +129,35 @@ def replay(
     start_utc_ns = int(rec.start_time_ns)
     spec = dataclasses.replace(spec, value_age_s=_value_age_s(rec.metadata, fusion_rate_of(rec)))
     del rec
+    views = views_for(start_utc_ns) if views_for is not None else ()
+    try:
+        return _run(spec, path, frames, output, replace, speed, views, say, status, start_utc_ns, skip,
+                    times, node, index, order, rows, torque_t, torque)  # fmt: skip
+    finally:
+        for v in views:
+            v.close()
+
+
+def _run(
+    spec: TwinSpec,
+    path: Path,
+    frames: tuple[SwingFrame, SwingFrame],
+    output: Path | None,
+    replace: bool,
+    speed: float,
+    views: tuple[TwinView, ...],
+    say: Callable[[str], None],
+    status: Callable[[str], None] | None,
+    start_utc_ns: int,
+    skip: frozenset[tuple[int, int]],
+    times: NDArray[np.float64],
+    node: NDArray[np.int64],
+    index: NDArray[np.int64],
+    order: NDArray[np.int64],
+    rows: list[NDArray[np.float64]],
+    torque_t: NDArray[np.float64] | None,
+    torque: NDArray[np.float64] | None,
+) -> TwinResult:
     sink, partial = None, None
     if output is not None:
         sink, partial = open_sink(
@@ -189,9 +219,6 @@ def replay(
     if sink is not None and partial is not None and output is not None:
         messages = close_sink(pipeline, partial, output, replace=replace, stop_reason=stop, duration_s=duration)
         written = output
-    for v in views:
-        v.close()
-    _ = (math, nanoseconds)
     return TwinResult(
         written, duration, stop, session.summary(), tuple(pipeline.merger.late), (math.nan, math.nan), messages
     )
