@@ -161,7 +161,7 @@ class RigFault:
 
 
 def parse_fault(text: str) -> RigFault:
-    """``KIND:TARGET CHANGE@WHEN`` (the module's grammar) to a RigFault; ParameterError names
+    """``KIND:TARGETCHANGE@WHEN`` (the module's grammar) to a RigFault; ParameterError names
     what is allowed."""
 
     def bad(why: str) -> ParameterError:
@@ -170,7 +170,7 @@ def parse_fault(text: str) -> RigFault:
     kind, colon, rest = text.strip().partition(":")
     kind = kind.strip().lower()
     if not colon:
-        raise bad(f"expected KIND:TARGET CHANGE@TIME; forms: {FORMS}")
+        raise bad(f"expected KIND:TARGETCHANGE@WHEN; forms: {FORMS}")
     if kind not in KINDS:
         raise bad(f"unknown kind {kind!r}; allowed: {', '.join(KINDS)}")
     what, at, when = rest.partition("@")

@@ -98,7 +98,7 @@ def register(sub: argparse._SubParsersAction[options.Parser]) -> None:
         type=options.argument(_parse_fault, "fault"),
         action="append",
         default=[],
-        metavar="KIND:TARGET CHANGE@T",
+        metavar="KIND:TARGETCHANGE@WHEN",
         help="a scripted rig fault, T in s after the release (repeatable): stiffness:[c1|c2]CHANGE, "
         "damping:m1|m2CHANGE, friction:m1|m2CHANGE with CHANGE *FACTOR, =VALUE or +-PERCENT%%; mount:m1|m2=ANGLEdeg "
         "(the node turns about the hinge axis); clock:m1|m2=JUMP (s); @T a step, @T..T2 a ramp (physics only), "

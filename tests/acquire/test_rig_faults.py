@@ -199,6 +199,7 @@ def test_nodes_plays_the_faults_over_udp_into_the_recording(tmp_path):
 @pytest.mark.parametrize(
     ("args", "message"),
     [
+        (["--fault", "stiffness-5%@1"], "expected KIND:TARGETCHANGE@WHEN; forms: stiffness:[c1|c2]CHANGE"),
         (["--fault", "wobble:m1*2@1"], "unknown kind 'wobble'; allowed: stiffness, damping, friction, mount, clock"),
         (["--fault", "damping:m3*2@1"], "unknown target 'm3' for damping; allowed: m1, m2"),
         (["--fault", "stiffness:m1*2@1"], "unknown target 'm1' for stiffness; allowed: c1, c2"),
