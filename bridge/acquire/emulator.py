@@ -21,6 +21,11 @@ What each node does, and how it is emulated:
   format allows) before it.
 - **Pacing**: every datagram has a due time on one schedule from the start (t_k plus its delays);
   the sender sleeps until each is due, so lateness never accumulates.
+- **Scripted rig faults** (``rig_faults``, ``pendsim nodes --fault``): the rig's springs, hinge
+  damping or dry friction change at an instant or along a ramp (the run simulated piece by piece,
+  each from the state the one before ended in, ``pendsim_mj.engines.piecewise``); a node turns on its
+  mount about the hinge axis (its samples from then on are those of the turned mount, the same
+  noise); a node's clock jumps (its device times from then on). ``rig_faults.py`` has the grammar.
 - **The log** (JSON lines or CSV, by the file's extension) lists every datagram sent, in order,
   with its actual send time, node, sequence number, device time, kind (data, duplicate,
   malformed), whether it was reordered and, for a malformed one, the reason the receiver should
@@ -43,7 +48,12 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
+from pendsim_mj.engines import dispatch as engines
+from pendsim_mj.engines.piecewise import run_pieces, schedule_pieces
+from pendsim_mj.engines.trajectory import Trajectory
 from pendsim_mj.errors import ParameterError
+from pendsim_mj.rig.checks import check_step
+from pendsim_mj.sensors import rotations
 from pendsim_mj.sensors.bno055 import SAMPLE_RATE_HZ, ImuSamples, sample_imu
 
 from ..io.outputs import atomic_output
@@ -51,6 +61,7 @@ from ..run.record import RecordSpec, simulate_for
 from ..signals import signal_handlers
 from .packets import GROUP_SLICES, ROW_FIELDS, CsvCodec, JsonCodec, StreamFormat, V1Codec
 from .ports import DEFAULT_NODES, NodeSpec, check_nodes
+from .rig_faults import RAMP_PIECE_S, PlayedFault, RigFault, resolve_faults
 
 LOG_SUFFIXES = (".jsonl", ".csv")
 LOG_COLUMNS = ("t_s", "node", "port", "seq", "device_time_us", "kind", "reordered", "reason", "bytes", "sent")
@@ -131,6 +142,8 @@ class EmulatorSpec:
       faults: network faults.
       clocks: per node name, its clock (default: no drift, seeded offset and phase).
       seed: seeds the faults and the clocks (the BNO055 noise has run.imu.seed).
+      rig_faults: scripted faults of the rig and the nodes (``rig_faults.parse_fault``), times
+        after the release; drawn times follow ``seed``.
     """
 
     run: RecordSpec = dataclasses.field(default_factory=lambda: RecordSpec(hold_s=2.0))
@@ -141,6 +154,7 @@ class EmulatorSpec:
     faults: Faults = Faults()
     clocks: tuple[tuple[str, NodeClock], ...] = ()
     seed: int = 0
+    rig_faults: tuple[RigFault, ...] = ()
 
     def __post_init__(self) -> None:
         check_nodes(self.nodes)
@@ -152,6 +166,18 @@ class EmulatorSpec:
         for name, _ in self.clocks:
             if name not in known:
                 raise ParameterError(f"a clock is given for node {name!r}, which is not sent to")
+        if any(f.physics for f in self.rig_faults) and (self.run.drive is not None or self.run.model != "planar"):
+            raise ParameterError("rig faults of the physics are for a free run of the planar model")
+        self.played_faults()  # every fault checked against the run
+
+    def played_faults(self) -> tuple[PlayedFault, ...]:
+        """The rig faults resolved against the run (drawn times drawn from ``seed``), in the order given."""
+        if not self.rig_faults:
+            return ()
+        return resolve_faults(
+            self.rig_faults, params=self.run.params, duration_s=self.run.duration_s, dt_s=self.run.dt_s,
+            nodes=[n.name for n in self.nodes], seed=self.seed,
+        )  # fmt: skip
 
     @property
     def total_s(self) -> float:
@@ -197,6 +223,7 @@ class Plan:
     spec: EmulatorSpec
     streams: tuple[NodeStreamPlan, ...]
     datagrams: tuple[Datagram, ...]  # sorted by due time; lost samples included (sent False)
+    rig_faults: tuple[PlayedFault, ...] = ()  # as resolved, in the order given
 
 
 def node_rows(samples: ImuSamples, node_index: int, t_s: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -218,16 +245,56 @@ def sample_rows(samples: ImuSamples, node_index: int, j: NDArray[np.int64]) -> N
     return rows
 
 
-def fused_samples(run: RecordSpec) -> ImuSamples:
-    """Both nodes' BNO055 outputs at the chip's fusion rate over the hold and the run."""
-    traj = simulate_for(run)
+def simulated(run: RecordSpec, faults: tuple[PlayedFault, ...] = ()) -> Trajectory:
+    """The run (``simulate_for``), or, with physics faults, the run in pieces (each from the state
+    the one before ended in, with its own parameters; a ramp in pieces of ``RAMP_PIECE_S`` at its
+    midpoint value), on the same engine."""
+    changes = [f.change(run.dt_s) for f in faults if f.fault.physics]
+    if not changes:
+        return simulate_for(run)
+    nstep = check_step(run.duration_s, run.dt_s)
+    every = max(1, round(RAMP_PIECE_S / run.dt_s))
+    pieces = [p for p in schedule_pieces(run.params, changes, ramp_every=every) if p[0] < nstep]
+    engine = engines.FAST_PATH.get(run.engine, run.engine)
+    return run_pieces(engine, pieces, run.phi0_rad, run.omega0_rad_s, run.duration_s, run.dt_s)
+
+
+def fused_samples(run: RecordSpec, faults: tuple[PlayedFault, ...] = ()) -> ImuSamples:
+    """Both nodes' BNO055 outputs at the chip's fusion rate over the hold and the run, with the
+    rig faults ``faults`` (``EmulatorSpec.played_faults``; clock jumps act later, in ``plan``).
+
+    A node's mount turn by theta about the hinge axis (sensor z): from the first fused sample at
+    or after the fault on, the node's samples are those of the mount q_z(theta) q_mount (every
+    output turned with it; the noise and quantisation the same draws)."""
+    traj = simulated(run, faults)
     chip = dataclasses.replace(run.imu, sample_rate_hz=run.imu.fusion_rate_hz, fusion_timing=True)
-    return sample_imu(traj, chip, hold_s=run.hold_s)
+    samples = sample_imu(traj, chip, hold_s=run.hold_s)
+    for f in sorted((f for f in faults if f.fault.kind == "mount"), key=lambda f: f.start_s):
+        n = int(f.fault.target[1]) - 1  # m1 is pendulum M1
+        mounts = np.array(chip.mount_quat_wxyz, dtype=float)  # (2, 4)
+        mounts[n] = rotations.multiply(rotations.from_rotvec(np.array([0.0, 0.0, math.radians(f.after)])), mounts[n])
+        quats = tuple((float(w), float(x), float(y), float(z)) for w, x, y, z in mounts)
+        turned = sample_imu(traj, dataclasses.replace(chip, mount_quat_wxyz=quats), hold_s=run.hold_s)
+        first = math.ceil((run.hold_s + f.start_s) * chip.sample_rate_hz - 1e-9)
+        samples = _spliced(samples, turned, n, first)
+    return samples
+
+
+def _spliced(samples: ImuSamples, turned: ImuSamples, node: int, first: int) -> ImuSamples:
+    """``samples`` with node ``node``'s outputs from sample ``first`` on taken from ``turned``."""
+    out = {}
+    for name in ("quat_wxyz", "gyro_rad_s", "accel_m_s2", "linear_accel_m_s2", "gravity_m_s2"):
+        value = getattr(samples, name).copy()
+        value[first:, node] = getattr(turned, name)[first:, node]
+        out[name] = value
+    return dataclasses.replace(samples, **out)
 
 
 def plan(spec: EmulatorSpec, samples: ImuSamples | None = None) -> Plan:
-    """Simulate, sample and lay out every datagram (deterministic for a given spec)."""
-    samples = samples if samples is not None else fused_samples(spec.run)
+    """Simulate, sample and lay out every datagram (deterministic for a given spec). ``samples``
+    given: ``fused_samples(spec.run, spec.played_faults())`` (clock jumps are applied here)."""
+    played = spec.played_faults()
+    samples = samples if samples is not None else fused_samples(spec.run, played)
     rng = np.random.default_rng(spec.seed)
     period_s = 1.0 / spec.rate_hz
     streams, datagrams = [], []
@@ -238,12 +305,32 @@ def plan(spec: EmulatorSpec, samples: ImuSamples | None = None) -> Plan:
         count = math.floor((spec.total_s - clock.phase_s) * rate / period_s + 1e-9) + 1
         k = np.arange(max(count, 0), dtype=np.int64)
         t_s, device_us = clock.instants(k, period_s)
+        device_us = _clock_jumps(
+            device_us, t_s, spec.run.hold_s, [f for f in played if f.fault.kind == "clock" and f.node == node.name]
+        )
         rows = node_rows(samples, node.node_id - 1, t_s)  # m1 is pendulum M1, m2 is M2
         stream = NodeStreamPlan(node.name, k, device_us, t_s, rows, clock)
         streams.append(stream)
         datagrams += _node_datagrams(spec, node, stream, rng)
     ordered = sorted(enumerate(datagrams), key=lambda item: (item[1].due_s, item[0]))
-    return Plan(spec, tuple(streams), tuple(d for _, d in ordered))
+    return Plan(spec, tuple(streams), tuple(d for _, d in ordered), played)
+
+
+def _clock_jumps(
+    device_us: NDArray[np.int64], t_s: NDArray[np.float64], hold_s: float, jumps: list[PlayedFault]
+) -> NDArray[np.int64]:
+    """Device times (K,) with each clock jump added from the first sample at or after it (true
+    instants t_s, s since the start; the sample instants stay: the node's timer runs on)."""
+    out = device_us.copy()
+    for f in jumps:
+        later = t_s >= hold_s + f.start_s - 1e-12
+        out[later] += round(f.fault.amount * 1e6)
+        if np.any(out < 0):
+            raise ParameterError(
+                f"--fault {f.fault.label!r}: the node's clock would read {out.min() * 1e-6:.6g} s (< 0); "
+                "give a smaller backward jump or a larger --clock-offset-s"
+            )
+    return out
 
 
 def _node_datagrams(
@@ -375,6 +462,8 @@ class EmulatorResult:
     max_lateness_ms: float  # worst (actual - due) send time
     completed: bool
     log: Path | None
+    faults_played: tuple[str, ...] = ()  # rig faults whose start was reached, described
+    faults_missed: tuple[str, ...] = ()  # rig faults the run stopped before
 
 
 @contextlib.contextmanager
@@ -439,8 +528,16 @@ def run(
         max_lateness_ms=lateness * 1e3,
         completed=completed,
         log=Path(log) if log is not None else None,
+        faults_played=tuple(f.describe() for f in the_plan.rig_faults if completed or _reached(f, spec, duration)),
+        faults_missed=tuple(
+            f.describe() for f in the_plan.rig_faults if not (completed or _reached(f, spec, duration))
+        ),
     )
     return result
+
+
+def _reached(fault: PlayedFault, spec: EmulatorSpec, sent_s: float) -> bool:
+    return spec.run.hold_s + fault.start_s <= sent_s
 
 
 def _count(records: list[tuple[float, Datagram]], which: Callable[[Datagram], bool]) -> dict[str, int]:
@@ -463,6 +560,8 @@ def write_log(
         "rate_hz": spec.rate_hz,
         "seed": spec.seed,
         "faults": dataclasses.asdict(spec.faults),
+        "rig_faults": [f.as_dict() for f in the_plan.rig_faults],
+        "ramp_piece_s": RAMP_PIECE_S,
         "nodes": {
             s.name: {"port": n.port, **dataclasses.asdict(s.clock)}
             for s, n in zip(the_plan.streams, spec.nodes, strict=True)
@@ -519,6 +618,10 @@ def summary(result: EmulatorResult) -> str:
             f"{result.duplicated[node]} duplicated, {result.reordered[node]} reordered, "
             f"{result.malformed[node]} malformed"
         )
+    if result.faults_played:
+        lines.append(f"rig faults played (s after the release): {'; '.join(result.faults_played)}")
+    if result.faults_missed:
+        lines.append(f"rig faults not reached: {'; '.join(result.faults_missed)}")
     state = "done" if result.completed else "stopped early"
     lines.append(f"{state} after {result.duration_s:.1f} s; worst send lateness {result.max_lateness_ms:.2f} ms")
     if result.log is not None:

@@ -16,6 +16,7 @@ from .node_options import add_imperfection_options, add_stream_options, imperfec
 
 if TYPE_CHECKING:
     from ..acquire.emulator import EmulatorSpec
+    from ..acquire.rig_faults import RigFault
 
 
 def per_node(flag: str, low: float, high: float, unit: str) -> Callable[[str], tuple[str | None, float]]:
@@ -93,6 +94,18 @@ def register(sub: argparse._SubParsersAction[options.Parser]) -> None:
     )
     add_imperfection_options(p, transport=False)  # loss, drift and latency are this command's own
     p.add_argument(
+        "--fault",
+        type=options.argument(_parse_fault, "fault"),
+        action="append",
+        default=[],
+        metavar="KIND:TARGETCHANGE@WHEN",
+        help="a scripted rig fault, T in s after the release (repeatable): stiffness:[c1|c2]CHANGE, "
+        "damping:m1|m2CHANGE, friction:m1|m2CHANGE with CHANGE *FACTOR, =VALUE or +-PERCENT%%; mount:m1|m2=ANGLEdeg "
+        "(the node turns about the hinge axis); clock:m1|m2=JUMP (s); @T a step, @T..T2 a ramp (physics only), "
+        "@T~T2 a step at a time drawn from --seed; e.g. stiffness:-5%%@20, damping:m1*2@20, clock:m2=+0.5@20 "
+        "(docs/acquisition.md, Scripted faults)",
+    )
+    p.add_argument(
         "--log",
         type=Path,
         metavar="FILE.jsonl|FILE.csv",
@@ -101,6 +114,12 @@ def register(sub: argparse._SubParsersAction[options.Parser]) -> None:
     p.add_argument("--force", action="store_true", help="replace the log file if it exists")
     add_motor_options(p)
     p.set_defaults(handler=run)
+
+
+def _parse_fault(text: str) -> RigFault:
+    from ..acquire.rig_faults import parse_fault
+
+    return parse_fault(text)
 
 
 def spec_from(args: argparse.Namespace) -> EmulatorSpec:
@@ -134,7 +153,9 @@ def spec_from(args: argparse.Namespace) -> EmulatorSpec:
         (n, NodeClock(drift.get(n, 0.0), offset.get(n))) for n in names if n in drift or n in offset
     )  # fmt: skip
     faults = Faults(args.loss, args.duplicate, args.reorder, args.reorder_depth, args.jitter_ms, args.malformed)
-    return EmulatorSpec(run, nodes, args.host, stream_from(args), args.rate_hz, faults, clocks, args.seed)
+    return EmulatorSpec(
+        run, nodes, args.host, stream_from(args), args.rate_hz, faults, clocks, args.seed, tuple(args.fault)
+    )
 
 
 def run(args: argparse.Namespace) -> int:
@@ -228,6 +249,8 @@ def run_motor(args: argparse.Namespace) -> int:
     from ..acquire.udp_loop.actuator import ActuatorSpec  # start-up: MuJoCo, when the command runs
     from ..acquire.udp_loop.motor_rig import LOG_SUFFIX, MotorRigSpec, run_motor_rig, summary
 
+    if args.fault:
+        raise options.UsageError("--fault is for the precomputed run; the rig with motors (--motor) has no faults yet")
     if args.log is not None:
         options.check_output(args.log, (LOG_SUFFIX,), force=args.force)
     emulated = spec_from(args)

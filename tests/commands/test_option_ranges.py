@@ -58,6 +58,11 @@ TEMPLATES = {
     "speed": ("{}",),
     "damping_choice": ("{},0.001", "0.001,{}"),
     "added_mass": ("1:M1:{}@0.4", "1:M1:0.05@{}", "{}:M1:0.05@0.4"),
+    # pendsim nodes --fault (tests/acquire/test_rig_faults.py)
+    "fault": (
+        *("stiffness:c1*{}@1", "stiffness:{}%@1", "damping:m1={}@1", "mount:m1={}deg@1", "clock:m1={}@1"),
+        *("stiffness:-5%@{}", "stiffness:-5%@1..{}", "damping:m1*2@{}~5"),
+    ),
 }
 # Positional arguments a probe must give for the option to be reached (none: options are parsed
 # in the order given, so a bad option before a missing positional is named first).
