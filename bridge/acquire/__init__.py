@@ -14,9 +14,12 @@ their emulation (``pendsim nodes``) and lab files (``pendsim import``).
 - ``tdms_check``: a TDMS file's segments walked (either byte order) before npTDMS reads it.
 - ``unit_check``: the units of imported values checked against their physics (the gyro against
   the orientation's rotation, gravity's magnitude).
-- ``emulator``: the two nodes emulated from a simulated run (``pendsim nodes``).
+- ``emulator``: the two nodes emulated from a simulated run (``pendsim nodes``); ``rig_faults``:
+  the scripted faults it can play (``--fault``: springs, damping, friction, a mount, a clock).
 - ``udp_loop``: the closed loop over UDP: the actuator's packets and rules, the emulated rig with
   motors (``pendsim nodes --motor``), the controller's side (``rig_loop.run_rig_loop``).
+- ``twin``: the live twin beside the rig (``pendsim twin``): on live packets (``twin.live``) or a
+  replayed recording (``twin.replay``), through one pipeline (``twin.pipeline``).
 
 Docs: docs/acquisition.md (with the pendsim-v1 byte table); docs/control.md (the loop over UDP).
 """

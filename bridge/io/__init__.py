@@ -10,7 +10,8 @@ writer), the measured arrays a recording gives, atomic publication of outputs.
   ``MeasuredRun``), ``recorded_params``, ``recording_drive``;
 - ``outputs``: ``atomic_output``, ``atomic_directory``: a file or folder appears only complete;
 - ``ros2``: the CDR layouts of the messages pendsim writes; ``recording_layout``: the topics and
-  metadata a recording holds; ``recording_writer``: a recording written block by block.
+  metadata a recording holds; ``recording_writer``: a recording written block by block;
+- ``twin_topics``: the live twin's topics beside the measured data (``pendsim twin``).
 
 Importing this package imports none of them: the names above are imported when first used
 (``pendsim_mj.lazy``).
