@@ -257,8 +257,8 @@ class RigEstimator:
         itself is left as it is."""
         if not (math.isfinite(horizon_s) and 0 < horizon_s <= 600):
             raise ParameterError(f"the forecast horizon must be in (0, 600] s, got {horizon_s!r}")
-        if not (math.isfinite(step_s) and 0 < step_s <= 0.0125):
-            raise ParameterError(f"the forecast step must be in (0, 0.0125] s, got {step_s!r}")
+        if not (math.isfinite(step_s) and 0 < step_s <= 0.05):
+            raise ParameterError(f"the forecast step must be in (0, 0.05] s, got {step_s!r}")
         saved = (self.t_s, self.x.copy(), self.p.copy())
         n = max(1, math.ceil(horizon_s / step_s - 1e-9))
         times, means, sigmas = [self.t_s], [self.x[:NSTATE].copy()], [self.sigma[:NSTATE]]

@@ -32,7 +32,7 @@ from pendsim_mj.rig.params import DEFAULT_PARAMS, RigParams
 from pendsim_mj.twin.estimator import TRACKABLE
 from pendsim_mj.twin.health import WHAT, Alarm
 from pendsim_mj.twin.merge import DEFAULT_HOLD_S, SampleMerger
-from pendsim_mj.twin.session import DEFAULT_TRACK, VALUE_AGE_S, TwinSession, TwinSummary
+from pendsim_mj.twin.session import DEFAULT_TRACK, FORECAST_STEP_S, VALUE_AGE_S, TwinSession, TwinSummary
 from pendsim_mj.units import nanoseconds, seconds
 
 from ...errors import OutputError
@@ -160,7 +160,7 @@ class TwinPipeline:
         names = tuple(n for n in self.spec.track)
         self._estimate_layout = twin_topics.layout(twin_topics.ESTIMATE_COLUMNS)
         self._parameter_layout = twin_topics.layout(twin_topics.parameter_columns(names))
-        self._forecast_points = max(1, math.ceil(self.spec.forecast_horizon_s / 0.0125 - 1e-9) + 1)
+        self._forecast_points = max(1, math.ceil(self.spec.forecast_horizon_s / FORECAST_STEP_S - 1e-9) + 1)
         self._forecast_layout = twin_topics.layout(twin_topics.forecast_columns(self._forecast_points))
         for topic in (twin_topics.ESTIMATE_TOPIC, twin_topics.PARAMETERS_TOPIC, twin_topics.FORECAST_TOPIC):
             self._channels[topic] = sink.register(topic, twin_topics.SCHEMA)
