@@ -192,12 +192,15 @@ class TwinPipeline:
         quat, gyro = GROUP_SLICES["quat"], GROUP_SLICES["gyro"]
         for held in released:
             row, torques = held.item
-            if self.sink is not None:
-                t_ns = np.array([self.start_utc_ns + nanoseconds(held.t_s)], np.int64)
-                self.sink.add_samples(self.node_names[held.node], t_ns, row[None])
             taken = self.session.take(held.node, held.t_s, row[quat], row[gyro], torques)
             if taken and clock is not None:
                 self.latency_s.append(clock() - held.arrived_s)
+        if self.sink is not None:  # the measured samples, one call per node
+            for node in (0, 1):
+                mine = [h for h in released if h.node == node]
+                if mine:
+                    t_ns = self.start_utc_ns + nanoseconds(np.array([h.t_s for h in mine]))
+                    self.sink.add_samples(self.node_names[node], t_ns, np.array([h.item[0] for h in mine]))
         self._publish(self.session.drain())
 
     def _publish(self, out: object) -> None:
