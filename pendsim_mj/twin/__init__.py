@@ -7,6 +7,11 @@
   can track as random walks with their intervals (``TRACKABLE``: damping, dry friction, the
   coupling springs, each node's mount offset), and ``forecast`` (the motion over the next seconds
   with its uncertainty).
+- ``measurement``: ``NodeMeasurement``, one node's samples turned into the estimator's
+  measurements on real node data: each value's instant from the chip's fusion phase (learned from
+  the gyro's smoothness, tracked as it drifts), the swing angle and hinge rate in the node's swing
+  frame (learned from a second of swinging: heading, mount, axis remap), ``NodeSample`` or
+  ``Waiting`` with the reason, and what it learned (``Learned``).
 - ``health``: ``HealthMonitor``, alarms when a tracked parameter leaves its reference by more than
   a threshold of its standard deviation for a while (``Alarm``: which parameter, what it means on
   the rig, since when, by how much).
@@ -23,6 +28,10 @@ from pendsim_mj import lazy
 _LAZY = {
     "Alarm": "pendsim_mj.twin.health",
     "HealthMonitor": "pendsim_mj.twin.health",
+    "Learned": "pendsim_mj.twin.measurement",
+    "NodeMeasurement": "pendsim_mj.twin.measurement",
+    "NodeSample": "pendsim_mj.twin.measurement",
+    "Waiting": "pendsim_mj.twin.measurement",
     "TRACKABLE": "pendsim_mj.twin.estimator",
     "Forecast": "pendsim_mj.twin.estimator",
     "RigEstimator": "pendsim_mj.twin.estimator",
@@ -33,7 +42,20 @@ _LAZY = {
 if TYPE_CHECKING:
     from pendsim_mj.twin.estimator import TRACKABLE, Forecast, RigEstimator, StaleSample, Update
     from pendsim_mj.twin.health import Alarm, HealthMonitor
+    from pendsim_mj.twin.measurement import Learned, NodeMeasurement, NodeSample, Waiting
 else:
     __getattr__, __dir__ = lazy.exports(__name__, _LAZY)
 
-__all__ = ["TRACKABLE", "Alarm", "Forecast", "HealthMonitor", "RigEstimator", "StaleSample", "Update"]
+__all__ = [
+    "TRACKABLE",
+    "Alarm",
+    "Forecast",
+    "HealthMonitor",
+    "Learned",
+    "NodeMeasurement",
+    "NodeSample",
+    "RigEstimator",
+    "StaleSample",
+    "Update",
+    "Waiting",
+]

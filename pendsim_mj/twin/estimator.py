@@ -24,7 +24,12 @@ on its mount in rad), with covariance P. A tracked parameter is a random walk (i
   distribution with 2 degrees of freedom (mean 2): the health monitor's input.
 
 Samples must come in time order; a sample older than the filter's time (reordered in transport)
-is refused (``StaleSample``), the caller decides (acquire's timeline orders them).
+is refused (``StaleSample``), the caller decides (acquire's timeline orders them). Only a sample at
+most ``late_s`` older (``update``'s keyword; the two nodes' value instants, ``twin.measurement``,
+interleave out of order by up to a fusion period) is taken, by an unscented update through the
+model run back to its instant. The unscented update also serves M2's tracked delay against M1
+(``delay_m2_s``: its angle and rate read d earlier, phi - d omega and omega - d alpha); a node's
+tracked offset rate makes its offset a smooth drift (the BNO055's fusion error).
 """
 
 from __future__ import annotations
@@ -36,7 +41,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from pendsim_mj.control.plant import FastPlant
-from pendsim_mj.engines.fast_planar.closed_form import COEFFICIENTS
+from pendsim_mj.engines.fast_planar.closed_form import COEFFICIENTS, accelerations
 from pendsim_mj.errors import ParameterError, PendsimError
 from pendsim_mj.rig.params import DEFAULT_PARAMS, RigParams
 from pendsim_mj.sensors.bno055 import SWING_ANGLE_SIGMA_RAD, Bno055
@@ -57,9 +62,19 @@ TRACKABLE: dict[str, tuple[str | None, str, float]] = {
     "coupling_sin_n_m": ("coupling_sin_n_m", "N m", 5e-4),
     "offset_m1_rad": (None, "rad", 1e-3),
     "offset_m2_rad": (None, "rad", 1e-3),
+    "offset_rate_m1_rad_s": (None, "rad/s", 1e-4),
+    "offset_rate_m2_rad_s": (None, "rad/s", 1e-4),
+    "delay_m2_s": (None, "s", 1e-5),
 }
 """The parameters the estimator can track: name -> (coefficient of ``fast_planar.closed_form``,
-unit, default drift per sqrt(s))."""
+unit, default drift per sqrt(s)). M2's delay: how much older M2's values are than the instants
+they are given, beyond M1's (``twin.measurement`` knows each node's fusion phase only to a
+quarter fusion period). The difference of the two nodes' delays shows through the coupled model;
+their common part never does (it only shifts the estimate's time), so M1 is the reference. A
+node's offset rate: its offset then moves at this rate, itself a random walk (a smooth offset: the
+BNO055's slowly varying fusion error, ``Imperfections.fusion_error_rad``; it needs the offset
+tracked too)."""
+DELAY_SIGMA0_S = 0.25e-2 / math.sqrt(6.0)  # the start: two nodes' errors, each uniform over a 2.5 ms stretch, s
 
 
 class StaleSample(PendsimError):
@@ -118,6 +133,9 @@ class RigEstimator:
       track: names of ``TRACKABLE`` to follow as states (none: the rig's parameters are known).
       drift_per_s: each tracked parameter's random-walk rate, unit per sqrt(s) (default: TRACKABLE's).
       alpha, beta, kappa: the sigma points' spread (Merwe's scaled set).
+      angle_sigma_rad: the swing angle's white noise, rad (default: the quaternion's quantisation
+        and the node model's fusion error together; a twin that tracks the fusion error as the
+        nodes' offsets gives the quantisation alone, ``twin.measurement.TWIST_SIGMA_RAD``).
     """
 
     def __init__(
@@ -131,6 +149,7 @@ class RigEstimator:
         alpha: float = 1e-3,
         beta: float = 2.0,
         kappa: float = 0.0,
+        angle_sigma_rad: float | None = None,
     ) -> None:
         if not (math.isfinite(torque_noise_n_m) and torque_noise_n_m > 0):
             raise ParameterError(f"torque_noise_n_m must be > 0, got {torque_noise_n_m!r}")
@@ -140,6 +159,10 @@ class RigEstimator:
         gyro = float(nodes.noise_model.gyro_sigma_rad_s[HINGE_AXIS]) if nodes.noise else 1e-6
         quantisation = SWING_ANGLE_SIGMA_RAD if nodes.noise else 1e-7
         angle = math.hypot(quantisation, nodes.imperfections.fusion_error_rad)
+        if angle_sigma_rad is not None:
+            if not (math.isfinite(angle_sigma_rad) and angle_sigma_rad > 0):
+                raise ParameterError(f"angle_sigma_rad must be > 0, got {angle_sigma_rad!r}")
+            angle = float(angle_sigma_rad)
         self.measurement_sigma = np.array([angle, gyro])
         unknown = [name for name in track if name not in TRACKABLE]
         if unknown or len(set(track)) != len(track):
@@ -149,7 +172,14 @@ class RigEstimator:
         self.drift_per_s = np.array([drift[name] for name in self.track])
         self.n = NSTATE + len(self.track)
         self._rows = [COEFFICIENTS.index(TRACKABLE[name][0] or "") if TRACKABLE[name][0] else -1 for name in self.track]
-        self._offsets = {int(name[8]) - 1: NSTATE + i for i, name in enumerate(self.track) if name.startswith("offset")}
+        self._offsets = {
+            int(name[8]) - 1: NSTATE + i for i, name in enumerate(self.track) if name.startswith("offset_m")
+        }
+        self._delays = {int(name[7]) - 1: NSTATE + i for i, name in enumerate(self.track) if name.startswith("delay")}
+        rates = {int(name[13]) - 1: NSTATE + i for i, name in enumerate(self.track) if name.startswith("offset_rate")}
+        if not set(rates) <= set(self._offsets):
+            raise ParameterError("a node's offset rate needs its offset tracked too (offset_m1_rad, offset_m2_rad)")
+        self._offset_rates = [(self._offsets[k], i) for k, i in rates.items()]  # (offset's index, its rate's)
         self._scale, self._wm, self._wc = _sigma_weights(self.n, alpha, beta, kappa)
         self._plant = FastPlant(params, nenv=2 * self.n + 1)
         self._coef = self._plant.coef.copy()
@@ -172,11 +202,16 @@ class RigEstimator:
     ) -> None:
         """Start at ``t_s`` from x0 (4,) with standard deviations sigma0 (4,) (rad, rad/s); the
         tracked parameters start at the rig's values with ``parameter_sigma0`` (default: 20 s of
-        drift)."""
+        drift; a delay at least ``DELAY_SIGMA0_S``)."""
         x = np.asarray(x0, dtype=float)
         if x.shape != (NSTATE,) or not np.all(np.isfinite(x)):
             raise ParameterError(f"the start state must be 4 finite numbers, got {x0!r}")
-        spread = self.drift_per_s * math.sqrt(20.0) if parameter_sigma0 is None else np.asarray(parameter_sigma0)
+        if parameter_sigma0 is None:
+            spread = self.drift_per_s * math.sqrt(20.0)
+            for i in self._delays.values():
+                spread[i - NSTATE] = max(spread[i - NSTATE], DELAY_SIGMA0_S)
+        else:
+            spread = np.asarray(parameter_sigma0, dtype=float)
         self.t_s = float(t_s)
         self.x = np.concatenate([x, [self.stated(name) for name in self.track]])
         self.p = np.diag(np.square(np.concatenate([np.asarray(sigma0, dtype=float), spread])))
@@ -186,12 +221,45 @@ class RigEstimator:
         and by the tracked parameters' random walks."""
         q = np.zeros((self.n, self.n))
         q[NSTATE:, NSTATE:] = np.diag(self.drift_per_s**2 * h)
+        for offset, rate in self._offset_rates:  # an offset that integrates its rate's random walk
+            s = self.drift_per_s[rate - NSTATE] ** 2
+            q[offset, offset] += s * h**3 / 3.0
+            q[offset, rate] = q[rate, offset] = s * h**2 / 2.0
         for k in range(2):
             s = (self.torque_noise_n_m / self._inertia[k]) ** 2  # rad^2/s^3
             q[k, k] = s * h**3 / 3.0
             q[k, 2 + k] = q[2 + k, k] = s * h**2 / 2.0
             q[2 + k, 2 + k] = s * h
         return q
+
+    def _sigma_points(self) -> Floats:
+        """(2n + 1, n) Merwe's scaled sigma points of the estimate."""
+        root = np.linalg.cholesky(self._scale * self.p + 1e-18 * np.eye(self.n))
+        return np.concatenate([self.x[None], self.x + root.T, self.x - root.T])
+
+    def _advance(self, points: Floats, h: float, torques_n_m: ArrayLike) -> Floats:
+        """The sigma points (2n + 1, n) moved by one RK4 step of h (s; negative: back in time)
+        with the torques (2,) held over it; the tracked parameters ride along unchanged."""
+        tau = np.asarray(torques_n_m, dtype=float)
+        u = np.zeros((4, len(points)))
+        u[0], u[1] = tau[0], tau[1]
+        plant = self._plant
+        plant.dt_s = h
+        self._set_coefficients(points)
+        plant.columns[:] = points[:, :NSTATE].T
+        plant.advance(u)
+        moved = points.copy()
+        moved[:, :NSTATE] = plant.columns.T
+        for offset, rate in self._offset_rates:
+            moved[:, offset] += h * points[:, rate]
+        return moved
+
+    def _set_coefficients(self, points: Floats) -> None:
+        """Each sigma point (2n + 1, n) with its own parameters in the force law's coefficients
+        (unclipped: a spread about 0 stays symmetric)."""
+        for i, row in enumerate(self._rows):
+            if row >= 0:
+                self._plant.coef[row] = points[:, NSTATE + i]
 
     def predict(self, t_s: float, torques_n_m: ArrayLike = (0.0, 0.0)) -> None:
         """Advance the estimate to ``t_s`` (not before the filter's time) with the hinge torques
@@ -201,20 +269,8 @@ class RigEstimator:
             raise StaleSample(f"a sample at {t_s:.6f} s is older than the estimate at {self.t_s:.6f} s")
         if h <= 0:
             return
-        root = np.linalg.cholesky(self._scale * self.p + 1e-18 * np.eye(self.n))
-        points = np.concatenate([self.x[None], self.x + root.T, self.x - root.T])  # (2n + 1, n)
-        tau = np.asarray(torques_n_m, dtype=float)
-        u = np.zeros((4, len(points)))
-        u[0], u[1] = tau[0], tau[1]
-        plant = self._plant
-        plant.dt_s = h
-        for i, row in enumerate(self._rows):
-            if row >= 0:  # each sigma point with its own parameters (unclipped: a spread about 0 stays symmetric)
-                plant.coef[row] = points[:, NSTATE + i]
-        plant.columns[:] = points[:, :NSTATE].T
-        plant.advance(u)
-        moved = points.copy()
-        moved[:, :NSTATE] = plant.columns.T
+        points = self._sigma_points()
+        moved = self._advance(points, h, torques_n_m)
         mean = self._wm @ moved
         d = moved - mean
         self.x = mean
@@ -223,18 +279,34 @@ class RigEstimator:
         self.t_s = float(t_s)
 
     def update(
-        self, t_s: float, node: int, phi_rad: float, omega_rad_s: float, torques_n_m: ArrayLike = (0.0, 0.0)
+        self,
+        t_s: float,
+        node: int,
+        phi_rad: float,
+        omega_rad_s: float,
+        torques_n_m: ArrayLike = (0.0, 0.0),
+        *,
+        late_s: float = 0.0,
     ) -> Update:
-        """Take one node's sample (its swing angle and hinge rate at ``t_s``) into the estimate."""
+        """Take one node's sample (its swing angle and hinge rate at ``t_s``) into the estimate.
+
+        ``late_s``: a sample up to this much older than the estimate (s) is still taken, through
+        the model run back to its instant (``_late_update``): two nodes' value instants
+        (``twin.measurement``) interleave out of order by up to one fusion period. Older ones
+        are refused (``StaleSample``)."""
         if node not in (0, 1):
             raise ParameterError(f"node must be 0 (M1) or 1 (M2), got {node!r}")
-        self.predict(t_s, torques_n_m)
+        z = np.array([phi_rad, omega_rad_s], dtype=float)
+        r = np.diag(self.measurement_sigma**2)
+        late = 0 < self.t_s - float(t_s) <= late_s
+        if not late:
+            self.predict(t_s, torques_n_m)
+        if late or node in self._delays:
+            return self._unscented_update(float(t_s), node, z, r, torques_n_m)
         h = np.zeros((2, self.n))
         h[0, node] = h[1, 2 + node] = 1.0
         if node in self._offsets:
             h[0, self._offsets[node]] = 1.0  # the node reads its angle plus its mount's offset
-        z = np.array([phi_rad, omega_rad_s], dtype=float)
-        r = np.diag(self.measurement_sigma**2)
         nu = z - h @ self.x
         nu[0] = (nu[0] + math.pi) % (2 * math.pi) - math.pi  # an angle's innovation wraps
         ph = self.p @ h.T
@@ -244,6 +316,42 @@ class RigEstimator:
         keep = np.eye(self.n) - gain @ h
         self.p = keep @ self.p @ keep.T + gain @ r @ gain.T  # Joseph form
         return Update(self.t_s, node, nu, s, float(nu @ np.linalg.solve(s, nu)))
+
+    def _unscented_update(self, t_s: float, node: int, z: Floats, r: Floats, torques_n_m: ArrayLike) -> Update:
+        """The update through the sigma points, where the measurement is not linear in the
+        state: a sample from before the estimate's time (the state run back to its instant, one
+        RK4 step of t_s - self.t_s per sigma point; the estimate's time stays), and a node with a
+        tracked delay d (its values d older than their instants: phi - d omega, omega - d alpha,
+        alpha from the force law; first order, d^2 alpha / 2 < 1e-5 rad for d < 2 ms). The torque
+        noise over a late sample's gap (at most a fusion period: 1e-4 rad/s at the default level, a
+        tenth of the gyro's noise) is neglected."""
+        points = self._sigma_points()
+        gap = t_s - self.t_s
+        at = self._advance(points, gap, torques_n_m) if gap < 0 else points
+        zs = at[:, [node, 2 + node]].copy()
+        if node in self._delays:
+            d = at[:, self._delays[node]]
+            tau = np.asarray(torques_n_m, dtype=float)
+            u = np.zeros((4, len(at)))
+            u[0], u[1] = tau[0], tau[1]
+            self._set_coefficients(at)
+            alpha = accelerations(at[:, 0], at[:, 1], at[:, 2], at[:, 3], self._plant.coef, u)[node]
+            zs[:, 0] -= d * at[:, 2 + node]
+            zs[:, 1] -= d * alpha
+        if node in self._offsets:
+            zs[:, 0] += at[:, self._offsets[node]]
+        z_mean = self._wm @ zs
+        dz = zs - z_mean
+        dx = points - self.x
+        s = (dz.T * self._wc) @ dz + r
+        pxz = (dx.T * self._wc) @ dz  # (n, 2)
+        nu = z - z_mean
+        nu[0] = (nu[0] + math.pi) % (2 * math.pi) - math.pi
+        gain = np.linalg.solve(s, pxz.T).T
+        self.x = self.x + gain @ nu
+        self.p = self.p - gain @ s @ gain.T
+        self.p = 0.5 * (self.p + self.p.T)
+        return Update(t_s, node, nu, s, float(nu @ np.linalg.solve(s, nu)))
 
     @property
     def sigma(self) -> Floats:

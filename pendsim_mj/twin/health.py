@@ -40,6 +40,7 @@ WHAT = {
     "coupling_sin_n_m": "the coupling springs' stiffness",
     "offset_m1_rad": "M1's node turned on its mount",
     "offset_m2_rad": "M2's node turned on its mount",
+    "delay_m2_s": "M2's node's values later than M1's against their instants (fusion timing or clock)",
 }
 """What each tracked parameter's change means on the rig."""
 

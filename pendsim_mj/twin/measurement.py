@@ -1,0 +1,380 @@
+"""One node's samples turned into what the twin's estimator takes: the instant its value stands
+for, its swing angle about the hinge and its hinge rate (the live twin's measurement front end).
+
+A real BNO055 node differs from the model's ideal one in two ways this module learns from the
+node's own samples, as they come:
+
+- **Fusion timing.** The chip fuses at 100 Hz on its own clock; the node samples at 80 Hz on
+  its clock and reads the latest fused value, so each value is 0-10 ms older than its sample's
+  instant, in a pattern that repeats every four samples and is set by where the fusion ticks
+  fall (the fusion phase). The phase is found by the values' own smoothness (as
+  ``estimation.timing.fusion_phase`` does for a recording): for each candidate phase on a grid
+  over one fusion period, the gyro's second divided differences over the value instants that
+  phase gives, squared and summed with exponential forgetting (``phase_memory_s``) over the
+  samples taken while the node swings. Wrong instants make the gyro rough; the true phase makes
+  it smooth. A drifting phase (the chip's oscillator against the twin's clock) is followed within
+  the memory. The data decide the phase only up to a *stretch*: between two of the samples'
+  own phases in the fusion period every value instant moves alike, so the values fit all of
+  them equally (80 Hz samples of 100 Hz fusion on one clock: a stretch 2.5 ms wide, one quarter
+  of the period; a drift between the clocks narrows it). The middle is taken, within half the
+  stretch of the truth. Each value's instant is then the latest fusion tick at or before its
+  sample's instant.
+- **Frames.** The NDOF heading is arbitrary, the node is glued on by hand (mount
+  misalignment), its axes may be remapped, the fused orientation drifts slowly (fusion error).
+  The node's swing frame is found from a window of its samples while it swings (``learn_s`` of
+  samples whose hinge rate reaches ``swing_rad_s``), at their value instants, by
+  ``estimation.swing_frame.fit_swing_frame``: the hinge axis from the gyro, the reference
+  orientation from the window's first sample (the heading drops out: angles are twists from a
+  reference), and where phi = 0 from the accelerometer (gravity against the swing's
+  kinematics). Its sense is the start frame's (the model's mount by default): the found hinge
+  axis is turned to agree with the start frame's hinge axis.
+
+Until both are known a sample gives a ``Waiting`` with the reason; from then on each sample gives
+a ``NodeSample`` at once (nothing is held back: latency is the caller's transport alone). The
+learned timing and frame are reported by ``NodeMeasurement.learned`` (``Learned``), for the
+twin's recording. No I/O.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections import deque
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from pendsim_mj.errors import ParameterError, RecordingError
+from pendsim_mj.estimation.swing_frame import SwingFrame, fit_swing_frame
+from pendsim_mj.rig.params import DEFAULT_PARAMS, RigParams
+from pendsim_mj.sensors import rotations
+from pendsim_mj.sensors.bno055 import FUSION_RATE_HZ, QUAT_LSB, SAMPLE_RATE_HZ
+
+Floats = NDArray[np.float64]
+
+# The swing angle's noise on a node at any orientation: the twist is read from all four quantised
+# components of conj(reference) q, whose rounding (variance LSB^2/12 each) is isotropic in the
+# quaternion's 4 dimensions, and the angle is twice the displacement along the swing's tangent:
+# sigma = 2 LSB / sqrt(12) = LSB / sqrt(3) = 3.5e-5 rad (measured on the sensor model with a 2 deg
+# mount misalignment and a heading: the innovations' spread 0.93-1.0 of it). The model's own mount
+# leaves two components exactly zero, which gives LSB sqrt(2/3) (``bno055.SWING_ANGLE_SIGMA_RAD``).
+TWIST_SIGMA_RAD = QUAT_LSB / math.sqrt(3.0)
+PHASE_STEP_S = 0.25e-3  # the fusion phase's grid, s (40 candidates over a 10 ms period)
+PHASE_MOTION_RAD_S = 0.2  # only samples turning faster than this tell the phase (at rest: noise alone)
+PHASE_SAMPLES = 60  # swinging samples (forgetting weighted) before the phase is taken, 0.75 s at 80 Hz
+DEFAULT_LEARN_S = 1.0  # the frame is fitted on this long of samples, s (most of a 1.3 s swing)
+DEFAULT_SWING_RAD_S = 0.5  # ... once the node's rate reaches this within them (10x the rest threshold)
+DEFAULT_PHASE_MEMORY_S = 10.0  # the phase's roughness sums forget with this time constant, s
+ESTIMATE_EVERY_S = 0.1  # the phase's estimate is found anew this often, s
+GAP_PERIODS = 2.5  # triples spanning more than this many sample periods (a loss) are skipped
+MOVING_SHARE = 0.75  # the frame's window: this share of its samples turning faster than PHASE_MOTION_RAD_S
+RADIUS_TOLERANCE = 0.3  # a fitted frame more than this share off the start frame's radius is refused
+RETRY_S = 0.25  # a refused fit is tried again this long after, s
+
+
+def model_mount_frame(radius_m: float) -> SwingFrame:
+    """The swing frame of a node mounted as the model mounts it (x tangential, y toward the pivot,
+    z along the hinge; the reference the site's orientation at phi = 0, heading 0): the start
+    frame (``bridge.acquire.udp_loop.node_view.model_frames`` gives the same for both nodes)."""
+    z, y, x = np.array([0.0, 0.0, 1.0]), np.array([0.0, 1.0, 0.0]), np.array([1.0, 0.0, 0.0])
+    return SwingFrame(
+        hinge_axis=z, toward_pivot=y, tangential=x, radius_m=float(radius_m), quat_axis=z,
+        reference_quat_wxyz=rotations.IMU_SITE_QUAT_WXYZ.copy(), angle_offset_rad=0.0, mirrored=False,
+        fit_rms_m_s2=0.0,
+    )  # fmt: skip
+
+
+@dataclasses.dataclass(frozen=True)
+class Learned:
+    """What a node's measurement has learned (for the twin's recording).
+
+    Attributes:
+      node: 0 (M1) or 1 (M2).
+      fusion_phase_s: where the chip's fusion ticks fall on the twin's clock, s in [0, period)
+        (None: not yet, or a node without fusion timing).
+      phase_stretch_s: (lo, hi) the phases the data cannot tell apart, s (hi - lo: twice the
+        phase's largest error; lo may be negative and hi past the period: not reduced).
+      frame: the node's swing frame (None: not yet).
+      frame_t_s: the instant of the last sample of the window the frame was fitted on, s.
+      hinge_to_start_deg: the angle between the found hinge axis and the start frame's, deg.
+      sense_from_start: the frame's sense was taken from the start frame (False: the hinge axis
+        was found more than 60 deg from it, and the fit's own sense kept).
+    """
+
+    node: int
+    fusion_phase_s: float | None
+    phase_stretch_s: tuple[float, float] | None
+    frame: SwingFrame | None
+    frame_t_s: float | None
+    hinge_to_start_deg: float | None
+    sense_from_start: bool | None
+
+
+@dataclasses.dataclass(frozen=True)
+class NodeSample:
+    """One sample, ready for ``RigEstimator.update(t_s, node, phi_rad, omega_rad_s)``.
+
+    Attributes:
+      t_s: the instant its value stands for (the twin's clock), s.
+      phi_rad: the swing angle, rad. omega_rad_s: the hinge rate, rad/s.
+      sample_t_s: the instant the node took it, s (t_s <= sample_t_s).
+    """
+
+    t_s: float
+    phi_rad: float
+    omega_rad_s: float
+    sample_t_s: float
+
+
+@dataclasses.dataclass(frozen=True)
+class Waiting:
+    """A sample that gives no measurement yet; ``reason`` says what is still being learned."""
+
+    reason: str
+
+
+class FusionPhase:
+    """The chip's fusion phase on the twin's clock, tracked sample by sample (module docstring).
+
+    Args:
+      fusion_rate_hz: the chip's fusion rate, Hz.
+      sample_rate_hz: the node's nominal rate, Hz.
+      memory_s: the roughness sums' forgetting time constant, s.
+    """
+
+    def __init__(self, fusion_rate_hz: float, sample_rate_hz: float, *, memory_s: float = DEFAULT_PHASE_MEMORY_S):
+        self.period_s = 1.0 / fusion_rate_hz
+        self.phases_s = np.arange(0.0, self.period_s - 1e-12, PHASE_STEP_S)
+        self.max_span_s = GAP_PERIODS / sample_rate_hz
+        self.memory_s = float(memory_s)
+        self.cost = np.zeros(len(self.phases_s))
+        self.weight = 0.0
+        self._last: deque[tuple[float, Floats]] = deque(maxlen=2)
+        self._estimate: tuple[float, tuple[float, float]] | None = None
+        self._estimate_t_s = -math.inf
+
+    def value_instants(self, t_s: Floats | float, phase_s: Floats | float) -> Floats:
+        """The latest fusion tick (ticks at phase_s + k period) at or before each t_s, s."""
+        return phase_s + self.period_s * np.floor((np.asarray(t_s) - phase_s) / self.period_s + 1e-9)
+
+    def add(self, t_s: float, gyro_rad_s: Floats) -> None:
+        """One sample (instant on the twin's clock, s; gyro (3,), rad/s)."""
+        last = self._last
+        if (
+            len(last) == 2
+            and t_s - last[0][0] <= self.max_span_s
+            and float(np.linalg.norm(last[1][1])) > PHASE_MOTION_RAD_S
+        ):
+            t = np.array([[last[0][0]], [last[1][0]], [t_s]])
+            v = self.value_instants(t, self.phases_s)  # (3, phases)
+            h1, h2 = v[1] - v[0], v[2] - v[1]
+            g0, g1, g2 = last[0][1], last[1][1], gyro_rad_s
+            d1, d2 = g1 - g0, g2 - g1
+            # |d2 / h2 - d1 / h1|^2 (2 / (h1 + h2))^2, expanded: no (phases, 3) arrays
+            second = (d2 @ d2) / (h2 * h2) - 2.0 * (d1 @ d2) / (h1 * h2) + (d1 @ d1) / (h1 * h1)
+            second *= np.square(2.0 / (h1 + h2))
+            forget = math.exp(-(t_s - last[1][0]) / self.memory_s)
+            self.cost *= forget
+            self.cost += second
+            self.weight = self.weight * forget + 1.0
+            if self._estimate is None or t_s - self._estimate_t_s >= ESTIMATE_EVERY_S:
+                self._estimate = self._find()
+                self._estimate_t_s = t_s
+        last.append((float(t_s), np.array(gyro_rad_s, dtype=float)))
+
+    @property
+    def ready(self) -> bool:
+        return self.weight >= PHASE_SAMPLES
+
+    def estimate(self) -> tuple[float, tuple[float, float]]:
+        """(phase s in [0, period), (lo, hi) its stretch), found anew every ``ESTIMATE_EVERY_S``."""
+        if self._estimate is None:
+            self._estimate = self._find()
+        return self._estimate
+
+    def _find(self) -> tuple[float, tuple[float, float]]:
+        """The middle of the run of grid phases whose roughness equals the smallest (to 1e-9
+        relative), wrapping round the period, and that run's stretch."""
+        cost, n, step = self.cost, len(self.cost), PHASE_STEP_S
+        best = int(np.argmin(cost))
+        flat = cost <= cost[best] * (1.0 + 1e-9) + 1e-300
+        lo = hi = best
+        while flat[(lo - 1) % n] and hi - lo < n - 1:
+            lo -= 1
+        while flat[(hi + 1) % n] and hi - lo < n - 1:
+            hi += 1
+        # the stretch ends half a grid step beyond the last flat phase on each side
+        mid = 0.5 * (lo + hi) * step
+        return (mid % self.period_s, ((lo - 0.5) * step, (hi + 0.5) * step))
+
+
+class NodeMeasurement:
+    """One node's samples, in time order, turned into the estimator's measurements (module
+    docstring).
+
+    Args:
+      node: 0 (M1) or 1 (M2).
+      start_frame: the frame whose sense the found frame takes (default: the model's mount,
+        ``model_mount_frame``).
+      params: the rig (gravity for the frame fit, the disk's radius for the default start frame).
+      fusion_rate_hz: the chip's fusion rate, Hz; None for a node that stamps its values' own
+        instants (no phase to learn).
+      sample_rate_hz: the node's nominal rate, Hz.
+      learn_s: how long a window of samples the frame is fitted on, s.
+      swing_rad_s: the hinge rate the window must reach before the frame is fitted, rad/s.
+      phase_memory_s: the fusion phase's forgetting time constant, s.
+      frame: a known frame (e.g. from an earlier run): then only the phase is learned.
+    """
+
+    def __init__(
+        self,
+        node: int,
+        *,
+        start_frame: SwingFrame | None = None,
+        params: RigParams = DEFAULT_PARAMS,
+        fusion_rate_hz: float | None = FUSION_RATE_HZ,
+        sample_rate_hz: float = SAMPLE_RATE_HZ,
+        learn_s: float = DEFAULT_LEARN_S,
+        swing_rad_s: float = DEFAULT_SWING_RAD_S,
+        phase_memory_s: float = DEFAULT_PHASE_MEMORY_S,
+        frame: SwingFrame | None = None,
+    ) -> None:
+        if node not in (0, 1):
+            raise ParameterError(f"node must be 0 (M1) or 1 (M2), got {node!r}")
+        _positive("sample_rate_hz", sample_rate_hz, 1e5)
+        _positive("learn_s", learn_s, 60.0)
+        _positive("swing_rad_s", swing_rad_s, 100.0)
+        _positive("phase_memory_s", phase_memory_s, 1e5)
+        if fusion_rate_hz is not None:
+            _positive("fusion_rate_hz", fusion_rate_hz, 1e5)
+        self.node = node
+        self.params = params
+        self.start_frame = start_frame or model_mount_frame(params.om1_m if node == 0 else params.om2_m)
+        self.sample_rate_hz = float(sample_rate_hz)
+        self.learn_s, self.swing_rad_s = float(learn_s), float(swing_rad_s)
+        self.phase = FusionPhase(fusion_rate_hz, sample_rate_hz, memory_s=phase_memory_s) if fusion_rate_hz else None
+        self.frame: SwingFrame | None = None
+        self._frame_floats = (1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0)
+        if frame is not None:
+            self._set_frame(frame)
+        self._frame_t_s: float | None = None
+        self._hinge_deg: float | None = None
+        self._sense: bool | None = None
+        self._window: deque[tuple[float, Floats, Floats, Floats]] = deque()
+        self._t_s = -math.inf
+        self._tried_t_s = -math.inf
+        self._phi: float | None = None
+
+    def add(
+        self, t_s: float, quat_wxyz: ArrayLike, gyro_rad_s: ArrayLike, accel_m_s2: ArrayLike
+    ) -> NodeSample | Waiting:
+        """One sample taken at ``t_s`` (the twin's clock: its device time mapped to host time, s):
+        fused orientation (4,) w, x, y, z; gyro (3,) rad/s; acceleration with gravity (3,) m/s^2.
+        Samples come in time order (an older one is refused: ``ParameterError``)."""
+        t = float(t_s)
+        if not (math.isfinite(t) and t > self._t_s):
+            raise ParameterError(f"samples must come in time order: {t_s!r} s after {self._t_s:.6f} s")
+        quat = np.asarray(quat_wxyz, dtype=float)
+        gyro = np.asarray(gyro_rad_s, dtype=float)
+        accel = np.asarray(accel_m_s2, dtype=float)
+        if quat.shape != (4,) or gyro.shape != (3,) or accel.shape != (3,):
+            raise ParameterError(
+                f"expected quat (4,), gyro (3,), accel (3,), got {quat.shape}, {gyro.shape}, {accel.shape}"
+            )
+        self._t_s = t
+        if self.phase is not None:
+            self.phase.add(t, gyro)
+        if self.frame is None:
+            waiting = self._learn_frame(t, quat, gyro, accel)
+            if waiting is not None:
+                return waiting
+        elif self.phase is not None and not self.phase.ready:
+            return Waiting(f"fusion phase: {self.phase.weight:.0f} of {PHASE_SAMPLES} swinging samples")
+        assert self.frame is not None
+        phi = self._angle(quat)
+        if self._phi is not None:  # continuous from the previous sample
+            phi = self._phi + (phi - self._phi + math.pi) % math.tau - math.pi
+        self._phi = phi
+        omega = float(gyro @ self.frame.hinge_axis)
+        return NodeSample(self.value_instant(t), phi, omega, t)
+
+    def value_instant(self, t_s: float) -> float:
+        """The instant the value of a sample taken at ``t_s`` stands for, s (the phase's
+        current estimate; ``t_s`` itself without fusion timing)."""
+        if self.phase is None:
+            return float(t_s)
+        p, period = self.phase.estimate()[0], self.phase.period_s
+        return p + period * math.floor((t_s - p) / period + 1e-9)
+
+    def _angle(self, q: Floats) -> float:
+        """``SwingFrame.angle`` of one orientation (4,) on floats: the twist about the frame's
+        quat_axis from its reference (conj(reference) q), plus its offset, rad in (-pi, pi] + offset."""
+        rw, rx, ry, rz, ax, ay, az, offset = self._frame_floats
+        qw, qx, qy, qz = (float(v) for v in q)
+        w = rw * qw - rx * qx - ry * qy - rz * qz
+        x = rw * qx + rx * qw + ry * qz - rz * qy
+        y = rw * qy - rx * qz + ry * qw + rz * qx
+        z = rw * qz + rx * qy - ry * qx + rz * qw
+        return 2.0 * math.atan2(x * ax + y * ay + z * az, w) + offset
+
+    def _set_frame(self, frame: SwingFrame) -> None:
+        self.frame = frame
+        r, a = frame.reference_quat_wxyz, frame.quat_axis
+        conj = (float(r[0]), -float(r[1]), -float(r[2]), -float(r[3]))
+        self._frame_floats = (*conj, float(a[0]), float(a[1]), float(a[2]), float(frame.angle_offset_rad))
+
+    def _learn_frame(self, t: float, quat: Floats, gyro: Floats, accel: Floats) -> Waiting | None:
+        window = self._window
+        window.append((t, quat, gyro, accel))
+        while window and window[0][0] < t - self.learn_s:
+            window.popleft()
+        if self.phase is not None and not self.phase.ready:
+            return Waiting(f"fusion phase: {self.phase.weight:.0f} of {PHASE_SAMPLES} swinging samples")
+        rates = [float(np.linalg.norm(w[2])) for w in window]
+        moving = sum(r > PHASE_MOTION_RAD_S for r in rates) / len(rates)
+        if t - window[0][0] < 0.95 * self.learn_s or moving < MOVING_SHARE or max(rates) < self.swing_rad_s:
+            return Waiting(
+                f"frame: {100 * moving:.0f} % of the last {self.learn_s:g} s moving "
+                f"(needs {100 * MOVING_SHARE:.0f} %), at most {max(rates):.2f} rad/s (needs {self.swing_rad_s:g})"
+            )
+        if t - self._tried_t_s < RETRY_S:
+            return Waiting("frame: the last fit was refused; trying again soon")
+        self._tried_t_s = t
+        t_w = np.array([w[0] for w in window])
+        instants = t_w if self.phase is None else self.phase.value_instants(t_w, self.phase.estimate()[0])
+        try:
+            frame = fit_swing_frame(
+                instants, np.array([w[1] for w in window]), np.array([w[2] for w in window]),
+                np.array([w[3] for w in window]), g_m_s2=self.params.g_m_s2,
+                max_step_s=GAP_PERIODS / self.sample_rate_hz,
+            )  # fmt: skip
+        except RecordingError as exc:
+            return Waiting(f"frame: {exc}")
+        expected = self.start_frame.radius_m
+        if abs(frame.radius_m - expected) > RADIUS_TOLERANCE * expected:
+            return Waiting(
+                f"frame: the fit puts the node {1000 * frame.radius_m:.0f} mm from the hinge, the start frame "
+                f"{1000 * expected:.0f} mm: refused"
+            )
+        along = float(np.dot(frame.hinge_axis, self.start_frame.hinge_axis))
+        self._hinge_deg = math.degrees(math.acos(min(1.0, abs(along))))
+        self._sense = self._hinge_deg < 60.0
+        if self._sense and along < 0:
+            frame = frame.flipped()
+        self._set_frame(frame)
+        self._frame_t_s = t
+        window.clear()
+        return None
+
+    @property
+    def learned(self) -> Learned:
+        """The phase and frame learned so far."""
+        phase = stretch = None
+        if self.phase is not None and self.phase.ready:
+            phase, stretch = self.phase.estimate()
+        return Learned(self.node, phase, stretch, self.frame, self._frame_t_s, self._hinge_deg, self._sense)
+
+
+def _positive(name: str, value: float, high: float) -> None:
+    if not (isinstance(value, (int, float)) and math.isfinite(value) and 0 < value <= high):
+        raise ParameterError(f"{name} must be a finite number in (0, {high:g}], got {value!r}")
