@@ -168,7 +168,6 @@ def _views_for(args: argparse.Namespace, params: RigParams) -> Callable[[int], t
 
 def run(args: argparse.Namespace) -> int:
     from ..acquire.twin.pipeline import TwinSpec, summary_text
-    from ..acquire.udp_loop.node_view import model_frames  # start-up: loaded when the command runs
 
     options.check_output(args.output, (".mcap",), force=args.force)
     options.check_output(args.rerun, (".rrd",), force=True)
@@ -190,7 +189,6 @@ def run(args: argparse.Namespace) -> int:
         baseline_s=args.baseline_s,
         hold_s=args.hold_ms * 1e-3,
     )
-    frames = model_frames(params)
     views_for = _views_for(args, params)
     if args.replay is not None:
         from ..acquire.twin.replay import replay
@@ -198,7 +196,6 @@ def run(args: argparse.Namespace) -> int:
         result = replay(
             spec,
             args.replay,
-            frames=frames,
             output=args.output,
             replace=args.force,
             speed=1.0 if args.speed is None else args.speed,
@@ -209,7 +206,6 @@ def run(args: argparse.Namespace) -> int:
 
         result = run_twin_live(
             spec,
-            frames=frames,
             output=args.output,
             replace=args.force,
             nodes=nodes_from(args),

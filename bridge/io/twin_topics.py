@@ -3,10 +3,11 @@
 Each is a std_msgs/msg/Float64MultiArray whose one layout dimension's label lists the columns
 (units in the names), CDR-encoded; log times are UTC ns on the recording's clock.
 
-- ``/twin/estimate``: one message per node sample taken in, at the instant its value stands for:
-  ``ESTIMATE_COLUMNS`` (the node, what it measured, the estimate after it with its standard
-  deviations, the innovation with its predicted standard deviations, the normalised innovation
-  squared).
+- ``/twin/estimate``: one message per node sample taken in, logged at the estimate's time after it
+  (non-decreasing): ``ESTIMATE_COLUMNS`` (the instant its value stands for, s on the recording's
+  clock: up to a fusion period before the log time when the other node's sample came first; the
+  node, what it measured, the estimate after it with its standard deviations, the innovation with
+  its predicted standard deviations, the normalised innovation squared).
 - ``/twin/parameters``: once a second, per tracked parameter ``NAME``: ``NAME``, ``NAME_sigma``,
   ``NAME_reference``, ``NAME_z`` (each parameter's unit: ``pendsim_mj.twin.TRACKABLE``).
 - ``/twin/forecast``: each forecast, at the instant it was made: per point of its grid ``t_s``
@@ -37,6 +38,7 @@ TWIN_RESULT_METADATA = "pendsim/twin_result"
 SCHEMA = "std_msgs/msg/Float64MultiArray"
 
 ESTIMATE_COLUMNS = (
+    "t_value_s",
     "node",
     "phi_measured_rad",
     "omega_measured_rad_s",
@@ -66,7 +68,16 @@ def layout(columns: tuple[str, ...]) -> ros2.FixedCdr:
 def estimate_values(est: Estimates) -> NDArray[np.float64]:
     """(n, len(ESTIMATE_COLUMNS))."""
     return np.column_stack(
-        [est.node.astype(float), est.measured, est.state, est.sigma, est.innovation, est.innovation_sigma, est.nis]
+        [
+            est.t_s,
+            est.node.astype(float),
+            est.measured,
+            est.state,
+            est.sigma,
+            est.innovation,
+            est.innovation_sigma,
+            est.nis,
+        ]
     )
 
 

@@ -40,6 +40,8 @@ WHAT = {
     "coupling_sin_n_m": "the coupling springs' stiffness",
     "offset_m1_rad": "M1's node turned on its mount",
     "offset_m2_rad": "M2's node turned on its mount",
+    "offset_rate_m1_rad_s": "M1's node turning on its mount (or its fused orientation drifting)",
+    "offset_rate_m2_rad_s": "M2's node turning on its mount (or its fused orientation drifting)",
     "delay_m2_s": "M2's node's values later than M1's against their instants (fusion timing or clock)",
 }
 """What each tracked parameter's change means on the rig."""

@@ -38,11 +38,25 @@ from pendsim_mj.rig.params import DEFAULT_PARAMS, RigParams
 from pendsim_mj.sensors.bno055 import FUSION_RATE_HZ, Bno055
 from pendsim_mj.twin.estimator import NSTATE, TRACKABLE, Forecast, RigEstimator
 from pendsim_mj.twin.health import DEFAULT_PERSIST_S, DEFAULT_THRESHOLD, Alarm, HealthMonitor
+from pendsim_mj.twin.measurement import TWIST_SIGMA_RAD, Learned, NodeMeasurement, Waiting
 from pendsim_mj.twin.outputs import Estimates, ParameterCheck
 
 Floats = NDArray[np.float64]
 DEFAULT_TRACK = tuple(TRACKABLE)
-VALUE_AGE_S = 0.5 / FUSION_RATE_HZ  # a BNO055 sample's value: on average half a fusion period older than its stamp
+"""Everything the estimator can track: the rig's parameters that can drift (damping, dry friction,
+the coupling springs) and what real nodes need (each node's mount offset with its rate, which
+follows the fused orientation's slow error; M2's delay against M1: ``twin.measurement``)."""
+NODE_DRIFT_PER_S = {"offset_m1_rad": 1e-5, "offset_m2_rad": 1e-5, "offset_rate_m1_rad_s": 3e-4,
+                    "offset_rate_m2_rad_s": 3e-4}  # fmt: skip
+# the random walks of the node states on real nodes (docs/twin.md, Measurement: innovations white)
+NODE_SIGMA0 = {"offset_m1_rad": 0.01, "offset_m2_rad": 0.01, "offset_rate_m1_rad_s": 1e-3,
+               "offset_rate_m2_rad_s": 1e-3, "delay_m2_s": 1e-3}  # fmt: skip
+# ... and their start: the learned frames' offsets are good to about 0.5 deg
+NODE_PARAMETERS = ("offset_m1_rad", "offset_m2_rad", "offset_rate_m1_rad_s", "offset_rate_m2_rad_s", "delay_m2_s")
+NODE_BASELINE_S = 10.0  # the node states' references: their estimates this long after the start (the
+# learned frames leave each offset about 0.5 deg uncertain; the rig's own parameters keep the stated rig)
+TORQUE_NOISE_N_M = 5e-6  # N m / sqrt(Hz): white on fusion-timed node data (2e-5 left lag-1 -0.07)
+LATE_S = 0.0125  # the two nodes' value instants cross by up to one fusion period (10 ms): taken late
 HORIZON_BINS_S = (0.25, 0.5, 1.0, 2.0, 5.0)  # forecast scores per horizon up to each of these
 FREE_WINDOW = 8  # samples per node (0.1 s at 80 Hz) over which a node's motion is compared with free motion
 HELD_ALPHA_RAD_S2 = 0.5  # a node whose free acceleration would exceed this but whose measured one is
@@ -52,35 +66,6 @@ INTERVENTION_WINDOW = 40
 FORECAST_STEP_S = 0.025  # the forecasts' grid, s: RK4 at this step is within 1e-6 rad of a finer one over 2 s,
 # and cubic Hermite interpolation between its points (angle and rate) within 1e-6 rad
 SNAPSHOT_S = 1.0  # the tracked parameters are kept this often, to go back to after an intervention
-
-
-class NodeMeasurement:
-    """One node's samples as the estimator takes them: (value instant s, phi rad, omega rad/s)
-    from (stamp instant s, quat (4,), gyro (3,)), through the node's swing frame (its ``angle``
-    and ``rate``, here for one sample in plain floats: 20x faster than numpy on arrays of one)."""
-
-    def __init__(self, frame: SwingFrame, *, value_age_s: float = VALUE_AGE_S) -> None:
-        self.frame = frame
-        self.value_age_s = float(value_age_s)
-        w, x, y, z = (float(v) for v in frame.reference_quat_wxyz)
-        self._reference_conj = (w, -x, -y, -z)
-        self._quat_axis = tuple(float(v) for v in frame.quat_axis)
-        self._hinge_axis = tuple(float(v) for v in frame.hinge_axis)
-        self._offset = float(frame.angle_offset_rad)
-
-    def take(self, t_s: float, quat_wxyz: ArrayLike, gyro_rad_s: ArrayLike) -> tuple[float, float, float] | None:
-        aw, ax, ay, az = self._reference_conj
-        bw, bx, by, bz = (float(v) for v in np.asarray(quat_wxyz, dtype=float))
-        rw = aw * bw - ax * bx - ay * by - az * bz  # the Hamilton product reference^-1 * q
-        rx = aw * bx + ax * bw + ay * bz - az * by
-        ry = aw * by - ax * bz + ay * bw + az * bx
-        rz = aw * bz + ax * by - ay * bx + az * bw
-        u = self._quat_axis
-        phi = 2.0 * math.atan2(rx * u[0] + ry * u[1] + rz * u[2], rw) + self._offset
-        g = np.asarray(gyro_rad_s, dtype=float)
-        h = self._hinge_axis
-        omega = float(g[0]) * h[0] + float(g[1]) * h[1] + float(g[2]) * h[2]
-        return t_s - self.value_age_s, phi, omega
 
 
 @dataclasses.dataclass(frozen=True)
@@ -148,14 +133,18 @@ class TwinSession:
       forecast_every_s: how often a forecast is made, s.
       threshold, persist_s, baseline_s: the health monitor's (``HealthMonitor``).
       settle_s: innovations before this long after the start are left out of the whiteness test.
-      value_age_s: how much older a sample's value is than its stamp, s.
+      start_frames: each node's frame to start from (default: the model's mount); the measurement
+        learns the real one from the first second of swinging (``measurement.NodeMeasurement``).
+      fusion_rate_hz: the nodes' fusion rate (their values' timing is learned); None for nodes
+        that stamp their values' own instants.
     """
 
     def __init__(
         self,
         params: RigParams = DEFAULT_PARAMS,
         *,
-        frames: Sequence[SwingFrame],
+        start_frames: Sequence[SwingFrame] | None = None,
+        fusion_rate_hz: float | None = FUSION_RATE_HZ,
         nodes: Bno055 | None = None,
         track: tuple[str, ...] = DEFAULT_TRACK,
         forecast_horizon_s: float = 2.0,
@@ -164,17 +153,26 @@ class TwinSession:
         persist_s: float = DEFAULT_PERSIST_S,
         baseline_s: float = 0.0,
         settle_s: float = 2.0,
-        value_age_s: float = VALUE_AGE_S,
     ) -> None:
-        if len(frames) != 2:
-            raise ParameterError(f"the twin needs both nodes' frames, got {len(frames)}")
+        if start_frames is not None and len(start_frames) != 2:
+            raise ParameterError(f"the twin needs both nodes' frames, got {len(start_frames)}")
         if not (math.isfinite(forecast_horizon_s) and 0 <= forecast_horizon_s <= 60):
             raise ParameterError(f"the forecast horizon must be in [0, 60] s, got {forecast_horizon_s!r}")
         if not (math.isfinite(forecast_every_s) and 0.1 <= forecast_every_s <= 3600):
             raise ParameterError(f"the forecast period must be in [0.1, 3600] s, got {forecast_every_s!r}")
         self.params = params
-        self.estimator = RigEstimator(params, nodes=nodes, track=track)
-        self.measurements = [NodeMeasurement(f, value_age_s=value_age_s) for f in frames]
+        drift = {name: v for name, v in NODE_DRIFT_PER_S.items() if name in track}
+        self.estimator = RigEstimator(params, nodes=nodes, track=track, drift_per_s=drift,
+                                      angle_sigma_rad=TWIST_SIGMA_RAD, torque_noise_n_m=TORQUE_NOISE_N_M)  # fmt: skip
+        self._parameter_sigma0 = self.estimator.drift_per_s * math.sqrt(20.0)
+        for i, name in enumerate(track):
+            if name in NODE_SIGMA0:
+                self._parameter_sigma0[i] = NODE_SIGMA0[name]
+        self.measurements = [
+            NodeMeasurement(n, start_frame=None if start_frames is None else start_frames[n], params=params,
+                            fusion_rate_hz=fusion_rate_hz)
+            for n in range(2)
+        ]  # fmt: skip
         self.threshold, self.persist_s, self.baseline_s = threshold, persist_s, baseline_s
         self.monitor: HealthMonitor | None = None
         self.forecast_horizon_s, self.forecast_every_s = float(forecast_horizon_s), float(forecast_every_s)
@@ -203,24 +201,31 @@ class TwinSession:
         self._score_n, self._score_sq, self._score_in = np.zeros(nbins), np.zeros(nbins), np.zeros(nbins)
 
     def take(
-        self, node: int, t_s: float, quat_wxyz: ArrayLike, gyro_rad_s: ArrayLike, torques_n_m: ArrayLike = (0.0, 0.0)
+        self,
+        node: int,
+        t_s: float,
+        quat_wxyz: ArrayLike,
+        gyro_rad_s: ArrayLike,
+        accel_m_s2: ArrayLike,
+        torques_n_m: ArrayLike = (0.0, 0.0),
     ) -> bool:
-        """One node's sample at ``t_s`` (its stamp's instant, s; samples in time order); False if
-        it was not taken in (before the start, or older than the estimate)."""
+        """One node's sample taken at ``t_s`` (s; each node's samples in time order, the two nodes
+        merged in time order): orientation (4,), gyro (3,) rad/s, acceleration with gravity (3,)
+        m/s^2; False if it was not taken in (still learning, before the start, too old)."""
         if node not in (0, 1):
             raise ParameterError(f"node must be 0 (M1) or 1 (M2), got {node!r}")
         self._samples[node] += 1
-        value = self.measurements[node].take(t_s, quat_wxyz, gyro_rad_s)
-        if value is None:
+        got = self.measurements[node].add(t_s, quat_wxyz, gyro_rad_s, accel_m_s2)
+        if isinstance(got, Waiting):
             return False
-        t_v, phi, omega = value
+        t_v, phi, omega = got.t_s, got.phi_rad, got.omega_rad_s
         self._recent[node].append((t_v, phi, omega))
         if not self._tracking:
             return self._start_when_free(t_v)
-        if t_v < self.estimator.t_s:
+        if t_v < self.estimator.t_s - LATE_S:
             return False
         self._score(node, t_v, phi)
-        update = self.estimator.update(t_v, node, phi, omega, torques_n_m=torques_n_m)
+        update = self.estimator.update(t_v, node, phi, omega, torques_n_m=torques_n_m, late_s=LATE_S)
         x, sigma = self.estimator.x, self.estimator.sigma
         s_sigma = np.sqrt(np.diag(update.covariance))
         self._rows.append(
@@ -235,6 +240,10 @@ class TwinSession:
             return True
         if not self._snapshots or t_v - self._snapshots[-1][0] >= SNAPSHOT_S:
             self._snapshots.append((t_v, self.estimator.x[NSTATE:].copy(), self.estimator.p[NSTATE:, NSTATE:].copy()))
+        if self.monitor is not None and self.monitor.reference is not None and t_v - self.started_s < NODE_BASELINE_S:
+            for name in NODE_PARAMETERS:  # the node states' references follow them until the baseline
+                if name in self.monitor.reference:
+                    self.monitor.reference[name] = float(self.estimator.x[NSTATE + self.estimator.track.index(name)])
         if self.monitor is not None and t_v >= self._checks_from_s:
             before = len(self.monitor.history)
             alarms = self.monitor.check()
@@ -281,7 +290,7 @@ class TwinSession:
         x0 = [phi1 + omega1 * (t0 - t1), phi2 + omega2 * (t0 - t2), omega1, omega2]
         restart = not math.isnan(self.started_s)
         kept = self._snapshots[0] if restart and self._snapshots else None
-        self.estimator.start(t0, x0)
+        self.estimator.start(t0, x0, sigma0=np.radians([2.0, 2.0, 5.0, 5.0]), parameter_sigma0=self._parameter_sigma0)
         if kept is not None:
             self.estimator.x[NSTATE:], self.estimator.p[NSTATE:, NSTATE:] = kept[1], kept[2]
         self._tracking = True
@@ -356,6 +365,10 @@ class TwinSession:
         name = f"offset_m{node + 1}_rad"
         track = self.estimator.track
         return float(self.estimator.x[NSTATE + track.index(name)]) if name in track else 0.0
+
+    def learned(self) -> tuple[Learned, Learned]:
+        """What each node's measurement has learned (fusion phase, frame)."""
+        return self.measurements[0].learned, self.measurements[1].learned
 
     def drain(self) -> TwinOutput:
         """What was produced since the last call."""

@@ -55,7 +55,7 @@ def test_a_replay_of_the_live_twins_recording_gives_its_estimates_again(tmp_path
     finally:
         twin.kill()
     live = _estimates(tmp_path / "live.mcap")
-    assert len(live) > 600  # both nodes at 80 Hz for the ~5 s after the release
+    assert len(live) > 400  # both nodes at 80 Hz from about 1.3 s after the release (the frames learned) on
     meta = _metadata(tmp_path / "live.mcap")[twin_topics.TWIN_RESULT_METADATA]
     p50, p99 = json.loads(meta["latency_ms"])
     assert 0 < p50 <= p99  # measured per sample, from its arrival to its estimate

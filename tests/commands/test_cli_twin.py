@@ -46,17 +46,18 @@ def test_the_twin_tracks_the_simulation_within_half_a_degree_after_two_seconds(r
     phi_truth = np.array([m.position for _, m in truth])
     est = _messages(replayed, twin_topics.ESTIMATE_TOPIC)
     assert est[0][1].layout.dim[0].label == ",".join(twin_topics.ESTIMATE_COLUMNS)
-    t = np.array([tt for tt, _ in est], dtype=float)
     values = np.array([m.data for _, m in est])
+    t = values[:, twin_topics.ESTIMATE_COLUMNS.index("t_value_s")]  # s on the recording's clock
     phi = values[:, [twin_topics.ESTIMATE_COLUMNS.index(n) for n in ("phi1_rad", "phi2_rad")]]
-    start = t_truth[0]
-    late = t - start > HOLD_S + 2.0
+    t_truth = (t_truth - t_truth[0]) * 1e-9  # /joint_states starts with the recording (the hold)
+    late = t > HOLD_S + 2.0
     assert late.sum() > 1500
     for k in range(2):
         true_phi = np.interp(t[late], t_truth, phi_truth[:, k])
         assert np.max(np.degrees(np.abs(phi[late, k] - true_phi))) < 0.5
-    # the estimate starts at the release, not while the pendulum is held at 30 deg
-    assert HOLD_S - 0.05 < (t[0] - start) * 1e-9 < HOLD_S + 0.2
+    # the estimate starts after the release (its first swing teaches each node's frame), not while
+    # the pendulum is held at 30 deg
+    assert HOLD_S < t[0] < HOLD_S + 2.0
 
 
 def test_a_healthy_replay_raises_no_alarm_and_its_forecasts_hold(recording, replayed):

@@ -15,8 +15,8 @@ import math
 import numpy as np
 import pytest
 
-from bridge.acquire.emulator import node_rows
-from bridge.acquire.packets import GROUP_SLICES
+from pendsim_bridge.acquire.emulator import node_rows
+from pendsim_bridge.acquire.packets import GROUP_SLICES
 from pendsim_mj.engines.simulation import simulate
 from pendsim_mj.estimation.planar_fit import ljung_box_p
 from pendsim_mj.rig.params import DEFAULT_PARAMS

@@ -55,25 +55,3 @@ def test_a_sample_older_than_one_released_is_late_and_counted():
 def test_a_hold_out_of_range_is_refused(hold_s):
     with pytest.raises(ParameterError, match="hold_s"):
         SampleMerger(hold_s=hold_s)
-
-
-def test_one_samples_angle_and_rate_equal_the_swing_frames_own():
-    """The twin's per-sample measurement in plain floats gives what SwingFrame.angle/rate give."""
-    import numpy as np
-
-    from pendsim_bridge.acquire.udp_loop.node_view import model_frames
-    from pendsim_mj.sensors import rotations
-    from pendsim_mj.twin.session import NodeMeasurement
-
-    rng = np.random.default_rng(4)
-    for frame in model_frames():
-        frame = frame.flipped() if rng.random() < 0.5 else frame
-        m = NodeMeasurement(frame, value_age_s=0.005)
-        turn = rotations.from_rotvec(frame.quat_axis * rng.uniform(-2.5, 2.5, (20, 1)))
-        quats = rotations.multiply(np.broadcast_to(frame.reference_quat_wxyz, turn.shape), turn)
-        gyros = rng.normal(size=(20, 3))
-        phi, omega = frame.angle(quats), frame.rate(gyros)
-        for k in range(20):
-            t, p, w = m.take(1.0, quats[k], gyros[k])
-            assert t == 0.995
-            assert abs((p - phi[k] + np.pi) % (2 * np.pi) - np.pi) < 1e-12 and abs(w - omega[k]) < 1e-12

@@ -25,7 +25,6 @@ from pathlib import Path
 import numpy as np
 
 from pendsim_mj.errors import ParameterError
-from pendsim_mj.estimation.swing_frame import SwingFrame
 from pendsim_mj.sensors.bno055 import SAMPLE_RATE_HZ
 from pendsim_mj.twin.session import TwinSession
 
@@ -33,7 +32,7 @@ from ...report.twin_views import TwinView
 from ..packets import StreamFormat
 from ..ports import DEFAULT_NODES, NodeSpec, check_nodes
 from ..receiver import listen_udp, read_stamped, stop_signals
-from ..udp_loop.node_view import NodeView
+from ..udp_loop.node_view import NodeView, model_frames
 from .pipeline import TwinPipeline, TwinResult, TwinSpec, close_sink, open_sink, status_text
 
 
@@ -44,7 +43,6 @@ def _stderr(line: str) -> None:
 def run_twin_live(
     spec: TwinSpec,
     *,
-    frames: tuple[SwingFrame, SwingFrame],
     output: Path | None,
     replace: bool = False,
     nodes: tuple[NodeSpec, ...] = DEFAULT_NODES,
@@ -69,6 +67,7 @@ def run_twin_live(
     if [n.name for n in nodes] != ["m1", "m2"]:
         raise ParameterError("the twin needs both nodes, m1 and m2")
     stream = stream if stream is not None else StreamFormat()
+    frames = model_frames(spec.params)  # NodeView's own state (unused here) needs one; the twin learns its own
     node_views = [NodeView(n, stream, rate_hz, frames[i]) for i, n in enumerate(nodes)]
     selector = selectors.DefaultSelector()
     socks: list[socket.socket] = []
@@ -94,14 +93,13 @@ def run_twin_live(
             )
         session = TwinSession(
             spec.params,
-            frames=frames,
             track=spec.track,
             forecast_horizon_s=spec.forecast_horizon_s,
             forecast_every_s=spec.forecast_every_s,
             threshold=spec.threshold,
             persist_s=spec.persist_s,
             baseline_s=spec.baseline_s,
-            value_age_s=spec.value_age_s,
+            fusion_rate_hz=spec.fusion_rate_hz,
         )
         pipeline = TwinPipeline(
             spec, session, sink=sink, node_names=("m1", "m2"), start_utc_ns=start_utc_ns, views=views

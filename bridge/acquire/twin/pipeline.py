@@ -29,10 +29,12 @@ from numpy.typing import NDArray
 from pendsim_mj import __version__
 from pendsim_mj.errors import RecordingError
 from pendsim_mj.rig.params import DEFAULT_PARAMS, RigParams
+from pendsim_mj.sensors.bno055 import FUSION_RATE_HZ
 from pendsim_mj.twin.estimator import TRACKABLE
 from pendsim_mj.twin.health import WHAT, Alarm
+from pendsim_mj.twin.measurement import Learned
 from pendsim_mj.twin.merge import DEFAULT_HOLD_S, SampleMerger
-from pendsim_mj.twin.session import DEFAULT_TRACK, FORECAST_STEP_S, VALUE_AGE_S, TwinSession, TwinSummary
+from pendsim_mj.twin.session import DEFAULT_TRACK, FORECAST_STEP_S, TwinSession, TwinSummary
 from pendsim_mj.units import nanoseconds, seconds
 
 from ...errors import OutputError
@@ -57,8 +59,8 @@ class TwinSpec:
       forecast_horizon_s, forecast_every_s: the forecasts.
       threshold, persist_s, baseline_s: the health monitor's.
       hold_s: the merger's longest wait for the other node, s.
-      value_age_s: how much older a node's value is than its stamp, s (a BNO055 in NDOF mode: half
-        its 10 ms fusion period on average).
+      fusion_rate_hz: the nodes' fusion rate (a BNO055 in NDOF mode: 100 Hz; the twin learns where
+        its ticks fall); None for nodes that stamp their values' own instants.
     """
 
     params: RigParams = DEFAULT_PARAMS
@@ -69,7 +71,7 @@ class TwinSpec:
     persist_s: float = 3.0
     baseline_s: float = 0.0
     hold_s: float = DEFAULT_HOLD_S
-    value_age_s: float = VALUE_AGE_S
+    fusion_rate_hz: float | None = FUSION_RATE_HZ
 
     def metadata(self, source: str) -> dict[str, str]:
         return {
@@ -81,7 +83,7 @@ class TwinSpec:
             "persist_s": repr(self.persist_s),
             "baseline_s": repr(self.baseline_s),
             "hold_s": repr(self.hold_s),
-            "value_age_s": repr(self.value_age_s),
+            "fusion_rate_hz": "none" if self.fusion_rate_hz is None else repr(self.fusion_rate_hz),
             "pendsim_version": __version__,
         }
 
@@ -145,6 +147,7 @@ class TwinPipeline:
         self.skip = skip
         self._channels: dict[str, int] = {}
         self._forecast_points = 0
+        self._estimate_logged_s = -math.inf
         if sink is not None:
             self._register()
         self.latency_s: list[float] = []
@@ -189,10 +192,10 @@ class TwinPipeline:
         released = self.merger.pop(now_s, final=final)
         if not released:
             return
-        quat, gyro = GROUP_SLICES["quat"], GROUP_SLICES["gyro"]
+        quat, gyro, accel = GROUP_SLICES["quat"], GROUP_SLICES["gyro"], GROUP_SLICES["accel"]
         for held in released:
             row, torques = held.item
-            taken = self.session.take(held.node, held.t_s, row[quat], row[gyro], torques)
+            taken = self.session.take(held.node, held.t_s, row[quat], row[gyro], row[accel], torques)
             if taken and clock is not None:
                 self.latency_s.append(clock() - held.arrived_s)
         if self.sink is not None:  # the measured samples, one call per node
@@ -212,9 +215,11 @@ class TwinPipeline:
         if sink is not None:
             base = self.start_utc_ns
             if len(est):
+                logged = np.maximum.accumulate(np.concatenate([[self._estimate_logged_s], est.t_s]))[1:]
+                self._estimate_logged_s = float(logged[-1])
                 sink.add(
                     self._channels[twin_topics.ESTIMATE_TOPIC],
-                    base + nanoseconds(est.t_s),
+                    base + nanoseconds(logged),
                     twin_topics.encode(self._estimate_layout, twin_topics.estimate_values(est)),
                 )
             for check in out.checks:
@@ -354,7 +359,21 @@ class TwinPipeline:
             "parameters": json.dumps({k: list(v) for k, v in summary.parameters.items()}),
             "late": json.dumps([[n, nanoseconds(t)] for n, t in self.merger.late]),
             "latency_ms": json.dumps([_finite_or_none(v) for v in self.latency_ms()]),
+            "learned": json.dumps([_learned(n) for n in self.session.learned()]),
         }
+
+
+def _learned(learned: Learned) -> dict[str, object]:
+    frame = learned.frame
+    return {
+        "fusion_phase_s": learned.fusion_phase_s,
+        "phase_stretch_s": list(learned.phase_stretch_s) if learned.phase_stretch_s else None,
+        "frame_t_s": learned.frame_t_s,
+        "hinge_to_start_deg": learned.hinge_to_start_deg,
+        "hinge_axis": None if frame is None else [float(v) for v in frame.hinge_axis],
+        "reference_quat_wxyz": None if frame is None else [float(v) for v in frame.reference_quat_wxyz],
+        "angle_offset_rad": None if frame is None else float(frame.angle_offset_rad),
+    }
 
 
 def _finite_or_none(value: float) -> float | None:

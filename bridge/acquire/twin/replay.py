@@ -26,7 +26,6 @@ import numpy as np
 from numpy.typing import NDArray
 
 from pendsim_mj.errors import RecordingError
-from pendsim_mj.estimation.swing_frame import SwingFrame
 from pendsim_mj.rig.params import RigParams
 from pendsim_mj.twin.session import TwinSession
 
@@ -64,26 +63,29 @@ def _late_samples(metadata: dict[str, dict[str, str]]) -> frozenset[tuple[int, i
         raise RecordingError("the recording's pendsim/twin_result 'late' entry is not a list of [node, t_ns]") from None
 
 
-def _value_age_s(metadata: dict[str, dict[str, str]], fusion_hz: float | None) -> float:
-    """How much older the recording's values are than their stamps: as the twin that wrote it took
-    them, else from its node model (None: values at their own instants)."""
-    text = metadata.get(twin_topics.TWIN_METADATA, {}).get("value_age_s")
-    if text is not None:
-        try:
-            value = float(text)
-        except ValueError:
-            value = math.nan
-        if not (math.isfinite(value) and 0 <= value <= 1):
-            raise RecordingError(f"the recording's pendsim/twin value_age_s {text!r} is not a number in [0, 1] s")
-        return value
-    return 0.0 if fusion_hz is None else 0.5 / fusion_hz
+def _fusion_rate_hz(metadata: dict[str, dict[str, str]], recorded: float | None) -> float | None:
+    """The nodes' fusion rate: as the twin that wrote the recording took it, else from its node
+    model (``measured.fusion_rate_of``; None: values at their own instants)."""
+    text = metadata.get(twin_topics.TWIN_METADATA, {}).get("fusion_rate_hz")
+    if text is None:
+        return recorded
+    if text == "none":
+        return None
+    try:
+        value = float(text)
+    except ValueError:
+        value = math.nan
+    if not (math.isfinite(value) and 0 < value <= 10_000):
+        raise RecordingError(
+            f"the recording's pendsim/twin fusion_rate_hz {text!r} is not 'none' or a rate in (0, 10000] Hz"
+        )
+    return value
 
 
 def replay(
     spec: TwinSpec,
     recording: str | Path,
     *,
-    frames: tuple[SwingFrame, SwingFrame],
     output: Path | None,
     replace: bool = False,
     speed: float = 1.0,
@@ -127,11 +129,11 @@ def replay(
     if not np.all(np.isfinite(times)):
         raise RecordingError(f"{path}: a sample's time is not finite")
     start_utc_ns = int(rec.start_time_ns)
-    spec = dataclasses.replace(spec, value_age_s=_value_age_s(rec.metadata, fusion_rate_of(rec)))
+    spec = dataclasses.replace(spec, fusion_rate_hz=_fusion_rate_hz(rec.metadata, fusion_rate_of(rec)))
     del rec
     views = views_for(start_utc_ns) if views_for is not None else ()
     try:
-        return _run(spec, path, frames, output, replace, speed, views, say, status, start_utc_ns, skip,
+        return _run(spec, path, output, replace, speed, views, say, status, start_utc_ns, skip,
                     times, node, index, order, rows, torque_t, torque)  # fmt: skip
     finally:
         for v in views:
@@ -141,7 +143,6 @@ def replay(
 def _run(
     spec: TwinSpec,
     path: Path,
-    frames: tuple[SwingFrame, SwingFrame],
     output: Path | None,
     replace: bool,
     speed: float,
@@ -171,14 +172,13 @@ def _run(
         )
     session = TwinSession(
         spec.params,
-        frames=frames,
         track=spec.track,
         forecast_horizon_s=spec.forecast_horizon_s,
         forecast_every_s=spec.forecast_every_s,
         threshold=spec.threshold,
         persist_s=spec.persist_s,
         baseline_s=spec.baseline_s,
-        value_age_s=spec.value_age_s,
+        fusion_rate_hz=spec.fusion_rate_hz,
     )
     pipeline = TwinPipeline(
         spec, session, sink=sink, node_names=("m1", "m2"), start_utc_ns=start_utc_ns, views=views, skip=skip
@@ -206,7 +206,7 @@ def _run(
             n = int(node[i])
             torques = (0.0, 0.0)
             if torque is not None and torque_t is not None:
-                k = int(np.searchsorted(torque_t, t - session.measurements[n].value_age_s, side="right")) - 1
+                k = int(np.searchsorted(torque_t, t, side="right")) - 1
                 if k >= 0:
                     torques = (float(torque[k, 0]), float(torque[k, 1]))
             pipeline.push(n, t, rows[n][index[i]], t, torques)
