@@ -90,6 +90,7 @@ class Update:
       innovation: (2,) measured minus predicted (angle rad, rate rad/s).
       covariance: (2, 2) the innovation's predicted covariance S.
       nis: the normalised innovation squared nu' S^-1 nu (chi^2 with 2 degrees of freedom).
+      applied: False when the sample was held out (``update``'s ``gate_angle_z``).
     """
 
     t_s: float
@@ -97,6 +98,13 @@ class Update:
     innovation: Floats
     covariance: Floats
     nis: float
+    applied: bool = True
+
+
+def _gated(nu: Floats, s: Floats, gate_angle_z: float, gate_rate_z: float) -> bool:
+    """The angle's innovation beyond ``gate_angle_z`` sigmas while the rate's is within
+    ``gate_rate_z``: the node's angle jumped (its mount), not the rig's motion."""
+    return bool(abs(nu[0]) > gate_angle_z * math.sqrt(s[0, 0]) and abs(nu[1]) <= gate_rate_z * math.sqrt(s[1, 1]))
 
 
 @dataclasses.dataclass(frozen=True)
@@ -287,13 +295,20 @@ class RigEstimator:
         torques_n_m: ArrayLike = (0.0, 0.0),
         *,
         late_s: float = 0.0,
+        gate_angle_z: float = math.inf,
+        gate_rate_z: float = 5.0,
     ) -> Update:
         """Take one node's sample (its swing angle and hinge rate at ``t_s``) into the estimate.
 
         ``late_s``: a sample up to this much older than the estimate (s) is still taken, through
         the model run back to its instant (``_late_update``): two nodes' value instants
         (``twin.measurement``) interleave out of order by up to one fusion period. Older ones
-        are refused (``StaleSample``)."""
+        are refused (``StaleSample``).
+
+        ``gate_angle_z``: a sample whose angle innovation exceeds this many sigmas while its rate's
+        stays within ``gate_rate_z`` is held out (``Update.applied`` False; the estimate is only
+        predicted to its instant): a node that turned on its mount must not drag the state with
+        it (the caller decides what the jump is)."""
         if node not in (0, 1):
             raise ParameterError(f"node must be 0 (M1) or 1 (M2), got {node!r}")
         z = np.array([phi_rad, omega_rad_s], dtype=float)
@@ -302,7 +317,7 @@ class RigEstimator:
         if not late:
             self.predict(t_s, torques_n_m)
         if late or node in self._delays:
-            return self._unscented_update(float(t_s), node, z, r, torques_n_m)
+            return self._unscented_update(float(t_s), node, z, r, torques_n_m, gate_angle_z, gate_rate_z)
         h = np.zeros((2, self.n))
         h[0, node] = h[1, 2 + node] = 1.0
         if node in self._offsets:
@@ -311,13 +326,25 @@ class RigEstimator:
         nu[0] = (nu[0] + math.pi) % (2 * math.pi) - math.pi  # an angle's innovation wraps
         ph = self.p @ h.T
         s = h @ ph + r
+        nis = float(nu @ np.linalg.solve(s, nu))
+        if _gated(nu, s, gate_angle_z, gate_rate_z):
+            return Update(self.t_s, node, nu, s, nis, applied=False)
         gain = np.linalg.solve(s, ph.T).T  # (n, 2) = P H' S^-1
         self.x = self.x + gain @ nu
         keep = np.eye(self.n) - gain @ h
         self.p = keep @ self.p @ keep.T + gain @ r @ gain.T  # Joseph form
-        return Update(self.t_s, node, nu, s, float(nu @ np.linalg.solve(s, nu)))
+        return Update(self.t_s, node, nu, s, nis)
 
-    def _unscented_update(self, t_s: float, node: int, z: Floats, r: Floats, torques_n_m: ArrayLike) -> Update:
+    def _unscented_update(
+        self,
+        t_s: float,
+        node: int,
+        z: Floats,
+        r: Floats,
+        torques_n_m: ArrayLike,
+        gate_angle_z: float = math.inf,
+        gate_rate_z: float = 5.0,
+    ) -> Update:
         """The update through the sigma points, where the measurement is not linear in the
         state: a sample from before the estimate's time (the state run back to its instant, one
         RK4 step of t_s - self.t_s per sigma point; the estimate's time stays), and a node with a
@@ -347,11 +374,14 @@ class RigEstimator:
         pxz = (dx.T * self._wc) @ dz  # (n, 2)
         nu = z - z_mean
         nu[0] = (nu[0] + math.pi) % (2 * math.pi) - math.pi
+        nis = float(nu @ np.linalg.solve(s, nu))
+        if _gated(nu, s, gate_angle_z, gate_rate_z):
+            return Update(t_s, node, nu, s, nis, applied=False)
         gain = np.linalg.solve(s, pxz.T).T
         self.x = self.x + gain @ nu
         self.p = self.p - gain @ s @ gain.T
         self.p = 0.5 * (self.p + self.p.T)
-        return Update(t_s, node, nu, s, float(nu @ np.linalg.solve(s, nu)))
+        return Update(t_s, node, nu, s, nis)
 
     @property
     def sigma(self) -> Floats:

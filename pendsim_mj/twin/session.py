@@ -61,8 +61,11 @@ HORIZON_BINS_S = (0.25, 0.5, 1.0, 2.0, 5.0)  # forecast scores per horizon up to
 FREE_WINDOW = 8  # samples per node (0.1 s at 80 Hz) over which a node's motion is compared with free motion
 HELD_ALPHA_RAD_S2 = 0.5  # a node whose free acceleration would exceed this but whose measured one is
 # less than half of it is held (a hand, a stop)
-INTERVENTION_NIS = 200.0  # mean NIS over INTERVENTION_WINDOW updates above this: the rig was touched
-INTERVENTION_WINDOW = 40
+INTERVENTION_NIS = 200.0  # the rate innovations' mean normalised square over INTERVENTION_WINDOW updates
+INTERVENTION_WINDOW = 40  # above this: the rig was touched (its motion is not the model's)
+JUMP_Z = 20.0  # a node whose angle innovations all exceed this many sigmas over JUMP_SAMPLES samples while
+JUMP_SAMPLES = 6  # its rate agrees with the model has turned on its mount (or its orientation jumped)
+JUMP_RATE_Z = 5.0
 FORECAST_STEP_S = 0.025  # the forecasts' grid, s: RK4 at this step is within 1e-6 rad of a finer one over 2 s,
 # and cubic Hermite interpolation between its points (angle and rate) within 1e-6 rad
 SNAPSHOT_S = 1.0  # the tracked parameters are kept this often, to go back to after an intervention
@@ -182,6 +185,9 @@ class TwinSession:
             collections.deque(maxlen=FREE_WINDOW) for _ in range(2)
         ]
         self._recent_nis: collections.deque[float] = collections.deque(maxlen=INTERVENTION_WINDOW)
+        self._recent_z: list[collections.deque[tuple[float, float, float]]] = [
+            collections.deque(maxlen=JUMP_SAMPLES) for _ in range(2)
+        ]  # per node: the samples held out in a row (angle innovation, -, -)
         self._snapshots: collections.deque[tuple[float, Floats, Floats]] = collections.deque(maxlen=3)
         self.events: list[tuple[float, str]] = []  # (t_s, what happened): held, released, touched
         self._events_out: list[tuple[float, str]] = []
@@ -225,7 +231,14 @@ class TwinSession:
         if t_v < self.estimator.t_s - LATE_S:
             return False
         self._score(node, t_v, phi)
-        update = self.estimator.update(t_v, node, phi, omega, torques_n_m=torques_n_m, late_s=LATE_S)
+        update = self.estimator.update(
+            t_v, node, phi, omega, torques_n_m=torques_n_m, late_s=LATE_S, gate_angle_z=JUMP_Z, gate_rate_z=JUMP_RATE_Z
+        )
+        if not update.applied:  # the node's angle jumped: held out until it has for JUMP_SAMPLES samples
+            self._recent_z[node].append((float(update.innovation[0]), math.inf, 0.0))
+            self._jumped(node, t_v)
+            return False
+        self._recent_z[node].clear()
         x, sigma = self.estimator.x, self.estimator.sigma
         s_sigma = np.sqrt(np.diag(update.covariance))
         self._rows.append(
@@ -234,7 +247,8 @@ class TwinSession:
         if t_v - self.started_s >= self.settle_s:
             self._nis[node].append(update.nis)
             self._normalised[node].append(update.innovation[0] / s_sigma[0])
-        self._recent_nis.append(update.nis)
+        z_rate = update.innovation[1] / s_sigma[1]
+        self._recent_nis.append(z_rate * z_rate)
         if len(self._recent_nis) == INTERVENTION_WINDOW and np.mean(self._recent_nis) > INTERVENTION_NIS:
             self._touched(t_v)
             return True
@@ -306,6 +320,22 @@ class TwinSession:
             self._checks_from_s = t0 + 1.0  # the health checks wait for the estimate to settle again
         if self.forecast_horizon_s > 0:
             self._next_forecast_s = t0 + self.forecast_every_s
+        return True
+
+    def _jumped(self, node: int, t_v: float) -> bool:
+        """A node's angle jumped while its rate still follows the model (it turned on its mount):
+        its offset's variance takes the jump in, so that the offset follows at once."""
+        recent = self._recent_z[node]
+        if len(recent) < JUMP_SAMPLES:
+            return False
+        jump = float(np.mean([nu for nu, _, _ in recent]))
+        name = f"offset_m{node + 1}_rad"
+        if name in self.estimator.track:
+            i = NSTATE + self.estimator.track.index(name)
+            self.estimator.p[i, i] += jump * jump
+        recent.clear()
+        self._recent_nis.clear()
+        self._event(t_v, f"m{node + 1} angle jumped by {math.degrees(jump):+.2f} deg")
         return True
 
     def _touched(self, t_v: float) -> None:
