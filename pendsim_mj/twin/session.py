@@ -113,6 +113,8 @@ class TwinSummary:
       forecast: the forecasts' scores.
       alarms: the alarms raised.
       parameters: each tracked parameter's final (value, sigma).
+      events: (t_s, what) the estimate started, a node held, the rig touched, a node's angle
+        jumped, what the caller noted.
     """
 
     samples: tuple[int, int]
@@ -122,6 +124,7 @@ class TwinSummary:
     forecast: ForecastScore
     alarms: tuple[Alarm, ...]
     parameters: dict[str, tuple[float, float]]
+    events: tuple[tuple[float, str], ...] = ()
 
 
 class TwinSession:
@@ -346,6 +349,10 @@ class TwinSession:
         self._next_forecast_s = math.inf
         self._event(t_v, "touched")
 
+    def note(self, t_s: float, what: str) -> None:
+        """An event the caller saw (e.g. a node's clock jumped), kept with the twin's own."""
+        self._event(t_s, what)
+
     def _event(self, t_s: float, what: str) -> None:
         self.events.append((t_s, what))
         self._events_out.append((t_s, what))
@@ -443,4 +450,5 @@ class TwinSession:
             forecast=self.forecast_score(),
             alarms=tuple(self._all_alarms),
             parameters=self.estimator.parameters() if not math.isnan(self.started_s) else {},
+            events=tuple(self.events),
         )

@@ -6,12 +6,14 @@ line."""
 from __future__ import annotations
 
 import json
+import math
 import signal
 import socket
 import threading
 import time
 
 import numpy as np
+import pytest
 from acquire_helpers import Pendsim, free_udp_ports
 from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
@@ -105,3 +107,33 @@ def test_a_port_in_use_is_one_line_and_exit_2(tmp_path, capsys):
     err = capsys.readouterr().err.strip()
     assert code == 2 and err.startswith("pendsim: error:") and "\n" not in err and str(port) in err
     assert list(tmp_path.iterdir()) == []
+
+
+def test_scripted_faults_sent_over_udp_are_alarmed_on_the_right_parameter_within_seconds(tmp_path):
+    """The emulated rig's springs weaken by 5 % 6 s after the release, M2's node turns by 3 deg on
+    its mount at 12 s and M1's clock jumps by 0.5 s at 16 s (``pendsim nodes --fault``); the live
+    twin names each, on its own parameter or node, and nothing else."""
+    p1, p2 = free_udp_ports(2)
+    ports = ["--node", f"m1={p1}", "--node", f"m2={p2}"]
+    twin = Pendsim(["twin", "-o", "live.mcap", "--duration-s", "60", *ports], cwd=tmp_path)
+    try:
+        twin.wait_for("twin: listening")
+        faults = ["--fault", "stiffness:-5%@6", "--fault", "mount:m2=3deg@12", "--fault", "clock:m1=+0.5@16"]
+        sender = _emulate(["--duration-s", "20", "--hold-s", "1", "--seed", "3", *faults, *ports])
+        sender.join()
+        twin.signal(signal.SIGINT)
+        assert twin.finish() == 0, twin.err
+    finally:
+        twin.kill()
+    meta = _metadata(tmp_path / "live.mcap")[twin_topics.TWIN_RESULT_METADATA]
+    alarms = {a["parameter"]: a for a in json.loads(meta["alarms"])}
+    assert set(alarms) == {"coupling_sin_n_m", "offset_m2_rad"}, alarms
+    springs, mount = alarms["coupling_sin_n_m"], alarms["offset_m2_rad"]
+    assert springs["value"] / springs["reference"] - 1 == pytest.approx(-0.05, abs=0.01)
+    assert math.degrees(mount["value"] - mount["reference"]) == pytest.approx(3.0, abs=0.2)
+    # each raised within 10 s of its fault (the twin's clock: the release about 1 s after its start)
+    assert mount["t_s"] - springs["t_s"] == pytest.approx(6.0, abs=4.0)
+    assert mount["since_s"] <= mount["t_s"] - 3.0
+    events = [what for _, what in json.loads(meta["events"])]
+    assert "m1: its clock jumped by +0.500 s; its timeline restarted" in events
+    assert any(e.startswith("m2 angle jumped by +3.0") for e in events)

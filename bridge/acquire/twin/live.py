@@ -15,8 +15,10 @@ node's newest used), are not used (counted per node in the summary's metadata).
 
 from __future__ import annotations
 
+import collections
 import selectors
 import socket
+import statistics
 import sys
 import time
 from collections.abc import Callable
@@ -29,11 +31,58 @@ from pendsim_mj.sensors.bno055 import SAMPLE_RATE_HZ
 from pendsim_mj.twin.session import TwinSession
 
 from ...report.twin_views import TwinView
-from ..packets import StreamFormat
+from ..packets import PacketError, StreamFormat
 from ..ports import DEFAULT_NODES, NodeSpec, check_nodes
 from ..receiver import listen_udp, read_stamped, stop_signals
 from ..udp_loop.node_view import NodeView, model_frames
 from .pipeline import TwinPipeline, TwinResult, TwinSpec, close_sink, open_sink, status_text
+
+JUMP_PACKETS = 5  # packets in a row whose arrival minus device time agree among themselves within
+JUMP_AGREE_S = 0.005  # this (s) and differ from the node's recent ones by more than JUMP_MIN_S:
+JUMP_MIN_S = 0.05  # the node's clock jumped; its timeline starts anew from the packets that follow
+RECENT_PACKETS = 40  # the node's recent packets' arrival minus device time: their median is its offset
+
+
+class _TwinNodeView(NodeView):
+    """A node as the twin sees it: ``NodeView``, and a clock that jumped (set anew, a reboot)
+    noticed and followed. A node's timeline would take a jump in as a steep drift (its packets
+    support each other), mapping the node's samples to wrong instants for seconds; here a packet
+    whose arrival minus device time is more than ``JUMP_MIN_S`` from the node's recent median is
+    held out, and once ``JUMP_PACKETS`` in a row agree among themselves, the node's timeline starts
+    anew (``jumps`` keeps when and by how much; the twin says it). A lone packet that far off (a
+    network stall) is left out."""
+
+    def __init__(self, *args: object, **kwargs: object) -> None:
+        super().__init__(*args, **kwargs)  # type: ignore[arg-type]
+        self._args, self._kwargs = args, kwargs
+        self._recent: collections.deque[float] = collections.deque(maxlen=RECENT_PACKETS)
+        self._odd: list[float] = []  # arrival minus device time of the packets held out in a row, s
+        self.jumps: list[tuple[float, float]] = []  # (arrival s, jump s)
+        self.held_out = 0
+
+    def receive(self, data: bytes, arrival_ns: int, start_ns: int) -> bool:
+        try:
+            device_s = self.codec.decode(data).device_time_us * 1e-6
+        except PacketError:
+            return super().receive(data, arrival_ns, start_ns)  # counted there
+        arrival_s = (arrival_ns - start_ns) * 1e-9
+        off = arrival_s - device_s
+        if len(self._recent) >= JUMP_PACKETS and abs(off - statistics.median(self._recent)) > JUMP_MIN_S:
+            self._odd.append(off)
+            self.held_out += 1
+            if len(self._odd) >= JUMP_PACKETS and max(self._odd) - min(self._odd) <= JUMP_AGREE_S:
+                self.jumps.append((arrival_s, statistics.median(self._recent) - off))
+                counts, malformed, implausible = dict(self._counts), dict(self._malformed), dict(self._implausible)
+                NodeView.__init__(self, *self._args, **self._kwargs)  # type: ignore[arg-type]
+                self._counts, self._malformed, self._implausible = counts, malformed, implausible
+                self._recent.clear()
+                self._odd = []
+            return False
+        self._odd.clear()
+        used = super().receive(data, arrival_ns, start_ns)
+        if used:
+            self._recent.append(off)
+        return used
 
 
 def _stderr(line: str) -> None:
@@ -68,7 +117,7 @@ def run_twin_live(
         raise ParameterError("the twin needs both nodes, m1 and m2")
     stream = stream if stream is not None else StreamFormat()
     frames = model_frames(spec.params)  # NodeView's own state (unused here) needs one; the twin learns its own
-    node_views = [NodeView(n, stream, rate_hz, frames[i]) for i, n in enumerate(nodes)]
+    node_views = [_TwinNodeView(n, stream, rate_hz, frames[i]) for i, n in enumerate(nodes)]
     selector = selectors.DefaultSelector()
     socks: list[socket.socket] = []
     partial: Path | None = None
@@ -129,6 +178,7 @@ def run_twin_live(
                     wait = min(wait, max(0.0, duration_s - now))
                 for key, _ in selector.select(wait):
                     view = key.data
+                    jumps = len(view.jumps)
                     for datagram in read_stamped(key.fileobj):  # type: ignore[arg-type]
                         if view.receive(datagram.data, datagram.arrival_ns, start_ns):
                             assert view.newest is not None
@@ -136,6 +186,10 @@ def run_twin_live(
                             node = 0 if view is node_views[0] else 1
                             arrived = (datagram.arrival_ns - start_ns) * 1e-9
                             pipeline.push(node, taken_s, np.asarray(row, dtype=float), arrived)
+                    for at_s, jump_s in view.jumps[jumps:]:
+                        text = f"{view.spec.name}: its clock jumped by {jump_s:+.3f} s; its timeline restarted"
+                        session.note(at_s, text)
+                        say(f"twin: {text}")
                 now = now_s()
                 pipeline.step(now, clock=now_s)
                 for view in node_views:

@@ -360,6 +360,7 @@ class TwinPipeline:
             "late": json.dumps([[n, nanoseconds(t)] for n, t in self.merger.late]),
             "latency_ms": json.dumps([_finite_or_none(v) for v in self.latency_ms()]),
             "learned": json.dumps([_learned(n) for n in self.session.learned()]),
+            "events": json.dumps([[t, what] for t, what in self.session.events]),
         }
 
 
@@ -483,6 +484,10 @@ def summary_text(result: TwinResult) -> str:
     for name, (value, sigma) in s.parameters.items():
         lines.append(f"  {name:<18} {value:.5g} +- {2 * sigma:.2g} {TRACKABLE[name][1]}")
     lines.append(f"alarms: {len(s.alarms)}" + "".join(f"\n  {a.describe()}" for a in s.alarms))
+    shown = [(t, what) for t, what in s.events if what != "tracking"]
+    if shown:
+        lines.append("events: " + "; ".join(f"{what} at {t:.1f} s" for t, what in shown[:10])
+                     + (f"; ... {len(shown) - 10} more" if len(shown) > 10 else ""))  # fmt: skip
     if result.late:
         lines.append(f"{len(result.late)} samples came after later ones had been taken in; left out")
     if math.isfinite(result.latency_ms[0]):
