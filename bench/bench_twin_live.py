@@ -48,18 +48,20 @@ def one_run(folder: Path, seconds: float, views: list[str]) -> dict[str, float]:
         [*PENDSIM, "twin", "-o", str(out), "--force", "--duration-s", str(seconds + 6), *ports, *views],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
     )  # fmt: skip
-    time.sleep(4.0)  # the twin's start-up (imports) before the nodes send
+    assert twin.stderr is not None
+    for line in twin.stderr:  # the twin's start-up (imports) is not its running cost
+        if line.startswith("twin: listening"):
+            break
     cpu_before = cpu_s(twin.pid)
     nodes = subprocess.run([*PENDSIM, "nodes", "--duration-s", str(seconds), "--hold-s", "2", *ports],
                            capture_output=True, text=True, check=True)  # fmt: skip
     cpu_after = cpu_s(twin.pid)
-    out_text, err = twin.communicate(timeout=120)
+    _, err = twin.communicate(timeout=120)
     if twin.returncode != 0:
         raise SystemExit(f"twin failed: {err}")
     with open(out, "rb") as f:
         meta = {m.name: m.metadata for m in make_reader(f).iter_metadata()}["pendsim/twin_result"]
     p50, p99 = json.loads(meta["latency_ms"])
-    _ = nodes
     return {"p50_ms": p50, "p99_ms": p99, "cpu_share": (cpu_after - cpu_before) / seconds}
 
 

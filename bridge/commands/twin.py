@@ -20,8 +20,8 @@ NODES = ("m1", "m2")
 
 
 def track_list(text: str) -> tuple[str, ...]:
-    """``all``, ``none`` or a comma-separated list of the twin's trackable parameters."""
-    from pendsim_mj.twin.estimator import TRACKABLE  # start-up: numpy only
+    """``all``, ``none`` or a comma-separated list of the rig's parameters the twin can track."""
+    from pendsim_mj.twin.session import RIG_PARAMETERS as TRACKABLE  # start-up: numpy only
 
     text = text.strip()
     if text == TRACK_ALL:
@@ -82,8 +82,9 @@ def register(sub: argparse._SubParsersAction[options.Parser]) -> None:
         type=options.argument(track_list, "LIST"),
         default=None,
         metavar="LIST",
-        help="the parameters tracked and monitored: all (default), none, or a comma-separated list of b1_n_m_s, "
-        "b2_n_m_s, friction1_n_m, friction2_n_m, coupling_sin_n_m, offset_m1_rad, offset_m2_rad",
+        help="the rig's parameters tracked and monitored: all (default), none, or a comma-separated list of "
+        "b1_n_m_s, b2_n_m_s, friction1_n_m, friction2_n_m, coupling_sin_n_m (the nodes' mount offsets and timing are "
+        "tracked and monitored always)",
     )
     p.add_argument(
         "--forecast-s",
@@ -177,12 +178,12 @@ def run(args: argparse.Namespace) -> int:
             raise options.UsageError("--duration-s is for live packets; a replay runs to the recording's end")
     elif args.speed is not None:
         raise options.UsageError("--speed is for --replay")
-    from pendsim_mj.twin.estimator import TRACKABLE
+    from pendsim_mj.twin.session import RIG_PARAMETERS
 
     params = options.params_from(args)
     spec = TwinSpec(
         params=params,
-        track=args.track if args.track is not None else tuple(TRACKABLE),
+        track=args.track if args.track is not None else RIG_PARAMETERS,
         forecast_horizon_s=args.forecast_s,
         threshold=args.threshold_sigma,
         persist_s=args.persist_s,

@@ -42,17 +42,19 @@ from pendsim_mj.twin.measurement import TWIST_SIGMA_RAD, Learned, NodeMeasuremen
 from pendsim_mj.twin.outputs import Estimates, ParameterCheck
 
 Floats = NDArray[np.float64]
-DEFAULT_TRACK = tuple(TRACKABLE)
-"""Everything the estimator can track: the rig's parameters that can drift (damping, dry friction,
-the coupling springs) and what real nodes need (each node's mount offset with its rate, which
-follows the fused orientation's slow error; M2's delay against M1: ``twin.measurement``)."""
+NODE_PARAMETERS = ("offset_m1_rad", "offset_m2_rad", "offset_rate_m1_rad_s", "offset_rate_m2_rad_s", "delay_m2_s")
+"""What real nodes need tracked, always: each node's mount offset with its rate (which follows the
+fused orientation's slow error), M2's delay against M1 (``twin.measurement``). Without them the
+learned frames' half-degree offsets alone make the innovations hundreds of sigmas."""
+RIG_PARAMETERS = tuple(name for name in TRACKABLE if name not in NODE_PARAMETERS)
+"""The rig's own parameters that can drift: damping, dry friction, the coupling springs."""
+DEFAULT_TRACK = RIG_PARAMETERS
 NODE_DRIFT_PER_S = {"offset_m1_rad": 1e-5, "offset_m2_rad": 1e-5, "offset_rate_m1_rad_s": 3e-4,
                     "offset_rate_m2_rad_s": 3e-4}  # fmt: skip
 # the random walks of the node states on real nodes (docs/twin.md, Measurement: innovations white)
 NODE_SIGMA0 = {"offset_m1_rad": 0.01, "offset_m2_rad": 0.01, "offset_rate_m1_rad_s": 1e-3,
                "offset_rate_m2_rad_s": 1e-3, "delay_m2_s": 1e-3}  # fmt: skip
 # ... and their start: the learned frames' offsets are good to about 0.5 deg
-NODE_PARAMETERS = ("offset_m1_rad", "offset_m2_rad", "offset_rate_m1_rad_s", "offset_rate_m2_rad_s", "delay_m2_s")
 NODE_BASELINE_S = 10.0  # the node states' references: their estimates this long after the start (the
 # learned frames leave each offset about 0.5 deg uncertain; the rig's own parameters keep the stated rig)
 TORQUE_NOISE_N_M = 5e-6  # N m / sqrt(Hz): white on fusion-timed node data (2e-5 left lag-1 -0.07)
@@ -134,7 +136,8 @@ class TwinSession:
       params: the rig (e.g. ``pendsim calibrate``'s).
       frames: each node's swing frame.
       nodes: the node model (its noise sets the measurement noise).
-      track: the parameters to track and monitor (``TRACKABLE``; () for none: no health checks).
+      track: the rig's parameters to track and monitor (``RIG_PARAMETERS``: any of them, or ()); the
+        node states (``NODE_PARAMETERS``) are tracked and monitored always.
       forecast_horizon_s: how far each forecast reaches, s (0: none).
       forecast_every_s: how often a forecast is made, s.
       threshold, persist_s, baseline_s: the health monitor's (``HealthMonitor``).
@@ -167,7 +170,13 @@ class TwinSession:
         if not (math.isfinite(forecast_every_s) and 0.1 <= forecast_every_s <= 3600):
             raise ParameterError(f"the forecast period must be in [0.1, 3600] s, got {forecast_every_s!r}")
         self.params = params
-        drift = {name: v for name, v in NODE_DRIFT_PER_S.items() if name in track}
+        unknown = [name for name in track if name not in RIG_PARAMETERS]
+        if unknown:
+            raise ParameterError(
+                f"cannot track {', '.join(unknown)}; the rig's parameters: {', '.join(RIG_PARAMETERS)}"
+            )
+        track = tuple(track) + NODE_PARAMETERS
+        drift = dict(NODE_DRIFT_PER_S)
         self.estimator = RigEstimator(params, nodes=nodes, track=track, drift_per_s=drift,
                                       angle_sigma_rad=TWIST_SIGMA_RAD, torque_noise_n_m=TORQUE_NOISE_N_M)  # fmt: skip
         self._parameter_sigma0 = self.estimator.drift_per_s * math.sqrt(20.0)

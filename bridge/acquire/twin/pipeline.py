@@ -33,8 +33,8 @@ from pendsim_mj.sensors.bno055 import FUSION_RATE_HZ
 from pendsim_mj.twin.estimator import TRACKABLE
 from pendsim_mj.twin.health import WHAT, Alarm
 from pendsim_mj.twin.measurement import Learned
-from pendsim_mj.twin.merge import DEFAULT_HOLD_S, SampleMerger
-from pendsim_mj.twin.session import DEFAULT_TRACK, FORECAST_STEP_S, TwinSession, TwinSummary
+from pendsim_mj.twin.merge import DEFAULT_HOLD_S, Held, SampleMerger
+from pendsim_mj.twin.session import DEFAULT_TRACK, FORECAST_STEP_S, NODE_PARAMETERS, TwinSession, TwinSummary
 from pendsim_mj.units import nanoseconds, seconds
 
 from ...errors import OutputError
@@ -55,7 +55,8 @@ class TwinSpec:
 
     Attributes:
       params: the rig the twin models.
-      track: the parameters tracked and monitored (``pendsim_mj.twin.TRACKABLE``).
+      track: the rig's parameters tracked and monitored (``pendsim_mj.twin.session.RIG_PARAMETERS``;
+        the node states are tracked always).
       forecast_horizon_s, forecast_every_s: the forecasts.
       threshold, persist_s, baseline_s: the health monitor's.
       hold_s: the merger's longest wait for the other node, s.
@@ -76,7 +77,7 @@ class TwinSpec:
     def metadata(self, source: str) -> dict[str, str]:
         return {
             "source": source,
-            "track": ",".join(self.track),
+            "track": ",".join(self.track + NODE_PARAMETERS),
             "forecast_horizon_s": repr(self.forecast_horizon_s),
             "forecast_every_s": repr(self.forecast_every_s),
             "threshold_sigma": repr(self.threshold),
@@ -151,6 +152,7 @@ class TwinPipeline:
         if sink is not None:
             self._register()
         self.latency_s: list[float] = []
+        self._unwritten: list[Held[tuple[NDArray[np.float64], tuple[float, float]]]] = []
         self._now_arrivals: list[float] = []
         self._next_flush_s = -math.inf
         self._next_diag_s = -math.inf
@@ -160,12 +162,17 @@ class TwinPipeline:
     def _register(self) -> None:
         sink = self.sink
         assert sink is not None
-        names = tuple(n for n in self.spec.track)
+        names = self.session.estimator.track
         self._estimate_layout = twin_topics.layout(twin_topics.ESTIMATE_COLUMNS)
-        self._parameter_layout = twin_topics.layout(twin_topics.parameter_columns(names))
-        self._forecast_points = max(1, math.ceil(self.spec.forecast_horizon_s / FORECAST_STEP_S - 1e-9) + 1)
-        self._forecast_layout = twin_topics.layout(twin_topics.forecast_columns(self._forecast_points))
-        for topic in (twin_topics.ESTIMATE_TOPIC, twin_topics.PARAMETERS_TOPIC, twin_topics.FORECAST_TOPIC):
+        topics = [twin_topics.ESTIMATE_TOPIC]
+        if names:  # nothing tracked: no /twin/parameters
+            self._parameter_layout = twin_topics.layout(twin_topics.parameter_columns(names))
+            topics.append(twin_topics.PARAMETERS_TOPIC)
+        if self.spec.forecast_horizon_s > 0:  # no forecasts: no /twin/forecast
+            self._forecast_points = max(1, math.ceil(self.spec.forecast_horizon_s / FORECAST_STEP_S - 1e-9) + 1)
+            self._forecast_layout = twin_topics.layout(twin_topics.forecast_columns(self._forecast_points))
+            topics.append(twin_topics.FORECAST_TOPIC)
+        for topic in topics:
             self._channels[topic] = sink.register(topic, twin_topics.SCHEMA)
 
     def push(
@@ -198,12 +205,19 @@ class TwinPipeline:
             taken = self.session.take(held.node, held.t_s, row[quat], row[gyro], row[accel], torques)
             if taken and clock is not None:
                 self.latency_s.append(clock() - held.arrived_s)
-        if self.sink is not None:  # the measured samples, one call per node
+        if self.sink is not None:
+            self._unwritten += released
+
+    def publish(self) -> None:
+        """Write and show what was taken in since the last call (in batches: ``tick`` calls it
+        every ``VIEW_S``): the measured samples (one call per node), the twin's outputs."""
+        if self.sink is not None and self._unwritten:
             for node in (0, 1):
-                mine = [h for h in released if h.node == node]
+                mine = [h for h in self._unwritten if h.node == node]
                 if mine:
                     t_ns = self.start_utc_ns + nanoseconds(np.array([h.t_s for h in mine]))
                     self.sink.add_samples(self.node_names[node], t_ns, np.array([h.item[0] for h in mine]))
+            self._unwritten = []
         self._publish(self.session.drain())
 
     def _publish(self, out: object) -> None:
@@ -255,7 +269,7 @@ class TwinPipeline:
         out = []
         found = session.estimator.parameters() if not math.isnan(session.started_s) else {}
         monitor = session.monitor
-        for name in self.spec.track:
+        for name in session.estimator.track:
             value, sigma = found.get(name, (math.nan, math.nan))
             reference = monitor.reference.get(name, math.nan) if monitor and monitor.reference else math.nan
             z = (value - reference) / sigma if sigma and math.isfinite(reference) else math.nan
@@ -311,14 +325,17 @@ class TwinPipeline:
         a second (for a status line)."""
         second = False
         if now_s >= self._next_diag_s:
+            self.publish()
             self._next_diag_s = now_s + DIAGNOSTICS_S
             self._diagnostics(max(t_s, 0.0))
             second = True
         if now_s >= self._next_view_s:
             self._next_view_s = now_s + VIEW_S
+            self.publish()
             for view in self.views:
                 view.send()
         if now_s >= self._next_flush_s and self.sink is not None:
+            self.publish()
             self._next_flush_s = now_s + FLUSH_S
             released = self.merger.released_s
             if math.isfinite(released):
@@ -328,6 +345,7 @@ class TwinPipeline:
     def finish(self) -> None:
         """Everything waiting released and taken in, the last diagnostics, the views' last batch."""
         self.step(math.inf, final=True)
+        self.publish()
         self._diagnostics(max(self.session.estimator.t_s, 0.0))
         for view in self.views:
             view.send()
