@@ -70,6 +70,22 @@ GAP_PERIODS = 2.5  # triples spanning more than this many sample periods (a loss
 MOVING_SHARE = 0.75  # the frame's window: this share of its samples turning faster than PHASE_MOTION_RAD_S
 RADIUS_TOLERANCE = 0.3  # a fitted frame more than this share off the start frame's radius is refused
 RETRY_S = 0.25  # a refused fit is tried again this long after, s
+FALLBACK_S = 3.0  # the twin's session falls a node back on the gravity frame (``fall_back``) when it
+# still has none this long after the other node measures: a node that barely swings (M2 when M1
+# alone is released) never gives a window to fit
+
+
+def gravity_frame(start: SwingFrame, quat_wxyz: Floats) -> SwingFrame:
+    """The start frame's axes with its reference orientation taken from one sample: the swing
+    angle at that sample read from gravity in the node's frame (its fused orientation's world z is
+    up, whatever its heading), phi = atan2(-g . tangential, -g . toward_pivot), and the reference
+    the orientation turned back by phi about the hinge. The heading drops out; what the mount's
+    misalignment leaves is a small constant offset (the twin tracks each node's offset)."""
+    q = np.asarray(quat_wxyz, dtype=float)
+    g = rotations.to_matrix(q).T @ np.array([0.0, 0.0, -1.0])  # gravity's direction in the node's axes
+    phi = math.atan2(-float(g @ start.tangential), -float(g @ start.toward_pivot))
+    reference = rotations.multiply(q, rotations.from_rotvec(np.asarray(start.quat_axis) * -phi))
+    return dataclasses.replace(start, reference_quat_wxyz=reference / np.linalg.norm(reference), angle_offset_rad=0.0)
 
 
 def model_mount_frame(radius_m: float) -> SwingFrame:
@@ -264,6 +280,9 @@ class NodeMeasurement:
         self._t_s = -math.inf
         self._tried_t_s = -math.inf
         self._phi: float | None = None
+        self._first_t_s: float | None = None
+        self._fall_back = False
+        self.from_gravity = False  # the frame is the gravity frame (the node did not swing enough to fit one)
 
     def add(
         self, t_s: float, quat_wxyz: ArrayLike, gyro_rad_s: ArrayLike, accel_m_s2: ArrayLike
@@ -282,13 +301,19 @@ class NodeMeasurement:
                 f"expected quat (4,), gyro (3,), accel (3,), got {quat.shape}, {gyro.shape}, {accel.shape}"
             )
         self._t_s = t
+        if self._first_t_s is None:
+            self._first_t_s = t
         if self.phase is not None:
             self.phase.add(t, gyro)
+        quiet = self._fall_back
         if self.frame is None:
             waiting = self._learn_frame(t, quat, gyro, accel)
-            if waiting is not None:
+            if waiting is not None and not quiet:
                 return waiting
-        elif self.phase is not None and not self.phase.ready:
+            if waiting is not None:  # a node that does not swing enough to fit its frame
+                self._set_frame(gravity_frame(self.start_frame, quat))
+                self._frame_t_s, self._hinge_deg, self._sense, self.from_gravity = t, 0.0, True, True
+        elif self.phase is not None and not self.phase.ready and not quiet:
             return Waiting(f"fusion phase: {self.phase.weight:.0f} of {PHASE_SAMPLES} swinging samples")
         assert self.frame is not None
         phi = self._angle(quat)
@@ -298,11 +323,19 @@ class NodeMeasurement:
         omega = float(gyro @ self.frame.hinge_axis)
         return NodeSample(self.value_instant(t), phi, omega, t)
 
+    def fall_back(self) -> None:
+        """From the next sample on, measure without waiting: the gravity frame
+        (``gravity_frame``) if no frame was fitted, and values half a fusion period old if the
+        fusion phase is not known (a node that barely swings teaches neither)."""
+        self._fall_back = True
+
     def value_instant(self, t_s: float) -> float:
         """The instant the value of a sample taken at ``t_s`` stands for, s (the phase's
         current estimate; ``t_s`` itself without fusion timing)."""
         if self.phase is None:
             return float(t_s)
+        if not self.phase.ready:  # a quiet node: its values are on average half a fusion period old
+            return float(t_s) - 0.5 * self.phase.period_s
         p, period = self.phase.estimate()[0], self.phase.period_s
         return p + period * math.floor((t_s - p) / period + 1e-9)
 

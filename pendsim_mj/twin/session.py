@@ -38,7 +38,7 @@ from pendsim_mj.rig.params import DEFAULT_PARAMS, RigParams
 from pendsim_mj.sensors.bno055 import FUSION_RATE_HZ, Bno055
 from pendsim_mj.twin.estimator import NSTATE, TRACKABLE, Forecast, RigEstimator
 from pendsim_mj.twin.health import DEFAULT_PERSIST_S, DEFAULT_THRESHOLD, Alarm, HealthMonitor
-from pendsim_mj.twin.measurement import TWIST_SIGMA_RAD, Learned, NodeMeasurement, Waiting
+from pendsim_mj.twin.measurement import FALLBACK_S, TWIST_SIGMA_RAD, Learned, NodeMeasurement, Waiting
 from pendsim_mj.twin.outputs import Estimates, ParameterCheck
 
 Floats = NDArray[np.float64]
@@ -205,6 +205,7 @@ class TwinSession:
         self._events_out: list[tuple[float, str]] = []
         self._tracking = False
         self._checks_from_s = -math.inf
+        self._measuring_since: list[float | None] = [None, None]
         self._rows: list[tuple] = []
         self._forecasts: list[tuple[float, Forecast]] = []
         self._checks: list[ParameterCheck] = []
@@ -235,7 +236,12 @@ class TwinSession:
         self._samples[node] += 1
         got = self.measurements[node].add(t_s, quat_wxyz, gyro_rad_s, accel_m_s2)
         if isinstance(got, Waiting):
+            measuring = self._measuring_since[1 - node]
+            if measuring is not None and t_s - measuring >= FALLBACK_S:
+                self.measurements[node].fall_back()  # the other node measures, this one barely swings
             return False
+        if self._measuring_since[node] is None:
+            self._measuring_since[node] = t_s
         t_v, phi, omega = got.t_s, got.phi_rad, got.omega_rad_s
         self._recent[node].append((t_v, phi, omega))
         if not self._tracking:

@@ -183,3 +183,23 @@ def test_the_angle_is_the_swing_frames_angle(twin, fused):
     sample = quat[2000:2050]
     ours = np.array([front._angle(q) for q in sample])
     np.testing.assert_allclose(ours, frame.angle(sample), atol=1e-12)
+
+
+def test_the_gravity_frame_reads_the_swing_angle_whatever_the_heading():
+    """A node that barely swings gets its frame from one sample: gravity in its axes gives its
+    angle from the vertical, its heading drops out (the model's mount, turned to a heading)."""
+    from pendsim_mj.sensors import rotations
+    from pendsim_mj.twin.measurement import gravity_frame, model_mount_frame
+
+    start = model_mount_frame(0.3)
+    for heading in (0.0, 1.1, -2.5):
+        world = rotations.from_rotvec(np.array([0.0, 0.0, heading]))  # the NDOF heading: a turn about vertical
+
+        def node(phi: float, world: np.ndarray = world) -> np.ndarray:
+            swing = rotations.multiply(start.reference_quat_wxyz, rotations.from_rotvec(start.quat_axis * phi))
+            return rotations.multiply(world, swing)
+
+        frame = gravity_frame(start, node(0.21))
+        phis = np.array([-0.7, -0.1, 0.0, 0.4, 1.2])
+        got = frame.angle(np.array([node(p) for p in phis]))
+        np.testing.assert_allclose(got, phis, atol=1e-12)
