@@ -23,14 +23,20 @@ on its mount in rad), with covariance P. A tracked parameter is a random walk (i
   nu is white with covariance S, and the normalised innovation squared nu' S^-1 nu has a chi^2
   distribution with 2 degrees of freedom (mean 2): the health monitor's input.
 
+The last ``keep_s`` seconds of samples are kept (``recent``, ``Sample``; none by default) for a
+health monitor that re-runs them under competing hypotheses.
+
 Samples must come in time order; a sample older than the filter's time (reordered in transport)
 is refused (``StaleSample``), the caller decides (acquire's timeline orders them).
 """
 
 from __future__ import annotations
 
+import collections
+import copy
 import dataclasses
 import math
+from typing import NamedTuple
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -48,18 +54,32 @@ DEFAULT_TORQUE_NOISE_N_M = 2e-5  # N m / sqrt(Hz): white torque standing for the
 # white on the sensor model's data at this level; 2e-4 made them anticorrelated, lag-1 -0.25)
 
 # name -> (the force law's coefficient it sets, or None for a node's angle offset; its unit; the
-# default drift per sqrt(s): a step of the issue's size is followed within tens of seconds)
+# default drift per sqrt(s): a step of the issue's size is followed within tens of seconds). Damping
+# and dry friction drift slowly (4e-6 N m s/rad and 6e-6 N m per sqrt(s), 0.6 % of b1 and 3 % of
+# the issue's 2e-4 N m per sqrt(s)): a faster walk forgets the amplitude's decay, which is what
+# tells the two apart, and at 5 times these rates dry friction of 2e-4 N m stayed below 6 sigma.
 TRACKABLE: dict[str, tuple[str | None, str, float]] = {
-    "b1_n_m_s": ("b1_n_m_s", "N m s/rad", 2e-5),
-    "b2_n_m_s": ("b2_n_m_s", "N m s/rad", 2e-5),
-    "friction1_n_m": ("friction1_n_m", "N m", 3e-5),
-    "friction2_n_m": ("friction2_n_m", "N m", 3e-5),
+    "b1_n_m_s": ("b1_n_m_s", "N m s/rad", 4e-6),
+    "b2_n_m_s": ("b2_n_m_s", "N m s/rad", 4e-6),
+    "friction1_n_m": ("friction1_n_m", "N m", 6e-6),
+    "friction2_n_m": ("friction2_n_m", "N m", 6e-6),
     "coupling_sin_n_m": ("coupling_sin_n_m", "N m", 5e-4),
     "offset_m1_rad": (None, "rad", 1e-3),
     "offset_m2_rad": (None, "rad", 1e-3),
 }
 """The parameters the estimator can track: name -> (coefficient of ``fast_planar.closed_form``,
 unit, default drift per sqrt(s))."""
+
+
+class Sample(NamedTuple):
+    """One node's sample as the estimator took it in (``RigEstimator.recent``): its instant (s),
+    node (0 M1, 1 M2), swing angle (rad), hinge rate (rad/s) and the hinge torques held (N m)."""
+
+    t_s: float
+    node: int
+    phi_rad: float
+    omega_rad_s: float
+    torques_n_m: tuple[float, float]
 
 
 class StaleSample(PendsimError):
@@ -118,6 +138,11 @@ class RigEstimator:
       track: names of ``TRACKABLE`` to follow as states (none: the rig's parameters are known).
       drift_per_s: each tracked parameter's random-walk rate, unit per sqrt(s) (default: TRACKABLE's).
       alpha, beta, kappa: the sigma points' spread (Merwe's scaled set).
+      keep_s: how many seconds of samples to keep in ``recent`` (0: none; a monitor may raise it).
+
+    Attributes:
+      count: samples taken in since construction.
+      recent: the last ``keep_s`` seconds of samples (``Sample``), oldest first.
     """
 
     def __init__(
@@ -131,7 +156,10 @@ class RigEstimator:
         alpha: float = 1e-3,
         beta: float = 2.0,
         kappa: float = 0.0,
+        keep_s: float = 0.0,
     ) -> None:
+        if not (math.isfinite(keep_s) and keep_s >= 0):
+            raise ParameterError(f"keep_s must be a finite number >= 0 s, got {keep_s!r}")
         if not (math.isfinite(torque_noise_n_m) and torque_noise_n_m > 0):
             raise ParameterError(f"torque_noise_n_m must be > 0, got {torque_noise_n_m!r}")
         nodes = nodes if nodes is not None else Bno055()
@@ -157,6 +185,25 @@ class RigEstimator:
         self.t_s = 0.0
         self.x = np.zeros(self.n)
         self.p = np.eye(self.n)
+        self.keep_s = float(keep_s)
+        self.count = 0
+        self.recent: collections.deque[Sample] = collections.deque()
+
+    def copy(self, *, drift_per_s: ArrayLike | None = None) -> RigEstimator:
+        """An independent copy of the filter (its rig, settings, estimate and covariance), without
+        its kept samples; ``drift_per_s`` (one per tracked parameter) replaces the random walks'
+        rates (0 holds a parameter constant)."""
+        other = copy.copy(self)
+        other._plant = FastPlant(self.params, nenv=2 * self.n + 1)
+        other._plant.coef[:] = self._plant.coef
+        other.x, other.p = self.x.copy(), self.p.copy()
+        if drift_per_s is not None:
+            drift = np.asarray(drift_per_s, dtype=float)
+            if drift.shape != (len(self.track),) or not np.all(np.isfinite(drift) & (drift >= 0)):
+                raise ParameterError(f"drift_per_s must be {len(self.track)} numbers >= 0, got {drift_per_s!r}")
+            other.drift_per_s = drift
+        other.keep_s, other.count, other.recent = 0.0, 0, collections.deque()
+        return other
 
     def stated(self, name: str) -> float:
         """A tracked parameter's value in the rig the estimator was given (0 for an offset)."""
@@ -169,16 +216,23 @@ class RigEstimator:
         x0: ArrayLike,
         sigma0: ArrayLike = (0.05, 0.05, 0.2, 0.2),
         parameter_sigma0: ArrayLike | None = None,
+        *,
+        parameter0: ArrayLike | None = None,
     ) -> None:
         """Start at ``t_s`` from x0 (4,) with standard deviations sigma0 (4,) (rad, rad/s); the
-        tracked parameters start at the rig's values with ``parameter_sigma0`` (default: 20 s of
+        tracked parameters start at ``parameter0`` (default: the rig's values; one per tracked
+        parameter, ``track``'s order and units) with ``parameter_sigma0`` (default: 20 s of
         drift)."""
         x = np.asarray(x0, dtype=float)
         if x.shape != (NSTATE,) or not np.all(np.isfinite(x)):
             raise ParameterError(f"the start state must be 4 finite numbers, got {x0!r}")
         spread = self.drift_per_s * math.sqrt(20.0) if parameter_sigma0 is None else np.asarray(parameter_sigma0)
         self.t_s = float(t_s)
-        self.x = np.concatenate([x, [self.stated(name) for name in self.track]])
+        theta = [self.stated(name) for name in self.track] if parameter0 is None else parameter0
+        theta = np.asarray(theta, dtype=float)
+        if theta.shape != (len(self.track),) or not np.all(np.isfinite(theta)):
+            raise ParameterError(f"parameter0 must be {len(self.track)} finite numbers, got {parameter0!r}")
+        self.x = np.concatenate([x, theta])
         self.p = np.diag(np.square(np.concatenate([np.asarray(sigma0, dtype=float), spread])))
 
     def _process_noise(self, h: float) -> Floats:
@@ -243,6 +297,14 @@ class RigEstimator:
         self.x = self.x + gain @ nu
         keep = np.eye(self.n) - gain @ h
         self.p = keep @ self.p @ keep.T + gain @ r @ gain.T  # Joseph form
+        self.count += 1
+        if self.keep_s > 0:
+            tau = np.asarray(torques_n_m, dtype=float)
+            self.recent.append(
+                Sample(self.t_s, node, float(phi_rad), float(omega_rad_s), (float(tau[0]), float(tau[1])))
+            )
+            while self.recent[0].t_s < self.t_s - self.keep_s:
+                self.recent.popleft()
         return Update(self.t_s, node, nu, s, float(nu @ np.linalg.solve(s, nu)))
 
     @property
