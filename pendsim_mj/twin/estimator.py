@@ -255,7 +255,11 @@ class RigEstimator:
             raise StaleSample(f"a sample at {t_s:.6f} s is older than the estimate at {self.t_s:.6f} s")
         if h <= 0:
             return
-        root = np.linalg.cholesky(self._scale * self.p + 1e-18 * np.eye(self.n))
+        # the square root with a jitter relative to each variance (an absolute one would add a
+        # random walk of its own to every parameter: 1e-18 / scale per step, 4e-6 per sqrt(s) at 160 Hz)
+        a = self._scale * self.p
+        d = np.sqrt(np.maximum(np.diag(a), 1e-300))
+        root = np.linalg.cholesky(a / np.outer(d, d) + 1e-12 * np.eye(self.n)) * d[:, None]
         points = np.concatenate([self.x[None], self.x + root.T, self.x - root.T])  # (2n + 1, n)
         tau = np.asarray(torques_n_m, dtype=float)
         u = np.zeros((4, len(points)))

@@ -270,7 +270,7 @@ class HealthMonitor:
         if not self.attribute:
             value, sigma = est.parameters()[top]
             return self._raise(Alarm(top, WHAT[top], t, self._calm_s[top], self.reference[top], value, sigma))
-        self._start_bank(sorted(watched, key=watched.__getitem__, reverse=True), self._above_since, self._calm_s[top])
+        self._start_bank(sorted(watched, key=watched.__getitem__, reverse=True), t, self._calm_s[top])
         return self._decide(t)
 
     def _raise(self, alarm: Alarm) -> list[Alarm]:
@@ -279,9 +279,9 @@ class HealthMonitor:
         return [alarm]
 
     def _start_bank(self, ranked: list[str], from_s: float, since_s: float) -> None:
-        """The bank of hypotheses from the snapshot at ``from_s`` (the detection's first check:
-        the change has happened by then, so each hypothesis's step is free to take its size at
-        once, and the state is the estimator's there)."""
+        """The bank of hypotheses from the snapshot at ``from_s`` (the detection: the change has
+        happened by then, so each hypothesis's step is free to take its size at once, a transient
+        such as a knock is over, and the state is the estimator's there)."""
         assert self.reference is not None
         est = self.estimator
         start = self._snapshots[0]
