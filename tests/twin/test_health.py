@@ -13,8 +13,8 @@ import pytest
 from scipy.optimize import minimize
 
 from pendsim_mj.engines.simulation import simulate
-from pendsim_mj.rig.drives import Drive, TimeSeries
 from pendsim_mj.estimation.swing_frame import twist_angle
+from pendsim_mj.rig.drives import Drive, TimeSeries
 from pendsim_mj.rig.params import DEFAULT_PARAMS
 from pendsim_mj.sensors.bno055 import Bno055, sample_imu, static_imu
 from pendsim_mj.twin.estimator import NSTATE, TRACKABLE, RigEstimator
