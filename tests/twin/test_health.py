@@ -99,7 +99,9 @@ def test_a_knock_is_detected_but_dismissed_not_alarmed():
     parameters far off, but no parameter change explains what follows: the attribution dismisses
     it, and nothing is alarmed."""
     tap = TimeSeries((0.0, 7.95, 8.0, 8.05, 24.0), (0.0, 0.0, 0.05, 0.0, 0.0))
-    run = simulate(PAPER, np.radians((20.0, 12.0)), (0.0, 0.0), 24.0, STEP_S, drive=Drive(torque_m1=tap))
+    run = simulate(
+        PAPER, (math.radians(20.0), math.radians(12.0)), (0.0, 0.0), 24.0, STEP_S, drive=Drive(torque_m1=tap)
+    )
     imu = sample_imu(run, Bno055(fusion_timing=False, seed=3))
     rest = static_imu(PAPER, 1.0, Bno055(noise=False)).quat_wxyz[0]
     phi = np.stack([twist_angle(imu.quat_wxyz[:, n], rest[n], np.array([0.0, 0.0, 1.0])) for n in range(2)], axis=1)
