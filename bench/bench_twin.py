@@ -18,7 +18,8 @@ constant is about 75 s), the twin restarted at each release (``release``).
 - the cost of one update against one bare RK4 step of the same batch (measured in the same run).
 
 Run: python bench/bench_twin.py [--hours 1] [--seed 0] [--episode-s 300] [--fault-seeds 3]
-     [--driven] [--no-cost]
+     [--driven | --driven-only] [--no-cost]
+     python bench/bench_twin.py --combine OUT1 OUT2 ...  (the healthy hours of several runs' outputs)
 """
 
 from __future__ import annotations
@@ -211,9 +212,23 @@ def main() -> None:
     parser.add_argument("--episode-s", type=float, default=300.0, help="each release watched this long, s")
     parser.add_argument("--fault-seeds", type=int, default=3, help="releases per fault (0: none)")
     parser.add_argument("--driven", action="store_true", help="also the driven scenario")
+    parser.add_argument("--combine", nargs="+", metavar="OUT", help="add up the healthy hours of earlier runs' outputs")
+    parser.add_argument("--driven-only", action="store_true", help="only the driven scenario's faults")
     parser.add_argument("--no-cost", action="store_true", help="skip the cost measurement")
     args = parser.parse_args()
 
+    if args.combine:
+        runs = []
+        for path in args.combine:
+            with open(path) as f:
+                runs += [json.loads(line[5:]) for line in f if line.startswith("json ")]
+        hours, n = sum(r["hours"] for r in runs), sum(len(r["alarms"]) for r in runs)
+        print(f"{len(runs)} runs (seeds {', '.join(str(r['seed']) for r in runs)}): {hours:.2f} healthy hours, "
+              f"{sum(r['releases'] for r in runs)} releases, {n} false alarms, "
+              f"{sum(r['dismissed'] for r in runs)} dismissed detections, largest |g| "
+              f"{max(r['largest_g'] for r in runs):.2f}; 95 % upper bound "
+              f"{rate_bound(n, hours):.2f} per hour")  # fmt: skip
+        return
     if not args.no_cost:
         cost()
     if args.hours > 0:
@@ -226,9 +241,9 @@ def main() -> None:
         for line in result["alarms"]:
             print("  ", line)
         print("json", json.dumps(result), flush=True)
-    if args.fault_seeds > 0:
+    if args.fault_seeds > 0 and not args.driven_only:
         _print_faults(faults(args.fault_seeds), "faults on free decays (10-30 s after a release, watched 60 s)")
-    if args.driven:
+    if args.driven or args.driven_only:
         _print_faults(driven(max(1, args.fault_seeds)), "faults on the driven rig (at 60 s, watched 60 s)")
 
 
