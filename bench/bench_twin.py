@@ -15,10 +15,12 @@ constant is about 75 s), the twin restarted at each release (``release``).
   parameter it names.
 - ``--driven``: the older scenario, a motor on M1 near mode 1 keeping a steady amplitude (each
   fault at 60 s; the twin knows the drive's torque).
+- ``--fusion-error-deg``: the fused orientation's slowly varying error (off by default, as in
+  the sensor model; the monitor allows the mount offsets that spread).
 - the cost of one update against one bare RK4 step of the same batch (measured in the same run).
 
 Run: python bench/bench_twin.py [--hours 1] [--seed 0] [--episode-s 300] [--fault-seeds 3]
-     [--driven | --driven-only] [--no-cost]
+     [--driven | --driven-only] [--fusion-error-deg 0] [--no-cost]
      python bench/bench_twin.py --combine OUT1 OUT2 ...  (the healthy hours of several runs' outputs)
 """
 
@@ -39,6 +41,7 @@ from pendsim_mj.estimation.swing_frame import twist_angle
 from pendsim_mj.rig.drives import Drive, Sine
 from pendsim_mj.rig.params import DEFAULT_PARAMS
 from pendsim_mj.sensors.bno055 import Bno055, sample_imu, static_imu
+from pendsim_mj.sensors.imperfections import Imperfections
 from pendsim_mj.twin.estimator import TRACKABLE, RigEstimator
 from pendsim_mj.twin.health import Alarm, HealthMonitor
 
@@ -61,6 +64,12 @@ FAULTS: dict[str, tuple[dict[str, float], tuple[float, float], str]] = {
 DRIVE_N_M, DRIVE_HZ = 0.01, 0.877  # the driven scenario: a motor on M1 near mode 1
 
 Samples = tuple[np.ndarray, np.ndarray, np.ndarray]  # t_s (k,), swing angles (k, 2), hinge rates (k, 2)
+NODES = {"fusion_error_rad": 0.0}  # the nodes' fused orientation's slow error (--fusion-error-deg)
+
+
+def nodes(seed: int = 0) -> Bno055:
+    """The emulated nodes: all noise on, ideal fusion timing, the fusion error asked for."""
+    return Bno055(fusion_timing=False, seed=seed, imperfections=Imperfections(**NODES))
 
 
 def release(rng: np.random.Generator) -> tuple[float, float]:
@@ -87,7 +96,7 @@ def measured(
             phase = (2 * math.pi * DRIVE_HZ * start) % (2 * math.pi)
             drive = Drive(torque_m1=Sine(drive_n_m, DRIVE_HZ, phase_rad=phase))
         run = simulate(PAPER.with_overrides(**rig), phi0, omega0, until_s - start, STEP_S, drive=drive)
-        imu = sample_imu(run, Bno055(fusion_timing=False, seed=seed * 1000 + k))
+        imu = sample_imu(run, nodes(seed * 1000 + k))
         phi = np.stack([twist_angle(imu.quat_wxyz[:, n], REST[n], HINGE) for n in range(2)], axis=1)
         phi += np.asarray(slip)
         first = 0 if k == 0 else 1  # the shared boundary sample once
@@ -104,7 +113,7 @@ def watch(
     """A fresh twin (all of ``TRACKABLE`` tracked) started from the first sample and fed the
     rest; its monitor and the alarms raised."""
     t, phi, omega = samples
-    estimator = RigEstimator(PAPER, nodes=Bno055(fusion_timing=False), track=TRACKED)
+    estimator = RigEstimator(PAPER, nodes=nodes(), track=TRACKED)
     estimator.start(t[0], [phi[0, 0], phi[0, 1], omega[0, 0], omega[0, 1]])
     monitor = HealthMonitor(estimator, **monitor_options)
     alarms: list[Alarm] = []
@@ -133,7 +142,7 @@ def false_alarms(hours: float, seed: int, episode_s: float) -> dict:
         alarms += [f"{released}: {a.describe()}" for a in found]
         dismissed += len(monitor.dismissed)
         largest = max(largest, *monitor.largest_z().values())
-    return {"seed": seed, "hours": n * episode_s / 3600, "releases": n, "alarms": alarms, "dismissed": dismissed,
+    return {"seed": seed, "fusion_error_rad": NODES["fusion_error_rad"], "hours": n * episode_s / 3600, "releases": n, "alarms": alarms, "dismissed": dismissed,
             "largest_g": largest, "cpu_s": time.process_time() - cpu}  # fmt: skip
 
 
@@ -214,8 +223,10 @@ def main() -> None:
     parser.add_argument("--driven", action="store_true", help="also the driven scenario")
     parser.add_argument("--combine", nargs="+", metavar="OUT", help="add up the healthy hours of earlier runs' outputs")
     parser.add_argument("--driven-only", action="store_true", help="only the driven scenario's faults")
+    parser.add_argument("--fusion-error-deg", type=float, default=0.0, help="the nodes' slow orientation error, rms")
     parser.add_argument("--no-cost", action="store_true", help="skip the cost measurement")
     args = parser.parse_args()
+    NODES["fusion_error_rad"] = math.radians(args.fusion_error_deg)
 
     if args.combine:
         runs = []
@@ -234,7 +245,7 @@ def main() -> None:
     if args.hours > 0:
         result = false_alarms(args.hours, args.seed, args.episode_s)
         n, hours = len(result["alarms"]), result["hours"]
-        print(f"\nhealthy free decays, seed {args.seed}: {hours:.2f} h ({result['releases']} releases of "
+        print(f"\nhealthy free decays, seed {args.seed}, fusion error {args.fusion_error_deg:g} deg: {hours:.2f} h ({result['releases']} releases of "
               f"{args.episode_s:g} s): {n} false alarms ({result['dismissed']} detections dismissed by the "
               f"attribution); largest |g| {result['largest_g']:.2f}; 95 % upper bound "
               f"{rate_bound(n, hours):.2f} per hour; {result['cpu_s']:.0f} s CPU")  # fmt: skip

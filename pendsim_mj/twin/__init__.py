@@ -7,9 +7,9 @@
   can track as random walks with their intervals (``TRACKABLE``: damping, dry friction, the
   coupling springs, each node's mount offset), and ``forecast`` (the motion over the next seconds
   with its uncertainty).
-- ``health``: ``HealthMonitor``, alarms when a tracked parameter leaves its reference by more than
-  a threshold of its standard deviation for a while (``Alarm``: which parameter, what it means on
-  the rig, since when, by how much).
+- ``health``: ``HealthMonitor``, detects a change by the likelihood ratio of one tracked parameter
+  changed, and attributes it by a bank of filters, one per hypothesis, over the data that follow
+  (``Alarm``: which parameter, what it means on the rig, since when, by how much, against what).
 
 Importing this package imports nothing heavy (the estimator loads on first use).
 """

@@ -141,6 +141,8 @@ class RigEstimator:
       keep_s: how many seconds of samples to keep in ``recent`` (0: none; a monitor may raise it).
 
     Attributes:
+      fusion_error_rad: the nodes' slowly varying orientation error, rms, rad (``nodes``'
+        imperfections; in the angle's noise, and a spread the health monitor allows the offsets).
       count: samples taken in since construction.
       recent: the last ``keep_s`` seconds of samples (``Sample``), oldest first.
     """
@@ -167,7 +169,8 @@ class RigEstimator:
         self.torque_noise_n_m = float(torque_noise_n_m)
         gyro = float(nodes.noise_model.gyro_sigma_rad_s[HINGE_AXIS]) if nodes.noise else 1e-6
         quantisation = SWING_ANGLE_SIGMA_RAD if nodes.noise else 1e-7
-        angle = math.hypot(quantisation, nodes.imperfections.fusion_error_rad)
+        self.fusion_error_rad = float(nodes.imperfections.fusion_error_rad)
+        angle = math.hypot(quantisation, self.fusion_error_rad)
         self.measurement_sigma = np.array([angle, gyro])
         unknown = [name for name in track if name not in TRACKABLE]
         if unknown or len(set(track)) != len(track):

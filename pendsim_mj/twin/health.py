@@ -163,6 +163,10 @@ class HealthMonitor:
       candidates: how many parameters (largest |g| first) the attribution weighs (0: all).
       attribute: False skips the attribution stage: the alarm goes to the largest |g| at the
         detection (cheap, but damping and dry friction are then often confused).
+      reference_sigma: the references' own spread, each parameter's unit (a calibration's interval;
+        default: the nodes' fusion error, ``estimator.fusion_error_rad``, for the mount offsets,
+        whose slowly varying error looks like a turned mount; 0 for the others). A departure
+        within it is no change: it adds to P in g and leaves the parameter that free in H0.
 
     Attributes:
       alarmed: the alarms raised, by parameter. history: (t_s, g per parameter) at each check
@@ -182,6 +186,7 @@ class HealthMonitor:
         decide_s: float = DEFAULT_DECIDE_S,
         candidates: int = DEFAULT_CANDIDATES,
         attribute: bool = True,
+        reference_sigma: dict[str, float] | None = None,
     ) -> None:
         for name, value in (("baseline_s", baseline_s), ("persist_s", persist_s), ("decide_s", decide_s)):
             if not (math.isfinite(value) and value >= 0):
@@ -196,6 +201,14 @@ class HealthMonitor:
             raise ParameterError(f"candidates must be an integer >= 0, got {candidates!r}")
         if not estimator.track:
             raise ParameterError("the estimator tracks no parameter: give it track=(...) to monitor")
+        spread = {name: estimator.fusion_error_rad for name in estimator.track if name.startswith("offset")}
+        for name, value in (reference_sigma or {}).items():
+            if name not in estimator.track:
+                raise ParameterError(f"reference_sigma names {name!r}, which the estimator does not track")
+            if not (math.isfinite(value) and value >= 0):
+                raise ParameterError(f"reference_sigma[{name!r}] must be a finite number >= 0, got {value!r}")
+            spread[name] = float(value)
+        self.reference_sigma = np.array([spread.get(name, 0.0) for name in estimator.track])
         self.estimator = estimator
         self.baseline_s, self.threshold, self.persist_s, self.period_s = baseline_s, threshold, persist_s, period_s
         self.margin, self.decide_s, self.candidates, self.attribute = margin, decide_s, candidates, attribute
@@ -222,7 +235,7 @@ class HealthMonitor:
         est = self.estimator
         track = est.track
         delta = np.array([est.x[NSTATE + i] - self.reference[name] for i, name in enumerate(track)])
-        p = est.p[NSTATE:, NSTATE:]
+        p = est.p[NSTATE:, NSTATE:] + np.diag(self.reference_sigma**2)  # the references' spread: no change
         sigma = np.sqrt(np.diag(p))
         out = {name: float(delta[i] / sigma[i]) for i, name in enumerate(track)}
         watched = [i for i, name in enumerate(track) if name not in self.alarmed]
@@ -304,6 +317,10 @@ class HealthMonitor:
                     continue
                 x[j] = self.reference[name]
                 p[j, j] = (PRIOR_SIGMA[name] * (1.0 if name == hypothesis else PIN_FRACTION)) ** 2
+                if self.reference_sigma[i] > 0:  # free within the reference's spread, and wandering
+                    if name != hypothesis:
+                        p[j, j] = self.reference_sigma[i] ** 2
+                    drift[i] = est.drift_per_s[i]
             f = est.copy(drift_per_s=drift)
             f.t_s, f.x, f.p = t0, x, p
             filters.append(f)
