@@ -69,7 +69,9 @@ NODES = {"fusion_error_rad": 0.0}  # the nodes' fused orientation's slow error (
 
 def nodes(seed: int = 0) -> Bno055:
     """The emulated nodes: all noise on, ideal fusion timing, the fusion error asked for."""
-    return Bno055(fusion_timing=False, seed=seed, imperfections=Imperfections(**NODES))
+    return Bno055(
+        fusion_timing=False, seed=seed, imperfections=Imperfections(fusion_error_rad=NODES["fusion_error_rad"])
+    )
 
 
 def release(rng: np.random.Generator) -> tuple[float, float]:
@@ -142,7 +144,8 @@ def false_alarms(hours: float, seed: int, episode_s: float) -> dict:
         alarms += [f"{released}: {a.describe()}" for a in found]
         dismissed += len(monitor.dismissed)
         largest = max(largest, *monitor.largest_z().values())
-    return {"seed": seed, "fusion_error_rad": NODES["fusion_error_rad"], "hours": n * episode_s / 3600, "releases": n, "alarms": alarms, "dismissed": dismissed,
+    return {"seed": seed, "fusion_error_rad": NODES["fusion_error_rad"],
+            "hours": n * episode_s / 3600, "releases": n, "alarms": alarms, "dismissed": dismissed,
             "largest_g": largest, "cpu_s": time.process_time() - cpu}  # fmt: skip
 
 
@@ -245,7 +248,8 @@ def main() -> None:
     if args.hours > 0:
         result = false_alarms(args.hours, args.seed, args.episode_s)
         n, hours = len(result["alarms"]), result["hours"]
-        print(f"\nhealthy free decays, seed {args.seed}, fusion error {args.fusion_error_deg:g} deg: {hours:.2f} h ({result['releases']} releases of "
+        print(f"\nhealthy free decays, seed {args.seed}, fusion error {args.fusion_error_deg:g} deg: {hours:.2f} h "
+              f"({result['releases']} releases of "
               f"{args.episode_s:g} s): {n} false alarms ({result['dismissed']} detections dismissed by the "
               f"attribution); largest |g| {result['largest_g']:.2f}; 95 % upper bound "
               f"{rate_bound(n, hours):.2f} per hour; {result['cpu_s']:.0f} s CPU")  # fmt: skip
