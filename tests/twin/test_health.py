@@ -17,6 +17,7 @@ from pendsim_mj.estimation.swing_frame import twist_angle
 from pendsim_mj.rig.drives import Drive, TimeSeries
 from pendsim_mj.rig.params import DEFAULT_PARAMS
 from pendsim_mj.sensors.bno055 import Bno055, sample_imu, static_imu
+from pendsim_mj.sensors.imperfections import Imperfections
 from pendsim_mj.twin.estimator import NSTATE, TRACKABLE, RigEstimator
 from pendsim_mj.twin.health import UNCHANGED, HealthMonitor
 
@@ -113,33 +114,40 @@ def test_a_knock_is_detected_but_dismissed_not_alarmed():
 
 def test_the_change_statistic_is_the_likelihood_ratio_of_one_parameter_changed():
     """g_i^2 is how much the Mahalanobis distance of the estimate from the references falls when
-    parameter i alone may move (found by direct minimisation), with an alarmed parameter free."""
+    parameter i alone may move (found by direct minimisation), with an alarmed parameter free, and
+    with a reference that has a spread of its own (M1's mount offset: a free shift u costing
+    (u / spread)^2)."""
     estimator = RigEstimator(PAPER, track=TRACKED)
     estimator.start(0.0, [0.1, 0.0, 0.0, 0.0])
-    monitor = HealthMonitor(estimator, attribute=False)
     rng = np.random.default_rng(4)
     scale = np.array([PAPER.b1_n_m_s, PAPER.b2_n_m_s, 1e-4, 1e-4, 0.1, 0.01, 0.01])
     a = rng.normal(size=(7, 7))
     p = (a @ a.T + 0.5 * np.eye(7)) * np.outer(scale, scale) * 1e-2
     delta = rng.normal(size=7) * np.sqrt(np.diag(p)) * 3
     estimator.p[NSTATE:, NSTATE:] = p
-    assert monitor.reference is not None
-    estimator.x[NSTATE:] = [monitor.reference[name] for name in TRACKED] + delta
+    estimator.x[NSTATE:] = [estimator.stated(name) for name in TRACKED] + delta
     info = np.linalg.inv(p)
+    m1 = TRACKED.index("offset_m1_rad")
 
-    def distance(theta):
-        d = delta - theta
-        return d @ info @ d
+    for free, spread in (([], 0.0), ([1], 0.0), ([], 0.005)):  # b2 alarmed: free in every hypothesis
 
-    def fitted(moving: list[int]) -> tuple[float, np.ndarray]:
-        """The least distance with the parameters ``moving`` free (in units of ``scale``)."""
-        if not moving:
-            return distance(np.zeros(7)), np.zeros(0)
-        found = minimize(lambda v: distance(_place(v * scale[moving], moving)), np.zeros(len(moving)), method="BFGS",
-                         options={"gtol": 1e-10})  # fmt: skip
-        return float(found.fun), found.x
+        def distance(v, moving, spread=spread):
+            theta = np.zeros(7)
+            theta[moving] = v[: len(moving)] * scale[moving]
+            u = v[-1] * scale[m1] if spread else 0.0  # the reference's own shift
+            d = delta - theta
+            d[m1] -= u
+            return d @ info @ d + (u / spread if spread else 0.0) ** 2
 
-    for free in ([], [1]):  # then with b2 alarmed: free in every hypothesis
+        def fitted(moving: list[int], spread=spread) -> tuple[float, np.ndarray]:
+            """The least distance with the parameters ``moving`` (and the reference's shift) free."""
+            n = len(moving) + (1 if spread else 0)
+            if n == 0:
+                return float(distance(np.zeros(0), moving)), np.zeros(0)
+            found = minimize(distance, np.zeros(n), args=(moving,), method="BFGS", options={"gtol": 1e-10})
+            return float(found.fun), found.x
+
+        monitor = HealthMonitor(estimator, attribute=False, reference_sigma={"offset_m1_rad": spread})
         monitor.alarmed = {TRACKED[j]: None for j in free}  # type: ignore[misc]
         g = monitor.statistics()
         base, _ = fitted(free)
@@ -147,14 +155,17 @@ def test_the_change_statistic_is_the_likelihood_ratio_of_one_parameter_changed()
             if i in free:
                 continue
             least, moved = fitted([i, *free])
-            assert g[name] ** 2 == pytest.approx(base - least, rel=1e-4, abs=1e-6), name
-            assert math.copysign(1.0, g[name]) == math.copysign(1.0, moved[0]), name
+            assert g[name] ** 2 == pytest.approx(base - least, rel=1e-4, abs=1e-6), (name, spread)
+            assert math.copysign(1.0, g[name]) == math.copysign(1.0, moved[0]), (name, spread)
 
 
-def _place(values, where) -> np.ndarray:
-    theta = np.zeros(7)
-    theta[list(where)] = values
-    return theta
+def test_the_mount_offsets_may_wander_within_the_nodes_fusion_error_by_default():
+    nodes = Bno055(fusion_timing=False, imperfections=Imperfections(fusion_error_rad=0.01))
+    estimator = RigEstimator(PAPER, nodes=nodes, track=TRACKED)
+    monitor = HealthMonitor(estimator)
+    assert dict(zip(TRACKED, monitor.reference_sigma, strict=True)) == {
+        name: (0.01 if name.startswith("offset") else 0.0) for name in TRACKED
+    }
 
 
 def test_an_alarm_says_what_since_when_by_how_much_and_against_what():
