@@ -26,14 +26,15 @@ _LAZY = {
     "TRACKABLE": "pendsim_mj.twin.estimator",
     "Forecast": "pendsim_mj.twin.estimator",
     "RigEstimator": "pendsim_mj.twin.estimator",
+    "Sample": "pendsim_mj.twin.estimator",
     "StaleSample": "pendsim_mj.twin.estimator",
     "Update": "pendsim_mj.twin.estimator",
 }
 
 if TYPE_CHECKING:
-    from pendsim_mj.twin.estimator import TRACKABLE, Forecast, RigEstimator, StaleSample, Update
+    from pendsim_mj.twin.estimator import TRACKABLE, Forecast, RigEstimator, Sample, StaleSample, Update
     from pendsim_mj.twin.health import Alarm, HealthMonitor
 else:
     __getattr__, __dir__ = lazy.exports(__name__, _LAZY)
 
-__all__ = ["TRACKABLE", "Alarm", "Forecast", "HealthMonitor", "RigEstimator", "StaleSample", "Update"]
+__all__ = ["TRACKABLE", "Alarm", "Forecast", "HealthMonitor", "RigEstimator", "Sample", "StaleSample", "Update"]
