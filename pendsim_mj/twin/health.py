@@ -19,19 +19,24 @@ estimate, so each alone is poorly determined (small z), but their combination is
 Parameters that have already alarmed are left free (their rows marginalised out of P). A
 detection is raised when max_i |g_i| stays above ``threshold`` for ``persist_s``.
 
-**Attribution** (after a detection, costly, for up to ``decide_s``). At one steady amplitude, viscous
-damping and dry friction take out the same energy per cycle; they differ in how the loss scales
-with the amplitude (b: as A^2 per cycle, F: as A), which only the data over a changing amplitude
-shows. So the monitor re-runs the samples since the detection's first check (the estimator keeps
-them, ``keep_s``), from the estimator's state then, through a bank of copies of the filter, one per
-hypothesis: H0 "nothing changed" (every parameter held at its reference) and, for each of the
-``candidates`` parameters with the largest |g|, H_i "parameter i has stepped, the others held"
-(theta_i constant with a wide prior, ``PRIOR_SIGMA``). Each copy sums the log-likelihood of its
-innovations (its evidence, ``-0.5 (nu' S^-1 nu + ln det S)`` per sample). The alarm is raised on H_i once its evidence
-exceeds every other hypothesis's, H0's included, by ``margin`` (a likelihood ratio of e^margin),
-or, after ``decide_s``, once it exceeds H0's by ``margin`` (the alarm then names the runner-up and
-the evidence between them). A bank in which H0 stays ahead is dismissed: a false detection costs
-the bank's CPU, not an alarm.
+**Attribution** (after a detection, costly, for up to ``decide_s``). At one steady amplitude,
+viscous damping and dry friction take out the same energy per cycle; they differ in how the loss
+scales with the amplitude (b: as A^2 per cycle, F: as A), which only the data over a changing
+amplitude shows. So from the detection on (the change has happened by then, and a transient such
+as a knock is over), the monitor feeds the samples (the estimator keeps the latest, ``keep_s``)
+to a bank of copies of the filter started from the estimator's state, one per hypothesis: H0
+"nothing changed" (every parameter held at its reference) and, for each of the ``candidates``
+parameters with the largest |g|, H_i "parameter i has stepped, the others held" (theta_i constant
+with a wide prior, ``PRIOR_SIGMA``). Each copy sums the log-likelihood of its innovations (its
+evidence, ``-0.5 (nu' S^-1 nu + ln det S)`` per sample). The alarm is raised on H_i once its
+evidence exceeds every other hypothesis's, H0's included, by ``margin`` (a likelihood ratio of
+e^margin), or, after ``decide_s``, once it exceeds H0's by ``margin`` (the alarm names the
+runner-up and the evidence between them). Otherwise the detection is dismissed: a false detection
+costs the bank's CPU, not an alarm.
+
+**The references' spread** (``reference_sigma``): a reference known only within an interval (a
+calibration's; the mount offsets within the nodes' slowly varying fusion error, by default) adds
+its variance to P in g, and leaves the parameter free within it in H0.
 
 The alarm says which parameter (and so which node or hinge), since when (the last check with
 |g_i| below 2 before the detection), and by how much (the step's estimate under H_i, with its
@@ -49,7 +54,6 @@ makes the tails heavier, which is what the measurement is for.
 
 from __future__ import annotations
 
-import collections
 import dataclasses
 import math
 
@@ -64,7 +68,7 @@ DEFAULT_MARGIN = 5.0  # natural log of the likelihood ratio: 150 to 1
 DEFAULT_DECIDE_S = 45.0
 DEFAULT_CANDIDATES = 4
 SINCE_LEVEL = 2.0  # sigmas: "since when" is the last check below this before the alarm
-WINDOW_S = 60.0  # samples and snapshots kept for the attribution stage, s
+KEEP_S = 5.0  # samples the estimator keeps for the attribution's bank between two checks, s
 PIN_FRACTION = 1e-6  # a parameter held at its reference in a hypothesis: sigma = PRIOR_SIGMA * this
 
 WHAT = {
@@ -152,7 +156,7 @@ class HealthMonitor:
 
     Args:
       estimator: the estimator (its ``track`` names the parameters watched; the monitor makes it
-        keep the last ``WINDOW_S`` of samples).
+        keep the last ``KEEP_S`` of samples).
       baseline_s: the references are the estimates at this time (0: the estimator's rig).
       threshold: |g| in sigmas above which a parameter counts as changed.
       persist_s: how long |g| must stay above the threshold, s.
@@ -216,11 +220,10 @@ class HealthMonitor:
         if baseline_s == 0:
             self.reference = {name: estimator.stated(name) for name in estimator.track}
         if attribute:
-            estimator.keep_s = max(estimator.keep_s, WINDOW_S)
+            estimator.keep_s = max(estimator.keep_s, KEEP_S)
         self._next_s = estimator.t_s + period_s
         self._above_since: float | None = None
         self._calm_s: dict[str, float] = dict.fromkeys(estimator.track, estimator.t_s)
-        self._snapshots: collections.deque[tuple[float, np.ndarray, np.ndarray]] = collections.deque()
         self._bank: _Bank | None = None
         self._taken = estimator.count  # samples the bank has seen (the estimator's count)
         self._quiet_until_s = -math.inf
@@ -260,10 +263,6 @@ class HealthMonitor:
                 self.reference = {name: float(est.x[NSTATE + i]) for i, name in enumerate(est.track)}
                 self._calm_s = dict.fromkeys(est.track, t)
             return []
-        if self.attribute:
-            self._snapshots.append((t, est.x.copy(), est.p.copy()))
-            while self._snapshots[0][0] < t - WINDOW_S:
-                self._snapshots.popleft()
         g = self.statistics()
         self.history.append((t, g))
         for name, gi in g.items():
@@ -283,7 +282,7 @@ class HealthMonitor:
         if not self.attribute:
             value, sigma = est.parameters()[top]
             return self._raise(Alarm(top, WHAT[top], t, self._calm_s[top], self.reference[top], value, sigma))
-        self._start_bank(sorted(watched, key=watched.__getitem__, reverse=True), t, self._calm_s[top])
+        self._start_bank(sorted(watched, key=watched.__getitem__, reverse=True), self._calm_s[top])
         return self._decide(t)
 
     def _raise(self, alarm: Alarm) -> list[Alarm]:
@@ -291,17 +290,11 @@ class HealthMonitor:
         self._above_since = None
         return [alarm]
 
-    def _start_bank(self, ranked: list[str], from_s: float, since_s: float) -> None:
-        """The bank of hypotheses from the snapshot at ``from_s`` (the detection: the change has
-        happened by then, so each hypothesis's step is free to take its size at once, a transient
-        such as a knock is over, and the state is the estimator's there)."""
+    def _start_bank(self, ranked: list[str], since_s: float) -> None:
+        """The bank of hypotheses (module docstring) from the estimator's state now."""
         assert self.reference is not None
         est = self.estimator
-        start = self._snapshots[0]
-        for snap in self._snapshots:
-            if snap[0] <= from_s:
-                start = snap
-        t0, x0, p0 = start
+        t0, x0, p0 = est.t_s, est.x, est.p
         chosen = ranked if self.candidates == 0 else ranked[: self.candidates]
         names = [UNCHANGED, *chosen]
         filters = []
@@ -325,9 +318,6 @@ class HealthMonitor:
             f.t_s, f.x, f.p = t0, x, p
             filters.append(f)
         self._bank = _Bank(names, filters, t0, since_s)
-        for sample in est.recent:
-            if sample.t_s > t0:
-                self._bank.take(sample)
         self._taken = est.count
 
     def _feed(self) -> None:
