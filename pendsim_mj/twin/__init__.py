@@ -12,9 +12,9 @@
   the gyro's smoothness, tracked as it drifts), the swing angle and hinge rate in the node's swing
   frame (learned from a second of swinging: heading, mount, axis remap), ``NodeSample`` or
   ``Waiting`` with the reason, and what it learned (``Learned``).
-- ``health``: ``HealthMonitor``, alarms when a tracked parameter leaves its reference by more than
-  a threshold of its standard deviation for a while (``Alarm``: which parameter, what it means on
-  the rig, since when, by how much).
+- ``health``: ``HealthMonitor``, detects a change by the likelihood ratio of one tracked parameter
+  changed, and attributes it by a bank of filters, one per hypothesis, over the data that follow
+  (``Alarm``: which parameter, what it means on the rig, since when, by how much, against what).
 
 Importing this package imports nothing heavy (the estimator loads on first use).
 """
@@ -35,12 +35,13 @@ _LAZY = {
     "TRACKABLE": "pendsim_mj.twin.estimator",
     "Forecast": "pendsim_mj.twin.estimator",
     "RigEstimator": "pendsim_mj.twin.estimator",
+    "Sample": "pendsim_mj.twin.estimator",
     "StaleSample": "pendsim_mj.twin.estimator",
     "Update": "pendsim_mj.twin.estimator",
 }
 
 if TYPE_CHECKING:
-    from pendsim_mj.twin.estimator import TRACKABLE, Forecast, RigEstimator, StaleSample, Update
+    from pendsim_mj.twin.estimator import TRACKABLE, Forecast, RigEstimator, Sample, StaleSample, Update
     from pendsim_mj.twin.health import Alarm, HealthMonitor
     from pendsim_mj.twin.measurement import Learned, NodeMeasurement, NodeSample, Waiting
 else:
@@ -55,6 +56,7 @@ __all__ = [
     "NodeMeasurement",
     "NodeSample",
     "RigEstimator",
+    "Sample",
     "StaleSample",
     "Update",
     "Waiting",

@@ -23,6 +23,9 @@ on its mount in rad), with covariance P. A tracked parameter is a random walk (i
   nu is white with covariance S, and the normalised innovation squared nu' S^-1 nu has a chi^2
   distribution with 2 degrees of freedom (mean 2): the health monitor's input.
 
+The last ``keep_s`` seconds of samples are kept (``recent``, ``Sample``; none by default) for a
+health monitor that re-runs them under competing hypotheses.
+
 Samples must come in time order; a sample older than the filter's time (reordered in transport)
 is refused (``StaleSample``), the caller decides (acquire's timeline orders them). Only a sample at
 most ``late_s`` older (``update``'s keyword; the two nodes' value instants, ``twin.measurement``,
@@ -34,8 +37,11 @@ tracked offset rate makes its offset a smooth drift (the BNO055's fusion error).
 
 from __future__ import annotations
 
+import collections
+import copy
 import dataclasses
 import math
+from typing import NamedTuple
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -54,12 +60,15 @@ DEFAULT_TORQUE_NOISE_N_M = 2e-5  # N m / sqrt(Hz): white torque standing for the
 # white on the sensor model's data at this level; 2e-4 made them anticorrelated, lag-1 -0.25)
 
 # name -> (the force law's coefficient it sets, or None for a node's angle offset; its unit; the
-# default drift per sqrt(s): a step of the issue's size is followed within tens of seconds)
+# default drift per sqrt(s): a step of the issue's size is followed within tens of seconds). Damping
+# and dry friction drift slowly (4e-6 N m s/rad and 6e-6 N m per sqrt(s), 0.6 % of b1 and 3 % of
+# the issue's 2e-4 N m per sqrt(s)): a faster walk forgets the amplitude's decay, which is what
+# tells the two apart, and at 5 times these rates dry friction of 2e-4 N m stayed below 6 sigma.
 TRACKABLE: dict[str, tuple[str | None, str, float]] = {
-    "b1_n_m_s": ("b1_n_m_s", "N m s/rad", 2e-5),
-    "b2_n_m_s": ("b2_n_m_s", "N m s/rad", 2e-5),
-    "friction1_n_m": ("friction1_n_m", "N m", 3e-5),
-    "friction2_n_m": ("friction2_n_m", "N m", 3e-5),
+    "b1_n_m_s": ("b1_n_m_s", "N m s/rad", 4e-6),
+    "b2_n_m_s": ("b2_n_m_s", "N m s/rad", 4e-6),
+    "friction1_n_m": ("friction1_n_m", "N m", 6e-6),
+    "friction2_n_m": ("friction2_n_m", "N m", 6e-6),
     "coupling_sin_n_m": ("coupling_sin_n_m", "N m", 5e-4),
     "offset_m1_rad": (None, "rad", 1e-3),
     "offset_m2_rad": (None, "rad", 1e-3),
@@ -76,6 +85,17 @@ node's offset rate: its offset then moves at this rate, itself a random walk (a 
 BNO055's slowly varying fusion error, ``Imperfections.fusion_error_rad``; it needs the offset
 tracked too)."""
 DELAY_SIGMA0_S = 0.25e-2 / math.sqrt(6.0)  # the start: two nodes' errors, each uniform over a 2.5 ms stretch, s
+
+
+class Sample(NamedTuple):
+    """One node's sample as the estimator took it in (``RigEstimator.recent``): its instant (s),
+    node (0 M1, 1 M2), swing angle (rad), hinge rate (rad/s) and the hinge torques held (N m)."""
+
+    t_s: float
+    node: int
+    phi_rad: float
+    omega_rad_s: float
+    torques_n_m: tuple[float, float]
 
 
 class StaleSample(PendsimError):
@@ -145,6 +165,13 @@ class RigEstimator:
       angle_sigma_rad: the swing angle's white noise, rad (default: the quaternion's quantisation
         and the node model's fusion error together; a twin that tracks the fusion error as the
         nodes' offsets gives the quantisation alone, ``twin.measurement.TWIST_SIGMA_RAD``).
+      keep_s: how many seconds of samples to keep in ``recent`` (0: none; a monitor may raise it).
+
+    Attributes:
+      fusion_error_rad: the nodes' slowly varying orientation error, rms, rad (``nodes``'
+        imperfections; in the angle's noise, and a spread the health monitor allows the offsets).
+      count: samples taken in since construction.
+      recent: the last ``keep_s`` seconds of samples (``Sample``), oldest first.
     """
 
     def __init__(
@@ -159,7 +186,10 @@ class RigEstimator:
         beta: float = 2.0,
         kappa: float = 0.0,
         angle_sigma_rad: float | None = None,
+        keep_s: float = 0.0,
     ) -> None:
+        if not (math.isfinite(keep_s) and keep_s >= 0):
+            raise ParameterError(f"keep_s must be a finite number >= 0 s, got {keep_s!r}")
         if not (math.isfinite(torque_noise_n_m) and torque_noise_n_m > 0):
             raise ParameterError(f"torque_noise_n_m must be > 0, got {torque_noise_n_m!r}")
         nodes = nodes if nodes is not None else Bno055()
@@ -167,7 +197,8 @@ class RigEstimator:
         self.torque_noise_n_m = float(torque_noise_n_m)
         gyro = float(nodes.noise_model.gyro_sigma_rad_s[HINGE_AXIS]) if nodes.noise else 1e-6
         quantisation = SWING_ANGLE_SIGMA_RAD if nodes.noise else 1e-7
-        angle = math.hypot(quantisation, nodes.imperfections.fusion_error_rad)
+        self.fusion_error_rad = float(nodes.imperfections.fusion_error_rad)
+        angle = math.hypot(quantisation, self.fusion_error_rad)
         if angle_sigma_rad is not None:
             if not (math.isfinite(angle_sigma_rad) and angle_sigma_rad > 0):
                 raise ParameterError(f"angle_sigma_rad must be > 0, got {angle_sigma_rad!r}")
@@ -196,6 +227,25 @@ class RigEstimator:
         self.t_s = 0.0
         self.x = np.zeros(self.n)
         self.p = np.eye(self.n)
+        self.keep_s = float(keep_s)
+        self.count = 0
+        self.recent: collections.deque[Sample] = collections.deque()
+
+    def copy(self, *, drift_per_s: ArrayLike | None = None) -> RigEstimator:
+        """An independent copy of the filter (its rig, settings, estimate and covariance), without
+        its kept samples; ``drift_per_s`` (one per tracked parameter) replaces the random walks'
+        rates (0 holds a parameter constant)."""
+        other = copy.copy(self)
+        other._plant = FastPlant(self.params, nenv=2 * self.n + 1)
+        other._plant.coef[:] = self._plant.coef
+        other.x, other.p = self.x.copy(), self.p.copy()
+        if drift_per_s is not None:
+            drift = np.asarray(drift_per_s, dtype=float)
+            if drift.shape != (len(self.track),) or not np.all(np.isfinite(drift) & (drift >= 0)):
+                raise ParameterError(f"drift_per_s must be {len(self.track)} numbers >= 0, got {drift_per_s!r}")
+            other.drift_per_s = drift
+        other.keep_s, other.count, other.recent = 0.0, 0, collections.deque()
+        return other
 
     def stated(self, name: str) -> float:
         """A tracked parameter's value in the rig the estimator was given (0 for an offset)."""
@@ -208,9 +258,12 @@ class RigEstimator:
         x0: ArrayLike,
         sigma0: ArrayLike = (0.05, 0.05, 0.2, 0.2),
         parameter_sigma0: ArrayLike | None = None,
+        *,
+        parameter0: ArrayLike | None = None,
     ) -> None:
         """Start at ``t_s`` from x0 (4,) with standard deviations sigma0 (4,) (rad, rad/s); the
-        tracked parameters start at the rig's values with ``parameter_sigma0`` (default: 20 s of
+        tracked parameters start at ``parameter0`` (default: the rig's values; one per tracked
+        parameter, ``track``'s order and units) with ``parameter_sigma0`` (default: 20 s of
         drift; a delay at least ``DELAY_SIGMA0_S``)."""
         x = np.asarray(x0, dtype=float)
         if x.shape != (NSTATE,) or not np.all(np.isfinite(x)):
@@ -222,7 +275,11 @@ class RigEstimator:
         else:
             spread = np.asarray(parameter_sigma0, dtype=float)
         self.t_s = float(t_s)
-        self.x = np.concatenate([x, [self.stated(name) for name in self.track]])
+        theta = [self.stated(name) for name in self.track] if parameter0 is None else parameter0
+        theta = np.asarray(theta, dtype=float)
+        if theta.shape != (len(self.track),) or not np.all(np.isfinite(theta)):
+            raise ParameterError(f"parameter0 must be {len(self.track)} finite numbers, got {parameter0!r}")
+        self.x = np.concatenate([x, theta])
         self.p = np.diag(np.square(np.concatenate([np.asarray(sigma0, dtype=float), spread])))
 
     def _process_noise(self, h: float) -> Floats:
@@ -242,9 +299,22 @@ class RigEstimator:
         return q
 
     def _sigma_points(self) -> Floats:
-        """(2n + 1, n) Merwe's scaled sigma points of the estimate."""
-        root = np.linalg.cholesky(self._scale * self.p + 1e-18 * np.eye(self.n))
+        """(2n + 1, n) Merwe's scaled sigma points of the estimate: the square root with a jitter
+        relative to each variance (an absolute one would add a random walk of its own to every
+        parameter: 1e-18 / scale per step, 4e-6 per sqrt(s) at 160 Hz)."""
+        a = self._scale * self.p
+        d = np.sqrt(np.maximum(np.diag(a), 1e-300))
+        root = np.linalg.cholesky(a / np.outer(d, d) + 1e-12 * np.eye(self.n)) * d[:, None]
         return np.concatenate([self.x[None], self.x + root.T, self.x - root.T])
+
+    def _kept(self, t_s: float, node: int, phi_rad: float, omega_rad_s: float, torques_n_m: ArrayLike) -> None:
+        """Count a sample taken in, and keep it for ``keep_s`` (``recent``)."""
+        self.count += 1
+        if self.keep_s > 0:
+            tau = np.asarray(torques_n_m, dtype=float)
+            self.recent.append(Sample(t_s, node, float(phi_rad), float(omega_rad_s), (float(tau[0]), float(tau[1]))))
+            while self.recent[0].t_s < self.t_s - self.keep_s:
+                self.recent.popleft()
 
     def _advance(self, points: Floats, h: float, torques_n_m: ArrayLike) -> Floats:
         """The sigma points (2n + 1, n) moved by one RK4 step of h (s; negative: back in time)
@@ -316,7 +386,10 @@ class RigEstimator:
         if not late:
             self.predict(t_s, torques_n_m)
         if late or node in self._delays:
-            return self._unscented_update(float(t_s), node, z, r, torques_n_m, gate_angle_z, gate_rate_z)
+            update = self._unscented_update(float(t_s), node, z, r, torques_n_m, gate_angle_z, gate_rate_z)
+            if update.applied:
+                self._kept(float(t_s), node, phi_rad, omega_rad_s, torques_n_m)
+            return update
         h = np.zeros((2, self.n))
         h[0, node] = h[1, 2 + node] = 1.0
         if node in self._offsets:
@@ -332,6 +405,7 @@ class RigEstimator:
         self.x = self.x + gain @ nu
         keep = np.eye(self.n) - gain @ h
         self.p = keep @ self.p @ keep.T + gain @ r @ gain.T  # Joseph form
+        self._kept(self.t_s, node, phi_rad, omega_rad_s, torques_n_m)
         return Update(self.t_s, node, nu, s, nis)
 
     def _unscented_update(

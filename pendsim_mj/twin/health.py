@@ -1,21 +1,55 @@
 """Health monitoring: noticing when the rig stops behaving like its twin, and saying what changed.
 
 The estimator (``estimator.RigEstimator``) tracks the parameters that can drift (damping, dry
-friction, the coupling springs, each node's mount) with their standard deviations. After a
-baseline (the rig as calibrated, or its first ``baseline_s`` of healthy swinging), the monitor
-watches each tracked parameter's deviation from its reference in units of its current standard
-deviation,
+friction, the coupling springs, each node's mount) as random walks, with their joint covariance.
+The monitor works in two stages.
 
-    z_i(t) = (theta_i(t) - theta_i,ref) / sigma_i(t),
+**Detection** (once per ``period_s``, cheap). With delta = theta - theta_ref the tracked
+parameters' departure from their references (the rig as calibrated, or its first ``baseline_s``
+of healthy swinging) and P their covariance block, the generalised likelihood ratio of "only
+parameter i changed" against "nothing changed", for a Gaussian estimate, is
 
-once per ``period_s`` (a second: the estimate's correlation time is tens of seconds, so the
-checks are not independent, and the false-alarm rate is what a benchmark over healthy emulated
-hours measures, not a formula). An alarm is raised for parameter i when |z_i| stays above
-``threshold`` for ``persist_s``; it says which parameter (and so which node or hinge), since
-when (the last time |z_i| was below 2 before the alarm), and by how much (the estimate minus the
-reference, with its standard deviation). Each parameter alarms once until it is reset.
+    g_i = (P^-1 delta)_i / sqrt((P^-1)_ii),
 
-A drift is a step spread over time: the same test finds it once its size passes the threshold.
+the change of theta_i that best explains delta with the others held at their references, in units
+of its standard deviation under that hypothesis. On a healthy rig each g_i is a standard normal
+variable. Unlike the marginal z_i = delta_i / sqrt(P_ii), g_i does not lose its power where two
+parameters are correlated: dry friction and viscous damping at one hinge trade off in the
+estimate, so each alone is poorly determined (small z), but their combination is not (large g).
+Parameters that have already alarmed are left free (their rows marginalised out of P). A
+detection is raised when max_i |g_i| stays above ``threshold`` for ``persist_s``.
+
+**Attribution** (after a detection, costly, for up to ``decide_s``). At one steady amplitude,
+viscous damping and dry friction take out the same energy per cycle; they differ in how the loss
+scales with the amplitude (b: as A^2 per cycle, F: as A), which only the data over a changing
+amplitude shows. So from the detection on (the change has happened by then, and a transient such
+as a knock is over), the monitor feeds the samples (the estimator keeps the latest, ``keep_s``)
+to a bank of copies of the filter started from the estimator's state, one per hypothesis: H0
+"nothing changed" (every parameter held at its reference) and, for each of the ``candidates``
+parameters with the largest |g|, H_i "parameter i has stepped, the others held" (theta_i constant
+with a wide prior, ``PRIOR_SIGMA``). Each copy sums the log-likelihood of its innovations (its
+evidence, ``-0.5 (nu' S^-1 nu + ln det S)`` per sample). The alarm is raised on H_i once its
+evidence exceeds every other hypothesis's, H0's included, by ``margin`` (a likelihood ratio of
+e^margin), or, after ``decide_s``, once it exceeds H0's by ``margin`` (the alarm names the
+runner-up and the evidence between them). Otherwise the detection is dismissed: a false detection
+costs the bank's CPU, not an alarm.
+
+**The references' spread** (``reference_sigma``): a reference known only within an interval (a
+calibration's; the mount offsets within the nodes' slowly varying fusion error, by default) adds
+its variance to P in g, and leaves the parameter free within it in H0.
+
+The alarm says which parameter (and so which node or hinge), since when (the last check with
+|g_i| below 2 before the detection), and by how much (the step's estimate under H_i, with its
+standard deviation), and how much better it explains the data than the runner-up. Each parameter
+alarms once until it is reset.
+
+False alarms: the checks are strongly correlated (the estimate's memory is tens of seconds) and
+the attribution stage screens detections again, so the rate is what a benchmark over healthy
+emulated hours measures (``bench/bench_twin.py``; docs/twin.md), not a formula. As a design
+bound, with k parameters and checks that decorrelate over tau_c, the detection stage alone gives
+about k (3600 s / tau_c) P(|N(0,1)| > threshold) detections per hour: 7 x 180 x 5.7e-7 = 7e-4 per
+hour at threshold 5 and tau_c = 20 s, if the filter's covariance were exact; the model's error
+makes the tails heavier, which is what the measurement is for.
 """
 
 from __future__ import annotations
@@ -26,11 +60,17 @@ import math
 import numpy as np
 
 from pendsim_mj.errors import ParameterError
-from pendsim_mj.twin.estimator import TRACKABLE, RigEstimator
+from pendsim_mj.twin.estimator import NSTATE, TRACKABLE, RigEstimator
 
 DEFAULT_THRESHOLD = 5.0  # sigmas
 DEFAULT_PERSIST_S = 3.0
+DEFAULT_MARGIN = 5.0  # natural log of the likelihood ratio: 150 to 1
+DEFAULT_DECIDE_S = 45.0
+DEFAULT_CANDIDATES = 4
 SINCE_LEVEL = 2.0  # sigmas: "since when" is the last check below this before the alarm
+KEEP_S = 5.0  # samples the estimator keeps for the attribution's bank between two checks, s
+BANK_LATE_S = 0.0125  # the kept samples' instants interleave out of order as the estimator took them
+PIN_FRACTION = 1e-6  # a parameter held at its reference in a hypothesis: sigma = PRIOR_SIGMA * this
 
 WHAT = {
     "b1_n_m_s": "damping at M1's hinge",
@@ -46,6 +86,22 @@ WHAT = {
 }
 """What each tracked parameter's change means on the rig."""
 
+PRIOR_SIGMA = {
+    "b1_n_m_s": 1e-3,  # N m s/rad: 1.4 times the stated b1 (the issue's fault doubles it)
+    "b2_n_m_s": 1e-3,
+    "friction1_n_m": 5e-4,  # N m: 2.5 times the issue's 2e-4
+    "friction2_n_m": 5e-4,
+    "coupling_sin_n_m": 0.02,  # N m: 17 % of K_s (the issue's fault: 5 %)
+    "offset_m1_rad": 0.1,  # rad: 5.7 deg (the issue's slip: 3 deg)
+    "offset_m2_rad": 0.1,
+}
+"""Each parameter's prior spread under the hypothesis that it stepped (the attribution's bank). A
+tracked parameter without one is a nuisance of the measurement (a node's offset rate, M2's delay):
+never alarmed, left free in g and in every hypothesis, as the estimator has it."""
+RELATIVE = ("b1_n_m_s", "b2_n_m_s", "friction1_n_m", "friction2_n_m", "coupling_sin_n_m")  # said in % too
+
+UNCHANGED = "unchanged"  # the name of H0 in ``Alarm.runner_up``
+
 
 @dataclasses.dataclass(frozen=True)
 class Alarm:
@@ -56,6 +112,10 @@ class Alarm:
       t_s: when the alarm was raised, s. since_s: since when it has been changing, s.
       reference: its reference value; value: its estimate at the alarm; sigma: the estimate's
         standard deviation (the parameter's unit: ``TRACKABLE``).
+      runner_up: the next-best explanation of the data (a parameter's name, ``UNCHANGED``, or ""
+        where no attribution was run).
+      evidence: how much better this change explains the data than the runner-up: the natural
+        log of their likelihood ratio (inf where no attribution was run).
     """
 
     parameter: str
@@ -65,6 +125,8 @@ class Alarm:
     reference: float
     value: float
     sigma: float
+    runner_up: str = ""
+    evidence: float = math.inf
 
     @property
     def change(self) -> float:
@@ -73,22 +135,58 @@ class Alarm:
 
     def describe(self) -> str:
         unit = TRACKABLE[self.parameter][1]
-        relative = f" ({100 * self.change / self.reference:+.0f} %)" if self.reference else ""
-        return (
+        relative = (
+            f" ({100 * self.change / self.reference:+.0f} %)" if self.reference and self.parameter in RELATIVE else ""
+        )
+        line = (
             f"{self.what} changed since {self.since_s:.1f} s (alarm at {self.t_s:.1f} s): {self.parameter} "
             f"{self.reference:.4g} -> {self.value:.4g} +- {2 * self.sigma:.2g} {unit}{relative}"
         )
+        if self.runner_up:
+            line += f"; likelier than {self.runner_up} by e^{self.evidence:.0f}"
+        return line
+
+
+class _Bank:
+    """The attribution stage: one filter per hypothesis, fed the same samples from ``t0_s`` on."""
+
+    def __init__(self, names: list[str], filters: list[RigEstimator], t0_s: float, since_s: float) -> None:
+        self.names, self.filters, self.t0_s, self.since_s = names, filters, t0_s, since_s
+        self.loglik = np.zeros(len(filters))
+
+    def take(self, sample) -> None:
+        for k, f in enumerate(self.filters):
+            u = f.update(
+                sample.t_s, sample.node, sample.phi_rad, sample.omega_rad_s, sample.torques_n_m, late_s=BANK_LATE_S
+            )
+            self.loglik[k] -= 0.5 * (u.nis + math.log(np.linalg.det(u.covariance)))
 
 
 class HealthMonitor:
     """Checks a ``RigEstimator``'s tracked parameters (module docstring).
 
     Args:
-      estimator: the estimator (its ``track`` names the parameters watched).
+      estimator: the estimator (its ``track`` names the parameters watched; the monitor makes it
+        keep the last ``KEEP_S`` of samples).
       baseline_s: the references are the estimates at this time (0: the estimator's rig).
-      threshold: |z| in sigmas above which a parameter counts as changed.
-      persist_s: how long |z| must stay above the threshold, s.
+      threshold: |g| in sigmas above which a parameter counts as changed.
+      persist_s: how long |g| must stay above the threshold, s.
       period_s: how often the parameters are checked, s.
+      margin: the natural log of the likelihood ratio by which the attributed change must beat
+        the other explanations.
+      decide_s: the longest an attribution runs before it decides on the evidence it has, s.
+      candidates: how many parameters (largest |g| first) the attribution weighs (0: all).
+      attribute: False skips the attribution stage: the alarm goes to the largest |g| at the
+        detection (cheap, but damping and dry friction are then often confused).
+      reference_sigma: the references' own spread, each parameter's unit (a calibration's interval;
+        default: the nodes' fusion error, ``estimator.fusion_error_rad``, for the mount offsets,
+        whose slowly varying error looks like a turned mount; 0 for the others). A departure
+        within it is no change: it adds to P in g and leaves the parameter that free in H0.
+
+    Attributes:
+      alarmed: the alarms raised, by parameter. history: (t_s, g per parameter) at each check
+        (for a parameter that has alarmed, its marginal z). dismissed: detections that the
+        attribution found no change behind (t_s of each).
     """
 
     def __init__(
@@ -99,58 +197,182 @@ class HealthMonitor:
         threshold: float = DEFAULT_THRESHOLD,
         persist_s: float = DEFAULT_PERSIST_S,
         period_s: float = 1.0,
+        margin: float = DEFAULT_MARGIN,
+        decide_s: float = DEFAULT_DECIDE_S,
+        candidates: int = DEFAULT_CANDIDATES,
+        attribute: bool = True,
+        reference_sigma: dict[str, float] | None = None,
     ) -> None:
-        for name, value in (("baseline_s", baseline_s), ("persist_s", persist_s)):
+        for name, value in (("baseline_s", baseline_s), ("persist_s", persist_s), ("decide_s", decide_s)):
             if not (math.isfinite(value) and value >= 0):
                 raise ParameterError(f"{name} must be a finite number >= 0 s, got {value!r}")
         if not (math.isfinite(threshold) and threshold > SINCE_LEVEL):
             raise ParameterError(f"threshold must be a number > {SINCE_LEVEL} sigmas, got {threshold!r}")
         if not (math.isfinite(period_s) and period_s > 0):
             raise ParameterError(f"period_s must be > 0 s, got {period_s!r}")
+        if not (math.isfinite(margin) and margin >= 0):
+            raise ParameterError(f"margin must be a finite number >= 0, got {margin!r}")
+        if isinstance(candidates, bool) or not isinstance(candidates, int) or candidates < 0:
+            raise ParameterError(f"candidates must be an integer >= 0, got {candidates!r}")
         if not estimator.track:
             raise ParameterError("the estimator tracks no parameter: give it track=(...) to monitor")
+        spread = {name: estimator.fusion_error_rad for name in estimator.track if name.startswith("offset")}
+        for name, value in (reference_sigma or {}).items():
+            if name not in estimator.track:
+                raise ParameterError(f"reference_sigma names {name!r}, which the estimator does not track")
+            if not (math.isfinite(value) and value >= 0):
+                raise ParameterError(f"reference_sigma[{name!r}] must be a finite number >= 0, got {value!r}")
+            spread[name] = float(value)
+        self.reference_sigma = np.array([spread.get(name, 0.0) for name in estimator.track])
         self.estimator = estimator
         self.baseline_s, self.threshold, self.persist_s, self.period_s = baseline_s, threshold, persist_s, period_s
+        self.margin, self.decide_s, self.candidates, self.attribute = margin, decide_s, candidates, attribute
         self.reference: dict[str, float] | None = None
         if baseline_s == 0:
             self.reference = {name: estimator.stated(name) for name in estimator.track}
+        if attribute:
+            estimator.keep_s = max(estimator.keep_s, KEEP_S)
         self._next_s = estimator.t_s + period_s
-        self._above_since: dict[str, float | None] = dict.fromkeys(estimator.track)
+        self._above_since: float | None = None
         self._calm_s: dict[str, float] = dict.fromkeys(estimator.track, estimator.t_s)
+        self._bank: _Bank | None = None
+        self._taken = estimator.count  # samples the bank has seen (the estimator's count)
+        self._quiet_until_s = -math.inf
         self.alarmed: dict[str, Alarm] = {}
-        self.history: list[tuple[float, dict[str, float]]] = []  # (t_s, z per parameter)
+        self.dismissed: list[float] = []
+        self.history: list[tuple[float, dict[str, float]]] = []  # (t_s, g per parameter)
+
+    def statistics(self) -> dict[str, float]:
+        """Each tracked parameter's g (module docstring) now; a parameter that has alarmed gets
+        its marginal z and is left free in the others' g."""
+        assert self.reference is not None
+        est = self.estimator
+        track = est.track
+        delta = np.array([est.x[NSTATE + i] - self.reference[name] for i, name in enumerate(track)])
+        p = est.p[NSTATE:, NSTATE:] + np.diag(self.reference_sigma**2)  # the references' spread: no change
+        sigma = np.sqrt(np.diag(p))
+        out = {name: float(delta[i] / sigma[i]) for i, name in enumerate(track) if name in PRIOR_SIGMA}
+        watched = [i for i, name in enumerate(track) if name not in self.alarmed and name in PRIOR_SIGMA]
+        if watched:
+            info = np.linalg.inv(p[np.ix_(watched, watched)])
+            g = info @ delta[watched] / np.sqrt(np.diag(info))
+            out.update({track[i]: float(gi) for i, gi in zip(watched, g, strict=True)})
+        return out
 
     def check(self) -> list[Alarm]:
         """Check at the estimator's current time (call after each update: it checks once per
-        period); the new alarms."""
-        t = self.estimator.t_s
+        period, and feeds a running attribution every sample); the new alarms."""
+        est = self.estimator
+        if self._bank is not None:
+            self._feed()
+        t = est.t_s
         if t < self._next_s:
             return []
         self._next_s = t + self.period_s
-        found = self.estimator.parameters()
         if self.reference is None:
             if t >= self.baseline_s:
-                self.reference = {name: value for name, (value, _) in found.items()}
-                self._calm_s = dict.fromkeys(found, t)
+                self.reference = {name: float(est.x[NSTATE + i]) for i, name in enumerate(est.track)}
+                self._calm_s = dict.fromkeys(est.track, t)
             return []
-        z = {name: (value - self.reference[name]) / sigma for name, (value, sigma) in found.items()}
-        self.history.append((t, z))
-        new = []
-        for name, zi in z.items():
-            if abs(zi) < SINCE_LEVEL:
+        g = self.statistics()
+        self.history.append((t, g))
+        for name, gi in g.items():
+            if abs(gi) < SINCE_LEVEL:
                 self._calm_s[name] = t
-            if abs(zi) <= self.threshold:
-                self._above_since[name] = None
-                continue
-            since = self._above_since[name]
-            if since is None:
-                self._above_since[name] = since = t
-            if t - since >= self.persist_s and name not in self.alarmed:
-                value, sigma = found[name]
-                alarm = Alarm(name, WHAT[name], t, self._calm_s[name], self.reference[name], value, sigma)
-                self.alarmed[name] = alarm
-                new.append(alarm)
-        return new
+        watched = {name: abs(gi) for name, gi in g.items() if name not in self.alarmed}
+        top = max(watched, key=watched.__getitem__) if watched else None
+        if top is None or watched[top] <= self.threshold:
+            self._above_since = None
+        elif self._above_since is None:
+            self._above_since = t
+        if self._bank is not None:
+            return self._decide(t)
+        if self._above_since is None or t - self._above_since < self.persist_s or t < self._quiet_until_s:
+            return []
+        assert top is not None
+        if not self.attribute:
+            value, sigma = est.parameters()[top]
+            return self._raise(Alarm(top, WHAT[top], t, self._calm_s[top], self.reference[top], value, sigma))
+        self._start_bank(sorted(watched, key=watched.__getitem__, reverse=True), self._calm_s[top])
+        return self._decide(t)
+
+    def _raise(self, alarm: Alarm) -> list[Alarm]:
+        self.alarmed[alarm.parameter] = alarm
+        self._above_since = None
+        return [alarm]
+
+    def _start_bank(self, ranked: list[str], since_s: float) -> None:
+        """The bank of hypotheses (module docstring) from the estimator's state now."""
+        assert self.reference is not None
+        est = self.estimator
+        t0, x0, p0 = est.t_s, est.x, est.p
+        chosen = ranked if self.candidates == 0 else ranked[: self.candidates]
+        names = [UNCHANGED, *chosen]
+        filters = []
+        for hypothesis in names:
+            x = x0.copy()
+            p = np.zeros_like(p0)
+            p[:NSTATE, :NSTATE] = p0[:NSTATE, :NSTATE]
+            drift = np.zeros(len(est.track))
+            for i, name in enumerate(est.track):
+                j = NSTATE + i
+                if name in self.alarmed or name not in PRIOR_SIGMA:  # free, as in the estimator
+                    p[j, j], drift[i] = p0[j, j], est.drift_per_s[i]
+                    continue
+                x[j] = self.reference[name]
+                p[j, j] = (PRIOR_SIGMA[name] * (1.0 if name == hypothesis else PIN_FRACTION)) ** 2
+                if self.reference_sigma[i] > 0:  # free within the reference's spread, and wandering
+                    if name != hypothesis:
+                        p[j, j] = self.reference_sigma[i] ** 2
+                    drift[i] = est.drift_per_s[i]
+            f = est.copy(drift_per_s=drift)
+            f.t_s, f.x, f.p = t0, x, p
+            filters.append(f)
+        self._bank = _Bank(names, filters, t0, since_s)
+        self._taken = est.count
+
+    def _feed(self) -> None:
+        assert self._bank is not None
+        est = self.estimator
+        new = est.count - self._taken
+        if new > 0:
+            recent = est.recent
+            for k in range(max(0, len(recent) - new), len(recent)):
+                self._bank.take(recent[k])
+        self._taken = est.count
+
+    def _decide(self, t: float) -> list[Alarm]:
+        bank = self._bank
+        assert bank is not None and self.reference is not None
+        order = np.argsort(bank.loglik)[::-1]
+        best, second = int(order[0]), int(order[1])
+        lead = float(bank.loglik[best] - bank.loglik[second])
+        over_null = float(bank.loglik[best] - bank.loglik[0])
+        timed_out = t - bank.t0_s >= self.decide_s
+        if best == 0:
+            if lead >= self.margin or timed_out:  # nothing changed after all: dismissed
+                self._bank = None
+                self.dismissed.append(t)
+                self._quiet_until_s = t + self.decide_s
+            return []
+        if lead < self.margin and not (timed_out and over_null >= self.margin):
+            if timed_out:
+                self._bank = None
+                self.dismissed.append(t)
+                self._quiet_until_s = t + self.decide_s
+            return []
+        name = bank.names[best]
+        i = self.estimator.track.index(name)
+        winner = bank.filters[best]
+        value, sigma = float(winner.x[NSTATE + i]), float(math.sqrt(winner.p[NSTATE + i, NSTATE + i]))
+        since = min(self._calm_s[name], bank.since_s)
+        self._bank = None
+        est = self.estimator
+        if winner.t_s == est.t_s:  # the estimate goes on from the winning explanation: the others at
+            est.x, est.p = winner.x.copy(), winner.p.copy()  # their references (the change is named
+            # once, not again on a parameter it traded off against, as dry friction against damping)
+        alarm = Alarm(name, WHAT[name], t, since, self.reference[name], value, sigma, bank.names[second], lead)
+        return self._raise(alarm)
 
     def reset(self, parameter: str) -> None:
         """Take a parameter's current estimate as its new reference (the change was acknowledged)."""
@@ -158,10 +380,9 @@ class HealthMonitor:
         if self.reference is not None:
             self.reference[parameter] = value
         self.alarmed.pop(parameter, None)
-        self._above_since[parameter] = None
 
     def largest_z(self) -> dict[str, float]:
-        """Each parameter's largest |z| so far (0 before the baseline)."""
+        """Each parameter's largest |g| so far (0 before the baseline)."""
         out = dict.fromkeys(self.estimator.track, 0.0)
         for _, z in self.history:
             for name, zi in z.items():

@@ -76,7 +76,8 @@ class ParameterCheck:
       names: the parameters (``estimator.TRACKABLE``).
       value, sigma: (k,) their estimates and standard deviations (each parameter's unit).
       reference: (k,) their references (NaN before the baseline is taken).
-      z: (k,) (value - reference) / sigma (NaN before the baseline).
+      z: (k,) the monitor's change statistic (``HealthMonitor.statistics``: the likelihood ratio
+        of that parameter alone changed, in sigmas; NaN before the baseline).
     """
 
     t_s: float

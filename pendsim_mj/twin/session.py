@@ -36,6 +36,7 @@ from pendsim_mj.estimation.planar_fit import ljung_box_p
 from pendsim_mj.estimation.swing_frame import SwingFrame
 from pendsim_mj.rig.params import DEFAULT_PARAMS, RigParams
 from pendsim_mj.sensors.bno055 import FUSION_RATE_HZ, Bno055
+from pendsim_mj.sensors.imperfections import Imperfections
 from pendsim_mj.twin.estimator import NSTATE, TRACKABLE, Forecast, RigEstimator
 from pendsim_mj.twin.health import DEFAULT_PERSIST_S, DEFAULT_THRESHOLD, Alarm, HealthMonitor
 from pendsim_mj.twin.measurement import FALLBACK_S, TWIST_SIGMA_RAD, Learned, NodeMeasurement, Waiting
@@ -57,6 +58,8 @@ NODE_SIGMA0 = {"offset_m1_rad": 0.01, "offset_m2_rad": 0.01, "offset_rate_m1_rad
 # ... and their start: the learned frames' offsets are good to about 0.5 deg
 NODE_BASELINE_S = 10.0  # the node states' references: their estimates this long after the start (the
 # learned frames leave each offset about 0.5 deg uncertain; the rig's own parameters keep the stated rig)
+NODE_FUSION_ERROR_RAD = math.radians(0.5)  # the nodes' fused orientation's slowly varying error, rms, that
+# the mount offsets may wander within without a change (the health monitor's reference spread)
 TORQUE_NOISE_N_M = 5e-6  # N m / sqrt(Hz): white on fusion-timed node data (2e-5 left lag-1 -0.07)
 LATE_S = 0.0125  # the two nodes' value instants cross by up to one fusion period (10 ms): taken late
 HORIZON_BINS_S = (0.25, 0.5, 1.0, 2.0, 5.0)  # forecast scores per horizon up to each of these
@@ -146,6 +149,10 @@ class TwinSession:
         learns the real one from the first second of swinging (``measurement.NodeMeasurement``).
       fusion_rate_hz: the nodes' fusion rate (their values' timing is learned); None for nodes
         that stamp their values' own instants.
+      fusion_error_rad: the nodes' fused orientation's slowly varying error, rms, rad: the mount
+        offsets wander within it without counting as a change.
+      nodes: the node model (its noise sets the measurement noise; default the BNO055's with
+        ``fusion_error_rad``).
     """
 
     def __init__(
@@ -154,6 +161,7 @@ class TwinSession:
         *,
         start_frames: Sequence[SwingFrame] | None = None,
         fusion_rate_hz: float | None = FUSION_RATE_HZ,
+        fusion_error_rad: float = NODE_FUSION_ERROR_RAD,
         nodes: Bno055 | None = None,
         track: tuple[str, ...] = DEFAULT_TRACK,
         forecast_horizon_s: float = 2.0,
@@ -177,6 +185,10 @@ class TwinSession:
             )
         track = tuple(track) + NODE_PARAMETERS
         drift = dict(NODE_DRIFT_PER_S)
+        if nodes is None:
+            if not (math.isfinite(fusion_error_rad) and 0 <= fusion_error_rad <= 0.2):
+                raise ParameterError(f"fusion_error_rad must be in [0, 0.2] rad, got {fusion_error_rad!r}")
+            nodes = Bno055(imperfections=Imperfections(fusion_error_rad=fusion_error_rad))
         self.estimator = RigEstimator(params, nodes=nodes, track=track, drift_per_s=drift,
                                       angle_sigma_rad=TWIST_SIGMA_RAD, torque_noise_n_m=TORQUE_NOISE_N_M)  # fmt: skip
         self._parameter_sigma0 = self.estimator.drift_per_s * math.sqrt(20.0)
