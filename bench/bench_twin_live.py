@@ -16,7 +16,6 @@ import socket
 import subprocess
 import sys
 import tempfile
-import time
 from pathlib import Path
 
 from mcap.reader import make_reader
@@ -53,7 +52,7 @@ def one_run(folder: Path, seconds: float, views: list[str]) -> dict[str, float]:
         if line.startswith("twin: listening"):
             break
     cpu_before = cpu_s(twin.pid)
-    nodes = subprocess.run([*PENDSIM, "nodes", "--duration-s", str(seconds), "--hold-s", "2", *ports],
+    subprocess.run([*PENDSIM, "nodes", "--duration-s", str(seconds), "--hold-s", "2", *ports],
                            capture_output=True, text=True, check=True)  # fmt: skip
     cpu_after = cpu_s(twin.pid)
     _, err = twin.communicate(timeout=120)
