@@ -1,7 +1,7 @@
 """pendsim twin on live packets over real loopback UDP (the emulator in this process, the twin a
-real subprocess): a replay of the twin's own recording gives its live estimates again, exactly; a
-killed twin leaves a recoverable file that lacks at most about a second; a port in use is one
-line."""
+real subprocess): scripted faults named on the right parameter or node, and a replay of the twin's
+own recording giving its live estimates and alarms again, exactly; a killed twin leaves a
+recoverable file that lacks at most about a second; a port in use is one line."""
 
 from __future__ import annotations
 
@@ -43,29 +43,6 @@ def _estimates(path) -> np.ndarray:
 def _metadata(path) -> dict[str, dict[str, str]]:
     with open(path, "rb") as f:
         return {m.name: m.metadata for m in make_reader(f).iter_metadata()}
-
-
-def test_a_replay_of_the_live_twins_recording_gives_its_estimates_again(tmp_path):
-    p1, p2 = free_udp_ports(2)
-    ports = ["--node", f"m1={p1}", "--node", f"m2={p2}"]
-    twin = Pendsim(["twin", "-o", "live.mcap", "--duration-s", "7", *ports], cwd=tmp_path)
-    try:
-        twin.wait_for("twin: listening")
-        sender = _emulate(["--duration-s", "6", "--hold-s", "1", *ports])
-        assert twin.finish() == 0, twin.err
-        sender.join()
-    finally:
-        twin.kill()
-    live = _estimates(tmp_path / "live.mcap")
-    assert len(live) > 400  # both nodes at 80 Hz from about 1.3 s after the release (the frames learned) on
-    meta = _metadata(tmp_path / "live.mcap")[twin_topics.TWIN_RESULT_METADATA]
-    p50, p99 = json.loads(meta["latency_ms"])
-    assert 0 < p50 <= p99  # measured per sample, from its arrival to its estimate
-    assert any("latency, sample arrival -> estimate" in line for line in twin.out)
-    replay = ["twin", "--replay", str(tmp_path / "live.mcap"), "--speed", "0", "-o", str(tmp_path / "again.mcap")]
-    assert main(replay) == 0
-    again = _estimates(tmp_path / "again.mcap")
-    assert again.shape == live.shape and np.array_equal(again, live)
 
 
 def test_a_killed_twin_leaves_a_recoverable_file_that_lacks_at_most_about_a_second(tmp_path):
@@ -137,3 +114,17 @@ def test_scripted_faults_sent_over_udp_are_alarmed_on_the_right_parameter_within
     events = [what for _, what in json.loads(meta["events"])]
     assert "m1: its clock jumped by +0.500 s; its timeline restarted" in events
     assert any(e.startswith("m2 angle jumped by +3.0") for e in events)
+    p50, p99 = json.loads(meta["latency_ms"])
+    assert 0 < p50 <= p99  # measured per sample, from its arrival to its estimate
+    assert any("latency, sample arrival -> estimate" in line for line in twin.out)
+    # a replay of the twin's own recording gives its live estimates again, bit for bit
+    live = _estimates(tmp_path / "live.mcap")
+    assert len(live) > 2000
+    replay = ["twin", "--replay", str(tmp_path / "live.mcap"), "--speed", "0", "-o", str(tmp_path / "again.mcap")]
+    assert main(replay) == 0
+    again = _estimates(tmp_path / "again.mcap")
+    assert again.shape == live.shape and np.array_equal(again, live)
+    replayed = _metadata(tmp_path / "again.mcap")[twin_topics.TWIN_RESULT_METADATA]
+    assert [a["parameter"] for a in json.loads(replayed["alarms"])] == [
+        a["parameter"] for a in json.loads(meta["alarms"])
+    ]
