@@ -16,6 +16,7 @@ node's newest used), are not used (counted per node in the summary's metadata).
 from __future__ import annotations
 
 import collections
+import contextlib
 import selectors
 import socket
 import statistics
@@ -122,6 +123,7 @@ def run_twin_live(
     socks: list[socket.socket] = []
     partial: Path | None = None
     views: tuple[TwinView, ...] = ()
+    pipeline: TwinPipeline | None = None
     try:
         for view in node_views:
             socks.append(listen_udp(bind, view.spec.port, what=f"node {view.spec.name}", option="--node"))
@@ -214,6 +216,9 @@ def run_twin_live(
         selector.close()
         for s in socks:
             s.close()
+        if pipeline is not None:
+            with contextlib.suppress(Exception):  # an error ends the run: the views' thread goes too
+                pipeline.stop_views()
         for v in views:
             v.close()
 

@@ -19,7 +19,10 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
+import queue
 import sys
+import threading
+import time
 from collections.abc import Callable
 from pathlib import Path
 
@@ -30,10 +33,11 @@ from pendsim_mj import __version__
 from pendsim_mj.errors import RecordingError
 from pendsim_mj.rig.params import DEFAULT_PARAMS, RigParams
 from pendsim_mj.sensors.bno055 import FUSION_RATE_HZ
-from pendsim_mj.twin.estimator import TRACKABLE
+from pendsim_mj.twin.estimator import TRACKABLE, Forecast
 from pendsim_mj.twin.health import WHAT, Alarm
 from pendsim_mj.twin.measurement import Learned
 from pendsim_mj.twin.merge import DEFAULT_HOLD_S, Held, SampleMerger
+from pendsim_mj.twin.outputs import Estimates, ParameterCheck
 from pendsim_mj.twin.session import DEFAULT_TRACK, FORECAST_STEP_S, NODE_PARAMETERS, TwinSession, TwinSummary
 from pendsim_mj.units import nanoseconds, seconds
 
@@ -45,7 +49,9 @@ from ..sink import RecordingSink
 
 FLUSH_S = 0.5
 DIAGNOSTICS_S = 1.0
-VIEW_S = 0.05  # live views are sent this often
+VIEW_S = 0.2  # live views are sent this often, s (5 a second: each send costs Rerun a fixed part; from
+# their own thread, ``ViewFeeder``)
+PUBLISH_S = 0.05  # the file and the views are given what the twin produced this often, s
 KEEP_S = 0.1  # the file is written up to this long before the newest sample released
 
 
@@ -117,6 +123,77 @@ def _stderr(line: str) -> None:
     print(line, file=sys.stderr, flush=True)
 
 
+class ViewFeeder:
+    """The live views fed from their own thread: the twin's loop only queues what it has for them
+    (``add_*``, ``send``: non-blocking), so that a view's encoding (Rerun's every few hundred ms)
+    never holds up a sample's estimate. The thread applies the queue to every view in order and
+    sends their batches every ``VIEW_S``; ``stop`` sends what is left and ends the thread (the
+    views themselves are closed by whoever opened them). An error in a view ends the feeding and is
+    raised by ``stop``."""
+
+    def __init__(self, views: tuple[TwinView, ...]) -> None:
+        self.views = views
+        self._queue: queue.SimpleQueue[tuple[str, tuple[object, ...]] | None] = queue.SimpleQueue()
+        self.error: BaseException | None = None
+        self._thread = threading.Thread(target=self._run, name="pendsim-twin-views", daemon=True)
+        self._thread.start()
+
+    def add_estimates(self, est: Estimates) -> None:
+        self._queue.put(("add_estimates", (est,)))
+
+    def add_forecast(self, made_at_s: float, forecast: Forecast) -> None:
+        self._queue.put(("add_forecast", (made_at_s, forecast)))
+
+    def add_parameters(self, check: ParameterCheck) -> None:
+        self._queue.put(("add_parameters", (check,)))
+
+    def add_alarm(self, alarm: Alarm) -> None:
+        self._queue.put(("add_alarm", (alarm,)))
+
+    def add_diagnostics(self, t_s: float, statuses: list[ros2.DiagnosticStatus]) -> None:
+        self._queue.put(("add_diagnostics", (t_s, statuses)))
+
+    def send(self) -> None:
+        self._queue.put(("send", ()))
+
+    def close(self) -> None:
+        self.stop()
+
+    def _run(self) -> None:
+        next_send = time.monotonic() + VIEW_S
+        while True:
+            try:
+                item = self._queue.get(timeout=max(0.0, next_send - time.monotonic()))
+            except queue.Empty:
+                item = ("send", ())
+            if item is None:
+                break
+            if self.error is not None:
+                continue  # drain: a failed view is fed no more
+            name, args = item
+            if name == "send" and time.monotonic() < next_send:
+                continue  # sends come in batches of VIEW_S
+            if name == "flush":
+                name = "send"
+            try:
+                for view in self.views:
+                    getattr(view, name)(*args)
+            except BaseException as exc:  # raised again by stop, in the twin's thread
+                self.error = exc
+            if name == "send":
+                next_send = time.monotonic() + VIEW_S
+
+    def stop(self) -> None:
+        """Send what is queued, end the thread; raise a view's error if one failed."""
+        if self._thread.is_alive():
+            self._queue.put(("flush", ()))
+            self._queue.put(None)
+            self._thread.join()
+        if self.error is not None:
+            error, self.error = self.error, None
+            raise error
+
+
 class TwinPipeline:
     """Samples in, the twin's outputs out (module docstring).
 
@@ -142,7 +219,9 @@ class TwinPipeline:
         views: tuple[TwinView, ...] = (),
         skip: frozenset[tuple[int, int]] = frozenset(),
     ) -> None:
-        self.spec, self.session, self.sink, self.views = spec, session, sink, views
+        self.spec, self.session, self.sink = spec, session, sink
+        self.feeder = ViewFeeder(views) if views else None
+        self.views: tuple[TwinView | ViewFeeder, ...] = (self.feeder,) if self.feeder is not None else ()
         self.node_names, self.start_utc_ns = node_names, start_utc_ns
         self.merger: SampleMerger[tuple[NDArray[np.float64], tuple[float, float]]] = SampleMerger(spec.hold_s)
         self.skip = skip
@@ -330,7 +409,7 @@ class TwinPipeline:
             self._diagnostics(max(t_s, 0.0))
             second = True
         if now_s >= self._next_view_s:
-            self._next_view_s = now_s + VIEW_S
+            self._next_view_s = now_s + PUBLISH_S
             self.publish()
             for view in self.views:
                 view.send()
@@ -343,12 +422,18 @@ class TwinPipeline:
         return second
 
     def finish(self) -> None:
-        """Everything waiting released and taken in, the last diagnostics, the views' last batch."""
+        """Everything waiting released and taken in, the last diagnostics, the views' last batch
+        (their thread ended)."""
         self.step(math.inf, final=True)
         self.publish()
         self._diagnostics(max(self.session.estimator.t_s, 0.0))
-        for view in self.views:
-            view.send()
+        self.stop_views()
+
+    def stop_views(self) -> None:
+        """The views' last batch sent and their thread ended (also on an error: call it in a
+        ``finally`` before the views are closed)."""
+        if self.feeder is not None:
+            self.feeder.stop()
 
     def latency_ms(self) -> tuple[float, float]:
         if not self.latency_s:

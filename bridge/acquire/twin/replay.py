@@ -15,6 +15,7 @@ twin's), a drive other than hinge torques.
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import json
 import math
@@ -34,6 +35,7 @@ from ...io.measured import fusion_rate_of, node_samples
 from ...io.recording import read_recording
 from ...io.recording_layout import DRIVE_TOPIC, imu_topic
 from ...report.twin_views import TwinView
+from ..sink import RecordingSink
 from .pipeline import TwinPipeline, TwinResult, TwinSpec, close_sink, open_sink, status_text
 
 RIG_TOLERANCE = 1e-9  # relative: parameters that differ by more are another rig
@@ -188,6 +190,34 @@ def _run(
         + (f", {speed:g}x its pace)" if speed else ", as fast as it can)")
         + (f"; writing {partial} until done, then {output}" if output is not None else "")
     )
+
+    try:
+        return _feed(pipeline, session, spec, speed, say, status, times, node, index, order, rows, torque_t, torque,
+                     output, partial, sink, replace)  # fmt: skip
+    finally:
+        with contextlib.suppress(Exception):  # on an error too: the views' thread ends before they close
+            pipeline.stop_views()
+
+
+def _feed(
+    pipeline: TwinPipeline,
+    session: TwinSession,
+    spec: TwinSpec,
+    speed: float,
+    say: Callable[[str], None],
+    status: Callable[[str], None] | None,
+    times: NDArray[np.float64],
+    node: NDArray[np.int64],
+    index: NDArray[np.int64],
+    order: NDArray[np.int64],
+    rows: list[NDArray[np.float64]],
+    torque_t: NDArray[np.float64] | None,
+    torque: NDArray[np.float64] | None,
+    output: Path | None,
+    partial: Path | None,
+    sink: RecordingSink | None,
+    replace: bool,
+) -> TwinResult:
     from ..receiver import stop_signals
 
     wall0 = time.monotonic()
