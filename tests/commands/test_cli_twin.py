@@ -120,3 +120,29 @@ def test_a_file_that_is_no_recording_is_refused(tmp_path, capsys):
     assert main(["twin", "--replay", str(bogus), "-o", str(tmp_path / "t.mcap")]) == 2
     assert "not an MCAP file" in capsys.readouterr().err
     assert math.isfinite(1.0)
+
+
+def test_the_live_views_see_the_twins_estimates_and_end_with_it(recording, replayed, tmp_path):
+    """--rerun writes the twin's estimates (the same as its recording's) to an .rrd file, fed from
+    the views' own thread; --foxglove serves while it runs and its port is free after."""
+    import socket
+    import threading
+
+    import rerun as rr
+
+    rrd = tmp_path / "twin.rrd"
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    args = ["twin", "--replay", str(recording), "--speed", "0", "-o", str(tmp_path / "t.mcap"), "--rerun", str(rrd)]
+    assert main([*args, "--foxglove", str(port)]) == 0
+    rows = {}
+    for chunk in rr.chunk.RrdReader(str(rrd)).stream():
+        if not chunk.is_static:
+            rows[str(chunk.entity_path)] = rows.get(str(chunk.entity_path), 0) + chunk.num_rows
+    estimates = len(_messages(replayed, twin_topics.ESTIMATE_TOPIC))
+    m1, m2 = rows.get("/twin/m1/angle", 0), rows.get("/twin/m2/angle", 0)
+    assert m1 + m2 == estimates  # every estimate reached the view, none twice
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", port))  # the Foxglove server has let go of its port
+    assert not [t for t in threading.enumerate() if t.name == "pendsim-twin-views"]
