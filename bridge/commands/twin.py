@@ -28,11 +28,11 @@ def track_list(text: str) -> tuple[str, ...]:
         return tuple(TRACKABLE)
     if text == "none":
         return ()
-    names = tuple(n.strip() for n in text.split(",") if n.strip())
-    unknown = [n for n in names if n not in TRACKABLE]
-    if unknown or not names or len(set(names)) != len(names):
+    names = tuple(n.strip() for n in text.split(","))
+    unknown = [n for n in names if n and n not in TRACKABLE]
+    if unknown or not all(names) or len(set(names)) != len(names):
         raise argparse.ArgumentTypeError(
-            f"--track {text!r}: {'unknown ' + ', '.join(unknown) if unknown else 'empty or repeated names'}; "
+            f"--track {text!r}: {'unknown ' + ', '.join(unknown) if unknown else 'an empty or repeated name'}; "
             f"allowed: all, none, or a comma-separated list of {', '.join(TRACKABLE)}"
         )
     return names
@@ -55,7 +55,7 @@ def register(sub: argparse._SubParsersAction[options.Parser]) -> None:
     p.add_argument("--force", action="store_true", help="replace the output file if it exists")
     p.add_argument(
         "--replay",
-        type=options.argument(options.mcap_file, "REC.mcap"),
+        type=options.mcap_file,
         metavar="REC.mcap",
         help="run on this recording instead of live packets (a recording of the twin's rig)",
     )
@@ -64,7 +64,7 @@ def register(sub: argparse._SubParsersAction[options.Parser]) -> None:
         type=options.float_in(0.0, 1000.0, "x"),
         help="--replay: this many times the recording's pace; 0: as fast as it can (default 1)",
     )
-    add_stream_options(p, what="send to")
+    add_stream_options(p, what="sends to")
     p.add_argument(
         "--bind",
         type=options.bind_address,
@@ -76,7 +76,7 @@ def register(sub: argparse._SubParsersAction[options.Parser]) -> None:
         type=options.float_in(0.0, 7 * 86400.0, "s", low_open=True, name="--duration-s"),
         help="stop after this long, s (default: on Ctrl-C or SIGTERM)",
     )
-    options.add_parameter_options(p, what="the twin's rig (e.g. 'pendsim calibrate''s params.json)")
+    options.add_parameter_options(p, what="the twin's rig")
     p.add_argument(
         "--track",
         type=options.argument(track_list, "LIST"),
@@ -171,7 +171,7 @@ def run(args: argparse.Namespace) -> int:
     from ..acquire.twin.pipeline import TwinSpec, summary_text
 
     options.check_output(args.output, (".mcap",), force=args.force)
-    options.check_output(args.rerun, (".rrd",), force=True)
+    options.check_output(args.rerun, (".rrd",), force=args.force)
     if args.replay is not None:
         options.check_not_input(args.output, args.replay)
         if args.duration_s is not None:

@@ -134,13 +134,18 @@ class Alarm:
         return self.value - self.reference
 
     def describe(self) -> str:
+        """One line: what changed, by how much (2-sigma interval), since when and when it was
+        alarmed (s on the twin's clock)."""
         unit = TRACKABLE[self.parameter][1]
         relative = (
             f" ({100 * self.change / self.reference:+.0f} %)" if self.reference and self.parameter in RELATIVE else ""
         )
+        if unit == "rad":  # a node's turn, in degrees too
+            relative = f" (turned {math.degrees(self.change):+.2f} deg)"
         line = (
-            f"{self.what} changed since {self.since_s:.1f} s (alarm at {self.t_s:.1f} s): {self.parameter} "
-            f"{self.reference:.4g} -> {self.value:.4g} +- {2 * self.sigma:.2g} {unit}{relative}"
+            f"{self.what}: {self.parameter} {self.reference:.4g} -> {self.value:.4g} {unit} "
+            f"(+- {2 * self.sigma:.2g}, 2 sigma){relative}; changing since {self.since_s:.1f} s, "
+            f"alarm at {self.t_s:.1f} s"
         )
         if self.runner_up:
             line += f"; likelier than {self.runner_up} by e^{self.evidence:.0f}"

@@ -26,7 +26,8 @@ class Estimates:
     Attributes:
       t_s: (n,) each sample's instant (the instant its value stands for), s on the twin's clock.
       node: (n,) 0 (M1) or 1 (M2).
-      measured: (n, 2) the node's swing angle (rad) and hinge rate (rad/s).
+      measured: (n, 2) the node's swing angle (rad; its mount's offset, as estimated, taken out, so
+        that it compares with the state's angle) and hinge rate (rad/s).
       state: (n, 4) the estimate after the update (``STATE_NAMES``).
       sigma: (n, 4) its standard deviations.
       innovation: (n, 2) measured minus predicted (rad, rad/s).

@@ -35,7 +35,7 @@ from pendsim_mj.errors import ParameterError
 from pendsim_mj.estimation.planar_fit import ljung_box_p
 from pendsim_mj.estimation.swing_frame import SwingFrame
 from pendsim_mj.rig.params import DEFAULT_PARAMS, RigParams
-from pendsim_mj.sensors.bno055 import FUSION_RATE_HZ, Bno055
+from pendsim_mj.sensors.bno055 import FUSION_RATE_HZ, SWING_ANGLE_SIGMA_RAD, Bno055
 from pendsim_mj.sensors.imperfections import Imperfections
 from pendsim_mj.twin.estimator import NSTATE, TRACKABLE, Forecast, RigEstimator
 from pendsim_mj.twin.health import DEFAULT_PERSIST_S, DEFAULT_THRESHOLD, Alarm, HealthMonitor
@@ -60,6 +60,7 @@ NODE_BASELINE_S = 10.0  # the node states' references: their estimates this long
 # learned frames leave each offset about 0.5 deg uncertain; the rig's own parameters keep the stated rig)
 NODE_FUSION_ERROR_RAD = math.radians(0.5)  # the nodes' fused orientation's slowly varying error, rms, that
 # the mount offsets may wander within without a change (the health monitor's reference spread)
+ALIGNED_DEG = 0.2  # a learned hinge axis this close to the start frame's: a node mounted along its axes
 TORQUE_NOISE_N_M = 5e-6  # N m / sqrt(Hz): white on fusion-timed node data (2e-5 left lag-1 -0.07)
 LATE_S = 0.0125  # the two nodes' value instants cross by up to one fusion period (10 ms): taken late
 HORIZON_BINS_S = (0.25, 0.5, 1.0, 2.0, 5.0)  # forecast scores per horizon up to each of these
@@ -130,6 +131,7 @@ class TwinSummary:
     alarms: tuple[Alarm, ...]
     parameters: dict[str, tuple[float, float]]
     events: tuple[tuple[float, str], ...] = ()
+    monitored_from_s: float = math.nan  # the first health check against the references (NaN: none)
 
 
 class TwinSession:
@@ -218,6 +220,7 @@ class TwinSession:
         self._tracking = False
         self._checks_from_s = -math.inf
         self._measuring_since: list[float | None] = [None, None]
+        self._node_baseline_done = False
         self._rows: list[tuple] = []
         self._forecasts: list[tuple[float, Forecast]] = []
         self._checks: list[ParameterCheck] = []
@@ -271,8 +274,9 @@ class TwinSession:
         self._recent_z[node].clear()
         x, sigma = self.estimator.x, self.estimator.sigma
         s_sigma = np.sqrt(np.diag(update.covariance))
+        seen = phi - self._offset(node)  # what the node measured, its mount's offset (as estimated) taken out
         self._rows.append(
-            (t_v, node, phi, omega, *x[:NSTATE], *sigma[:NSTATE], *update.innovation, *s_sigma, update.nis)
+            (t_v, node, seen, omega, *x[:NSTATE], *sigma[:NSTATE], *update.innovation, *s_sigma, update.nis)
         )
         if t_v - self.started_s >= self.settle_s:
             self._nis[node].append(update.nis)
@@ -284,7 +288,12 @@ class TwinSession:
             return True
         if not self._snapshots or t_v - self._snapshots[-1][0] >= SNAPSHOT_S:
             self._snapshots.append((t_v, self.estimator.x[NSTATE:].copy(), self.estimator.p[NSTATE:, NSTATE:].copy()))
-        if self.monitor is not None and self.monitor.reference is not None and t_v - self.started_s < NODE_BASELINE_S:
+        if (
+            self.monitor is not None
+            and self.monitor.reference is not None
+            and not self._node_baseline_done
+            and t_v - self.started_s < NODE_BASELINE_S
+        ):
             for name in NODE_PARAMETERS:  # the node states' references follow them until the baseline
                 if name in self.monitor.reference:
                     self.monitor.reference[name] = float(self.estimator.x[NSTATE + self.estimator.track.index(name)])
@@ -335,6 +344,11 @@ class TwinSession:
         restart = not math.isnan(self.started_s)
         kept = self._snapshots[0] if restart and self._snapshots else None
         self.estimator.start(t0, x0, sigma0=np.radians([2.0, 2.0, 5.0, 5.0]), parameter_sigma0=self._parameter_sigma0)
+        # the angle's quantisation: a node whose hinge lies along a sensor axis (the model's mount,
+        # the emulator's default) reads two quaternion components as exact zeros, LSB sqrt(2/3);
+        # any other mount LSB / sqrt(3) (``measurement.TWIST_SIGMA_RAD``)
+        aligned = any((m.learned.hinge_to_start_deg or 0.0) < ALIGNED_DEG for m in self.measurements)
+        self.estimator.measurement_sigma[0] = SWING_ANGLE_SIGMA_RAD if aligned else TWIST_SIGMA_RAD
         if kept is not None:
             self.estimator.x[NSTATE:], self.estimator.p[NSTATE:, NSTATE:] = kept[1], kept[2]
         self._tracking = True
@@ -365,6 +379,7 @@ class TwinSession:
             self.estimator.p[i, i] += jump * jump
         recent.clear()
         self._recent_nis.clear()
+        self._node_baseline_done = True  # a slip before the node states' baseline: their references stay
         self._event(t_v, f"m{node + 1} angle jumped by {math.degrees(jump):+.2f} deg")
         return True
 
@@ -400,6 +415,7 @@ class TwinSession:
         keep = []
         r = float(self.estimator.measurement_sigma[0])
         offset = self._offset(node) if self._open_forecasts else 0.0
+        t_v = t_v - self._delay(node)  # M2's values stand for an instant its tracked delay earlier
         for f in self._open_forecasts:
             t0, t_end = float(f.t_s[0]), float(f.t_s[-1])
             if t_v > t_end:
@@ -424,6 +440,12 @@ class TwinSession:
                 self._score_sq[b] += error * error
                 self._score_in[b] += abs(error) <= 3 * sd
         self._open_forecasts = keep
+
+    def _delay(self, node: int) -> float:
+        track = self.estimator.track
+        return (
+            float(self.estimator.x[NSTATE + track.index("delay_m2_s")]) if node == 1 and "delay_m2_s" in track else 0.0
+        )
 
     def _offset(self, node: int) -> float:
         name = f"offset_m{node + 1}_rad"
@@ -478,4 +500,7 @@ class TwinSession:
             alarms=tuple(self._all_alarms),
             parameters=self.estimator.parameters() if not math.isnan(self.started_s) else {},
             events=tuple(self.events),
+            monitored_from_s=self.monitor.history[0][0]
+            if self.monitor is not None and self.monitor.history
+            else math.nan,
         )

@@ -37,6 +37,7 @@ NOT_NUMERIC = {
     "time",  # --start-utc: a UTC date and time (tests/acquire/test_import.py)
     "damping_choice",  # identified | recorded | B1,B2: probed below as B1,B2
     "axis_remap",  # two hex bytes, checked against the BNO055's registers (tests/sensors)
+    "LIST",  # twin --track: parameter names (tests/commands/test_cli_twin.py)
 }
 # Untyped (string) options: what they hold.
 UNTYPED = {

@@ -348,15 +348,24 @@ class TwinPipeline:
         out = []
         found = session.estimator.parameters() if not math.isnan(session.started_s) else {}
         monitor = session.monitor
+        g = monitor.history[-1][1] if monitor is not None and monitor.history else {}
         for name in session.estimator.track:
             value, sigma = found.get(name, (math.nan, math.nan))
             reference = monitor.reference.get(name, math.nan) if monitor and monitor.reference else math.nan
-            z = (value - reference) / sigma if sigma and math.isfinite(reference) else math.nan
+            z = g.get(name, math.nan)  # the monitor's own statistic (its references' spread included)
             alarm = monitor.alarmed.get(name) if monitor else None
             level = 2 if alarm else (1 if abs(z) > 2 else 0)
-            message = (
-                alarm.describe() if alarm else ("waiting for the estimate" if math.isnan(z) else "as its reference")
-            )
+            if alarm:
+                message = alarm.describe()
+            elif name in NODE_PARAMETERS and not name.startswith("offset_m"):
+                message = "a state of the measurement, not monitored"
+            elif math.isnan(z):
+                message = "waiting for the estimate and its reference"
+            elif level:
+                spec = self.spec
+                message = f"{abs(z):.1f} sigmas from its reference (alarm beyond {spec.threshold:g})"
+            else:
+                message = "within 2 sigmas of its reference"
             unit = TRACKABLE[name][1]
             out.append(
                 ros2.DiagnosticStatus(
@@ -368,7 +377,7 @@ class TwinPipeline:
                         ("value", f"{value:.6g}"),
                         ("sigma", f"{sigma:.3g}"),
                         ("reference", f"{reference:.6g}"),
-                        ("z", f"{z:.2f}"),
+                        ("g", f"{z:.2f}"),
                         ("unit", unit),
                     ),
                 )
@@ -586,6 +595,8 @@ def summary_text(result: TwinResult) -> str:
         )
     for name, (value, sigma) in s.parameters.items():
         lines.append(f"  {name:<18} {value:.5g} +- {2 * sigma:.2g} {TRACKABLE[name][1]}")
+    if math.isnan(s.monitored_from_s):
+        lines.append("health: never checked (the references were not taken: --baseline-s past the end?)")
     lines.append(f"alarms: {len(s.alarms)}" + "".join(f"\n  {a.describe()}" for a in s.alarms))
     shown = [(t, what) for t, what in s.events if what != "tracking"]
     if shown:

@@ -55,6 +55,21 @@ def differing_parameters(recorded: RigParams, twin: RigParams) -> list[str]:
     return out
 
 
+def _noted_events(metadata: dict[str, dict[str, str]]) -> list[tuple[float, str]]:
+    """What a live twin saw of the transport and noted (a node's clock jump), from its recording:
+    a replay's samples are already on the corrected clock, so it says them again from here."""
+    text = metadata.get(twin_topics.TWIN_RESULT_METADATA, {}).get("events")
+    if not text:
+        return []
+    try:
+        events = [(float(t), str(what)) for t, what in json.loads(text)]
+    except (ValueError, TypeError):
+        raise RecordingError(
+            "the recording's pendsim/twin_result 'events' entry is not a list of [t_s, text]"
+        ) from None
+    return [(t, what) for t, what in events if "its clock jumped" in what and math.isfinite(t)]
+
+
 def _late_samples(metadata: dict[str, dict[str, str]]) -> frozenset[tuple[int, int]]:
     text = metadata.get(twin_topics.TWIN_RESULT_METADATA, {}).get("late")
     if not text:
@@ -117,6 +132,7 @@ def replay(
             raise RecordingError(f"{path}: its drive moves the support; the twin models hinge torques only")
         torque = held[:, :2]
     skip = _late_samples(rec.metadata)
+    noted = _noted_events(rec.metadata)
     rows: list[NDArray[np.float64]] = []
     for samples in (m1, m2):
         r = np.zeros((len(samples.log_t_s), len(ROW_FIELDS)))
@@ -136,7 +152,7 @@ def replay(
     views = views_for(start_utc_ns) if views_for is not None else ()
     try:
         return _run(spec, path, output, replace, speed, views, say, status, start_utc_ns, skip,
-                    times, node, index, order, rows, torque_t, torque)  # fmt: skip
+                    times, node, index, order, rows, torque_t, torque, noted)  # fmt: skip
     finally:
         for v in views:
             v.close()
@@ -160,6 +176,7 @@ def _run(
     rows: list[NDArray[np.float64]],
     torque_t: NDArray[np.float64] | None,
     torque: NDArray[np.float64] | None,
+    noted: list[tuple[float, str]],
 ) -> TwinResult:
     sink, partial = None, None
     if output is not None:
@@ -182,6 +199,8 @@ def _run(
         baseline_s=spec.baseline_s,
         fusion_rate_hz=spec.fusion_rate_hz,
     )
+    for t, what in noted:
+        session.note(t, what)
     pipeline = TwinPipeline(
         spec, session, sink=sink, node_names=("m1", "m2"), start_utc_ns=start_utc_ns, views=views, skip=skip
     )
