@@ -29,7 +29,6 @@ import numpy as np
 
 from pendsim_mj.errors import ParameterError
 from pendsim_mj.sensors.bno055 import SAMPLE_RATE_HZ
-from pendsim_mj.twin.session import TwinSession
 
 from ...report.twin_views import TwinView
 from ..packets import PacketError, StreamFormat
@@ -142,16 +141,7 @@ def run_twin_live(
                 node_names=("m1", "m2"),
                 start_utc_ns=start_utc_ns,
             )
-        session = TwinSession(
-            spec.params,
-            track=spec.track,
-            forecast_horizon_s=spec.forecast_horizon_s,
-            forecast_every_s=spec.forecast_every_s,
-            threshold=spec.threshold,
-            persist_s=spec.persist_s,
-            baseline_s=spec.baseline_s,
-            fusion_rate_hz=spec.fusion_rate_hz,
-        )
+        session = spec.session()
         pipeline = TwinPipeline(
             spec, session, sink=sink, node_names=("m1", "m2"), start_utc_ns=start_utc_ns, views=views
         )

@@ -80,6 +80,19 @@ class TwinSpec:
     hold_s: float = DEFAULT_HOLD_S
     fusion_rate_hz: float | None = FUSION_RATE_HZ
 
+    def session(self) -> TwinSession:
+        """A twin that runs as this spec says."""
+        return TwinSession(
+            self.params,
+            track=self.track,
+            forecast_horizon_s=self.forecast_horizon_s,
+            forecast_every_s=self.forecast_every_s,
+            threshold=self.threshold,
+            persist_s=self.persist_s,
+            baseline_s=self.baseline_s,
+            fusion_rate_hz=self.fusion_rate_hz,
+        )
+
     def metadata(self, source: str) -> dict[str, str]:
         return {
             "source": source,

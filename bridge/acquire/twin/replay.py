@@ -189,16 +189,7 @@ def _run(
             node_names=("m1", "m2"),
             start_utc_ns=start_utc_ns,
         )
-    session = TwinSession(
-        spec.params,
-        track=spec.track,
-        forecast_horizon_s=spec.forecast_horizon_s,
-        forecast_every_s=spec.forecast_every_s,
-        threshold=spec.threshold,
-        persist_s=spec.persist_s,
-        baseline_s=spec.baseline_s,
-        fusion_rate_hz=spec.fusion_rate_hz,
-    )
+    session = spec.session()
     for t, what in noted:
         session.note(t, what)
     pipeline = TwinPipeline(
