@@ -13,6 +13,7 @@ from .node_options import add_stream_options, nodes_from, stream_from
 if TYPE_CHECKING:
     from pendsim_mj.rig.params import RigParams
 
+    from ..acquire.twin.pipeline import TwinSpec
     from ..report.twin_views import TwinView
 
 TRACK_ALL = "all"
@@ -167,8 +168,11 @@ def _views_for(args: argparse.Namespace, params: RigParams) -> Callable[[int], t
     return open_views
 
 
-def run(args: argparse.Namespace) -> int:
-    from ..acquire.twin.pipeline import TwinSpec, summary_text
+def spec_from(args: argparse.Namespace) -> TwinSpec:
+    """The twin the options describe (bad combinations refused first)."""
+    from pendsim_mj.twin.session import RIG_PARAMETERS
+
+    from ..acquire.twin.pipeline import TwinSpec
 
     options.check_output(args.output, (".mcap",), force=args.force)
     options.check_output(args.rerun, (".rrd",), force=args.force)
@@ -178,11 +182,8 @@ def run(args: argparse.Namespace) -> int:
             raise options.UsageError("--duration-s is for live packets; a replay runs to the recording's end")
     elif args.speed is not None:
         raise options.UsageError("--speed is for --replay")
-    from pendsim_mj.twin.session import RIG_PARAMETERS
-
-    params = options.params_from(args)
-    spec = TwinSpec(
-        params=params,
+    return TwinSpec(
+        params=options.params_from(args),
         track=args.track if args.track is not None else RIG_PARAMETERS,
         forecast_horizon_s=args.forecast_s,
         threshold=args.threshold_sigma,
@@ -190,31 +191,24 @@ def run(args: argparse.Namespace) -> int:
         baseline_s=args.baseline_s,
         hold_s=args.hold_ms * 1e-3,
     )
-    views_for = _views_for(args, params)
+
+
+def run(args: argparse.Namespace) -> int:
+    from ..acquire.twin.pipeline import summary_text
+
+    spec = spec_from(args)
+    views_for = _views_for(args, spec.params)
     if args.replay is not None:
         from ..acquire.twin.replay import replay
 
-        result = replay(
-            spec,
-            args.replay,
-            output=args.output,
-            replace=args.force,
-            speed=1.0 if args.speed is None else args.speed,
-            views_for=views_for,
-        )
+        speed = 1.0 if args.speed is None else args.speed
+        result = replay(spec, args.replay, output=args.output, replace=args.force, speed=speed, views_for=views_for)
     else:
         from ..acquire.twin.live import run_twin_live
 
         result = run_twin_live(
-            spec,
-            output=args.output,
-            replace=args.force,
-            nodes=nodes_from(args),
-            bind=args.bind,
-            stream=stream_from(args),
-            rate_hz=args.rate_hz,
-            duration_s=args.duration_s,
-            views_for=views_for,
-        )
+            spec, output=args.output, replace=args.force, nodes=nodes_from(args), bind=args.bind,
+            stream=stream_from(args), rate_hz=args.rate_hz, duration_s=args.duration_s, views_for=views_for,
+        )  # fmt: skip
     print(summary_text(result))
     return 0
