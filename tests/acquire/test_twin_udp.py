@@ -112,7 +112,8 @@ def test_scripted_faults_sent_over_udp_are_alarmed_on_the_right_parameter_within
     assert mount["t_s"] - springs["t_s"] == pytest.approx(6.0, abs=4.0)
     assert mount["since_s"] <= mount["t_s"] - 3.0
     events = [what for _, what in json.loads(meta["events"])]
-    assert "m1: its clock jumped by +0.500 s; its timeline restarted" in events
+    jumps = [float(e.split("by ")[1].split(" s")[0]) for e in events if e.startswith("m1: its clock jumped by ")]
+    assert len(jumps) == 1 and jumps[0] == pytest.approx(0.5, abs=0.02)  # the packets' own jitter aside
     assert any(e.startswith("m2 angle jumped by +3.0") for e in events)
     p50, p99 = json.loads(meta["latency_ms"])
     assert 0 < p50 <= p99  # measured per sample, from its arrival to its estimate

@@ -38,8 +38,9 @@ from ..udp_loop.node_view import NodeView, model_frames
 from .pipeline import TwinPipeline, TwinResult, TwinSpec, close_sink, open_sink, status_text
 
 JUMP_PACKETS = 5  # packets in a row whose arrival minus device time agree among themselves within
-JUMP_AGREE_S = 0.005  # this (s) and differ from the node's recent ones by more than JUMP_MIN_S:
-JUMP_MIN_S = 0.05  # the node's clock jumped; its timeline starts anew from the packets that follow
+JUMP_AGREE_S = 0.025  # this (s: a loaded host's arrival jitter) and differ from the node's recent ones
+JUMP_MIN_S = 0.05  # by more than JUMP_MIN_S, all the same way: the node's clock jumped; its timeline
+JUMP_ANYWAY = 40  # starts anew from the packets that follow (and after this many held out in a row, whatever)
 RECENT_PACKETS = 40  # the node's recent packets' arrival minus device time: their median is its offset
 
 
@@ -70,8 +71,10 @@ class _TwinNodeView(NodeView):
         if len(self._recent) >= JUMP_PACKETS and abs(off - statistics.median(self._recent)) > JUMP_MIN_S:
             self._odd.append(off)
             self.held_out += 1
-            if len(self._odd) >= JUMP_PACKETS and max(self._odd) - min(self._odd) <= JUMP_AGREE_S:
-                self.jumps.append((arrival_s, statistics.median(self._recent) - off))
+            odd, base = self._odd[-JUMP_PACKETS:], statistics.median(self._recent)
+            agree = max(odd) - min(odd) <= JUMP_AGREE_S and (min(odd) > base or max(odd) < base)
+            if (len(self._odd) >= JUMP_PACKETS and agree) or len(self._odd) >= JUMP_ANYWAY:
+                self.jumps.append((arrival_s, base - statistics.median(odd)))
                 counts, malformed, implausible = dict(self._counts), dict(self._malformed), dict(self._implausible)
                 NodeView.__init__(self, *self._args, **self._kwargs)  # type: ignore[arg-type]
                 self._counts, self._malformed, self._implausible = counts, malformed, implausible
