@@ -37,6 +37,7 @@ from ..receiver import listen_udp, read_stamped, stop_signals
 from ..udp_loop.node_view import NodeView, model_frames
 from .pipeline import TwinPipeline, TwinResult, TwinSpec, close_sink, open_sink, status_text
 
+SETTLE_S = 0.05  # the nodes' timelines decide this often (``receiver.TICK_S``), s
 JUMP_PACKETS = 5  # packets in a row whose arrival minus device time agree among themselves within
 JUMP_AGREE_S = 0.025  # this (s: a loaded host's arrival jitter) and differ from the node's recent ones
 JUMP_MIN_S = 0.05  # by more than JUMP_MIN_S, all the same way: the node's clock jumped; its timeline
@@ -157,6 +158,7 @@ def run_twin_live(
             + (f"; writing {partial} until done, then {output}" if output is not None else "")
         )
         stop = "duration"
+        next_settle_s = 0.0
         with stop_signals() as signalled:
             while True:
                 now = now_s()
@@ -168,7 +170,7 @@ def run_twin_live(
                     break
                 if duration_s is not None and now >= duration_s:
                     break
-                wait = 0.005 if pipeline.merger.waiting() else 0.05
+                wait = pipeline.merger.hold_s / 4 if pipeline.merger.waiting() else 0.05
                 if duration_s is not None:
                     wait = min(wait, max(0.0, duration_s - now))
                 for key, _ in selector.select(wait):
@@ -187,8 +189,10 @@ def run_twin_live(
                         say(f"twin: {text}")
                 now = now_s()
                 pipeline.step(now, clock=now_s)
-                for view in node_views:
-                    view.settle(now)
+                if now >= next_settle_s:  # the timelines decide at acquire's cadence, not at every packet
+                    next_settle_s = now + SETTLE_S
+                    for view in node_views:
+                        view.settle(now)
                 if pipeline.tick(now, session.estimator.t_s) and status is not None:
                     status(status_text(pipeline, now))
         pipeline.finish()
