@@ -100,7 +100,7 @@ class LiveView:
                 if self._rrd_partial is not None:
                     self._rrd_partial.unlink(missing_ok=True)
                 raise
-            sinks.append(rr.GrpcSink(f"rerun+http://{bind}:{port + 1}/proxy"))
+            sinks.append(rr.GrpcSink(serving.live_grpc_url(bind, port)))
             self.url = serving.viewer_url(bind, port, port + 1)
         rr.set_sinks(*sinks, default_blueprint=blueprint(nodes))
         log_rig_geometry(mujoco.MjModel.from_xml_string(mjcf_xml))

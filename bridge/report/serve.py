@@ -82,6 +82,12 @@ def viewer_url(bind: str, web_port: int, grpc_port: int) -> str:
     return f"http://{host}:{web_port}/?url=rerun%2Bhttp://{host}:{grpc_port}/proxy"
 
 
+def live_grpc_url(bind: str, web_port: int) -> str:
+    """Where the SDK's gRPC sink streams into a live server (``start_live_server``) bound to
+    ``bind`` on ``web_port``: its proxy on ``web_port + 1``."""
+    return f"rerun+http://{url_host(bind)}:{web_port + 1}/proxy"
+
+
 def check_port_free(bind: str, port: int) -> None:
     """Bind ``(bind, port)`` briefly, as the server will; raise ProcessError if that fails."""
     address = ipaddress.ip_address(bind)

@@ -158,7 +158,7 @@ class TwinRerunView(BufferedView):
                 if self._rrd_partial is not None:
                     self._rrd_partial.unlink(missing_ok=True)
                 raise
-            sinks.append(rr.GrpcSink(f"rerun+http://{serving.url_host(bind)}:{port + 1}/proxy"))
+            sinks.append(rr.GrpcSink(serving.live_grpc_url(bind, port)))
             self.url = serving.viewer_url(bind, port, port + 1)
         try:
             self.rec.set_sinks(*sinks, default_blueprint=blueprint(nodes))

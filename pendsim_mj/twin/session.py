@@ -452,6 +452,16 @@ class TwinSession:
         track = self.estimator.track
         return float(self.estimator.x[NSTATE + track.index(name)]) if name in track else 0.0
 
+    @property
+    def samples(self) -> tuple[int, int]:
+        """Each node's samples given so far."""
+        return self._samples[0], self._samples[1]
+
+    def recent_nis(self, count: int = 160) -> tuple[float, float]:
+        """Each node's mean NIS over its last ``count`` updates after the settling (NaN: none)."""
+        first, second = (float(np.mean(v[-count:])) if v else math.nan for v in self._nis)
+        return first, second
+
     def learned(self) -> tuple[Learned, Learned]:
         """What each node's measurement has learned (fusion phase, frame)."""
         return self.measurements[0].learned, self.measurements[1].learned
@@ -492,7 +502,7 @@ class TwinSession:
 
         nis = tuple(float(np.mean(v)) if v else math.nan for v in self._nis)
         return TwinSummary(
-            samples=(self._samples[0], self._samples[1]),
+            samples=self.samples,
             started_s=self.started_s,
             nis_mean=(nis[0], nis[1]),
             whiteness_p=(p(self._normalised[0]), p(self._normalised[1])),

@@ -202,7 +202,7 @@ def run_twin_live(
         if sink is not None and output is not None and partial is not None:
             messages = close_sink(pipeline, partial, output, replace=replace, stop_reason=stop, duration_s=duration)
             path = output
-        elif session._samples == [0, 0]:
+        elif session.samples == (0, 0):
             from pendsim_mj.errors import RecordingError
 
             raise RecordingError("no node sample arrived")

@@ -245,7 +245,6 @@ class TwinPipeline:
             self._register()
         self.latency_s: list[float] = []
         self._unwritten: list[Held[tuple[NDArray[np.float64], tuple[float, float]]]] = []
-        self._now_arrivals: list[float] = []
         self._next_flush_s = -math.inf
         self._next_diag_s = -math.inf
         self._next_view_s = -math.inf
@@ -404,8 +403,8 @@ class TwinPipeline:
                 "estimator",
                 (
                     ("t_s", f"{session.estimator.t_s:.3f}"),
-                    ("samples_m1", str(session._samples[0])),
-                    ("samples_m2", str(session._samples[1])),
+                    ("samples_m1", str(session.samples[0])),
+                    ("samples_m2", str(session.samples[1])),
                     ("late", str(len(self.merger.late))),
                 ),
             )
@@ -554,7 +553,7 @@ def close_sink(
     sink.add_metadata(twin_topics.TWIN_RESULT_METADATA, pipeline.result_metadata(summary, stop_reason, duration_s))
     sink.close()
     messages = int(sink.messages)
-    if pipeline.session._samples == [0, 0]:
+    if pipeline.session.samples == (0, 0):
         partial.unlink(missing_ok=True)
         raise RecordingError("no node sample arrived: nothing was written")
     try:
@@ -568,7 +567,7 @@ def close_sink(
 
 def status_text(pipeline: TwinPipeline, elapsed_s: float) -> str:
     s = pipeline.session
-    nis = [np.mean(v[-160:]) if v else math.nan for v in s._nis]
+    nis = s.recent_nis()
     alarms = len(pipeline.alarms)
     state = (
         "waiting for both nodes"
@@ -576,7 +575,7 @@ def status_text(pipeline: TwinPipeline, elapsed_s: float) -> str:
         else (f"phi1 {math.degrees(s.estimator.x[0]):+6.1f} deg  phi2 {math.degrees(s.estimator.x[1]):+6.1f} deg")
     )
     return (
-        f"{elapsed_s:6.1f} s  samples m1 {s._samples[0]} m2 {s._samples[1]}  {state}  "
+        f"{elapsed_s:6.1f} s  samples m1 {s.samples[0]} m2 {s.samples[1]}  {state}  "
         f"NIS {nis[0]:.2f}/{nis[1]:.2f}  alarms {alarms}"
     )
 

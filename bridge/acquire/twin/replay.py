@@ -28,14 +28,12 @@ from numpy.typing import NDArray
 
 from pendsim_mj.errors import RecordingError
 from pendsim_mj.rig.params import RigParams
-from pendsim_mj.twin.session import TwinSession
 
 from ...io import twin_topics
 from ...io.measured import fusion_rate_of, node_samples
 from ...io.recording import read_recording
 from ...io.recording_layout import DRIVE_TOPIC, imu_topic
 from ...report.twin_views import TwinView
-from ..sink import RecordingSink
 from .pipeline import TwinPipeline, TwinResult, TwinSpec, close_sink, open_sink, status_text
 
 RIG_TOLERANCE = 1e-9  # relative: parameters that differ by more are another rig
@@ -141,43 +139,62 @@ def replay(
         r[:, GROUP_SLICES["accel"]] = samples.accel_m_s2
         rows.append(r)
     times = np.concatenate([m1.log_t_s, m2.log_t_s]).astype(float)
-    node = np.concatenate([np.zeros(len(m1.log_t_s), np.int64), np.ones(len(m2.log_t_s), np.int64)])
-    index = np.concatenate([np.arange(len(m1.log_t_s)), np.arange(len(m2.log_t_s))])
-    order = np.lexsort((node, times))
     if not np.all(np.isfinite(times)):
         raise RecordingError(f"{path}: a sample's time is not finite")
+    node = np.concatenate([np.zeros(len(m1.log_t_s), np.int64), np.ones(len(m2.log_t_s), np.int64)])
+    index = np.concatenate([np.arange(len(m1.log_t_s)), np.arange(len(m2.log_t_s))])
+    recorded = _Recorded(rows, times, node, index, np.lexsort((node, times)), torque_t, torque, skip, noted)
     start_utc_ns = int(rec.start_time_ns)
     spec = dataclasses.replace(spec, fusion_rate_hz=_fusion_rate_hz(rec.metadata, fusion_rate_of(rec)))
     del rec
     views = views_for(start_utc_ns) if views_for is not None else ()
     try:
-        return _run(spec, path, output, replace, speed, views, say, status, start_utc_ns, skip,
-                    times, node, index, order, rows, torque_t, torque, noted)  # fmt: skip
+        return _run(spec, path, recorded, start_utc_ns, output=output, replace=replace, speed=speed, views=views,
+                    say=say, status=status)  # fmt: skip
     finally:
         for v in views:
             v.close()
 
 
+@dataclasses.dataclass(frozen=True)
+class _Recorded:
+    """A recording's samples as the replay feeds them: each node's rows (``packets.ROW_FIELDS``),
+    every sample's instant (s), node and row index, their time order; the drive's torques (None:
+    a free run); the samples to leave out and the events to say again (a twin's own recording)."""
+
+    rows: list[NDArray[np.float64]]
+    times: NDArray[np.float64]
+    node: NDArray[np.int64]
+    index: NDArray[np.int64]
+    order: NDArray[np.int64]
+    torque_t: NDArray[np.float64] | None
+    torque: NDArray[np.float64] | None
+    skip: frozenset[tuple[int, int]]
+    noted: list[tuple[float, str]]
+
+    def torques_at(self, t_s: float) -> tuple[float, float]:
+        """The drive's hinge torques held at ``t_s`` (N m)."""
+        if self.torque is None or self.torque_t is None:
+            return 0.0, 0.0
+        k = int(np.searchsorted(self.torque_t, t_s, side="right")) - 1
+        return (float(self.torque[k, 0]), float(self.torque[k, 1])) if k >= 0 else (0.0, 0.0)
+
+
 def _run(
     spec: TwinSpec,
     path: Path,
+    recorded: _Recorded,
+    start_utc_ns: int,
+    *,
     output: Path | None,
     replace: bool,
     speed: float,
     views: tuple[TwinView, ...],
     say: Callable[[str], None],
     status: Callable[[str], None] | None,
-    start_utc_ns: int,
-    skip: frozenset[tuple[int, int]],
-    times: NDArray[np.float64],
-    node: NDArray[np.int64],
-    index: NDArray[np.int64],
-    order: NDArray[np.int64],
-    rows: list[NDArray[np.float64]],
-    torque_t: NDArray[np.float64] | None,
-    torque: NDArray[np.float64] | None,
-    noted: list[tuple[float, str]],
 ) -> TwinResult:
+    from ..receiver import stop_signals
+
     sink, partial = None, None
     if output is not None:
         sink, partial = open_sink(
@@ -190,70 +207,40 @@ def _run(
             start_utc_ns=start_utc_ns,
         )
     session = spec.session()
-    for t, what in noted:
+    for t, what in recorded.noted:
         session.note(t, what)
     pipeline = TwinPipeline(
-        spec, session, sink=sink, node_names=("m1", "m2"), start_utc_ns=start_utc_ns, views=views, skip=skip
+        spec, session, sink=sink, node_names=("m1", "m2"), start_utc_ns=start_utc_ns, views=views, skip=recorded.skip
     )
+    times, order = recorded.times, recorded.order
     say(
         f"twin: replaying {path} ({len(times)} samples"
         + (f", {speed:g}x its pace)" if speed else ", as fast as it can)")
         + (f"; writing {partial} until done, then {output}" if output is not None else "")
     )
-
-    try:
-        return _feed(pipeline, session, spec, speed, say, status, times, node, index, order, rows, torque_t, torque,
-                     output, partial, sink, replace)  # fmt: skip
-    finally:
-        with contextlib.suppress(Exception):  # on an error too: the views' thread ends before they close
-            pipeline.stop_views()
-
-
-def _feed(
-    pipeline: TwinPipeline,
-    session: TwinSession,
-    spec: TwinSpec,
-    speed: float,
-    say: Callable[[str], None],
-    status: Callable[[str], None] | None,
-    times: NDArray[np.float64],
-    node: NDArray[np.int64],
-    index: NDArray[np.int64],
-    order: NDArray[np.int64],
-    rows: list[NDArray[np.float64]],
-    torque_t: NDArray[np.float64] | None,
-    torque: NDArray[np.float64] | None,
-    output: Path | None,
-    partial: Path | None,
-    sink: RecordingSink | None,
-    replace: bool,
-) -> TwinResult:
-    from ..receiver import stop_signals
-
     wall0 = time.monotonic()
     t_first = float(times[order[0]]) if len(order) else 0.0
     stop = "end of recording"
-    with stop_signals() as signalled:
-        for i in order:
-            if signalled:
-                stop = signalled[0]
-                break
-            t = float(times[i])
-            if speed > 0:
-                delay = wall0 + (t - t_first) / speed - time.monotonic()
-                if delay > 0:
-                    time.sleep(delay)
-            n = int(node[i])
-            torques = (0.0, 0.0)
-            if torque is not None and torque_t is not None:
-                k = int(np.searchsorted(torque_t, t, side="right")) - 1
-                if k >= 0:
-                    torques = (float(torque[k, 0]), float(torque[k, 1]))
-            pipeline.push(n, t, rows[n][index[i]], t, torques)
-            pipeline.step(t)
-            if pipeline.tick(time.monotonic() - wall0 if speed else t, session.estimator.t_s) and status:
-                status(status_text(pipeline, t - t_first))
-    pipeline.finish()
+    try:
+        with stop_signals() as signalled:
+            for i in order:
+                if signalled:
+                    stop = signalled[0]
+                    break
+                t = float(times[i])
+                if speed > 0:
+                    delay = wall0 + (t - t_first) / speed - time.monotonic()
+                    if delay > 0:
+                        time.sleep(delay)
+                n = int(recorded.node[i])
+                pipeline.push(n, t, recorded.rows[n][recorded.index[i]], t, recorded.torques_at(t))
+                pipeline.step(t)
+                if pipeline.tick(time.monotonic() - wall0 if speed else t, session.estimator.t_s) and status:
+                    status(status_text(pipeline, t - t_first))
+        pipeline.finish()
+    finally:
+        with contextlib.suppress(Exception):  # on an error too: the views' thread ends before they close
+            pipeline.stop_views()
     duration = time.monotonic() - wall0
     messages, written = 0, None
     if sink is not None and partial is not None and output is not None:
