@@ -1,5 +1,5 @@
 """The live twin: the rig's state estimated from its nodes as they arrive, and its health (issue
-25; the library so far: no command, emulated faults or live views yet).
+25; ``pendsim twin`` runs it: ``bridge.acquire.twin``).
 
 - ``estimator``: ``RigEstimator``, an unscented Kalman filter on the planar model (sigma points
   advanced by the fast engine's force law, exact linear update with each node's swing angle and
@@ -15,6 +15,10 @@
 - ``health``: ``HealthMonitor``, detects a change by the likelihood ratio of one tracked parameter
   changed, and attributes it by a bank of filters, one per hypothesis, over the data that follow
   (``Alarm``: which parameter, what it means on the rig, since when, by how much, against what).
+- ``whiteness``: ``Whiteness``, the Ljung-Box test of a series that never ends (the innovations of
+  a live run of any length) from running sums, in constant memory.
+- ``merge``, ``session``, ``outputs``: both nodes in one time order, the twin sample by sample, what
+  it puts out.
 
 Importing this package imports nothing heavy (the estimator loads on first use).
 """
@@ -38,12 +42,14 @@ _LAZY = {
     "Sample": "pendsim_mj.twin.estimator",
     "StaleSample": "pendsim_mj.twin.estimator",
     "Update": "pendsim_mj.twin.estimator",
+    "Whiteness": "pendsim_mj.twin.whiteness",
 }
 
 if TYPE_CHECKING:
     from pendsim_mj.twin.estimator import TRACKABLE, Forecast, RigEstimator, Sample, StaleSample, Update
     from pendsim_mj.twin.health import Alarm, HealthMonitor
     from pendsim_mj.twin.measurement import Learned, NodeMeasurement, NodeSample, Waiting
+    from pendsim_mj.twin.whiteness import Whiteness
 else:
     __getattr__, __dir__ = lazy.exports(__name__, _LAZY)
 
@@ -60,4 +66,5 @@ __all__ = [
     "StaleSample",
     "Update",
     "Waiting",
+    "Whiteness",
 ]

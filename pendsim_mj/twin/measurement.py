@@ -45,7 +45,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from pendsim_mj.errors import ParameterError, RecordingError
-from pendsim_mj.estimation.swing_frame import SwingFrame, fit_swing_frame
+from pendsim_mj.estimation.swing_frame import SwingFrame, dominant_axis, fit_swing_frame
 from pendsim_mj.rig.params import DEFAULT_PARAMS, RigParams
 from pendsim_mj.sensors import rotations
 from pendsim_mj.sensors.bno055 import FUSION_RATE_HZ, QUAT_LSB, SAMPLE_RATE_HZ
@@ -57,8 +57,11 @@ Floats = NDArray[np.float64]
 # quaternion's 4 dimensions, and the angle is twice the displacement along the swing's tangent:
 # sigma = 2 LSB / sqrt(12) = LSB / sqrt(3) = 3.5e-5 rad (measured on the sensor model with a 2 deg
 # mount misalignment and a heading: the innovations' spread 0.93-1.0 of it). The model's own mount
-# leaves two components exactly zero, which gives LSB sqrt(2/3) (``bno055.SWING_ANGLE_SIGMA_RAD``).
+# leaves two components exactly zero, which gives LSB sqrt(2/3) (``bno055.SWING_ANGLE_SIGMA_RAD``);
+# a heading, a fusion error or a mount askew by a fraction of a degree makes them nonzero
+# (``NodeMeasurement.angle_sigma_rad`` tells the two apart from the node's own quaternions).
 TWIST_SIGMA_RAD = QUAT_LSB / math.sqrt(3.0)
+TIED_SAMPLES = 80  # the last second of quaternions the angle's rounding noise is averaged over
 PHASE_STEP_S = 0.25e-3  # the fusion phase's grid, s (40 candidates over a 10 ms period)
 PHASE_MOTION_RAD_S = 0.2  # only samples turning faster than this tell the phase (at rest: noise alone)
 PHASE_SAMPLES = 60  # swinging samples (forgetting weighted) before the phase is taken, 0.75 s at 80 Hz
@@ -70,6 +73,9 @@ GAP_PERIODS = 2.5  # triples spanning more than this many sample periods (a loss
 MOVING_SHARE = 0.75  # the frame's window: this share of its samples turning faster than PHASE_MOTION_RAD_S
 RADIUS_TOLERANCE = 0.3  # a fitted frame more than this share off the start frame's radius is refused
 RETRY_S = 0.25  # a refused fit is tried again this long after, s
+AXIS_MOTION_RAD_S = 0.05  # the gravity frame's hinge axis from the gyro: samples turning faster than this
+AXIS_SAMPLES = 40  # ... at least this many of them in the last window (half a second at 80 Hz)
+AXIS_MAX_DEG = 10.0  # ... and within this of the start frame's axis (a node glued on by hand)
 FALLBACK_S = 3.0  # the twin's session falls a node back on the gravity frame (``fall_back``) when it
 # still has none this long after the other node measures: a node that barely swings (M2 when M1
 # alone is released) never gives a window to fit
@@ -282,6 +288,8 @@ class NodeMeasurement:
         self._phi: float | None = None
         self._first_t_s: float | None = None
         self._fall_back = False
+        self._tied = np.ones((4, 4), dtype=bool)  # components of equal magnitude on every sample so far
+        self._quats: deque[Floats] = deque(maxlen=TIED_SAMPLES)
         self.from_gravity = False  # the frame is the gravity frame (the node did not swing enough to fit one)
 
     def add(
@@ -301,6 +309,9 @@ class NodeMeasurement:
                 f"expected quat (4,), gyro (3,), accel (3,), got {quat.shape}, {gyro.shape}, {accel.shape}"
             )
         self._t_s = t
+        size = np.abs(quat)
+        self._tied &= np.abs(size[:, None] - size[None, :]) < QUAT_LSB / 2
+        self._quats.append(quat)
         if self._first_t_s is None:
             self._first_t_s = t
         if self.phase is not None:
@@ -311,7 +322,7 @@ class NodeMeasurement:
             if waiting is not None and not quiet:
                 return waiting
             if waiting is not None:  # a node that does not swing enough to fit its frame
-                self._set_frame(gravity_frame(self.start_frame, quat))
+                self._set_frame(gravity_frame(self._start_on_gyro_axis(), quat))
                 self._frame_t_s, self._hinge_deg, self._sense, self.from_gravity = t, 0.0, True, True
         elif self.phase is not None and not self.phase.ready and not quiet:
             return Waiting(f"fusion phase: {self.phase.weight:.0f} of {PHASE_SAMPLES} swinging samples")
@@ -322,6 +333,36 @@ class NodeMeasurement:
         self._phi = phi
         omega = float(gyro @ self.frame.hinge_axis)
         return NodeSample(self.value_instant(t), phi, omega, t)
+
+    def _start_on_gyro_axis(self) -> SwingFrame:
+        """The start frame turned (the least rotation) so that its hinge axis is the one the
+        gyro turned about over the last window, where it turned enough to tell (``AXIS_SAMPLES``
+        samples faster than ``AXIS_MOTION_RAD_S``) and within ``AXIS_MAX_DEG`` of the start frame's:
+        a node glued on 2 deg askew read about the start frame's axis would see its swing scaled by
+        cos(2 deg), an error of 6e-4 of the angle at the swing's own frequency (a small swing of
+        5 deg: 5e-5 rad, the angle's noise), which no offset follows. Otherwise the start frame."""
+        start = self.start_frame
+        gyro = np.array([w[2] for w in self._window]).reshape(-1, 3)
+        moving = gyro[np.linalg.norm(gyro, axis=1) > AXIS_MOTION_RAD_S]
+        if len(moving) < AXIS_SAMPLES:
+            return start
+        h = np.asarray(start.hinge_axis, dtype=float)
+        a = dominant_axis(moving)
+        a = a if a @ h >= 0 else -a
+        turn = np.cross(h, a)
+        angle = math.atan2(float(np.linalg.norm(turn)), float(a @ h))
+        if angle > math.radians(AXIS_MAX_DEG):
+            return start
+        if angle > 0:
+            r = rotations.to_matrix(rotations.from_rotvec(turn / np.linalg.norm(turn) * angle))
+            start = dataclasses.replace(
+                start,
+                hinge_axis=a,
+                toward_pivot=r @ np.asarray(start.toward_pivot),
+                tangential=r @ np.asarray(start.tangential),
+                quat_axis=r @ np.asarray(start.quat_axis),
+            )
+        return start
 
     def fall_back(self) -> None:
         """From the next sample on, measure without waiting: the gravity frame
@@ -398,6 +439,36 @@ class NodeMeasurement:
         self._frame_t_s = t
         window.clear()
         return None
+
+    @property
+    def angle_sigma_rad(self) -> float:
+        """The swing angle's noise from the quaternion's rounding, rad (``TWIST_SIGMA_RAD`` before
+        a frame or a sample). Each component is rounded to an LSB (variance LSB^2/12); components
+        that have had equal magnitudes on every sample (the model's own mount reads (a, a, -b, b))
+        round alike, and exact zeros not at all, so the angle's variance is, over the last samples,
+        the mean of LSB^2/12 times the sum over each group of tied components of the squared
+        derivative of the angle along the group's signed direction (``_angle``, by central
+        differences). Isotropic rounding gives ``TWIST_SIGMA_RAD``; the model's mount
+        ``bno055.SWING_ANGLE_SIGMA_RAD``."""
+        if self.frame is None or not self._quats:
+            return TWIST_SIGMA_RAD
+        groups, seen = [], set()
+        for i in range(4):
+            if i not in seen:
+                members = [j for j in range(4) if self._tied[i, j]]
+                seen.update(members)
+                groups.append(members)
+        step = 1e-7
+        total = 0.0
+        for q in self._quats:
+            for members in groups:
+                u = np.zeros(4)
+                u[members] = np.sign(q[members])  # a zero component has no rounding error
+                if not u.any():
+                    continue
+                slope = (self._angle(q + step * u) - self._angle(q - step * u)) / (2 * step)
+                total += slope * slope
+        return math.sqrt(QUAT_LSB * QUAT_LSB / 12.0 * total / len(self._quats))
 
     @property
     def learned(self) -> Learned:

@@ -32,15 +32,15 @@ from numpy.typing import ArrayLike, NDArray
 
 from pendsim_mj.engines.fast_planar.closed_form import accelerations
 from pendsim_mj.errors import ParameterError
-from pendsim_mj.estimation.planar_fit import ljung_box_p
 from pendsim_mj.estimation.swing_frame import SwingFrame
 from pendsim_mj.rig.params import DEFAULT_PARAMS, RigParams
-from pendsim_mj.sensors.bno055 import FUSION_RATE_HZ, SWING_ANGLE_SIGMA_RAD, Bno055
+from pendsim_mj.sensors.bno055 import FUSION_RATE_HZ, Bno055
 from pendsim_mj.sensors.imperfections import Imperfections
 from pendsim_mj.twin.estimator import NSTATE, TRACKABLE, Forecast, RigEstimator
 from pendsim_mj.twin.health import DEFAULT_PERSIST_S, DEFAULT_THRESHOLD, Alarm, HealthMonitor
 from pendsim_mj.twin.measurement import FALLBACK_S, TWIST_SIGMA_RAD, Learned, NodeMeasurement, Waiting
 from pendsim_mj.twin.outputs import Estimates, ParameterCheck
+from pendsim_mj.twin.whiteness import Whiteness
 
 Floats = NDArray[np.float64]
 NODE_PARAMETERS = ("offset_m1_rad", "offset_m2_rad", "offset_rate_m1_rad_s", "offset_rate_m2_rad_s", "delay_m2_s")
@@ -60,10 +60,11 @@ NODE_BASELINE_S = 10.0  # the node states' references: their estimates this long
 # learned frames leave each offset about 0.5 deg uncertain; the rig's own parameters keep the stated rig)
 NODE_FUSION_ERROR_RAD = math.radians(0.5)  # the nodes' fused orientation's slowly varying error, rms, that
 # the mount offsets may wander within without a change (the health monitor's reference spread)
-ALIGNED_DEG = 0.2  # a learned hinge axis this close to the start frame's: a node mounted along its axes
-TORQUE_NOISE_N_M = 5e-6  # N m / sqrt(Hz): white on fusion-timed node data (2e-5 left lag-1 -0.07)
 LATE_S = 0.0125  # the two nodes' value instants cross by up to one fusion period (10 ms): taken late
 HORIZON_BINS_S = (0.25, 0.5, 1.0, 2.0, 5.0)  # forecast scores per horizon up to each of these
+RUN_MISFIT_NIS = 3.0  # a node's mean NIS over a whole run above this: its summary warns
+MISFIT_NIS = 6.0  # a node's recent mean NIS above this (three times chi^2's mean): the model does not fit
+RECENT_NIS = 160  # the status line's recent NIS: each node's last 2 s of updates at 80 Hz
 FREE_WINDOW = 8  # samples per node (0.1 s at 80 Hz) over which a node's motion is compared with free motion
 HELD_ALPHA_RAD_S2 = 0.5  # a node whose free acceleration would exceed this but whose measured one is
 # less than half of it is held (a hand, a stop)
@@ -114,8 +115,8 @@ class TwinSummary:
       samples: per node, samples taken in.
       started_s: when the estimator started (NaN: never).
       nis_mean: per node, the mean normalised innovation squared (2 on a healthy rig).
-      whiteness_p: per node, the Ljung-Box p-value of the normalised angle innovations after
-        ``settle_s`` (NaN: too few).
+      whiteness_p: per node, the Ljung-Box p-values of its normalised angle and rate innovations
+        after ``settle_s`` (``whiteness.Whiteness``, 20 lags, over the whole run; NaN: too few).
       forecast: the forecasts' scores.
       alarms: the alarms raised.
       parameters: each tracked parameter's final (value, sigma).
@@ -126,7 +127,7 @@ class TwinSummary:
     samples: tuple[int, int]
     started_s: float
     nis_mean: tuple[float, float]
-    whiteness_p: tuple[float, float]
+    whiteness_p: tuple[tuple[float, float], tuple[float, float]]
     forecast: ForecastScore
     alarms: tuple[Alarm, ...]
     parameters: dict[str, tuple[float, float]]
@@ -192,7 +193,7 @@ class TwinSession:
                 raise ParameterError(f"fusion_error_rad must be in [0, 0.2] rad, got {fusion_error_rad!r}")
             nodes = Bno055(imperfections=Imperfections(fusion_error_rad=fusion_error_rad))
         self.estimator = RigEstimator(params, nodes=nodes, track=track, drift_per_s=drift,
-                                      angle_sigma_rad=TWIST_SIGMA_RAD, torque_noise_n_m=TORQUE_NOISE_N_M)  # fmt: skip
+                                      angle_sigma_rad=TWIST_SIGMA_RAD)  # fmt: skip
         self._parameter_sigma0 = self.estimator.drift_per_s * math.sqrt(20.0)
         for i, name in enumerate(track):
             if name in NODE_SIGMA0:
@@ -229,8 +230,9 @@ class TwinSession:
         self._next_forecast_s = math.inf
         self._open_forecasts: list[Forecast] = []
         self._samples = [0, 0]
-        self._nis: list[list[float]] = [[], []]
-        self._normalised: list[list[float]] = [[], []]
+        self._nis_sum, self._nis_count = [0.0, 0.0], [0, 0]  # per node, after the settling (a run of any length)
+        self._nis: tuple[collections.deque[float], ...] = tuple(collections.deque(maxlen=RECENT_NIS) for _ in range(2))
+        self._whiteness = [(Whiteness(), Whiteness()), (Whiteness(), Whiteness())]  # node: (angle, rate)
         nbins = len(HORIZON_BINS_S)
         self._score_n, self._score_sq, self._score_in = np.zeros(nbins), np.zeros(nbins), np.zeros(nbins)
 
@@ -280,7 +282,10 @@ class TwinSession:
         )
         if t_v - self.started_s >= self.settle_s:
             self._nis[node].append(update.nis)
-            self._normalised[node].append(update.innovation[0] / s_sigma[0])
+            self._nis_sum[node] += update.nis
+            self._nis_count[node] += 1
+            for series, nu, s in zip(self._whiteness[node], update.innovation, s_sigma, strict=True):
+                series.add(nu / s)
         z_rate = update.innovation[1] / s_sigma[1]
         self._recent_nis.append(z_rate * z_rate)
         if len(self._recent_nis) == INTERVENTION_WINDOW and np.mean(self._recent_nis) > INTERVENTION_NIS:
@@ -344,11 +349,8 @@ class TwinSession:
         restart = not math.isnan(self.started_s)
         kept = self._snapshots[0] if restart and self._snapshots else None
         self.estimator.start(t0, x0, sigma0=np.radians([2.0, 2.0, 5.0, 5.0]), parameter_sigma0=self._parameter_sigma0)
-        # the angle's quantisation: a node whose hinge lies along a sensor axis (the model's mount,
-        # the emulator's default) reads two quaternion components as exact zeros, LSB sqrt(2/3);
-        # any other mount LSB / sqrt(3) (``measurement.TWIST_SIGMA_RAD``)
-        aligned = any((m.learned.hinge_to_start_deg or 0.0) < ALIGNED_DEG for m in self.measurements)
-        self.estimator.measurement_sigma[0] = SWING_ANGLE_SIGMA_RAD if aligned else TWIST_SIGMA_RAD
+        for k, m in enumerate(self.measurements):  # each node's angle quantisation (``angle_sigma_rad``)
+            self.estimator.measurement_sigma[k, 0] = m.angle_sigma_rad
         if kept is not None:
             self.estimator.x[NSTATE:], self.estimator.p[NSTATE:, NSTATE:] = kept[1], kept[2]
         self._tracking = True
@@ -413,7 +415,7 @@ class TwinSession:
         """Score the open forecasts against this measurement (before it is taken in): the forecast
         angle at its instant by cubic Hermite interpolation (angle and rate) between grid points."""
         keep = []
-        r = float(self.estimator.measurement_sigma[0])
+        r = float(self.estimator.measurement_sigma[node, 0])
         offset = self._offset(node) if self._open_forecasts else 0.0
         t_v = t_v - self._delay(node)  # M2's values stand for an instant its tracked delay earlier
         for f in self._open_forecasts:
@@ -457,9 +459,20 @@ class TwinSession:
         """Each node's samples given so far."""
         return self._samples[0], self._samples[1]
 
-    def recent_nis(self, count: int = 160) -> tuple[float, float]:
-        """Each node's mean NIS over its last ``count`` updates after the settling (NaN: none)."""
-        first, second = (float(np.mean(v[-count:])) if v else math.nan for v in self._nis)
+    def misfit(self) -> str | None:
+        """A line naming the nodes whose recent innovations are far larger than the filter predicts
+        (mean NIS over the last ``RECENT_NIS`` updates above ``MISFIT_NIS``; 2 on a healthy rig),
+        or None: the estimate of such a node is not to be trusted to its stated sigmas (its timing,
+        e.g. a clock drifting against its chip's fusion ticks, or a rig unlike the model)."""
+        bad = [(f"M{k + 1}", nis) for k, nis in enumerate(self.recent_nis()) if nis > MISFIT_NIS]
+        if not bad:
+            return None
+        named = ", ".join(f"{name}'s mean NIS {nis:.1f}" for name, nis in bad)
+        return f"the model does not fit the data ({named} over the last 2 s; 2 on a healthy rig)"
+
+    def recent_nis(self) -> tuple[float, float]:
+        """Each node's mean NIS over its last ``RECENT_NIS`` updates after the settling (NaN: none)."""
+        first, second = (float(np.mean(v)) if v else math.nan for v in self._nis)
         return first, second
 
     def learned(self) -> tuple[Learned, Learned]:
@@ -497,15 +510,13 @@ class TwinSession:
         )
 
     def summary(self) -> TwinSummary:
-        def p(values: list[float]) -> float:
-            return ljung_box_p(np.array(values)) if len(values) >= 200 else math.nan
-
-        nis = tuple(float(np.mean(v)) if v else math.nan for v in self._nis)
+        nis = tuple(t / n if n else math.nan for t, n in zip(self._nis_sum, self._nis_count, strict=True))
+        (angle, rate), (angle2, rate2) = self._whiteness
         return TwinSummary(
             samples=self.samples,
             started_s=self.started_s,
             nis_mean=(nis[0], nis[1]),
-            whiteness_p=(p(self._normalised[0]), p(self._normalised[1])),
+            whiteness_p=((angle.p_value(), rate.p_value()), (angle2.p_value(), rate2.p_value())),
             forecast=self.forecast_score(),
             alarms=tuple(self._all_alarms),
             parameters=self.estimator.parameters() if not math.isnan(self.started_s) else {},

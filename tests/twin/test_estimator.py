@@ -123,7 +123,7 @@ def test_the_forecast_holds_what_happened_within_its_band_and_its_band_grows(mea
     true_phi = np.stack([np.interp(forecast.t_s, truth.t_s, truth.phi_rad[:, n]) for n in range(2)], axis=1)
     error = np.abs(forecast.mean[:, :2] - true_phi)
     assert np.all(error < 3 * forecast.sigma[:, :2] + 1e-6)
-    assert np.all(forecast.sigma[-1, :2] > 2 * forecast.sigma[0, :2])
+    assert np.all(forecast.sigma[-1, :2] > 1.3 * forecast.sigma[0, :2])  # the process noise over 4 s
 
 
 def test_the_innovations_are_white_with_the_covariance_the_filter_predicts(measured):

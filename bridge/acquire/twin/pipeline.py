@@ -38,7 +38,14 @@ from pendsim_mj.twin.health import WHAT, Alarm
 from pendsim_mj.twin.measurement import Learned
 from pendsim_mj.twin.merge import DEFAULT_HOLD_S, Held, SampleMerger
 from pendsim_mj.twin.outputs import Estimates, ParameterCheck
-from pendsim_mj.twin.session import DEFAULT_TRACK, FORECAST_STEP_S, NODE_PARAMETERS, TwinSession, TwinSummary
+from pendsim_mj.twin.session import (
+    DEFAULT_TRACK,
+    FORECAST_STEP_S,
+    NODE_PARAMETERS,
+    RUN_MISFIT_NIS,
+    TwinSession,
+    TwinSummary,
+)
 from pendsim_mj.units import nanoseconds, seconds
 
 from ...errors import OutputError
@@ -395,11 +402,12 @@ class TwinPipeline:
                 )
             )
         started = not math.isnan(session.started_s)
+        misfit = session.misfit() if started else None
         out.append(
             ros2.DiagnosticStatus(
-                0 if started else 1,
+                0 if started and misfit is None else 1,
                 "pendsim twin: estimator",
-                "tracking" if started else "waiting for both nodes",
+                ("tracking" if misfit is None else misfit) if started else "waiting for both nodes",
                 "estimator",
                 (
                     ("t_s", f"{session.estimator.t_s:.3f}"),
@@ -470,7 +478,7 @@ class TwinPipeline:
             "started_s": repr(summary.started_s),
             "samples": json.dumps(list(summary.samples)),
             "nis_mean": json.dumps([_finite_or_none(v) for v in summary.nis_mean]),
-            "whiteness_p": json.dumps([_finite_or_none(v) for v in summary.whiteness_p]),
+            "whiteness_p": json.dumps([[_finite_or_none(v) for v in node] for node in summary.whiteness_p]),
             "forecast": json.dumps(
                 {
                     "horizon_s": list(score.horizon_s),
@@ -589,11 +597,20 @@ def summary_text(result: TwinResult) -> str:
     if math.isnan(s.started_s):
         lines.append("the estimator never started: it needs a sample from each node")
         return "\n".join(lines)
+
+    def p(value: float) -> str:
+        return f"{value:.3f}" if math.isfinite(value) else "n/a (too few)"
+
     lines.append(
-        "innovations: mean NIS m1 {:.2f}, m2 {:.2f} (2 on a healthy rig); whiteness p m1 {}, m2 {}".format(
-            *s.nis_mean, *(f"{p:.3f}" if math.isfinite(p) else "n/a (too few)" for p in s.whiteness_p)
-        )
+        "innovations: mean NIS m1 {:.2f}, m2 {:.2f} (2 on a healthy rig); whiteness p (angle, rate; > 0.01 white) "
+        "m1 {}, {}; m2 {}, {}".format(*s.nis_mean, *(p(v) for node in s.whiteness_p for v in node))
     )
+    unfit = [f"M{k + 1}'s mean NIS {v:.1f}" for k, v in enumerate(s.nis_mean) if v > RUN_MISFIT_NIS]
+    if unfit:
+        lines.append(
+            f"warning: the model does not fit the data ({', '.join(unfit)}; 2 on a healthy rig): those estimates "
+            "are less certain than their sigmas say (a node's clock drifting against its chip's fusion does this)"
+        )
     f = s.forecast
     scored = [
         (h, n, e, w) for h, n, e, w in zip(f.horizon_s, f.count, f.rms_error_rad, f.within_3_sigma, strict=True) if n

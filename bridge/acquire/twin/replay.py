@@ -2,11 +2,16 @@
 pace (``speed`` 1), faster, or as fast as it can (``speed`` 0), through the same pipeline as live
 (``twin.TwinPipeline``), so that a replay gives what the live run gave.
 
-The samples' instants are the recording's log times (a recording by ``pendsim acquire``: its
-nodes' stamps through the clock relation it fitted, as ``validate`` reads them), on the
-recording's clock; the twin's recording keeps that clock (same UTC start). A recording written by
-the twin itself lists the samples that came too late live; they are left out here too. A driven
-recording's torques (``/drive``) are the motor torques the twin's model is given.
+The samples' instants are on the recording's clock:
+- a recording by ``pendsim acquire``: its nodes' stamps through the clock relation it fitted, as
+  ``validate`` reads them;
+- another with header stamps (``pendsim record`` with a latency, a ROS 2 bag): the stamps through
+  the relation fitted to the log times (``timing.fit_clock``, as validate does: a log time is an
+  arrival, late by a varying latency, and two can be equal);
+- the log times, where the stamps are no clock.
+The twin's recording keeps that clock (same UTC start). A recording written by the twin itself
+lists the samples that came too late live; they are left out here too. A driven recording's
+torques (``/drive``) are the motor torques the twin's model is given.
 
 Refused (``RecordingError``, one line): a file that is not a readable recording, one without both
 nodes' IMU topics, a recording of another rig (its ``pendsim/rig_parameters`` differ from the
@@ -27,6 +32,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from pendsim_mj.errors import RecordingError
+from pendsim_mj.estimation.alignment import NodeSamples
+from pendsim_mj.estimation.timing import fit_clock
 from pendsim_mj.rig.params import RigParams
 
 from ...io import twin_topics
@@ -97,6 +104,15 @@ def _fusion_rate_hz(metadata: dict[str, dict[str, str]], recorded: float | None)
     return value
 
 
+def _instants(samples: NodeSamples) -> NDArray[np.float64]:
+    """A node's sample instants on the recording's clock (s; module docstring)."""
+    log = np.asarray(samples.log_t_s, dtype=float)
+    if samples.stamp_s is None:
+        return log
+    clock = fit_clock(samples.stamp_s, log)  # None: stamps that do not increase, or no clock's rate
+    return log if clock is None else clock.to_recorder(samples.stamp_s)
+
+
 def replay(
     spec: TwinSpec,
     recording: str | Path,
@@ -138,7 +154,7 @@ def replay(
         r[:, GROUP_SLICES["gyro"]] = samples.gyro_rad_s
         r[:, GROUP_SLICES["accel"]] = samples.accel_m_s2
         rows.append(r)
-    times = np.concatenate([m1.log_t_s, m2.log_t_s]).astype(float)
+    times = np.concatenate([_instants(m1), _instants(m2)])
     if not np.all(np.isfinite(times)):
         raise RecordingError(f"{path}: a sample's time is not finite")
     node = np.concatenate([np.zeros(len(m1.log_t_s), np.int64), np.ones(len(m2.log_t_s), np.int64)])
