@@ -187,10 +187,10 @@ class TwinRerunView(BufferedView):
         colours, names, widths = _STYLES[style]
         self.rec.log(entity, rr.SeriesLines(colors=colours, names=names, widths=widths), static=True)
 
-    def _columns(self, entity: str, t_s: np.ndarray, values: np.ndarray) -> None:
-        self.rec.send_columns(
-            entity, indexes=[rr.TimeColumn(TIMELINE, duration=t_s)], columns=rr.Scalars.columns(scalars=values)
-        )
+    def _columns(self, entity: str, t_s: np.ndarray | rr.TimeColumn, values: np.ndarray) -> None:
+        """Scalars (n, k) at instants (n,) s (or their time column, built once for several entities)."""
+        times = t_s if isinstance(t_s, rr.TimeColumn) else rr.TimeColumn(TIMELINE, duration=t_s)
+        self.rec.send_columns(entity, indexes=[times], columns=rr.Scalars.columns(scalars=values))
 
     def send(self) -> None:
         """Log everything added since the last call, one ``send_columns`` per stream."""
@@ -213,7 +213,7 @@ class TwinRerunView(BufferedView):
             rows = est.node == k
             if not rows.any():
                 continue
-            t = est.t_s[rows]
+            t = rr.TimeColumn(TIMELINE, duration=est.t_s[rows])  # one for the node's six entities
             measured, state, sigma = est.measured[rows], est.state[rows], est.sigma[rows]
             for j, quantity in enumerate(("angle", "rate")):
                 x, s = state[:, 2 * j + k], SIGMA_BAND * sigma[:, 2 * j + k]

@@ -3,7 +3,7 @@
 
 The twin's runner feeds a view in time order with ``add_*`` (estimator updates in batches, a
 forecast and a parameter check about once a second, alarms, /diagnostics statuses) and calls
-``send`` about 20 times a second: a view buffers what was added and puts it out in ``send``, in
+``send`` about 5 times a second: a view buffers what was added and puts it out in ``send``, in
 one go per stream (never one call per sample where its sink takes columns). ``close`` sends what
 is left and ends everything the view started (its servers, its viewer's process group, its file);
 it is idempotent and belongs in a ``finally``.

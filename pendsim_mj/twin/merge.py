@@ -87,3 +87,13 @@ class SampleMerger(Generic[T]):
 
     def waiting(self) -> int:
         return sum(len(q) for q in self._queues)
+
+    def due_s(self) -> float:
+        """When the next sample goes even if no other comes (its arrival plus ``hold_s``, on the
+        arrivals' clock; inf when none waits): until then ``pop`` releases nothing new unless
+        another sample is pushed."""
+        heads = [q[0] for q in self._queues if q]
+        if not heads:
+            return math.inf
+        head = min(heads, key=lambda h: (h.t_s, h.node))
+        return head.arrived_s + self.hold_s

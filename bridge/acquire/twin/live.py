@@ -38,6 +38,7 @@ from ..udp_loop.node_view import NodeView, model_frames
 from .pipeline import TwinPipeline, TwinResult, TwinSpec, close_sink, open_sink, status_text
 
 SETTLE_S = 0.05  # the nodes' timelines decide this often (``receiver.TICK_S``), s
+IDLE_WAIT_S = 0.05  # the loop's longest sleep with no packet and no sample due, s
 JUMP_PACKETS = 5  # packets in a row whose arrival minus device time agree among themselves within
 JUMP_AGREE_S = 0.025  # this (s: a loaded host's arrival jitter) and differ from the node's recent ones
 JUMP_MIN_S = 0.05  # by more than JUMP_MIN_S, all the same way: the node's clock jumped; its timeline
@@ -64,15 +65,16 @@ class _TwinNodeView(NodeView):
 
     def receive(self, data: bytes, arrival_ns: int, start_ns: int) -> bool:
         try:
-            device_s = self.codec.decode(data).device_time_us * 1e-6
+            packet = self.codec.decode(data)
         except PacketError:
             return super().receive(data, arrival_ns, start_ns)  # counted there
         arrival_s = (arrival_ns - start_ns) * 1e-9
-        off = arrival_s - device_s
-        if len(self._recent) >= JUMP_PACKETS and abs(off - statistics.median(self._recent)) > JUMP_MIN_S:
+        off = arrival_s - packet.device_time_us * 1e-6
+        base = statistics.median(self._recent) if len(self._recent) >= JUMP_PACKETS else off
+        if abs(off - base) > JUMP_MIN_S:
             self._odd.append(off)
             self.held_out += 1
-            odd, base = self._odd[-JUMP_PACKETS:], statistics.median(self._recent)
+            odd = self._odd[-JUMP_PACKETS:]
             agree = max(odd) - min(odd) <= JUMP_AGREE_S and (min(odd) > base or max(odd) < base)
             if (len(self._odd) >= JUMP_PACKETS and agree) or len(self._odd) >= JUMP_ANYWAY:
                 self.jumps.append((arrival_s, base - statistics.median(odd)))
@@ -83,7 +85,8 @@ class _TwinNodeView(NodeView):
                 self._odd = []
             return False
         self._odd.clear()
-        used = super().receive(data, arrival_ns, start_ns)
+        self._counts["received"] += 1
+        used = self._take(packet, arrival_ns, start_ns)  # decoded once
         if used:
             self._recent.append(off)
         return used
@@ -170,17 +173,19 @@ def run_twin_live(
                     break
                 if duration_s is not None and now >= duration_s:
                     break
-                wait = pipeline.merger.hold_s / 4 if pipeline.merger.waiting() else 0.05
+                # asleep until a packet comes, the merger's next sample is due (it waited for the
+                # other node long enough) or, at the latest, the timelines' next decision
+                wait = min(IDLE_WAIT_S, pipeline.merger.due_s() - now)
                 if duration_s is not None:
-                    wait = min(wait, max(0.0, duration_s - now))
-                for key, _ in selector.select(wait):
+                    wait = min(wait, duration_s - now)
+                for key, _ in selector.select(max(0.0, wait)):
                     view = key.data
                     jumps = len(view.jumps)
+                    node = 0 if view is node_views[0] else 1
                     for datagram in read_stamped(key.fileobj):  # type: ignore[arg-type]
                         if view.receive(datagram.data, datagram.arrival_ns, start_ns):
                             assert view.newest is not None
                             _, taken_s, row, _, _ = view.newest
-                            node = 0 if view is node_views[0] else 1
                             arrived = (datagram.arrival_ns - start_ns) * 1e-9
                             pipeline.push(node, taken_s, np.asarray(row, dtype=float), arrived)
                     for at_s, jump_s in view.jumps[jumps:]:

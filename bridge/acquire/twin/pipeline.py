@@ -16,6 +16,7 @@ The recording is written under a temporary name beside the output and published 
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import json
 import math
@@ -43,6 +44,7 @@ from pendsim_mj.twin.session import (
     FORECAST_STEP_S,
     NODE_PARAMETERS,
     RUN_MISFIT_NIS,
+    TwinOutput,
     TwinSession,
     TwinSummary,
 )
@@ -52,13 +54,15 @@ from ...errors import OutputError
 from ...io import ros2, twin_topics
 from ...io.outputs import describe_os_error, publish, replace_hint, temporary_sibling
 from ...report.twin_views import TwinView
+from ..packets import GROUP_SLICES
 from ..sink import RecordingSink
 
 FLUSH_S = 0.5
 DIAGNOSTICS_S = 1.0
-VIEW_S = 0.2  # live views are sent this often, s (5 a second: each send costs Rerun a fixed part; from
-# their own thread, ``ViewFeeder``)
-PUBLISH_S = 0.05  # the file and the views are given what the twin produced this often, s
+VIEW_S = 0.2  # live views are given what the twin produced and sent this often, s (5 a second: each
+# batch costs Rerun a fixed part; from their own thread, ``ViewFeeder``)
+PUBLISH_S = 0.05  # what the twin produced is taken from it this often, s (an alarm's /diagnostics: the
+# health status then); the file is given it in batches (every VIEW_S with views, else every FLUSH_S)
 KEEP_S = 0.1  # the file is written up to this long before the newest sample released
 
 
@@ -144,69 +148,73 @@ def _stderr(line: str) -> None:
 
 
 class ViewFeeder:
-    """The live views fed from their own thread: the twin's loop only queues what it has for them
-    (``add_*``, ``send``: non-blocking), so that a view's encoding (Rerun's every few hundred ms)
-    never holds up a sample's estimate. The thread applies the queue to every view in order and
-    sends their batches every ``VIEW_S``; ``stop`` sends what is left and ends the thread (the
-    views themselves are closed by whoever opened them). An error in a view ends the feeding and is
-    raised by ``stop``."""
+    """The live views fed from their own thread: the twin's loop gathers what it has for them
+    (``add_*``) and hands it over in one piece with ``send`` (non-blocking), so that a view's
+    encoding (Rerun's every few hundred ms) never holds up a sample's estimate. The thread applies
+    each call to every view in order, then sends the views' batches, at most once every
+    ``VIEW_S`` (what came meanwhile goes in the next one: a replay faster than real time); ``stop``
+    sends what is left and ends the thread (the views themselves are closed by whoever opened
+    them). An error in a view ends the feeding and is raised by ``stop``."""
 
     def __init__(self, views: tuple[TwinView, ...]) -> None:
         self.views = views
-        self._queue: queue.SimpleQueue[tuple[str, tuple[object, ...]] | None] = queue.SimpleQueue()
+        self._calls: list[tuple[str, tuple[object, ...]]] = []
+        self._queue: queue.SimpleQueue[list[tuple[str, tuple[object, ...]]] | None] = queue.SimpleQueue()
         self.error: BaseException | None = None
         self._thread = threading.Thread(target=self._run, name="pendsim-twin-views", daemon=True)
         self._thread.start()
 
     def add_estimates(self, est: Estimates) -> None:
-        self._queue.put(("add_estimates", (est,)))
+        self._calls.append(("add_estimates", (est,)))
 
     def add_forecast(self, made_at_s: float, forecast: Forecast) -> None:
-        self._queue.put(("add_forecast", (made_at_s, forecast)))
+        self._calls.append(("add_forecast", (made_at_s, forecast)))
 
     def add_parameters(self, check: ParameterCheck) -> None:
-        self._queue.put(("add_parameters", (check,)))
+        self._calls.append(("add_parameters", (check,)))
 
     def add_alarm(self, alarm: Alarm) -> None:
-        self._queue.put(("add_alarm", (alarm,)))
+        self._calls.append(("add_alarm", (alarm,)))
 
     def add_diagnostics(self, t_s: float, statuses: list[ros2.DiagnosticStatus]) -> None:
-        self._queue.put(("add_diagnostics", (t_s, statuses)))
+        self._calls.append(("add_diagnostics", (t_s, statuses)))
 
     def send(self) -> None:
-        self._queue.put(("send", ()))
+        """Hand what was added since the last call to the thread (one item: one wake-up)."""
+        if self._calls:
+            calls, self._calls = self._calls, []
+            self._queue.put(calls)
 
     def close(self) -> None:
         self.stop()
 
     def _run(self) -> None:
-        next_send = time.monotonic() + VIEW_S
+        sent = -math.inf
         while True:
-            try:
-                item = self._queue.get(timeout=max(0.0, next_send - time.monotonic()))
-            except queue.Empty:
-                item = ("send", ())
-            if item is None:
+            batches = [self._queue.get()]
+            if batches[0] is not None:
+                time.sleep(max(0.0, sent + VIEW_S - time.monotonic()))
+            with contextlib.suppress(queue.Empty):
+                while True:
+                    batches.append(self._queue.get_nowait())
+            if self.error is None:  # a failed view is fed no more
+                try:
+                    for calls in batches:
+                        for name, args in calls or ():
+                            for view in self.views:
+                                getattr(view, name)(*args)
+                    for view in self.views:
+                        view.send()
+                except BaseException as exc:  # raised again by stop, in the twin's thread
+                    self.error = exc
+            sent = time.monotonic()
+            if None in batches:
                 break
-            if self.error is not None:
-                continue  # drain: a failed view is fed no more
-            name, args = item
-            if name == "send" and time.monotonic() < next_send:
-                continue  # sends come in batches of VIEW_S
-            if name == "flush":
-                name = "send"
-            try:
-                for view in self.views:
-                    getattr(view, name)(*args)
-            except BaseException as exc:  # raised again by stop, in the twin's thread
-                self.error = exc
-            if name == "send":
-                next_send = time.monotonic() + VIEW_S
 
     def stop(self) -> None:
         """Send what is queued, end the thread; raise a view's error if one failed."""
         if self._thread.is_alive():
-            self._queue.put(("flush", ()))
+            self.send()
             self._queue.put(None)
             self._thread.join()
         if self.error is not None:
@@ -255,6 +263,9 @@ class TwinPipeline:
         self._next_flush_s = -math.inf
         self._next_diag_s = -math.inf
         self._next_view_s = -math.inf
+        self._next_collect_s = -math.inf
+        # drained from the twin, not yet written or shown: each output with its alarms' statuses
+        self._collected: list[tuple[TwinOutput, list[tuple[float, list[ros2.DiagnosticStatus]]]]] = []
         self.alarms: list[Alarm] = []
 
     def _register(self) -> None:
@@ -292,8 +303,6 @@ class TwinPipeline:
     def step(self, now_s: float, *, final: bool = False, clock: Callable[[], float] | None = None) -> None:
         """Release what may go, take it into the twin, write and show what it produced;
         ``clock`` (s, the arrivals' clock) stamps when each estimate was ready (latency)."""
-        from ..packets import GROUP_SLICES
-
         released = self.merger.pop(now_s, final=final)
         if not released:
             return
@@ -306,9 +315,24 @@ class TwinPipeline:
         if self.sink is not None:
             self._unwritten += released
 
+    def collect(self) -> None:
+        """Take what the twin produced since the last call (``tick`` calls it every
+        ``PUBLISH_S``): an alarm's /diagnostics are the health status of this moment; the rest
+        waits for ``publish``."""
+        out = self.session.drain()
+        if not (len(out.estimates) or out.forecasts or out.checks or out.alarms):
+            return
+        diagnostics = []
+        for alarm in out.alarms:
+            self.alarms.append(alarm)
+            if self.sink is not None:
+                diagnostics.append((alarm.t_s, self.statuses()))
+        self._collected.append((out, diagnostics))
+
     def publish(self) -> None:
-        """Write and show what was taken in since the last call (in batches: ``tick`` calls it
-        every ``VIEW_S``): the measured samples (one call per node), the twin's outputs."""
+        """Write and show what was taken in since the last call, in one batch (``tick`` calls it
+        every ``VIEW_S`` with views, before each flush and the diagnostics): the measured samples
+        (one call per node), the twin's outputs (the estimates in one call)."""
         if self.sink is not None and self._unwritten:
             for node in (0, 1):
                 mine = [h for h in self._unwritten if h.node == node]
@@ -316,13 +340,15 @@ class TwinPipeline:
                     t_ns = self.start_utc_ns + nanoseconds(np.array([h.t_s for h in mine]))
                     self.sink.add_samples(self.node_names[node], t_ns, np.array([h.item[0] for h in mine]))
             self._unwritten = []
-        self._publish(self.session.drain())
+        self.collect()
+        collected, self._collected = self._collected, []
+        if collected:
+            self._publish(collected)
 
-    def _publish(self, out: object) -> None:
-        from pendsim_mj.twin.session import TwinOutput
-
-        assert isinstance(out, TwinOutput)
-        est = out.estimates
+    def _publish(self, collected: list[tuple[TwinOutput, list[tuple[float, list[ros2.DiagnosticStatus]]]]]) -> None:
+        outs = [out for out, _ in collected]
+        parts = [out.estimates for out in outs if len(out.estimates)]
+        est = Estimates.concatenate(parts) if len(parts) > 1 else (parts[0] if parts else Estimates.empty())
         sink = self.sink
         if sink is not None:
             base = self.start_utc_ns
@@ -334,32 +360,32 @@ class TwinPipeline:
                     base + nanoseconds(logged),
                     twin_topics.encode(self._estimate_layout, twin_topics.estimate_values(est)),
                 )
-            for check in out.checks:
-                sink.add(
-                    self._channels[twin_topics.PARAMETERS_TOPIC],
-                    np.array([base + nanoseconds(check.t_s)]),
-                    twin_topics.encode(self._parameter_layout, twin_topics.parameter_values(check)),
-                )
-            for made, forecast in out.forecasts:
-                values = twin_topics.forecast_values(forecast, self._forecast_points)
-                sink.add(
-                    self._channels[twin_topics.FORECAST_TOPIC],
-                    np.array([base + nanoseconds(made)]),
-                    twin_topics.encode(self._forecast_layout, values),
-                )
-        for alarm in out.alarms:
-            self.alarms.append(alarm)
-            if sink is not None:
-                self._diagnostics(alarm.t_s)
+            for out, diagnostics in collected:
+                for check in out.checks:
+                    sink.add(
+                        self._channels[twin_topics.PARAMETERS_TOPIC],
+                        np.array([base + nanoseconds(check.t_s)]),
+                        twin_topics.encode(self._parameter_layout, twin_topics.parameter_values(check)),
+                    )
+                for made, forecast in out.forecasts:
+                    values = twin_topics.forecast_values(forecast, self._forecast_points)
+                    sink.add(
+                        self._channels[twin_topics.FORECAST_TOPIC],
+                        np.array([base + nanoseconds(made)]),
+                        twin_topics.encode(self._forecast_layout, values),
+                    )
+                for t_s, statuses in diagnostics:
+                    self._diagnostics(t_s, statuses)
         for view in self.views:
             if len(est):
                 view.add_estimates(est)
-            for made, forecast in out.forecasts:
-                view.add_forecast(made, forecast)
-            for check in out.checks:
-                view.add_parameters(check)
-            for alarm in out.alarms:
-                view.add_alarm(alarm)
+            for out in outs:
+                for made, forecast in out.forecasts:
+                    view.add_forecast(made, forecast)
+                for check in out.checks:
+                    view.add_parameters(check)
+                for alarm in out.alarms:
+                    view.add_alarm(alarm)
 
     def statuses(self) -> list[ros2.DiagnosticStatus]:
         """The health status: one per tracked parameter and one for the estimator."""
@@ -419,8 +445,10 @@ class TwinPipeline:
         )
         return out
 
-    def _diagnostics(self, t_s: float) -> None:
-        statuses = self.statuses()
+    def _diagnostics(self, t_s: float, statuses: list[ros2.DiagnosticStatus] | None = None) -> None:
+        """The health status (``statuses``: taken earlier; None: now) at ``t_s`` to the file and
+        the views."""
+        statuses = self.statuses() if statuses is None else statuses
         if self.sink is not None:
             t_ns = self.start_utc_ns + nanoseconds(t_s)
             self.sink.add_diagnostics(t_ns, statuses)
@@ -437,11 +465,15 @@ class TwinPipeline:
             self._next_diag_s = now_s + DIAGNOSTICS_S
             self._diagnostics(max(t_s, 0.0))
             second = True
-        if now_s >= self._next_view_s:
-            self._next_view_s = now_s + PUBLISH_S
-            self.publish()
-            for view in self.views:
-                view.send()
+        if now_s >= self._next_collect_s:
+            self._next_collect_s = now_s + PUBLISH_S
+            if self.views and now_s >= self._next_view_s:
+                self._next_view_s = now_s + VIEW_S
+                self.publish()
+                for view in self.views:
+                    view.send()
+            else:
+                self.collect()
         if now_s >= self._next_flush_s and self.sink is not None:
             self.publish()
             self._next_flush_s = now_s + FLUSH_S

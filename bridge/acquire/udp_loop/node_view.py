@@ -43,7 +43,7 @@ from pendsim_mj.sensors import rotations
 from pendsim_mj.sensors.bno055 import FUSION_RATE_HZ
 from pendsim_mj.units import seconds
 
-from ..packets import GROUP_SLICES, PacketError, StreamFormat
+from ..packets import GROUP_SLICES, Packet, PacketError, StreamFormat
 from ..ports import NodeSpec
 from ..timeline import AHEAD_S, Timeline
 
@@ -137,6 +137,10 @@ class NodeView:
         except PacketError as exc:
             self._malformed[exc.reason] = self._malformed.get(exc.reason, 0) + 1
             return False
+        return self._take(packet, arrival_ns, start_ns)
+
+    def _take(self, packet: Packet, arrival_ns: int, start_ns: int) -> bool:
+        """``receive`` of a datagram decoded (counted as received already)."""
         arrival_s = seconds(arrival_ns - start_ns)
         self.timeline.add(packet, arrival_ns, arrival_s)
         if not self.timeline.established:
