@@ -159,6 +159,10 @@ def main() -> None:
         print(f"MuJoCo engine, {a.mujoco_cases} cases x 10 s: serial {mj_serial[0]:.2f} s ({mj_serial[1]:.1f} s CPU), "
               f"--workers 2 {mj_workers[0]:.2f} s -> {speedup:.2f}x (target >= 1.7x: "
               f"{'met' if speedup >= 1.7 else 'NOT met'})")  # fmt: skip
+        used = mj_serial[1] / mj_serial[0]  # cores the serial run already keeps busy (MuJoCo's rollout threads)
+        cores = os.cpu_count() or 1
+        print(f"  the serial MuJoCo sweep already keeps {used:.2f} of {cores} cores busy: no split of it over "
+              f"{cores} cores can run more than {cores / used:.2f}x faster")  # fmt: skip
         if a.million:
             small = timed(fast_args(100_000), tmp / "m5")
             large = timed(fast_args(1_000_000), tmp / "m6")

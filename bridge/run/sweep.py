@@ -161,11 +161,8 @@ def _run_into(
     remaining = np.setdiff1d(np.arange(len(table)), store.finished_ids())
     resumed = len(table) - len(remaining)
     parallel = workers or 1
-    if cases_per_task is None:
-        cases_per_task = default_cases_per_task(plan, len(table), parallel if scheduler is None else 8)
-    tasks = contiguous_tasks(remaining, cases_per_task)
     if workers is not None and plan.engine == "fast":  # one machine: the kernel's threads already use every core
-        workers = None
+        workers = None  # and its tasks are a serial run's (smaller ones only add per-task work)
         backend = (
             f"this process (the fast engine threads over the cores; --workers {parallel} is for the MuJoCo engines)"
         )
@@ -173,6 +170,10 @@ def _run_into(
         backend = (
             "serial" if workers is None and scheduler is None else (scheduler or f"LocalCluster ({workers} workers)")
         )
+    if cases_per_task is None:
+        split = 8 if scheduler is not None else (workers or 1)
+        cases_per_task = default_cases_per_task(plan, len(table), split)
+    tasks = contiguous_tasks(remaining, cases_per_task)
     if tasks:
         with _terminate_as_interrupt(), _progress_bar(len(table), resumed, progress, backend) as bar:
 

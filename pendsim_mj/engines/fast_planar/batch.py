@@ -5,12 +5,14 @@ held) inputs of drives."""
 from __future__ import annotations
 
 import os
+from concurrent.futures import ThreadPoolExecutor
 
 import numba
 import numpy as np
 
 from pendsim_mj import compile_notice
-from pendsim_mj.engines.fast_planar.closed_form import NINPUT, FloatArray, _check_coef, kinetic_energy, potential_energy
+from pendsim_mj.engines.fast_planar import kernel
+from pendsim_mj.engines.fast_planar.closed_form import NINPUT, FloatArray, _check_coef
 from pendsim_mj.engines.fast_planar.kernel import (
     _integrate_kernel,
     _integrate_kernel_undriven,
@@ -206,53 +208,55 @@ def summarise(
     if not 1 <= head_samples < last:
         raise ParameterError(f"head_samples must be 1 .. {last - 1} for {last + 1} samples, got {head_samples!r}")
     held = _held(inputs, nbatch, nstep)
-    row = {name: np.zeros(nbatch) for name in SUMMARY_ROWS}
+    stats = np.zeros((len(SUMMARY_ROWS), nbatch))
+    for name in ("amp1", "amp2", "head1", "head2", "tail1", "tail2", "energy_max"):
+        stats[SUMMARY_ROWS.index(name)] = -np.inf
     phi = np.empty((nbatch, 2, last + 1)) if keep_phi else None
     block = max(1, SUMMARY_BLOCK_BYTES // (40 * max(1, nbatch)))  # samples per block
     y = _initial_state(phi0, omega0)
     tail = last - head_samples
-    r0 = 0  # the block's first sample
-    while r0 <= last:
-        if r0 == 0:
-            states = y[None]  # sample 0
-        else:
-            count = min(block, last - r0 + 1)
-            states = _run(k, y, held, (r0 - 1) * save_every, count * save_every, float(dt_s), save_every, nthread)[1:]
-        _fold(states, r0, head_samples, tail, k, row)
-        if phi is not None:
-            phi[:, :, r0 : r0 + len(states)] = states[:, :2].transpose(2, 1, 0)
-        y = np.ascontiguousarray(states[-1])
-        r0 += len(states)
-    for name, q in (("phi1_end", 0), ("phi2_end", 1), ("omega1_end", 2), ("omega2_end", 3), ("dissipated_end", 4)):
-        row[name] = y[q].copy()
-    return np.stack([row[name] for name in SUMMARY_ROWS]), phi
+    k = np.ascontiguousarray(k)  # the fold kernel's one compiled layout
+    threads = _threads(nthread)
+    share = -(-nbatch // threads)  # members folded per thread
+    shares = [(lo, min(nbatch, lo + share)) for lo in range(0, nbatch, share)]
+    pool = ThreadPoolExecutor(max_workers=len(shares) - 1, thread_name_prefix="fold") if len(shares) > 1 else None
+    try:
+        r0 = 0  # the block's first sample
+        while r0 <= last:
+            if r0 == 0:
+                states = np.ascontiguousarray(y[None])  # sample 0
+            else:
+                count = min(block, last - r0 + 1)
+                first = (r0 - 1) * save_every
+                states = _run(k, y, held, first, count * save_every, float(dt_s), save_every, nthread)[1:]
+            _fold(states, r0, head_samples, tail, k, stats, shares, pool)
+            if phi is not None:
+                phi[:, :, r0 : r0 + len(states)] = states[:, :2].transpose(2, 1, 0)
+            y = np.ascontiguousarray(states[-1])
+            r0 += len(states)
+    finally:
+        if pool is not None:
+            pool.shutdown()
+    stats[SUMMARY_ROWS.index("phi1_end") : SUMMARY_ROWS.index("dissipated_end") + 1] = y
+    return stats, phi
 
 
-def _fold(states: FloatArray, r0: int, head: int, tail: int, k: FloatArray, row: dict[str, FloatArray]) -> None:
-    """Fold samples r0 .. r0 + len(states) - 1 (states (count, 5, nbatch)) into ``row``: the first
-    of equal maxima kept (numpy's argmax); NaN never wins, "nonfinite" notes it."""
-    r = r0 + np.arange(len(states))
-    mag = np.abs(states[:, :2])  # (count, 2, nbatch)
-    energy = kinetic_energy(states[:, 2], states[:, 3], k) + potential_energy(states[:, 0], states[:, 1], k)
-    row["nonfinite"] = np.maximum(row["nonfinite"], ~np.all(np.isfinite(states[:, :4]), axis=(0, 1)))
-    if r0 == 0:
-        row["energy_start"] = energy[0].copy()
-        row["energy_max"] = np.full_like(energy[0], -np.inf)
-        for n in (1, 2):
-            row[f"amp{n}"] = np.full_like(energy[0], -np.inf)
-            row[f"head{n}"] = np.full_like(energy[0], -np.inf)
-            row[f"tail{n}"] = np.full_like(energy[0], -np.inf)
-    row["energy_max"] = np.fmax(row["energy_max"], np.fmax.reduce(energy, axis=0))
-    row["energy_end"] = energy[-1].copy()
-    for n in (1, 2):
-        m = mag[:, n - 1]
-        row[f"amp{n}"] = np.fmax(row[f"amp{n}"], np.fmax.reduce(m, axis=0))
-        for window, inside in (("head", r <= head), ("tail", r >= tail)):
-            if not inside.any():
-                continue
-            part = m[inside]
-            at = np.argmax(np.nan_to_num(part, nan=-np.inf), axis=0)
-            best = part[at, np.arange(part.shape[1])]
-            better = best > row[f"{window}{n}"]
-            row[f"{window}{n}"] = np.where(better, best, row[f"{window}{n}"])
-            row[f"{window}{n}_index"] = np.where(better, r[inside][at], row[f"{window}{n}_index"])
+def _fold(
+    states: FloatArray,
+    r0: int,
+    head: int,
+    tail: int,
+    k: FloatArray,
+    stats: FloatArray,
+    shares: list[tuple[int, int]],
+    pool: ThreadPoolExecutor | None,
+) -> None:
+    """Fold samples r0 .. r0 + len(states) - 1 (states (count, 5, nbatch)) into ``stats``
+    (``kernel.fold_block``), each thread its share of the members."""
+    if pool is None:
+        kernel.fold_block(states, r0, head, tail, k, stats, 0, stats.shape[1])
+        return
+    jobs = [pool.submit(kernel.fold_block, states, r0, head, tail, k, stats, lo, hi) for lo, hi in shares[1:]]
+    kernel.fold_block(states, r0, head, tail, k, stats, *shares[0])
+    for job in jobs:
+        job.result()

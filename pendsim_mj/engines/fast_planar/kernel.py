@@ -716,3 +716,54 @@ def _rates_kernel(
             else:
                 n2 = idx
         p1, p2, w1, w2, a1, a2 = np1, np2, nw1, nw2, na1, na2
+
+
+# The summary pass's reductions (``batch.summarise``): rows of its stats array (SUMMARY_ROWS' order).
+FOLD_AMP, FOLD_HEAD, FOLD_HEAD_INDEX, FOLD_TAIL, FOLD_TAIL_INDEX = 0, 2, 4, 6, 8
+FOLD_ENERGY_START, FOLD_ENERGY_MAX, FOLD_ENERGY_END, FOLD_NONFINITE = 10, 11, 12, 18
+
+
+@numba.njit(cache=True, nogil=True)
+def fold_block(
+    states: FloatArray, r0: int, head: int, tail: int, k: FloatArray, stats: FloatArray, lo: int, hi: int
+) -> None:
+    """Fold samples r0 .. r0 + count - 1 of members lo..hi-1 (states (count, 5, nbatch)) into
+    ``stats`` (the rows above, (19, nbatch)): amplitudes |phi_n| (the largest; in the head window
+    r <= head and the tail window r >= tail with the first sample that reached it), the energy
+    (``closed_form.kinetic_energy`` + ``potential_energy``, written out with ``sincos``) at the
+    first sample, its largest and at the block's last sample, and 1.0 where a state was not finite.
+    A NaN never compares larger, so it never wins (numpy's fmax / argmax of the values with NaN as
+    -inf). Releases the GIL: ``batch`` deals the members over threads."""
+    count = states.shape[0]
+    for s in range(count):
+        r = r0 + s
+        for b in range(lo, hi):
+            p1, p2, w1, w2 = states[s, 0, b], states[s, 1, b], states[s, 2, b], states[s, 3, b]
+            if not (math.isfinite(p1) and math.isfinite(p2) and math.isfinite(w1) and math.isfinite(w2)):
+                stats[FOLD_NONFINITE, b] = 1.0
+            c1 = sincos(p1)[1]
+            s2, c2 = sincos(p2)
+            sd, cd = sincos(p2 - p1)
+            springs = k[_KS, b] * (1.0 - cd) - k[_KC, b] * sd + k[_FS, b] * (1.0 - c2) - k[_FC, b] * s2
+            energy = (
+                0.5 * (k[_J1, b] * w1 * w1 + k[_J2, b] * w2 * w2)
+                + k[_G1, b] * (1.0 - c1)
+                + k[_G2, b] * (1.0 - c2)
+                + springs
+            )
+            if r == 0:
+                stats[FOLD_ENERGY_START, b] = energy
+            if energy > stats[FOLD_ENERGY_MAX, b]:
+                stats[FOLD_ENERGY_MAX, b] = energy
+            if s == count - 1:
+                stats[FOLD_ENERGY_END, b] = energy
+            for n in range(2):
+                m = abs(p1) if n == 0 else abs(p2)
+                if m > stats[FOLD_AMP + n, b]:
+                    stats[FOLD_AMP + n, b] = m
+                if r <= head and m > stats[FOLD_HEAD + n, b]:
+                    stats[FOLD_HEAD + n, b] = m
+                    stats[FOLD_HEAD_INDEX + n, b] = r
+                if r >= tail and m > stats[FOLD_TAIL + n, b]:
+                    stats[FOLD_TAIL + n, b] = m
+                    stats[FOLD_TAIL_INDEX + n, b] = r
