@@ -30,6 +30,7 @@ from collections.abc import Sequence
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from pendsim_mj.control.plant import FastPlant
 from pendsim_mj.engines.fast_planar.closed_form import accelerations
 from pendsim_mj.errors import ParameterError
 from pendsim_mj.estimation.swing_frame import SwingFrame
@@ -38,7 +39,7 @@ from pendsim_mj.sensors.bno055 import FUSION_RATE_HZ, Bno055
 from pendsim_mj.sensors.imperfections import Imperfections
 from pendsim_mj.twin.estimator import NSTATE, TRACKABLE, Forecast, RigEstimator
 from pendsim_mj.twin.health import DEFAULT_PERSIST_S, DEFAULT_THRESHOLD, Alarm, HealthMonitor
-from pendsim_mj.twin.measurement import FALLBACK_S, TWIST_SIGMA_RAD, Learned, NodeMeasurement, Waiting
+from pendsim_mj.twin.measurement import FALLBACK_S, TWIST_SIGMA_RAD, Learned, NodeMeasurement, NodeSample, Waiting
 from pendsim_mj.twin.outputs import Estimates, ParameterCheck
 from pendsim_mj.twin.whiteness import Whiteness
 
@@ -62,6 +63,9 @@ NODE_FUSION_ERROR_RAD = math.radians(0.5)  # the nodes' fused orientation's slow
 # the mount offsets may wander within without a change (the health monitor's reference spread)
 LATE_S = 0.0125  # the two nodes' value instants cross by up to one fusion period (10 ms): taken late
 HORIZON_BINS_S = (0.25, 0.5, 1.0, 2.0, 5.0)  # forecast scores per horizon up to each of these
+TICK_NEAR_S = 0.5e-3  # a sample this close to a fusion tick (at least; ``_on_its_tick``) is checked
+TICK_MISS_Z = 6.0  # ... and moved to the other tick when its angle misses by more than this many sigmas
+TICK_BETTER = 4.0  # ... and the other tick explains it this many times better
 RUN_MISFIT_NIS = 3.0  # a node's mean NIS over a whole run above this: its summary warns
 MISFIT_NIS = 6.0  # a node's recent mean NIS above this (three times chi^2's mean): the model does not fit
 RECENT_NIS = 160  # the status line's recent NIS: each node's last 2 s of updates at 80 Hz
@@ -233,6 +237,8 @@ class TwinSession:
         self._nis_sum, self._nis_count = [0.0, 0.0], [0, 0]  # per node, after the settling (a run of any length)
         self._nis: tuple[collections.deque[float], ...] = tuple(collections.deque(maxlen=RECENT_NIS) for _ in range(2))
         self._whiteness = [(Whiteness(), Whiteness()), (Whiteness(), Whiteness())]  # node: (angle, rate)
+        self._ticks_moved = [0, 0]  # samples whose value was moved to the tick on the sample's other side
+        self._stated_coef = FastPlant(params).coef  # (NCOEF, 1): the stated rig's force law
         nbins = len(HORIZON_BINS_S)
         self._score_n, self._score_sq, self._score_in = np.zeros(nbins), np.zeros(nbins), np.zeros(nbins)
 
@@ -260,6 +266,8 @@ class TwinSession:
         if self._measuring_since[node] is None:
             self._measuring_since[node] = t_s
         t_v, phi, omega = got.t_s, got.phi_rad, got.omega_rad_s
+        if self._tracking:
+            t_v = self._on_its_tick(node, got, torques_n_m)
         self._recent[node].append((t_v, phi, omega))
         if not self._tracking:
             return self._start_when_free(t_v)
@@ -442,6 +450,44 @@ class TwinSession:
                 self._score_sq[b] += error * error
                 self._score_in[b] += abs(error) <= 3 * sd
         self._open_forecasts = keep
+
+    def _on_its_tick(self, node: int, got: NodeSample, torques_n_m: ArrayLike) -> float:
+        """The instant of a sample's value: as the node's measurement gives it, or the fusion tick
+        on the other side of the sample where the learned phase has put it on the wrong side of a
+        tick. A node whose clock drifts against its chip's fusion moves its samples across the
+        ticks; as one crosses, the learned phase (its roughness sums remember 10 s) assigns its
+        value to the tick a period away for a while, and the estimator would take a whole period
+        (10 ms: 20 mrad at 2 rad/s) as a jump of the node's delay. Only a sample within the learned
+        phase's stretch (at least ``TICK_NEAR_S``) of a tick is checked: its angle against the
+        estimate carried to either instant (second order in time, the stated rig's force law at the
+        estimate); the other tick (not after the sample) is taken when the given one misses by over
+        ``TICK_MISS_Z`` sigmas and the other explains the angle ``TICK_BETTER`` times better."""
+        m = self.measurements[node]
+        if m.phase is None or not m.phase.ready:
+            return got.t_s
+        period = m.phase.period_s
+        lo, hi = m.phase.estimate()[1]
+        near = max(TICK_NEAR_S, hi - lo)  # the learned phase is good to its stretch
+        age = got.sample_t_s - got.t_s  # in [0, period)
+        if near <= age <= period - near:
+            return got.t_s
+        other = min(got.t_s + period, got.sample_t_s) if age > period / 2 else got.t_s - period
+        est = self.estimator
+        x = est.x
+        tau = np.asarray(torques_n_m, dtype=float)
+        u = np.array([[tau[0]], [tau[1]], [0.0], [0.0]])
+        alpha = accelerations(x[:1], x[1:2], x[2:3], x[3:4], self._stated_coef, u)[node][0]
+        sigma = math.sqrt(float(est.p[node, node]) + float(est.measurement_sigma[node, 0]) ** 2)
+
+        def miss(t: float) -> float:
+            dt = t - self._delay(node) - est.t_s
+            return abs(got.phi_rad - self._offset(node) - (x[node] + x[2 + node] * dt + 0.5 * alpha * dt * dt)) / sigma
+
+        given, alternative = miss(got.t_s), miss(other)
+        if given > TICK_MISS_Z and alternative * TICK_BETTER < given and other >= est.t_s - LATE_S:
+            self._ticks_moved[node] += 1
+            return other
+        return got.t_s
 
     def _delay(self, node: int) -> float:
         track = self.estimator.track
