@@ -57,6 +57,8 @@ from ...report.twin_views import TwinView
 from ..packets import GROUP_SLICES
 from ..sink import RecordingSink
 
+Torques = tuple[float, float] | Callable[[float], tuple[float, float]]
+"""A sample's hinge torques: held since the last one (N m), or the drive as a function of time."""
 FLUSH_S = 0.5
 DIAGNOSTICS_S = 1.0
 VIEW_S = 0.2  # live views are given what the twin produced and sent this often, s (5 a second: each
@@ -251,7 +253,7 @@ class TwinPipeline:
         self.feeder = ViewFeeder(views) if views else None
         self.views: tuple[TwinView | ViewFeeder, ...] = (self.feeder,) if self.feeder is not None else ()
         self.node_names, self.start_utc_ns = node_names, start_utc_ns
-        self.merger: SampleMerger[tuple[NDArray[np.float64], tuple[float, float]]] = SampleMerger(spec.hold_s)
+        self.merger: SampleMerger[tuple[NDArray[np.float64], Torques]] = SampleMerger(spec.hold_s)
         self.skip = skip
         self._channels: dict[str, int] = {}
         self._forecast_points = 0
@@ -259,7 +261,7 @@ class TwinPipeline:
         if sink is not None:
             self._register()
         self.latency_s: list[float] = []
-        self._unwritten: list[Held[tuple[NDArray[np.float64], tuple[float, float]]]] = []
+        self._unwritten: list[Held[tuple[NDArray[np.float64], Torques]]] = []
         self._next_flush_s = -math.inf
         self._next_diag_s = -math.inf
         self._next_view_s = -math.inf
@@ -290,7 +292,7 @@ class TwinPipeline:
         t_s: float,
         row: NDArray[np.float64],
         arrived_s: float,
-        torques_n_m: tuple[float, float] = (0.0, 0.0),
+        torques_n_m: Torques = (0.0, 0.0),
     ) -> None:
         """A node's sample: its instant (s on the twin's clock), its packet row
         (``acquire.packets.ROW_FIELDS``), when it came (s, the same clock as ``step``'s now)."""
@@ -641,7 +643,8 @@ def summary_text(result: TwinResult) -> str:
     if unfit:
         lines.append(
             f"warning: the model does not fit the data ({', '.join(unfit)}; 2 on a healthy rig): those estimates "
-            "are less certain than their sigmas say (a node's clock drifting against its chip's fusion does this)"
+            "are less certain than their sigmas say (a node's timing the twin does not follow, a drive it is not "
+            "given, a rig unlike its model or a fault; docs/twin.md)"
         )
     f = s.forecast
     scored = [

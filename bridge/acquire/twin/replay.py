@@ -34,13 +34,16 @@ from numpy.typing import NDArray
 from pendsim_mj.errors import RecordingError
 from pendsim_mj.estimation.alignment import NodeSamples
 from pendsim_mj.estimation.timing import fit_clock
+from pendsim_mj.rig.drives import NCHANNEL
 from pendsim_mj.rig.params import RigParams
+from pendsim_mj.units import nanoseconds
 
 from ...io import twin_topics
 from ...io.measured import fusion_rate_of, node_samples
 from ...io.recording import read_recording
-from ...io.recording_layout import DRIVE_TOPIC, imu_topic
+from ...io.recording_layout import DRIVE_LAYOUT, DRIVE_TOPIC, imu_topic
 from ...report.twin_views import TwinView
+from ..sink import RecordingSink
 from .pipeline import TwinPipeline, TwinResult, TwinSpec, close_sink, open_sink, status_text
 
 RIG_TOLERANCE = 1e-9  # relative: parameters that differ by more are another rig
@@ -196,6 +199,35 @@ class _Recorded:
         return (float(self.torque[k, 0]), float(self.torque[k, 1])) if k >= 0 else (0.0, 0.0)
 
 
+class _DriveCopy:
+    """A driven recording's ``/drive`` copied into the twin's recording as the replay reaches it
+    (a replay of the twin's recording then gives the twin the same torques)."""
+
+    def __init__(self, sink: RecordingSink, recorded: _Recorded, start_utc_ns: int) -> None:
+        assert recorded.torque_t is not None and recorded.torque is not None
+        self.sink = sink
+        self.channel = sink.register(DRIVE_TOPIC, twin_topics.SCHEMA)
+        self.t_ns = start_utc_ns + nanoseconds(recorded.torque_t)
+        self.held = np.zeros((len(recorded.torque), NCHANNEL))
+        self.held[:, :2] = recorded.torque  # hinge torques only (a drive of the support is refused)
+        self.next = 0
+
+    def upto(self, t_s: float, start_utc_ns: int) -> None:
+        """Add the drive's rows up to ``t_s`` (s on the recording's clock; inf: the rest), before
+        the file has been written up to them (the sink drops older messages)."""
+        end = len(self.t_ns)
+        if not math.isinf(t_s):
+            end = int(np.searchsorted(self.t_ns, start_utc_ns + nanoseconds(t_s), "right"))
+        if end > self.next:
+            n = end - self.next
+            size = np.full(n, NCHANNEL)
+            payloads = DRIVE_LAYOUT.encode(
+                n, size=size, stride=size, data_offset=np.zeros(n), data=self.held[self.next : end]
+            )
+            self.sink.add(self.channel, self.t_ns[self.next : end], payloads)
+            self.next = end
+
+
 def _run(
     spec: TwinSpec,
     path: Path,
@@ -222,6 +254,7 @@ def _run(
             node_names=("m1", "m2"),
             start_utc_ns=start_utc_ns,
         )
+    drive = _DriveCopy(sink, recorded, start_utc_ns) if sink is not None and recorded.torque is not None else None
     session = spec.session()
     for t, what in recorded.noted:
         session.note(t, what)
@@ -249,11 +282,16 @@ def _run(
                     if delay > 0:
                         time.sleep(delay)
                 n = int(recorded.node[i])
-                pipeline.push(n, t, recorded.rows[n][recorded.index[i]], t, recorded.torques_at(t))
+                torques = recorded.torques_at if recorded.torque is not None else (0.0, 0.0)  # held mid-interval
+                pipeline.push(n, t, recorded.rows[n][recorded.index[i]], t, torques)
+                if drive is not None:
+                    drive.upto(t + 1.0, start_utc_ns)  # ahead of what the file is given (its flushes trail)
                 pipeline.step(t)
                 if pipeline.tick(time.monotonic() - wall0 if speed else t, session.estimator.t_s) and status:
                     status(status_text(pipeline, t - t_first))
         pipeline.finish()
+        if drive is not None:
+            drive.upto(math.inf, start_utc_ns)
     finally:
         with contextlib.suppress(Exception):  # on an error too: the views' thread ends before they close
             pipeline.stop_views()
