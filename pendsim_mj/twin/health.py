@@ -99,6 +99,7 @@ PRIOR_SIGMA = {
 tracked parameter without one is a nuisance of the measurement (a node's offset rate, M2's delay):
 never alarmed, left free in g and in every hypothesis, as the estimator has it."""
 RELATIVE = ("b1_n_m_s", "b2_n_m_s", "friction1_n_m", "friction2_n_m", "coupling_sin_n_m")  # said in % too
+NON_NEGATIVE = RELATIVE  # a rig cannot have these below zero: a change found there is no change of the rig
 
 UNCHANGED = "unchanged"  # the name of H0 in ``Alarm.runner_up``
 
@@ -244,6 +245,8 @@ class HealthMonitor:
         self._taken = estimator.count  # samples the bank has seen (the estimator's count)
         self._quiet_until_s = -math.inf
         self.alarmed: dict[str, Alarm] = {}
+        self.impossible: list[Alarm] = []  # changes found to values the rig cannot have: not alarmed
+        self._aside: set[str] = set()  # found at an impossible value: left free, as an alarmed one
         self.dismissed: list[float] = []
         self.history: list[tuple[float, dict[str, float]]] = []  # (t_s, g per parameter)
 
@@ -257,7 +260,7 @@ class HealthMonitor:
         p = est.p[NSTATE:, NSTATE:] + np.diag(self.reference_sigma**2)  # the references' spread: no change
         sigma = np.sqrt(np.diag(p))
         out = {name: float(delta[i] / sigma[i]) for i, name in enumerate(track) if name in PRIOR_SIGMA}
-        watched = [i for i, name in enumerate(track) if name not in self.alarmed and name in PRIOR_SIGMA]
+        watched = [i for i, name in enumerate(track) if not self._is_free(name) and name in PRIOR_SIGMA]
         if watched:
             info = np.linalg.inv(p[np.ix_(watched, watched)])
             g = info @ delta[watched] / np.sqrt(np.diag(info))
@@ -284,7 +287,7 @@ class HealthMonitor:
         for name, gi in g.items():
             if abs(gi) < SINCE_LEVEL:
                 self._calm_s[name] = t
-        watched = {name: abs(gi) for name, gi in g.items() if name not in self.alarmed}
+        watched = {name: abs(gi) for name, gi in g.items() if not self._is_free(name)}
         top = max(watched, key=watched.__getitem__) if watched else None
         if top is None or watched[top] <= self.threshold:
             self._above_since = None
@@ -302,8 +305,12 @@ class HealthMonitor:
         return self._decide(t)
 
     def _raise(self, alarm: Alarm) -> list[Alarm]:
-        self.alarmed[alarm.parameter] = alarm
         self._above_since = None
+        if alarm.parameter in NON_NEGATIVE and alarm.value + 2 * alarm.sigma < 0:
+            self.impossible.append(alarm)  # a negative damping or friction: the model does not fit, no alarm
+            self._aside.add(alarm.parameter)
+            return []
+        self.alarmed[alarm.parameter] = alarm
         return [alarm]
 
     def _start_bank(self, ranked: list[str], since_s: float) -> None:
@@ -321,7 +328,7 @@ class HealthMonitor:
             drift = np.zeros(len(est.track))
             for i, name in enumerate(est.track):
                 j = NSTATE + i
-                if name in self.alarmed or name not in PRIOR_SIGMA:  # free, as in the estimator
+                if self._is_free(name) or name not in PRIOR_SIGMA:  # free, as in the estimator
                     p[j, j], drift[i] = p0[j, j], est.drift_per_s[i]
                     continue
                 x[j] = self.reference[name]
@@ -379,12 +386,17 @@ class HealthMonitor:
         alarm = Alarm(name, WHAT[name], t, since, self.reference[name], value, sigma, bank.names[second], lead)
         return self._raise(alarm)
 
+    def _is_free(self, name: str) -> bool:
+        """Left free in the checks: alarmed already, or set aside at an impossible value."""
+        return name in self.alarmed or name in self._aside
+
     def reset(self, parameter: str) -> None:
         """Take a parameter's current estimate as its new reference (the change was acknowledged)."""
         value, _ = self.estimator.parameters()[parameter]
         if self.reference is not None:
             self.reference[parameter] = value
         self.alarmed.pop(parameter, None)
+        self._aside.discard(parameter)
 
     def largest_z(self) -> dict[str, float]:
         """Each parameter's largest |g| so far (0 before the baseline)."""

@@ -322,8 +322,14 @@ class TwinSession:
                 if name in self.monitor.reference:
                     self.monitor.reference[name] = float(self.estimator.x[NSTATE + self.estimator.track.index(name)])
         if self.monitor is not None and t_v >= self._checks_from_s and not self._checks_held(t_v):
-            before = len(self.monitor.history)
+            before, impossible = len(self.monitor.history), len(self.monitor.impossible)
             alarms = self.monitor.check()
+            for found in self.monitor.impossible[impossible:]:
+                self._event(
+                    t_v,
+                    f"not alarmed: {found.parameter} found at {found.value:.4g} {TRACKABLE[found.parameter][1]}, "
+                    "a value the rig cannot have (the model does not fit the data)",
+                )
             self._alarms += alarms
             self._all_alarms += alarms
             if len(self.monitor.history) > before:

@@ -178,6 +178,17 @@ def test_a_recording_of_another_rig_is_refused_naming_the_difference(recording, 
     assert list(tmp_path.iterdir()) == []
 
 
+def test_a_recording_of_the_spatial_model_is_refused_before_the_rigs_are_compared(tmp_path, capsys):
+    rec = tmp_path / "spatial.mcap"
+    assert main(["record", "-o", str(rec), "--duration-s", "3", "--model", "spatial"]) == 0
+    capsys.readouterr()
+    out = tmp_path / "t.mcap"
+    assert main(["twin", "--replay", str(rec), "-o", str(out), "--set", "plane_offset_m=0.05"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("pendsim: error:") and "spatial model" in err and "\n" not in err
+    assert not out.exists()
+
+
 def test_a_file_that_is_no_recording_is_refused(tmp_path, capsys):
     bogus = tmp_path / "x.mcap"
     bogus.write_bytes(b"not an mcap at all")

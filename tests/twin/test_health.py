@@ -177,3 +177,18 @@ def test_an_alarm_says_what_since_when_by_how_much_and_against_what():
         "alarm at 22.0 s; likelier than b2_n_m_s by e^7"
     )
     assert UNCHANGED == "unchanged"
+
+
+def test_a_change_to_a_value_the_rig_cannot_have_is_not_alarmed_and_is_left_free():
+    """A negative dry friction (beyond 2 sigma) is no change of the rig but a model that does not fit
+    the data (a new user's driven replay found -1.7e-4 N m): not alarmed, kept aside, and the
+    parameter is not watched again (no repeated detections)."""
+    from pendsim_mj.twin.health import Alarm
+
+    estimator = RigEstimator(PAPER, track=TRACKED)
+    monitor = HealthMonitor(estimator)
+    negative = Alarm("friction1_n_m", "dry friction at M1's hinge", 35.3, 28.3, 0.0, -1.7e-4, 1.2e-5, "b1_n_m_s", 58.0)
+    assert monitor._raise(negative) == [] and monitor.impossible == [negative]
+    assert "friction1_n_m" not in monitor.alarmed and monitor._is_free("friction1_n_m")
+    possible = Alarm("friction2_n_m", "dry friction at M2's hinge", 22.0, 14.0, 0.0, 2.0e-4, 2e-5, "b2_n_m_s", 7.2)
+    assert monitor._raise(possible) == [possible] and monitor.alarmed["friction2_n_m"] is possible

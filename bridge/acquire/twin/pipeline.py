@@ -657,6 +657,8 @@ def summary_text(result: TwinResult) -> str:
                 f"<= {h:g} s: rms {math.degrees(e):.3f} deg, {100 * w:.0f} % within 3 sigma" for h, _, e, w in scored
             )
         )
+    if s.parameters:
+        lines.append("tracked at the end (+- 2 sigma):")
     for name, (value, sigma) in s.parameters.items():
         lines.append(f"  {name:<18} {value:.5g} +- {2 * sigma:.2g} {TRACKABLE[name][1]}")
     if math.isnan(s.monitored_from_s):

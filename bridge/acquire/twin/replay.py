@@ -133,6 +133,11 @@ def replay(
 
     path = Path(recording)
     rec = read_recording(path, topics={imu_topic("m1"), imu_topic("m2"), DRIVE_TOPIC})
+    if rec.metadata.get("pendsim/run", {}).get("model") == "spatial":
+        raise RecordingError(
+            f"{path} is a run of the spatial model (the pendulums tilt out of their planes); the twin models "
+            "the planar rig: replay a planar recording (pendsim record --model planar, the default)"
+        )
     if "pendsim/rig_parameters" in rec.metadata:
         differ = differing_parameters(rec.params(), spec.params)
         if differ:
