@@ -57,11 +57,7 @@ def run(duration_s: float, args: list[str]) -> tuple[TwinSession, float]:
     spec = spec_from(build_parser().parse_args(["nodes", "--duration-s", str(duration_s), "--hold-s", str(HOLD_S),
                                                 *args]))  # fmt: skip
     p = plan(spec)
-    sent = {(d.node, d.seq) for d in p.datagrams if d.sent and d.kind == "data"}
-    events = sorted(
-        (float(st.t_s[i]), k, i) for k, st in enumerate(p.streams) for i in range(len(st.t_s))
-        if (st.name, int(st.seq[i])) in sent
-    )  # fmt: skip
+    events = p.sent_in_time_order()
     session = TwinSession()
     q, g, a = GROUP_SLICES["quat"], GROUP_SLICES["gyro"], GROUP_SLICES["accel"]
     t0 = time.process_time()

@@ -225,6 +225,18 @@ class Plan:
     datagrams: tuple[Datagram, ...]  # sorted by due time; lost samples included (sent False)
     rig_faults: tuple[PlayedFault, ...] = ()  # as resolved, in the order given
 
+    def sent_in_time_order(self) -> list[tuple[float, int, int]]:
+        """Every data sample that is sent (not lost), as (true instant s, stream index, sample index),
+        in time order: what a receiver with perfect clocks would take in (offline benchmarks and
+        tests feed ``TwinSession`` with it)."""
+        sent = {(d.node, d.seq) for d in self.datagrams if d.sent and d.kind == "data"}
+        return sorted(
+            (float(st.t_s[i]), k, i)
+            for k, st in enumerate(self.streams)
+            for i in range(len(st.t_s))
+            if (st.name, int(st.seq[i])) in sent
+        )
+
 
 def node_rows(samples: ImuSamples, node_index: int, t_s: NDArray[np.float64]) -> NDArray[np.float64]:
     """The node's readings at true instants t_s (s since the start of the samples): the latest

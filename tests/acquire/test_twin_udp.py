@@ -86,25 +86,32 @@ def test_a_port_in_use_is_one_line_and_exit_2(tmp_path, capsys):
     assert list(tmp_path.iterdir()) == []
 
 
-def test_damping_and_dry_friction_sent_over_udp_from_imperfect_nodes_are_alarmed_on_their_hinges(tmp_path):
-    """Nodes with a heading, glued on 2 deg askew, their fused orientation wandering 0.2 deg, 2 %
-    of their packets lost and 1 ms of jitter; M1's damping doubles 5 s after the release and M2's
-    hinge gains 2e-4 N m of dry friction at 14 s (``pendsim nodes --fault``). The live twin names
-    each on its own hinge, by about its size, within 10 s, and nothing else."""
+def _live_twin(tmp_path, emulator: list[str]) -> Pendsim:
+    """A live twin (a real process, writing live.mcap in tmp_path) fed by the emulator with these
+    options over loopback UDP until the emulator ends; then SIGINT, and it must end cleanly."""
     p1, p2 = free_udp_ports(2)
     ports = ["--node", f"m1={p1}", "--node", f"m2={p2}"]
     twin = Pendsim(["twin", "-o", "live.mcap", "--duration-s", "60", *ports], cwd=tmp_path)
     try:
         twin.wait_for("twin: listening")
-        imperfect = ["--heading-deg", "40", "--mount-misalignment-deg", "2", "--fusion-error-deg", "0.2",
-                     "--loss", "0.02", "--jitter-ms", "1"]  # fmt: skip
-        faults = ["--fault", "damping:m1*2@5", "--fault", "friction:m2=2e-4@14"]
-        sender = _emulate(["--duration-s", "26", "--hold-s", "1", "--seed", "4", *imperfect, *faults, *ports])
+        sender = _emulate([*emulator, *ports])
         sender.join()
         twin.signal(signal.SIGINT)
         assert twin.finish() == 0, twin.err
     finally:
         twin.kill()
+    return twin
+
+
+def test_damping_and_dry_friction_sent_over_udp_from_imperfect_nodes_are_alarmed_on_their_hinges(tmp_path):
+    """Nodes with a heading, glued on 2 deg askew, their fused orientation wandering 0.2 deg, 2 %
+    of their packets lost and 1 ms of jitter; M1's damping doubles 5 s after the release and M2's
+    hinge gains 2e-4 N m of dry friction at 14 s (``pendsim nodes --fault``). The live twin names
+    each on its own hinge, by about its size, within 10 s, and nothing else."""
+    imperfect = ["--heading-deg", "40", "--mount-misalignment-deg", "2", "--fusion-error-deg", "0.2",
+                 "--loss", "0.02", "--jitter-ms", "1"]  # fmt: skip
+    faults = ["--fault", "damping:m1*2@5", "--fault", "friction:m2=2e-4@14"]
+    _live_twin(tmp_path, ["--duration-s", "26", "--hold-s", "1", "--seed", "4", *imperfect, *faults])
     meta = _metadata(tmp_path / "live.mcap")[twin_topics.TWIN_RESULT_METADATA]
     alarms = {a["parameter"]: a for a in json.loads(meta["alarms"])}
     assert set(alarms) == {"b1_n_m_s", "friction2_n_m"}, alarms
@@ -119,18 +126,8 @@ def test_scripted_faults_sent_over_udp_are_alarmed_on_the_right_parameter_within
     """The emulated rig's springs weaken by 5 % 6 s after the release, M2's node turns by 3 deg on
     its mount at 12 s and M1's clock jumps by 0.5 s at 16 s (``pendsim nodes --fault``); the live
     twin names each, on its own parameter or node, and nothing else."""
-    p1, p2 = free_udp_ports(2)
-    ports = ["--node", f"m1={p1}", "--node", f"m2={p2}"]
-    twin = Pendsim(["twin", "-o", "live.mcap", "--duration-s", "60", *ports], cwd=tmp_path)
-    try:
-        twin.wait_for("twin: listening")
-        faults = ["--fault", "stiffness:-5%@6", "--fault", "mount:m2=3deg@12", "--fault", "clock:m1=+0.5@16"]
-        sender = _emulate(["--duration-s", "20", "--hold-s", "1", "--seed", "3", *faults, *ports])
-        sender.join()
-        twin.signal(signal.SIGINT)
-        assert twin.finish() == 0, twin.err
-    finally:
-        twin.kill()
+    faults = ["--fault", "stiffness:-5%@6", "--fault", "mount:m2=3deg@12", "--fault", "clock:m1=+0.5@16"]
+    twin = _live_twin(tmp_path, ["--duration-s", "20", "--hold-s", "1", "--seed", "3", *faults])
     meta = _metadata(tmp_path / "live.mcap")[twin_topics.TWIN_RESULT_METADATA]
     alarms = {a["parameter"]: a for a in json.loads(meta["alarms"])}
     assert set(alarms) == {"coupling_sin_n_m", "offset_m2_rad"}, alarms

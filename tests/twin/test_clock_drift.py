@@ -23,11 +23,7 @@ NODES = ["nodes", "--duration-s", "24", "--hold-s", "2", "--seed", "2", "--phi1-
 def _m2_nis_after_10_s() -> tuple[float, TwinSession]:
     """M2's mean NIS from 10 s after the start, when one of its sample phases crosses a tick."""
     p = plan(spec_from(build_parser().parse_args(NODES)))
-    sent = {(d.node, d.seq) for d in p.datagrams if d.sent and d.kind == "data"}
-    events = sorted(
-        (float(st.t_s[i]), k, i) for k, st in enumerate(p.streams) for i in range(len(st.t_s))
-        if (st.name, int(st.seq[i])) in sent
-    )  # fmt: skip
+    events = p.sent_in_time_order()
     session = TwinSession()
     q, g, a = GROUP_SLICES["quat"], GROUP_SLICES["gyro"], GROUP_SLICES["accel"]
     nis = []

@@ -629,7 +629,16 @@ def summary_text(result: TwinResult) -> str:
         f"twin: {result.stop_reason} after {result.duration_s:.1f} s; samples m1 {s.samples[0]}, m2 {s.samples[1]}"
     ]
     if math.isnan(s.started_s):
-        lines.append("the estimator never started: it needs a sample from each node")
+        if min(s.samples) == 0:
+            lines.append("the estimator never started: it needs a sample from each node")
+        else:
+            lines.append(
+                "the estimator never started: no pendulum swung free (a node's frame and fusion phase are "
+                "learned from its first second of swinging; one that barely swings falls back on gravity 3 s "
+                "after the other measures)"
+            )
+        if result.path is not None:
+            lines.append(f"wrote {result.path} ({result.messages} messages: the measured data)")
         return "\n".join(lines)
 
     def p(value: float) -> str:
