@@ -644,9 +644,12 @@ def summary_text(result: TwinResult) -> str:
     def p(value: float) -> str:
         return f"{value:.3f}" if math.isfinite(value) else "n/a (too few)"
 
+    def nis(value: float) -> str:
+        return f"{value:.2f}" if math.isfinite(value) else "n/a (none after the first 2 s)"
+
     lines.append(
-        "innovations: mean NIS m1 {:.2f}, m2 {:.2f} (2 on a healthy rig); whiteness p (angle, rate; > 0.01 white) "
-        "m1 {}, {}; m2 {}, {}".format(*s.nis_mean, *(p(v) for node in s.whiteness_p for v in node))
+        "innovations: mean NIS m1 {}, m2 {} (2 on a healthy rig); whiteness p (angle, rate; > 0.01 white) "
+        "m1 {}, {}; m2 {}, {}".format(*(nis(v) for v in s.nis_mean), *(p(v) for node in s.whiteness_p for v in node))
     )
     unfit = [f"M{k + 1}'s mean NIS {v:.1f}" for k, v in enumerate(s.nis_mean) if v > RUN_MISFIT_NIS]
     if unfit:
