@@ -30,8 +30,7 @@ from collections.abc import Callable, Sequence
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from pendsim_mj.control.plant import FastPlant
-from pendsim_mj.engines.fast_planar.closed_form import accelerations
+from pendsim_mj.engines.fast_planar.closed_form import accelerations, coefficients
 from pendsim_mj.errors import ParameterError
 from pendsim_mj.estimation.swing_frame import SwingFrame
 from pendsim_mj.rig.params import DEFAULT_PARAMS, RigParams
@@ -241,7 +240,7 @@ class TwinSession:
         self._whiteness = [(Whiteness(), Whiteness()), (Whiteness(), Whiteness())]  # node: (angle, rate)
         self._holding, self._hold_checked_s = False, -math.inf  # health checks held (``_checks_held``)
         self._ticks_moved = [0, 0]  # samples whose value was moved to the tick on the sample's other side
-        self._stated_coef = FastPlant(params).coef  # (NCOEF, 1): the stated rig's force law
+        self._stated_coef = coefficients([params])  # (NCOEF, 1): the stated rig's force law
         nbins = len(HORIZON_BINS_S)
         self._score_n, self._score_sq, self._score_in = np.zeros(nbins), np.zeros(nbins), np.zeros(nbins)
 
@@ -546,8 +545,8 @@ class TwinSession:
     def misfit(self) -> str | None:
         """A line naming the nodes whose recent innovations are far larger than the filter predicts
         (mean NIS over the last ``RECENT_NIS`` updates above ``MISFIT_NIS``; 2 on a healthy rig),
-        or None: the estimate of such a node is not to be trusted to its stated sigmas (its timing,
-        e.g. a clock drifting against its chip's fusion ticks, or a rig unlike the model)."""
+        or None: the estimate of such a node is not to be trusted to its stated sigmas (a timing the
+        twin does not follow, a drive it is not given, a rig unlike the model, a fault)."""
         bad = [(f"M{k + 1}", nis) for k, nis in enumerate(self.recent_nis()) if nis > MISFIT_NIS]
         if not bad:
             return None

@@ -212,17 +212,18 @@ class _DriveCopy:
         assert recorded.torque_t is not None and recorded.torque is not None
         self.sink = sink
         self.channel = sink.register(DRIVE_TOPIC, twin_topics.SCHEMA)
+        self.start_utc_ns = start_utc_ns
         self.t_ns = start_utc_ns + nanoseconds(recorded.torque_t)
         self.held = np.zeros((len(recorded.torque), NCHANNEL))
         self.held[:, :2] = recorded.torque  # hinge torques only (a drive of the support is refused)
         self.next = 0
 
-    def upto(self, t_s: float, start_utc_ns: int) -> None:
+    def upto(self, t_s: float) -> None:
         """Add the drive's rows up to ``t_s`` (s on the recording's clock; inf: the rest), before
         the file has been written up to them (the sink drops older messages)."""
         end = len(self.t_ns)
         if not math.isinf(t_s):
-            end = int(np.searchsorted(self.t_ns, start_utc_ns + nanoseconds(t_s), "right"))
+            end = int(np.searchsorted(self.t_ns, self.start_utc_ns + nanoseconds(t_s), "right"))
         if end > self.next:
             n = end - self.next
             size = np.full(n, NCHANNEL)
@@ -290,13 +291,13 @@ def _run(
                 torques = recorded.torques_at if recorded.torque is not None else (0.0, 0.0)  # held mid-interval
                 pipeline.push(n, t, recorded.rows[n][recorded.index[i]], t, torques)
                 if drive is not None:
-                    drive.upto(t + 1.0, start_utc_ns)  # ahead of what the file is given (its flushes trail)
+                    drive.upto(t + 1.0)  # ahead of what the file is given (its flushes trail)
                 pipeline.step(t)
                 if pipeline.tick(time.monotonic() - wall0 if speed else t, session.estimator.t_s) and status:
                     status(status_text(pipeline, t - t_first))
         pipeline.finish()
         if drive is not None:
-            drive.upto(math.inf, start_utc_ns)
+            drive.upto(math.inf)
     finally:
         with contextlib.suppress(Exception):  # on an error too: the views' thread ends before they close
             pipeline.stop_views()
