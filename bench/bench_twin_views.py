@@ -44,7 +44,8 @@ def batches(seconds: float) -> list[tuple[Estimates, Forecast | None, ParameterC
         node = np.tile([0, 1], per).astype(np.int64)
         state = np.stack([0.3 * np.cos(5.6 * t), 0.2 * np.cos(5.6 * t), -1.7 * np.sin(5.6 * t), np.sin(5.6 * t)], 1)
         est = Estimates(t, node, rng.normal(size=(n, 2)), state, np.full((n, 4), 0.01), rng.normal(size=(n, 2)),
-                        np.full((n, 2), 0.01), rng.random(n))  # fmt: skip
+                        np.full((n, 2), 0.01), rng.random(n), rng.normal(size=(n, 2)), rng.normal(size=(n, 2)),
+                        np.full((n, 2), 0.011), rng.random(n))  # fmt: skip
         forecast = check = None
         if b % round(SENDS_HZ) == 0:
             ft = t[0] + np.arange(241) * 0.0125

@@ -3,7 +3,8 @@
 ``bench_twin_faults`` feeds it, one 60 s free decay per seed. Measured per node and channel (the
 swing angle, the hinge rate): the Ljung-Box p-value of the normalised innovations over 20 lags (the
 session's own ``whiteness_p``, 4400-4800 values each: lag correlations beyond about 0.03 fail),
-the largest autocorrelation over lags 1-10, and the mean NIS.
+the largest autocorrelation over lags 1-10, and the mean NIS; the same for the accelerometer's
+tangential and normal readings (``RigEstimator.update_accel``).
 
 Sets of imperfections (each on top of noise and quantisation):
 - ``all``: ``bench_twin_faults.imperfect`` (random release 10-45 deg, random heading, nodes glued
@@ -37,7 +38,7 @@ SETS = {
     "no-fusion-error": lambda seed: without(imperfect(seed), "--fusion-error-deg"),
     "drift": lambda seed: [*imperfect(seed), "--clock-drift-ppm", "m2=30"],
 }
-CHANNELS = ("M1 angle", "M1 rate", "M2 angle", "M2 rate")
+CHANNELS = ("M1 angle", "M1 rate", "M2 angle", "M2 rate", "M1 acc t", "M1 acc n", "M2 acc t", "M2 acc n")
 
 
 def main() -> None:
@@ -52,12 +53,14 @@ def main() -> None:
         for seed in range(args.seeds):
             session, _ = run(args.run_s, SETS[name](seed))
             summary = session.summary()
-            p.append([v for node in summary.whiteness_p for v in node])
-            rho.append([float(np.max(np.abs(w.autocorrelation()[:10]))) for node in session._whiteness for w in node])
-            nis.append(summary.nis_mean)
+            p.append([v for node in (*summary.whiteness_p, *summary.accel_whiteness_p) for v in node])
+            series = [w for node in (*session._whiteness, *session._accel_whiteness) for w in node]
+            rho.append([float(np.max(np.abs(w.autocorrelation()[:10]))) for w in series])
+            nis.append((*summary.nis_mean, *summary.accel_nis_mean))
         p_, rho_, nis_ = np.array(p), np.array(rho), np.array(nis)
         print(f"\n{name}: mean NIS M1 {nis_[:, 0].mean():.2f} (max {nis_[:, 0].max():.2f}), "
-              f"M2 {nis_[:, 1].mean():.2f} (max {nis_[:, 1].max():.2f})")  # fmt: skip
+              f"M2 {nis_[:, 1].mean():.2f} (max {nis_[:, 1].max():.2f}); accelerometer M1 {nis_[:, 2].mean():.2f} "
+              f"(max {nis_[:, 2].max():.2f}), M2 {nis_[:, 3].mean():.2f} (max {nis_[:, 3].max():.2f})")  # fmt: skip
         print(f"  {'channel':<9} {'white (p > 0.01)':>17} {'median p':>9} {'max |rho| 1-10, median':>23}")
         for j, channel in enumerate(CHANNELS):
             white = int(np.sum(p_[:, j] > 0.01))

@@ -12,7 +12,9 @@ import contextlib
 import ctypes
 import os
 import signal
+import subprocess
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -97,6 +99,23 @@ def _sigint_as_by_default() -> None:
 def pytest_configure(config: pytest.Config) -> None:
     config._pendsim_subreaper = _become_subreaper()  # type: ignore[attr-defined]
     _sigint_as_by_default()
+    if not hasattr(config, "workerinput") and (config.getoption("numprocesses", None) or 0) > 1:
+        _warm_kernels()
+
+
+def _warm_kernels() -> None:
+    """The controller of a parallel run compiles the numba kernels first, in two processes at once
+    (``warm_kernels.py``), so that its workers and the commands they start load them instead of
+    compiling the same ones at the same moment (a cold cache: a fresh clone, as in CI). A part that
+    fails says so on stderr; the tests then meet the failure themselves."""
+    script = Path(__file__).with_name("warm_kernels.py")
+    with tempfile.TemporaryDirectory(prefix="pendsim-warm-") as folder:
+        parts = [
+            subprocess.Popen([sys.executable, str(script), part, os.path.join(folder, part)])
+            for part in ("engine", "measure")
+        ]
+        for process in parts:
+            process.wait()
 
 
 def pytest_sessionfinish(session: pytest.Session, exitstatus: int) -> None:

@@ -7,7 +7,8 @@ Each is a std_msgs/msg/Float64MultiArray whose one layout dimension's label list
   (non-decreasing): ``ESTIMATE_COLUMNS`` (the instant its value stands for, s on the recording's
   clock: up to a fusion period before the log time when the other node's sample came first; the
   node, what it measured, the estimate after it with its standard deviations, the innovation with
-  its predicted standard deviations, the normalised innovation squared).
+  its predicted standard deviations, the normalised innovation squared; then the same for the
+  node's accelerometer along its swing's tangent and toward the pivot, NaN where it was not taken in).
 - ``/twin/parameters``: once a second, per tracked parameter ``NAME``: ``NAME``, ``NAME_sigma``,
   ``NAME_reference``, ``NAME_z`` (each parameter's unit: ``pendsim_mj.twin.TRACKABLE``).
 - ``/twin/forecast``: each forecast, at the instant it was made: per point of its grid ``t_s``
@@ -49,6 +50,13 @@ ESTIMATE_COLUMNS = (
     "innovation_sigma_phi_rad",
     "innovation_sigma_omega_rad_s",
     "nis",
+    "accel_tangential_measured_m_s2",
+    "accel_normal_measured_m_s2",
+    "innovation_accel_tangential_m_s2",
+    "innovation_accel_normal_m_s2",
+    "innovation_sigma_accel_tangential_m_s2",
+    "innovation_sigma_accel_normal_m_s2",
+    "nis_accel",
 )
 
 
@@ -77,6 +85,10 @@ def estimate_values(est: Estimates) -> NDArray[np.float64]:
             est.innovation,
             est.innovation_sigma,
             est.nis,
+            est.accel_measured,
+            est.accel_innovation,
+            est.accel_innovation_sigma,
+            est.accel_nis,
         ]
     )
 

@@ -48,10 +48,11 @@ from numpy.typing import ArrayLike, NDArray
 
 from pendsim_mj.control.plant import FastPlant
 from pendsim_mj.engines.fast_planar.closed_form import COEFFICIENTS, accelerations
-from pendsim_mj.engines.fast_planar.step import rk4_held
+from pendsim_mj.engines.fast_planar.step import accel_readings, rk4_held
 from pendsim_mj.errors import ParameterError, PendsimError
 from pendsim_mj.rig.params import DEFAULT_PARAMS, RigParams
 from pendsim_mj.sensors.bno055 import SWING_ANGLE_SIGMA_RAD, Bno055
+from pendsim_mj.twin.unscented import correct, moments, sigma_points
 
 Floats = NDArray[np.float64]
 NSTATE = 4
@@ -78,6 +79,8 @@ TRACKABLE: dict[str, tuple[str | None, str, float]] = {
     "offset_rate_m1_rad_s": (None, "rad/s", 1e-4),
     "offset_rate_m2_rad_s": (None, "rad/s", 1e-4),
     "delay_m2_s": (None, "s", 1e-5),
+    "accel_turn_m1_rad": (None, "rad", 1e-6),
+    "accel_turn_m2_rad": (None, "rad", 1e-6),
 }
 """The parameters the estimator can track: name -> (coefficient of ``fast_planar.closed_form``,
 unit, default drift per sqrt(s)). M2's delay: how much older M2's values are than the instants
@@ -86,19 +89,25 @@ quarter fusion period). The difference of the two nodes' delays shows through th
 their common part never does (it only shifts the estimate's time), so M1 is the reference. A
 node's offset rate: its offset then moves at this rate, itself a random walk (a smooth offset: the
 BNO055's slowly varying fusion error, ``Imperfections.fusion_error_rad``; it needs the offset
-tracked too)."""
+tracked too). A node's accelerometer turn: how far its accelerometer's axes are turned about the
+hinge from the swing frame it is read in (``update_accel``): the frame's own error (its fit leaves
+the in-plane axes about 0.1 deg off: 0.02 m/s^2 on the tangential reading, twice its noise), and a
+turn on the mount after it was found; the fused orientation's slow error, which the offset also
+carries, the accelerometer does not share."""
 DELAY_SIGMA0_S = 0.25e-2 / math.sqrt(6.0)  # the start: two nodes' errors, each uniform over a 2.5 ms stretch, s
 
 
 class Sample(NamedTuple):
     """One node's sample as the estimator took it in (``RigEstimator.recent``): its instant (s),
-    node (0 M1, 1 M2), swing angle (rad), hinge rate (rad/s) and the hinge torques held (N m)."""
+    node (0 M1, 1 M2), swing angle (rad), hinge rate (rad/s), the hinge torques held (N m) and its
+    accelerometer's tangential and normal reading (m/s^2; None: not taken in)."""
 
     t_s: float
     node: int
     phi_rad: float
     omega_rad_s: float
     torques_n_m: tuple[float, float]
+    accel_m_s2: tuple[float, float] | None = None
 
 
 class StaleSample(PendsimError):
@@ -123,6 +132,12 @@ class Update:
     covariance: Floats
     nis: float
     applied: bool = True
+
+
+def _quadratic_2(s: Floats, nu: Floats) -> float:
+    """nu' s^-1 nu for a 2 x 2 covariance s (the normalised innovation squared), in closed form."""
+    det = s[0, 0] * s[1, 1] - s[0, 1] * s[1, 0]
+    return float((s[1, 1] * nu[0] * nu[0] - (s[0, 1] + s[1, 0]) * nu[0] * nu[1] + s[0, 0] * nu[1] * nu[1]) / det)
 
 
 def _gated(nu: Floats, s: Floats, gate_angle_z: float, gate_rate_z: float) -> bool:
@@ -207,6 +222,12 @@ class RigEstimator:
                 raise ParameterError(f"angle_sigma_rad must be > 0, got {angle_sigma_rad!r}")
             angle = float(angle_sigma_rad)
         self.measurement_sigma = np.array([[angle, gyro], [angle, gyro]])  # per node (M1, M2): angle rad, rate rad/s
+        accel = nodes.noise_model.accel_sigma_m_s2 if nodes.noise else (1e-4, 1e-4, 1e-4)
+        self.accel_axis_sigma_m_s2 = np.array(accel, dtype=float)  # (3,) the node model's, per sensor axis
+        self.accel_sigma_m_s2 = np.array([[accel[0], accel[1]], [accel[0], accel[1]]])  # per node: tangential, normal
+        # (the model's mount: x, y; ``set_accel_frame`` for another)
+        self.accel_radius_m = np.array([params.om1_m, params.om2_m])  # each node's distance from the hinge, m
+        self.accel_turn_rad = np.zeros(2)  # each node's turn on its mount since its frame was found, rad
         unknown = [name for name in track if name not in TRACKABLE]
         if unknown or len(set(track)) != len(track):
             raise ParameterError(f"cannot track {unknown or track}; trackable: {', '.join(TRACKABLE)}")
@@ -223,6 +244,9 @@ class RigEstimator:
         if not set(rates) <= set(self._offsets):
             raise ParameterError("a node's offset rate needs its offset tracked too (offset_m1_rad, offset_m2_rad)")
         self._offset_rates = [(self._offsets[k], i) for k, i in rates.items()]  # (offset's index, its rate's)
+        self._turns = {
+            int(name[12]) - 1: NSTATE + i for i, name in enumerate(self.track) if name.startswith("accel_turn")
+        }
         self._scale, self._wm, self._wc = _sigma_weights(self.n, alpha, beta, kappa)
         self._plant = FastPlant(params, nenv=2 * self.n + 1)
         self._coef = self._plant.coef.copy()
@@ -242,6 +266,8 @@ class RigEstimator:
         other._plant = FastPlant(self.params, nenv=2 * self.n + 1)
         other._plant.coef[:] = self._plant.coef
         other.x, other.p = self.x.copy(), self.p.copy()
+        other.accel_radius_m, other.accel_sigma_m_s2 = self.accel_radius_m.copy(), self.accel_sigma_m_s2.copy()
+        other.accel_turn_rad = self.accel_turn_rad.copy()
         if drift_per_s is not None:
             drift = np.asarray(drift_per_s, dtype=float)
             if drift.shape != (len(self.track),) or not np.all(np.isfinite(drift) & (drift >= 0)):
@@ -302,13 +328,13 @@ class RigEstimator:
         return q
 
     def _sigma_points(self) -> Floats:
-        """(2n + 1, n) Merwe's scaled sigma points of the estimate: the square root with a jitter
-        relative to each variance (an absolute one would add a random walk of its own to every
-        parameter: 1e-18 / scale per step, 4e-6 per sqrt(s) at 160 Hz)."""
-        a = self._scale * self.p
-        d = np.sqrt(np.maximum(np.diag(a), 1e-300))
-        root = np.linalg.cholesky(a / np.outer(d, d) + 1e-12 * np.eye(self.n)) * d[:, None]
-        return np.concatenate([self.x[None], self.x + root.T, self.x - root.T])
+        """(2n + 1, n) Merwe's scaled sigma points of the estimate (compiled: ``sigma_points``):
+        the square root with a jitter relative to each variance (an absolute one would add a
+        random walk of its own to every parameter: 1e-18 / scale per step, 4e-6 per sqrt(s) at
+        160 Hz)."""
+        out = np.empty((2 * self.n + 1, self.n))
+        sigma_points(self.x, np.ascontiguousarray(self.p), self._scale, out)
+        return out
 
     def _kept(self, t_s: float, node: int, phi_rad: float, omega_rad_s: float, torques_n_m: ArrayLike) -> None:
         """Count a sample taken in, and keep it for ``keep_s`` (``recent``)."""
@@ -401,15 +427,80 @@ class RigEstimator:
         nu[0] = (nu[0] + math.pi) % (2 * math.pi) - math.pi  # an angle's innovation wraps
         ph = self.p @ h.T
         s = h @ ph + r
-        nis = float(nu @ np.linalg.solve(s, nu))
+        nis = _quadratic_2(s, nu)
         if _gated(nu, s, gate_angle_z, gate_rate_z):
             return Update(self.t_s, node, nu, s, nis, applied=False)
-        gain = np.linalg.solve(s, ph.T).T  # (n, 2) = P H' S^-1
+        det = s[0, 0] * s[1, 1] - s[0, 1] * s[1, 0]
+        gain = ph @ (np.array([[s[1, 1], -s[0, 1]], [-s[1, 0], s[0, 0]]]) / det)  # (n, 2) = P H' S^-1
         self.x = self.x + gain @ nu
         keep = np.eye(self.n) - gain @ h
         self.p = keep @ self.p @ keep.T + gain @ r @ gain.T  # Joseph form
         self._kept(self.t_s, node, phi_rad, omega_rad_s, torques_n_m)
         return Update(self.t_s, node, nu, s, nis)
+
+    def set_accel_frame(self, node: int, radius_m: float, sigma_m_s2: ArrayLike) -> None:
+        """A node's accelerometer as its swing frame found it (``twin.measurement``): its distance
+        from the hinge axis (m) and its noise (2,) along the swing's tangent and toward the pivot
+        (m/s^2); its turn on the mount starts again at 0."""
+        sigma = np.asarray(sigma_m_s2, dtype=float)
+        if not (math.isfinite(radius_m) and 0 < radius_m < 10):
+            raise ParameterError(f"a node's radius must be in (0, 10) m, got {radius_m!r}")
+        if sigma.shape != (2,) or not np.all(np.isfinite(sigma) & (sigma > 0)):
+            raise ParameterError(f"the accelerometer's noise must be 2 numbers > 0, got {sigma_m_s2!r}")
+        self.accel_radius_m[node], self.accel_sigma_m_s2[node], self.accel_turn_rad[node] = radius_m, sigma, 0.0
+
+    def update_accel(
+        self,
+        t_s: float,
+        node: int,
+        tangential_m_s2: float,
+        normal_m_s2: float,
+        torques_n_m: ArrayLike = (0.0, 0.0),
+        *,
+        late_s: float = 0.0,
+        gate_z: float = math.inf,
+    ) -> Update:
+        """Take one node's accelerometer reading at ``t_s``: the specific force (gravity included,
+        m/s^2) along the swing's tangent and toward the pivot, in the node's swing frame.
+
+        What a node at radius r reads (spec RIG.md section 6): z = (r alpha + g sin phi, r omega^2 +
+        g cos phi), alpha from the force law at each sigma point (the tracked parameters' too),
+        turned by the node's accelerometer turn (the tracked ``accel_turn_mN_rad`` plus the fixed
+        ``accel_turn_rad``: the accelerometer turns with the node; the fused orientation's slowly
+        varying error, the rest of the tracked offset, it does not share). Nonlinear in x: the unscented update. M2's
+        tracked delay d: z - d dz/dt (dz/dt from the state and the force law's rate along the
+        motion). Called after ``update`` with the same sample (sequential updates: the two
+        sensors' noises are independent). ``gate_z``: a reading whose innovation exceeds this many
+        sigmas on either axis is held out (``Update.applied`` False)."""
+        if node not in (0, 1):
+            raise ParameterError(f"node must be 0 (M1) or 1 (M2), got {node!r}")
+        z = np.array([tangential_m_s2, normal_m_s2], dtype=float)
+        r = np.diag(self.accel_sigma_m_s2[node] ** 2)
+        if not 0 < self.t_s - float(t_s) <= late_s:
+            self.predict(t_s, torques_n_m)
+        update = self._unscented_update(float(t_s), node, z, r, torques_n_m, accel_gate_z=gate_z)
+        kept = self.recent[-1] if self.recent else None
+        if update.applied and kept is not None and kept.node == node and kept.t_s == float(t_s):
+            self.recent[-1] = kept._replace(accel_m_s2=(float(z[0]), float(z[1])))
+        return update
+
+    def _accel_readings(self, at: Floats, node: int, torques_n_m: ArrayLike) -> Floats:
+        """(2n + 1, 2) what the node's accelerometer reads at each sigma point (``update_accel``;
+        compiled: ``fast_planar.step.accel_readings``)."""
+        tau = np.asarray(torques_n_m, dtype=float)
+        m = len(at)
+        u = np.zeros((4, m))
+        u[0], u[1] = tau[0], tau[1]
+        self._set_coefficients(at)
+        delay = at[:, self._delays[node]] if node in self._delays else np.zeros(m)
+        turn = np.full(m, self.accel_turn_rad[node])
+        if node in self._turns:
+            turn += at[:, self._turns[node]]
+        out = np.empty((2, m))
+        accel_readings(self._plant.coef, np.ascontiguousarray(at[:, :NSTATE].T), u, node,
+                       float(self.accel_radius_m[node]), float(self.params.g_m_s2), np.ascontiguousarray(delay), turn,
+                       out)  # fmt: skip
+        return out.T
 
     def _unscented_update(
         self,
@@ -420,6 +511,8 @@ class RigEstimator:
         torques_n_m: ArrayLike,
         gate_angle_z: float = math.inf,
         gate_rate_z: float = 5.0,
+        *,
+        accel_gate_z: float | None = None,
     ) -> Update:
         """The update through the sigma points, where the measurement is not linear in the
         state: a sample from before the estimate's time (the state run back to its instant, one
@@ -431,8 +524,9 @@ class RigEstimator:
         points = self._sigma_points()
         gap = t_s - self.t_s
         at = self._advance(points, gap, torques_n_m) if gap < 0 else points
-        zs = at[:, [node, 2 + node]].copy()
-        if node in self._delays:
+        accel = accel_gate_z is not None
+        zs = self._accel_readings(at, node, torques_n_m) if accel else at[:, [node, 2 + node]].copy()
+        if node in self._delays and not accel:
             d = at[:, self._delays[node]]
             tau = np.asarray(torques_n_m, dtype=float)
             u = np.zeros((4, len(at)))
@@ -441,22 +535,22 @@ class RigEstimator:
             alpha = accelerations(at[:, 0], at[:, 1], at[:, 2], at[:, 3], self._plant.coef, u)[node]
             zs[:, 0] -= d * at[:, 2 + node]
             zs[:, 1] -= d * alpha
-        if node in self._offsets:
+        if node in self._offsets and not accel:
             zs[:, 0] += at[:, self._offsets[node]]
-        z_mean = self._wm @ zs
-        dz = zs - z_mean
-        dx = points - self.x
-        s = (dz.T * self._wc) @ dz + r
-        pxz = (dx.T * self._wc) @ dz  # (n, 2)
+        z_mean, s, pxz = moments(points, self.x, np.ascontiguousarray(zs), self._wm, self._wc, r)
         nu = z - z_mean
-        nu[0] = (nu[0] + math.pi) % (2 * math.pi) - math.pi
-        nis = float(nu @ np.linalg.solve(s, nu))
-        if _gated(nu, s, gate_angle_z, gate_rate_z):
+        if not accel:
+            nu[0] = (nu[0] + math.pi) % (2 * math.pi) - math.pi
+        nis = _quadratic_2(s, nu)
+        held = (
+            bool(abs(nu[0]) > accel_gate_z * math.sqrt(s[0, 0]) or abs(nu[1]) > accel_gate_z * math.sqrt(s[1, 1]))
+            if accel_gate_z is not None
+            else _gated(nu, s, gate_angle_z, gate_rate_z)
+        )
+        if held:
             return Update(t_s, node, nu, s, nis, applied=False)
-        gain = np.linalg.solve(s, pxz.T).T
-        self.x = self.x + gain @ nu
-        self.p = self.p - gain @ s @ gain.T
-        self.p = 0.5 * (self.p + self.p.T)
+        self.x, self.p = self.x.copy(), self.p.copy()  # arrays handed out before stay as they were
+        correct(self.x, self.p, s, pxz, nu)
         return Update(t_s, node, nu, s, nis)
 
     @property

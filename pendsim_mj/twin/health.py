@@ -83,6 +83,8 @@ WHAT = {
     "offset_rate_m1_rad_s": "M1's node turning on its mount (or its fused orientation drifting)",
     "offset_rate_m2_rad_s": "M2's node turning on its mount (or its fused orientation drifting)",
     "delay_m2_s": "M2's node's values later than M1's against their instants (fusion timing or clock)",
+    "accel_turn_m1_rad": "M1's accelerometer axes turned from its learned frame",
+    "accel_turn_m2_rad": "M2's accelerometer axes turned from its learned frame",
 }
 """What each tracked parameter's change means on the rig."""
 
@@ -166,6 +168,10 @@ class _Bank:
                 sample.t_s, sample.node, sample.phi_rad, sample.omega_rad_s, sample.torques_n_m, late_s=BANK_LATE_S
             )
             self.loglik[k] -= 0.5 * (u.nis + math.log(np.linalg.det(u.covariance)))
+            if sample.accel_m_s2 is not None:
+                tangential, normal = sample.accel_m_s2
+                u = f.update_accel(sample.t_s, sample.node, tangential, normal, sample.torques_n_m, late_s=BANK_LATE_S)
+                self.loglik[k] -= 0.5 * (u.nis + math.log(np.linalg.det(u.covariance)))
 
 
 class HealthMonitor:

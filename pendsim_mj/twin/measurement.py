@@ -134,18 +134,23 @@ class Learned:
 
 @dataclasses.dataclass(frozen=True)
 class NodeSample:
-    """One sample, ready for ``RigEstimator.update(t_s, node, phi_rad, omega_rad_s)``.
+    """One sample, ready for ``RigEstimator.update(t_s, node, phi_rad, omega_rad_s)`` and
+    ``RigEstimator.update_accel(t_s, node, accel_tangential_m_s2, accel_normal_m_s2)``.
 
     Attributes:
       t_s: the instant its value stands for (the twin's clock), s.
       phi_rad: the swing angle, rad. omega_rad_s: the hinge rate, rad/s.
       sample_t_s: the instant the node took it, s (t_s <= sample_t_s).
+      accel_tangential_m_s2, accel_normal_m_s2: the accelerometer (gravity included) along the
+        swing frame's tangent and toward the pivot, m/s^2 (r alpha + g sin phi, r omega^2 + g cos phi).
     """
 
     t_s: float
     phi_rad: float
     omega_rad_s: float
     sample_t_s: float
+    accel_tangential_m_s2: float = math.nan
+    accel_normal_m_s2: float = math.nan
 
 
 @dataclasses.dataclass(frozen=True)
@@ -332,7 +337,8 @@ class NodeMeasurement:
             phi = self._phi + (phi - self._phi + math.pi) % math.tau - math.pi
         self._phi = phi
         omega = float(gyro @ self.frame.hinge_axis)
-        return NodeSample(self.value_instant(t), phi, omega, t)
+        tangential, normal = float(accel @ self.frame.tangential), float(accel @ self.frame.toward_pivot)
+        return NodeSample(self.value_instant(t), phi, omega, t, tangential, normal)
 
     def _start_on_gyro_axis(self) -> SwingFrame:
         """The start frame turned (the least rotation) so that its hinge axis is the one the

@@ -33,6 +33,11 @@ class Estimates:
       innovation: (n, 2) measured minus predicted (rad, rad/s).
       innovation_sigma: (n, 2) the innovation's predicted standard deviations.
       nis: (n,) normalised innovation squared (chi^2 with 2 degrees of freedom on a healthy rig).
+      accel_measured: (n, 2) the node's accelerometer along its swing's tangent and toward the
+        pivot, gravity included, m/s^2.
+      accel_innovation: (n, 2) its measured minus predicted, m/s^2 (NaN: not taken in).
+      accel_innovation_sigma: (n, 2) their predicted standard deviations, m/s^2.
+      accel_nis: (n,) its normalised innovation squared (chi^2 with 2 degrees of freedom).
     """
 
     t_s: Floats
@@ -43,6 +48,10 @@ class Estimates:
     innovation: Floats
     innovation_sigma: Floats
     nis: Floats
+    accel_measured: Floats
+    accel_innovation: Floats
+    accel_innovation_sigma: Floats
+    accel_nis: Floats
 
     def __len__(self) -> int:
         return len(self.t_s)
@@ -56,6 +65,10 @@ class Estimates:
             z.reshape(0, 2),
             z.reshape(0, 4),
             z.reshape(0, 4),
+            z.reshape(0, 2),
+            z.reshape(0, 2),
+            z,
+            z.reshape(0, 2),
             z.reshape(0, 2),
             z.reshape(0, 2),
             z,

@@ -43,10 +43,12 @@ from pendsim_mj.twin.outputs import Estimates, ParameterCheck
 from pendsim_mj.twin.whiteness import Whiteness
 
 Floats = NDArray[np.float64]
-NODE_PARAMETERS = ("offset_m1_rad", "offset_m2_rad", "offset_rate_m1_rad_s", "offset_rate_m2_rad_s", "delay_m2_s")
+NODE_PARAMETERS = ("offset_m1_rad", "offset_m2_rad", "offset_rate_m1_rad_s", "offset_rate_m2_rad_s", "delay_m2_s",
+                   "accel_turn_m1_rad", "accel_turn_m2_rad")  # fmt: skip
 """What real nodes need tracked, always: each node's mount offset with its rate (which follows the
-fused orientation's slow error), M2's delay against M1 (``twin.measurement``). Without them the
-learned frames' half-degree offsets alone make the innovations hundreds of sigmas."""
+fused orientation's slow error), M2's delay against M1 (``twin.measurement``), each node's
+accelerometer turn (its learned frame's axes 0.1 deg off). Without them the learned frames'
+half-degree offsets alone make the innovations hundreds of sigmas."""
 RIG_PARAMETERS = tuple(name for name in TRACKABLE if name not in NODE_PARAMETERS)
 """The rig's own parameters that can drift: damping, dry friction, the coupling springs."""
 DEFAULT_TRACK = RIG_PARAMETERS
@@ -54,7 +56,8 @@ NODE_DRIFT_PER_S = {"offset_m1_rad": 1e-5, "offset_m2_rad": 1e-5, "offset_rate_m
                     "offset_rate_m2_rad_s": 3e-4}  # fmt: skip
 # the random walks of the node states on real nodes (docs/twin.md, Measurement: innovations white)
 NODE_SIGMA0 = {"offset_m1_rad": 0.01, "offset_m2_rad": 0.01, "offset_rate_m1_rad_s": 1e-3,
-               "offset_rate_m2_rad_s": 1e-3, "delay_m2_s": 1e-3}  # fmt: skip
+               "offset_rate_m2_rad_s": 1e-3, "delay_m2_s": 1e-3, "accel_turn_m1_rad": 0.01,
+               "accel_turn_m2_rad": 0.01}  # fmt: skip
 # ... and their start: the learned frames' offsets are good to about 0.5 deg
 NODE_BASELINE_S = 10.0  # the node states' references: their estimates this long after the start (the
 # learned frames leave each offset about 0.5 deg uncertain; the rig's own parameters keep the stated rig)
@@ -122,6 +125,10 @@ class TwinSummary:
       nis_mean: per node, the mean normalised innovation squared (2 on a healthy rig).
       whiteness_p: per node, the Ljung-Box p-values of its normalised angle and rate innovations
         after ``settle_s`` (``whiteness.Whiteness``, 20 lags, over the whole run; NaN: too few).
+      accel_nis_mean: per node, the accelerometer's mean normalised innovation squared (2 on a
+        healthy rig; NaN: none fused).
+      accel_whiteness_p: per node, the Ljung-Box p-values of its normalised tangential and normal
+        accelerometer innovations.
       forecast: the forecasts' scores.
       alarms: the alarms raised.
       parameters: each tracked parameter's final (value, sigma).
@@ -138,6 +145,8 @@ class TwinSummary:
     parameters: dict[str, tuple[float, float]]
     events: tuple[tuple[float, str], ...] = ()
     monitored_from_s: float = math.nan  # the first health check against the references (NaN: none)
+    accel_nis_mean: tuple[float, float] = (math.nan, math.nan)
+    accel_whiteness_p: tuple[tuple[float, float], tuple[float, float]] = ((math.nan, math.nan), (math.nan, math.nan))
 
 
 class TwinSession:
@@ -238,6 +247,9 @@ class TwinSession:
         self._nis_sum, self._nis_count = [0.0, 0.0], [0, 0]  # per node, after the settling (a run of any length)
         self._nis: tuple[collections.deque[float], ...] = tuple(collections.deque(maxlen=RECENT_NIS) for _ in range(2))
         self._whiteness = [(Whiteness(), Whiteness()), (Whiteness(), Whiteness())]  # node: (angle, rate)
+        self._accel_whiteness = [(Whiteness(), Whiteness()), (Whiteness(), Whiteness())]  # node: (tangential, normal)
+        self._accel_nis_sum, self._accel_nis_count = [0.0, 0.0], [0, 0]
+        self._accel_frames: list[SwingFrame | None] = [None, None]  # the frame each node's accelerometer is read in
         self._holding, self._hold_checked_s = False, -math.inf  # health checks held (``_checks_held``)
         self._ticks_moved = [0, 0]  # samples whose value was moved to the tick on the sample's other side
         self._stated_coef = coefficients([params])  # (NCOEF, 1): the stated rig's force law
@@ -292,11 +304,12 @@ class TwinSession:
             self._jumped(node, t_v)
             return False
         self._recent_z[node].clear()
+        accel = self._take_accel(node, t_v, got, torques_n_m)
         x, sigma = self.estimator.x, self.estimator.sigma
         s_sigma = np.sqrt(np.diag(update.covariance))
         seen = phi - self._offset(node)  # what the node measured, its mount's offset (as estimated) taken out
         self._rows.append(
-            (t_v, node, seen, omega, *x[:NSTATE], *sigma[:NSTATE], *update.innovation, *s_sigma, update.nis)
+            (t_v, node, seen, omega, *x[:NSTATE], *sigma[:NSTATE], *update.innovation, *s_sigma, update.nis, *accel)
         )
         if t_v - self.started_s >= self.settle_s:
             self._nis[node].append(update.nis)
@@ -304,6 +317,11 @@ class TwinSession:
             self._nis_count[node] += 1
             for series, nu, s in zip(self._whiteness[node], update.innovation, s_sigma, strict=True):
                 series.add(nu / s)
+            if math.isfinite(accel[-1]):
+                self._accel_nis_sum[node] += accel[-1]
+                self._accel_nis_count[node] += 1
+                for series, nu, s in zip(self._accel_whiteness[node], accel[2:4], accel[4:6], strict=True):
+                    series.add(nu / s)
         z_rate = update.innovation[1] / s_sigma[1]
         self._recent_nis.append(z_rate * z_rate)
         if len(self._recent_nis) == INTERVENTION_WINDOW and np.mean(self._recent_nis) > INTERVENTION_NIS:
@@ -392,6 +410,33 @@ class TwinSession:
             self._next_forecast_s = t0 + self.forecast_every_s
         return True
 
+    def _take_accel(
+        self, node: int, t_v: float, got: NodeSample, torques_n_m: ArrayLike
+    ) -> tuple[float, float, float, float, float, float, float]:
+        """The node's accelerometer taken into the estimate after its angle and rate
+        (``RigEstimator.update_accel``), read in its learned frame (its noise along the frame's
+        axes: the node model's per sensor axis, projected), at the rig's mount radius (OM1, OM2:
+        the frame's own radius comes from a second of swinging, in which r alpha and g sin phi are
+        nearly proportional: 1 % off, 4 mm on M1, which left a mean NIS of 14); (measured tangential and
+        normal, their innovations and the innovations' sigmas, m/s^2, and the NIS), NaN where none
+        was taken (no reading, or one held out beyond ``JUMP_Z`` sigmas)."""
+        none = (math.nan,) * 7
+        if not math.isfinite(got.accel_tangential_m_s2):
+            return none
+        frame = self.measurements[node].frame
+        if frame is not None and frame is not self._accel_frames[node]:
+            variance = self.estimator.accel_axis_sigma_m_s2**2
+            sigma = np.sqrt([variance @ np.square(frame.tangential), variance @ np.square(frame.toward_pivot)])
+            radius = self.params.om1_m if node == 0 else self.params.om2_m
+            self.estimator.set_accel_frame(node, radius, sigma)
+            self._accel_frames[node] = frame
+        measured = (got.accel_tangential_m_s2, got.accel_normal_m_s2)
+        update = self.estimator.update_accel(t_v, node, *measured, torques_n_m, late_s=LATE_S, gate_z=JUMP_Z)
+        if not update.applied:
+            return (*measured, *none[2:])
+        s_sigma = np.sqrt(np.diag(update.covariance))
+        return (*measured, *update.innovation, *s_sigma, update.nis)
+
     def _jumped(self, node: int, t_v: float) -> bool:
         """A node's angle jumped while its rate still follows the model (it turned on its mount):
         its offset's variance takes the jump in, so that the offset follows at once."""
@@ -403,6 +448,11 @@ class TwinSession:
         if name in self.estimator.track:
             i = NSTATE + self.estimator.track.index(name)
             self.estimator.p[i, i] += jump * jump
+        name = f"accel_turn_m{node + 1}_rad"
+        if name in self.estimator.track:  # the accelerometer turned with the node
+            i = NSTATE + self.estimator.track.index(name)
+            self.estimator.x[i] += jump
+            self.estimator.p[i, i] += (0.2 * jump) ** 2
         recent.clear()
         self._recent_nis.clear()
         self._node_baseline_done = True  # a slip before the node states' baseline: their references stay
@@ -564,7 +614,7 @@ class TwinSession:
 
     def drain(self) -> TwinOutput:
         """What was produced since the last call."""
-        rows = np.array(self._rows, dtype=float).reshape(-1, 17)
+        rows = np.array(self._rows, dtype=float).reshape(-1, 24)
         est = (
             Estimates(
                 t_s=rows[:, 0],
@@ -575,6 +625,10 @@ class TwinSession:
                 innovation=rows[:, 12:14],
                 innovation_sigma=rows[:, 14:16],
                 nis=rows[:, 16],
+                accel_measured=rows[:, 17:19],
+                accel_innovation=rows[:, 19:21],
+                accel_innovation_sigma=rows[:, 21:23],
+                accel_nis=rows[:, 23],
             )
             if len(rows)
             else Estimates.empty()
@@ -595,6 +649,10 @@ class TwinSession:
     def summary(self) -> TwinSummary:
         nis = tuple(t / n if n else math.nan for t, n in zip(self._nis_sum, self._nis_count, strict=True))
         (angle, rate), (angle2, rate2) = self._whiteness
+        accel_nis = tuple(
+            t / n if n else math.nan for t, n in zip(self._accel_nis_sum, self._accel_nis_count, strict=True)
+        )
+        (t1, n1), (t2, n2) = self._accel_whiteness
         return TwinSummary(
             samples=self.samples,
             started_s=self.started_s,
@@ -607,4 +665,6 @@ class TwinSession:
             monitored_from_s=self.monitor.history[0][0]
             if self.monitor is not None and self.monitor.history
             else math.nan,
+            accel_nis_mean=(accel_nis[0], accel_nis[1]),
+            accel_whiteness_p=((t1.p_value(), n1.p_value()), (t2.p_value(), n2.p_value())),
         )

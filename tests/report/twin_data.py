@@ -42,7 +42,12 @@ def estimates(t_s: np.ndarray, node: np.ndarray, rng: np.random.Generator) -> Es
     rows = np.arange(n)
     measured = np.stack([phi[rows, node], omega[rows, node]], axis=1) + innovation
     nis = np.sum((innovation / innovation_sigma) ** 2, axis=1)
-    return Estimates(t_s, node.astype(np.int64), measured, state, sigma, innovation, innovation_sigma, nis)
+    accel = np.stack([9.81 * np.sin(phi[rows, node]), 9.81 * np.cos(phi[rows, node])], axis=1)
+    accel_innovation = rng.normal(0.0, 0.011, (n, 2))
+    accel_sigma = np.full((n, 2), 0.011)
+    accel_nis = np.sum((accel_innovation / accel_sigma) ** 2, axis=1)
+    return Estimates(t_s, node.astype(np.int64), measured, state, sigma, innovation, innovation_sigma, nis,
+                     accel + accel_innovation, accel_innovation, accel_sigma, accel_nis)  # fmt: skip
 
 
 def twin_run(duration_s: float, *, rate_hz: float = 80.0, batch_s: float = 0.05, seed: int = 1) -> TwinRun:

@@ -21,7 +21,8 @@ from pendsim_mj.sensors.imperfections import Imperfections
 from pendsim_mj.twin.estimator import NSTATE, TRACKABLE, RigEstimator
 from pendsim_mj.twin.health import UNCHANGED, HealthMonitor
 
-TRACKED = tuple(name for name in TRACKABLE if not name.startswith(("offset_rate", "delay")))  # the rig and the mounts
+# the rig and the mounts
+TRACKED = tuple(name for name in TRACKABLE if not name.startswith(("offset_rate", "delay", "accel_turn")))
 STEP_S = 0.0125  # one simulation step per node sample (80 Hz)
 PAPER = DEFAULT_PARAMS
 FAULT_AT_S = 8.0

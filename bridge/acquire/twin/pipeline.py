@@ -513,6 +513,8 @@ class TwinPipeline:
             "samples": json.dumps(list(summary.samples)),
             "nis_mean": json.dumps([_finite_or_none(v) for v in summary.nis_mean]),
             "whiteness_p": json.dumps([[_finite_or_none(v) for v in node] for node in summary.whiteness_p]),
+            "accel_nis_mean": json.dumps([_finite_or_none(v) for v in summary.accel_nis_mean]),
+            "accel_whiteness_p": json.dumps([[_finite_or_none(v) for v in node] for node in summary.accel_whiteness_p]),
             "forecast": json.dumps(
                 {
                     "horizon_s": list(score.horizon_s),
@@ -651,7 +653,15 @@ def summary_text(result: TwinResult) -> str:
         "innovations: mean NIS m1 {}, m2 {} (2 on a healthy rig); whiteness p (angle, rate; > 0.01 white) "
         "m1 {}, {}; m2 {}, {}".format(*(nis(v) for v in s.nis_mean), *(p(v) for node in s.whiteness_p for v in node))
     )
+    lines.append(
+        "accelerometer: mean NIS m1 {}, m2 {}; whiteness p (tangential, normal) m1 {}, {}; m2 {}, {}".format(
+            *(nis(v) for v in s.accel_nis_mean), *(p(v) for node in s.accel_whiteness_p for v in node)
+        )
+    )
     unfit = [f"M{k + 1}'s mean NIS {v:.1f}" for k, v in enumerate(s.nis_mean) if v > RUN_MISFIT_NIS]
+    unfit += [
+        f"M{k + 1}'s accelerometer's mean NIS {v:.1f}" for k, v in enumerate(s.accel_nis_mean) if v > RUN_MISFIT_NIS
+    ]
     if unfit:
         lines.append(
             f"warning: the model does not fit the data ({', '.join(unfit)}; 2 on a healthy rig): those estimates "
