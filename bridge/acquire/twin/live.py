@@ -150,8 +150,9 @@ def run_twin_live(
             )
         session = spec.session()
         pipeline = TwinPipeline(
-            spec, session, sink=sink, node_names=("m1", "m2"), start_utc_ns=start_utc_ns, views=views
-        )
+            spec, session, sink=sink, node_names=("m1", "m2"), start_utc_ns=start_utc_ns, views=views,
+            period_s=1.0 / rate_hz,
+        )  # fmt: skip
 
         def now_s() -> float:
             return (time.monotonic_ns() - start_ns) * 1e-9

@@ -236,6 +236,8 @@ class TwinPipeline:
       views: live views.
       skip: (node, t_s) of samples to leave out (a replay of a twin's recording: those that came
         too late live).
+      period_s: the nodes' sample period (live: a sample whose instant is older than the other
+        node's next goes at once, ``merge.SampleMerger``); None: each waits for the other node.
     """
 
     def __init__(
@@ -248,12 +250,13 @@ class TwinPipeline:
         start_utc_ns: int,
         views: tuple[TwinView, ...] = (),
         skip: frozenset[tuple[int, int]] = frozenset(),
+        period_s: float | None = None,
     ) -> None:
         self.spec, self.session, self.sink = spec, session, sink
         self.feeder = ViewFeeder(views) if views else None
         self.views: tuple[TwinView | ViewFeeder, ...] = (self.feeder,) if self.feeder is not None else ()
         self.node_names, self.start_utc_ns = node_names, start_utc_ns
-        self.merger: SampleMerger[tuple[NDArray[np.float64], Torques]] = SampleMerger(spec.hold_s)
+        self.merger: SampleMerger[tuple[NDArray[np.float64], Torques]] = SampleMerger(spec.hold_s, period_s=period_s)
         self.skip = skip
         self._channels: dict[str, int] = {}
         self._forecast_points = 0
