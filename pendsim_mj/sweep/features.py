@@ -38,7 +38,6 @@ import numpy as np
 from numpy.typing import NDArray
 
 from pendsim_mj.errors import ParameterError
-from pendsim_mj.estimation.spectral_peaks import peaks_and_ratios
 
 FloatArray = NDArray[np.float64]
 
@@ -228,6 +227,8 @@ def compute_summary(
     if "frequency" in groups:
         if summary.phi_rad is None:
             raise ParameterError("the frequency feature needs the sampled angles (phi_rad)")
+        from pendsim_mj.estimation.spectral_peaks import peaks_and_ratios  # start-up: numba and scipy.fft
+
         freq, ratio = (
             v.reshape(m, 2) for v in peaks_and_ratios(t, summary.phi_rad.reshape(2 * m, -1), nthread=nthread)
         )
