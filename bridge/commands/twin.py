@@ -84,8 +84,8 @@ def register(sub: argparse._SubParsersAction[options.Parser]) -> None:
         default=None,
         metavar="LIST",
         help="the rig's parameters tracked and monitored: all (default), none, or a comma-separated list of "
-        "b1_n_m_s, b2_n_m_s, friction1_n_m, friction2_n_m, coupling_sin_n_m (the nodes' mount offsets and timing are "
-        "tracked and monitored always)",
+        "b1_n_m_s, b2_n_m_s, friction1_n_m, friction2_n_m, coupling_sin_n_m (the nodes' states are tracked always: "
+        "their mount offsets, monitored, and their offsets' rates, M2's delay and the accelerometers' turns, not)",
     )
     p.add_argument(
         "--forecast-s",

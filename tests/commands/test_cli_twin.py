@@ -122,6 +122,19 @@ def test_health_checks_are_held_while_the_model_does_not_fit_and_the_summary_say
     events = [what for _, what in json.loads(meta["events"])]
     assert any(e.startswith("health checks held: the model does not fit the data") for e in events)
     assert json.loads(meta["nis_mean"])[1] > 3.0 and "warning: the model does not fit the data" in said
+    # the summary says which clock its times are on, and names exactly the channels that are not white
+    assert "(times below: s on the twin's clock, from its start)" in said.splitlines()[1]
+    named = [
+        f"m{k + 1} {name}"
+        for key, names in (("whiteness_p", ("angle", "rate")),
+                           ("accel_whiteness_p", ("accelerometer tangential", "accelerometer normal")))
+        for k, node in enumerate(json.loads(meta[key]))
+        for name, p in zip(names, node, strict=True)
+        if p is not None and p <= 0.01
+    ]  # fmt: skip
+    note = [line for line in said.splitlines() if line.startswith("note: not white")]
+    assert "m2 angle" in named and len(note) == 1
+    assert note[0].split(": ")[2] == ", ".join(named)
 
 
 def test_a_healthy_replay_raises_no_alarm_and_its_forecasts_hold(recording, replayed):

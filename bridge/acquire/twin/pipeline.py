@@ -627,11 +627,18 @@ def status_text(pipeline: TwinPipeline, elapsed_s: float) -> str:
     )
 
 
+STOPPED = {"duration": "--duration-s reached", "end of recording": "end of the recording"}
+"""How the summary's first line says why the run stopped (``TwinResult.stop_reason``)."""
+WHITE_P = 0.01  # a channel whose Ljung-Box p-value is at most this is named as not white
+
+
 def summary_text(result: TwinResult) -> str:
     """What a twin's run found, for the terminal."""
     s = result.summary
+    stopped = STOPPED.get(result.stop_reason, result.stop_reason)
     lines = [
-        f"twin: {result.stop_reason} after {result.duration_s:.1f} s; samples m1 {s.samples[0]}, m2 {s.samples[1]}"
+        f"twin: {stopped} after {result.duration_s:.1f} s of running; samples m1 {s.samples[0]}, m2 {s.samples[1]} "
+        "(times below: s on the twin's clock, from its start)"
     ]
     if math.isnan(s.started_s):
         if min(s.samples) == 0:
@@ -661,6 +668,23 @@ def summary_text(result: TwinResult) -> str:
             *(nis(v) for v in s.accel_nis_mean), *(p(v) for node in s.accel_whiteness_p for v in node)
         )
     )
+    channels = (
+        ("angle", "rate", s.whiteness_p),
+        ("accelerometer tangential", "accelerometer normal", s.accel_whiteness_p),
+    )
+    coloured = [
+        f"m{k + 1} {name}"
+        for first, second, per_node in channels
+        for k, node in enumerate(per_node)
+        for name, p_value in zip((first, second), node, strict=True)
+        if p_value <= WHITE_P
+    ]
+    if coloured:
+        lines.append(
+            f"note: not white (p <= {WHITE_P:g}): {', '.join(coloured)}: the innovations keep some structure the "
+            "model does not explain (on healthy emulated runs mostly the angle's: the node states' random walks and "
+            "the fused orientation's slow error; docs/twin.md, Whiteness on the whole twin)"
+        )
     unfit = [f"M{k + 1}'s mean NIS {v:.1f}" for k, v in enumerate(s.nis_mean) if v > RUN_MISFIT_NIS]
     unfit += [
         f"M{k + 1}'s accelerometer's mean NIS {v:.1f}" for k, v in enumerate(s.accel_nis_mean) if v > RUN_MISFIT_NIS
@@ -685,7 +709,7 @@ def summary_text(result: TwinResult) -> str:
     if s.parameters:
         lines.append("tracked at the end (+- 2 sigma):")
     for name, (value, sigma) in s.parameters.items():
-        lines.append(f"  {name:<18} {value:.5g} +- {2 * sigma:.2g} {TRACKABLE[name][1]}")
+        lines.append(f"  {name:<21} {value:.5g} +- {2 * sigma:.2g} {TRACKABLE[name][1]}")
     if math.isnan(s.monitored_from_s):
         lines.append("health: never checked (the references were not taken: --baseline-s past the end?)")
     lines.append(f"alarms: {len(s.alarms)}" + "".join(f"\n  {a.describe()}" for a in s.alarms))
