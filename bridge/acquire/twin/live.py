@@ -29,12 +29,14 @@ import numpy as np
 
 from pendsim_mj.errors import ParameterError
 from pendsim_mj.sensors.bno055 import SAMPLE_RATE_HZ
+from pendsim_mj.twin.estimator import warm_up as estimator_warm_up
 
 from ...report.twin_views import TwinView
+from ...signals import interrupts_deferred
 from ..packets import PacketError, StreamFormat
 from ..ports import DEFAULT_NODES, NodeSpec, check_nodes
 from ..receiver import listen_udp, read_stamped, stop_signals
-from ..udp_loop.node_view import NodeView, model_frames
+from ..udp_loop.node_view import NodeView, ViewCounters, model_frames
 from .pipeline import TwinPipeline, TwinResult, TwinSpec, close_sink, open_sink, status_text
 
 SETTLE_S = 0.05  # the nodes' timelines decide this often (``receiver.TICK_S``), s
@@ -149,6 +151,8 @@ def run_twin_live(
                 start_utc_ns=start_utc_ns,
             )
         session = spec.session()
+        with interrupts_deferred():  # numba's callbacks would swallow a Ctrl-C meanwhile
+            estimator_warm_up()  # the kernels loaded before the first packet, not behind it
         pipeline = TwinPipeline(
             spec, session, sink=sink, node_names=("m1", "m2"), start_utc_ns=start_utc_ns, views=views,
             period_s=1.0 / rate_hz,
@@ -212,9 +216,11 @@ def run_twin_live(
             from pendsim_mj.errors import RecordingError
 
             raise RecordingError("no node sample arrived")
+        packets = tuple(_packets(view.counters()) for view in node_views)
         return TwinResult(
-            path, duration, stop, session.summary(), tuple(pipeline.merger.late), pipeline.latency_ms(), messages
-        )
+            path, duration, stop, session.summary(), tuple(pipeline.merger.late), pipeline.latency_ms(), messages,
+            packets,
+        )  # fmt: skip
     finally:
         selector.close()
         for s in socks:
@@ -224,6 +230,12 @@ def run_twin_live(
                 pipeline.stop_views()
         for v in views:
             v.close()
+
+
+def _packets(c: ViewCounters) -> tuple[int, int, int, int]:
+    """(received, used, before the clock fit, otherwise not used) of one node (``TwinResult.packets``)."""
+    other = c.stale + c.off_time + sum(n for _, n in c.malformed) + sum(n for _, n in c.implausible)
+    return c.received, c.used, c.waiting, other
 
 
 __all__ = ["run_twin_live"]

@@ -134,6 +134,8 @@ class TwinResult:
       latency_ms: (p50, p99) from a sample's arrival to its estimate (live; NaN in a replay as fast
         as possible).
       messages: messages written.
+      packets: live, per node: (datagrams received, samples used, packets before its clock fit was
+        established, others not used: stale, off time, malformed or implausible); () in a replay.
     """
 
     path: Path | None
@@ -143,6 +145,7 @@ class TwinResult:
     late: tuple[tuple[int, float], ...]
     latency_ms: tuple[float, float]
     messages: int
+    packets: tuple[tuple[int, int, int, int], ...] = ()
 
 
 def _stderr(line: str) -> None:
@@ -717,6 +720,11 @@ def summary_text(result: TwinResult) -> str:
     if shown:
         lines.append("events: " + "; ".join(f"{what} at {t:.1f} s" for t, what in shown[:10])
                      + (f"; ... {len(shown) - 10} more" if len(shown) > 10 else ""))  # fmt: skip
+    for name, (received, used, waiting, other) in zip(("m1", "m2"), result.packets, strict=False):
+        lines.append(
+            f"{name}: {received} datagrams, {used} samples used; {waiting} came before its clock fit was "
+            f"established (not used), {other} others not used (stale, off time, malformed, implausible)"
+        )
     if result.late:
         lines.append(f"{len(result.late)} samples came after later ones had been taken in; left out")
     if math.isfinite(result.latency_ms[0]):
