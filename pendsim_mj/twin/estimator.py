@@ -41,6 +41,7 @@ import collections
 import copy
 import dataclasses
 import math
+from collections.abc import Callable
 from typing import NamedTuple
 
 import numpy as np
@@ -134,16 +135,30 @@ class Update:
     applied: bool = True
 
 
-def _quadratic_2(s: Floats, nu: Floats) -> float:
-    """nu' s^-1 nu for a 2 x 2 covariance s (the normalised innovation squared), in closed form."""
-    det = s[0, 0] * s[1, 1] - s[0, 1] * s[1, 0]
-    return float((s[1, 1] * nu[0] * nu[0] - (s[0, 1] + s[1, 0]) * nu[0] * nu[1] + s[0, 0] * nu[1] * nu[1]) / det)
+def _inverse_2(s: Floats) -> Floats:
+    """The inverse of a 2 x 2 matrix, in closed form (an innovation's covariance: numpy's solve on
+    one this small is mostly its call's overhead)."""
+    return np.array([[s[1, 1], -s[0, 1]], [-s[1, 0], s[0, 0]]]) / (s[0, 0] * s[1, 1] - s[0, 1] * s[1, 0])
 
 
-def _gated(nu: Floats, s: Floats, gate_angle_z: float, gate_rate_z: float) -> bool:
-    """The angle's innovation beyond ``gate_angle_z`` sigmas while the rate's is within
-    ``gate_rate_z``: the node's angle jumped (its mount), not the rig's motion."""
-    return bool(abs(nu[0]) > gate_angle_z * math.sqrt(s[0, 0]) and abs(nu[1]) <= gate_rate_z * math.sqrt(s[1, 1]))
+def _gated(gate_angle_z: float, gate_rate_z: float) -> Callable[[Floats, Floats], bool]:
+    """Whether a swing sample is held out: its angle's innovation nu beyond ``gate_angle_z``
+    sigmas (of its covariance s) while its rate's is within ``gate_rate_z``: the node's angle
+    jumped (its mount), not the rig's motion."""
+
+    def held(nu: Floats, s: Floats) -> bool:
+        return bool(abs(nu[0]) > gate_angle_z * math.sqrt(s[0, 0]) and abs(nu[1]) <= gate_rate_z * math.sqrt(s[1, 1]))
+
+    return held
+
+
+def _beyond(gate_z: float) -> Callable[[Floats, Floats], bool]:
+    """Whether a reading is held out: its innovation nu beyond ``gate_z`` sigmas on either axis."""
+
+    def held(nu: Floats, s: Floats) -> bool:
+        return bool(abs(nu[0]) > gate_z * math.sqrt(s[0, 0]) or abs(nu[1]) > gate_z * math.sqrt(s[1, 1]))
+
+    return held
 
 
 @dataclasses.dataclass(frozen=True)
@@ -227,7 +242,6 @@ class RigEstimator:
         self.accel_sigma_m_s2 = np.array([[accel[0], accel[1]], [accel[0], accel[1]]])  # per node: tangential, normal
         # (the model's mount: x, y; ``set_accel_frame`` for another)
         self.accel_radius_m = np.array([params.om1_m, params.om2_m])  # each node's distance from the hinge, m
-        self.accel_turn_rad = np.zeros(2)  # each node's turn on its mount since its frame was found, rad
         unknown = [name for name in track if name not in TRACKABLE]
         if unknown or len(set(track)) != len(track):
             raise ParameterError(f"cannot track {unknown or track}; trackable: {', '.join(TRACKABLE)}")
@@ -267,7 +281,6 @@ class RigEstimator:
         other._plant.coef[:] = self._plant.coef
         other.x, other.p = self.x.copy(), self.p.copy()
         other.accel_radius_m, other.accel_sigma_m_s2 = self.accel_radius_m.copy(), self.accel_sigma_m_s2.copy()
-        other.accel_turn_rad = self.accel_turn_rad.copy()
         if drift_per_s is not None:
             drift = np.asarray(drift_per_s, dtype=float)
             if drift.shape != (len(self.track),) or not np.all(np.isfinite(drift) & (drift >= 0)):
@@ -415,7 +428,10 @@ class RigEstimator:
         if not late:
             self.predict(t_s, torques_n_m)
         if late or node in self._delays:
-            update = self._unscented_update(float(t_s), node, z, r, torques_n_m, gate_angle_z, gate_rate_z)
+            update = self._unscented_update(
+                float(t_s), node, z, r, torques_n_m, self._swing_readings, wraps=True,
+                held=_gated(gate_angle_z, gate_rate_z),
+            )  # fmt: skip
             if update.applied:
                 self._kept(float(t_s), node, phi_rad, omega_rad_s, torques_n_m)
             return update
@@ -427,11 +443,11 @@ class RigEstimator:
         nu[0] = (nu[0] + math.pi) % (2 * math.pi) - math.pi  # an angle's innovation wraps
         ph = self.p @ h.T
         s = h @ ph + r
-        nis = _quadratic_2(s, nu)
-        if _gated(nu, s, gate_angle_z, gate_rate_z):
+        s_inv = _inverse_2(s)
+        nis = float(nu @ s_inv @ nu)
+        if _gated(gate_angle_z, gate_rate_z)(nu, s):
             return Update(self.t_s, node, nu, s, nis, applied=False)
-        det = s[0, 0] * s[1, 1] - s[0, 1] * s[1, 0]
-        gain = ph @ (np.array([[s[1, 1], -s[0, 1]], [-s[1, 0], s[0, 0]]]) / det)  # (n, 2) = P H' S^-1
+        gain = ph @ s_inv  # (n, 2) = P H' S^-1
         self.x = self.x + gain @ nu
         keep = np.eye(self.n) - gain @ h
         self.p = keep @ self.p @ keep.T + gain @ r @ gain.T  # Joseph form
@@ -441,13 +457,13 @@ class RigEstimator:
     def set_accel_frame(self, node: int, radius_m: float, sigma_m_s2: ArrayLike) -> None:
         """A node's accelerometer as its swing frame found it (``twin.measurement``): its distance
         from the hinge axis (m) and its noise (2,) along the swing's tangent and toward the pivot
-        (m/s^2); its turn on the mount starts again at 0."""
+        (m/s^2)."""
         sigma = np.asarray(sigma_m_s2, dtype=float)
         if not (math.isfinite(radius_m) and 0 < radius_m < 10):
             raise ParameterError(f"a node's radius must be in (0, 10) m, got {radius_m!r}")
         if sigma.shape != (2,) or not np.all(np.isfinite(sigma) & (sigma > 0)):
             raise ParameterError(f"the accelerometer's noise must be 2 numbers > 0, got {sigma_m_s2!r}")
-        self.accel_radius_m[node], self.accel_sigma_m_s2[node], self.accel_turn_rad[node] = radius_m, sigma, 0.0
+        self.accel_radius_m[node], self.accel_sigma_m_s2[node] = radius_m, sigma
 
     def update_accel(
         self,
@@ -465,12 +481,12 @@ class RigEstimator:
 
         What a node at radius r reads (spec RIG.md section 6): z = (r alpha + g sin phi, r omega^2 +
         g cos phi), alpha from the force law at each sigma point (the tracked parameters' too),
-        turned by the node's accelerometer turn (the tracked ``accel_turn_mN_rad`` plus the fixed
-        ``accel_turn_rad``: the accelerometer turns with the node; the fused orientation's slowly
-        varying error, the rest of the tracked offset, it does not share). Nonlinear in x: the unscented update. M2's
-        tracked delay d: z - d dz/dt (dz/dt from the state and the force law's rate along the
-        motion). Called after ``update`` with the same sample (sequential updates: the two
-        sensors' noises are independent). ``gate_z``: a reading whose innovation exceeds this many
+        turned by the node's tracked accelerometer turn (``accel_turn_mN_rad``: the accelerometer
+        turns with the node; the fused orientation's slowly varying error, the rest of the tracked
+        offset, it does not share). Nonlinear in x: the unscented update. M2's tracked delay d:
+        z - d dz/dt (dz/dt from the state and the force law's rate along the motion). Called
+        after ``update`` with the same sample (sequential updates: the two sensors' noises are
+        independent). ``gate_z``: a reading whose innovation exceeds this many
         sigmas on either axis is held out (``Update.applied`` False)."""
         if node not in (0, 1):
             raise ParameterError(f"node must be 0 (M1) or 1 (M2), got {node!r}")
@@ -478,7 +494,9 @@ class RigEstimator:
         r = np.diag(self.accel_sigma_m_s2[node] ** 2)
         if not 0 < self.t_s - float(t_s) <= late_s:
             self.predict(t_s, torques_n_m)
-        update = self._unscented_update(float(t_s), node, z, r, torques_n_m, accel_gate_z=gate_z)
+        update = self._unscented_update(
+            float(t_s), node, z, r, torques_n_m, self._accel_readings, wraps=False, held=_beyond(gate_z)
+        )
         kept = self.recent[-1] if self.recent else None
         if update.applied and kept is not None and kept.node == node and kept.t_s == float(t_s):
             self.recent[-1] = kept._replace(accel_m_s2=(float(z[0]), float(z[1])))
@@ -493,40 +511,19 @@ class RigEstimator:
         u[0], u[1] = tau[0], tau[1]
         self._set_coefficients(at)
         delay = at[:, self._delays[node]] if node in self._delays else np.zeros(m)
-        turn = np.full(m, self.accel_turn_rad[node])
-        if node in self._turns:
-            turn += at[:, self._turns[node]]
+        turn = at[:, self._turns[node]] if node in self._turns else np.zeros(m)
         out = np.empty((2, m))
         accel_readings(self._plant.coef, np.ascontiguousarray(at[:, :NSTATE].T), u, node,
-                       float(self.accel_radius_m[node]), float(self.params.g_m_s2), np.ascontiguousarray(delay), turn,
-                       out)  # fmt: skip
+                       float(self.accel_radius_m[node]), float(self.params.g_m_s2), np.ascontiguousarray(delay),
+                       np.ascontiguousarray(turn), out)  # fmt: skip
         return out.T
 
-    def _unscented_update(
-        self,
-        t_s: float,
-        node: int,
-        z: Floats,
-        r: Floats,
-        torques_n_m: ArrayLike,
-        gate_angle_z: float = math.inf,
-        gate_rate_z: float = 5.0,
-        *,
-        accel_gate_z: float | None = None,
-    ) -> Update:
-        """The update through the sigma points, where the measurement is not linear in the
-        state: a sample from before the estimate's time (the state run back to its instant, one
-        RK4 step of t_s - self.t_s per sigma point; the estimate's time stays), and a node with a
-        tracked delay d (its values d older than their instants: phi - d omega, omega - d alpha,
-        alpha from the force law; first order, d^2 alpha / 2 < 1e-5 rad for d < 2 ms). The torque
-        noise over a late sample's gap (at most a fusion period: 1e-4 rad/s at the default level, a
-        tenth of the gyro's noise) is neglected."""
-        points = self._sigma_points()
-        gap = t_s - self.t_s
-        at = self._advance(points, gap, torques_n_m) if gap < 0 else points
-        accel = accel_gate_z is not None
-        zs = self._accel_readings(at, node, torques_n_m) if accel else at[:, [node, 2 + node]].copy()
-        if node in self._delays and not accel:
+    def _swing_readings(self, at: Floats, node: int, torques_n_m: ArrayLike) -> Floats:
+        """(2n + 1, 2) the node's swing angle and hinge rate at each sigma point: with a tracked delay
+        d its values d older (phi - d omega, omega - d alpha, alpha from the force law; first order,
+        d^2 alpha / 2 < 1e-5 rad for d < 2 ms), with a tracked offset its angle plus the offset."""
+        zs = at[:, [node, 2 + node]].copy()
+        if node in self._delays:
             d = at[:, self._delays[node]]
             tau = np.asarray(torques_n_m, dtype=float)
             u = np.zeros((4, len(at)))
@@ -535,19 +532,40 @@ class RigEstimator:
             alpha = accelerations(at[:, 0], at[:, 1], at[:, 2], at[:, 3], self._plant.coef, u)[node]
             zs[:, 0] -= d * at[:, 2 + node]
             zs[:, 1] -= d * alpha
-        if node in self._offsets and not accel:
+        if node in self._offsets:
             zs[:, 0] += at[:, self._offsets[node]]
+        return zs
+
+    def _unscented_update(
+        self,
+        t_s: float,
+        node: int,
+        z: Floats,
+        r: Floats,
+        torques_n_m: ArrayLike,
+        readings: Callable[[Floats, int, ArrayLike], Floats],
+        *,
+        wraps: bool,
+        held: Callable[[Floats, Floats], bool],
+    ) -> Update:
+        """The update through the sigma points, where the measurement is not linear in the
+        state: a sample from before the estimate's time (the state run back to its instant, one
+        RK4 step of t_s - self.t_s per sigma point; the estimate's time stays), a node with a
+        tracked delay (``_swing_readings``), the accelerometer (``_accel_readings``). ``readings``
+        gives the measurement (2,) at each sigma point; ``wraps``: its first component is an angle
+        (its innovation wraps); ``held(nu, s)``: the sample is held out. The torque noise over a
+        late sample's gap (at most a fusion period: 1e-4 rad/s at the default level, a tenth of the
+        gyro's noise) is neglected."""
+        points = self._sigma_points()
+        gap = t_s - self.t_s
+        at = self._advance(points, gap, torques_n_m) if gap < 0 else points
+        zs = readings(at, node, torques_n_m)
         z_mean, s, pxz = moments(points, self.x, np.ascontiguousarray(zs), self._wm, self._wc, r)
         nu = z - z_mean
-        if not accel:
+        if wraps:
             nu[0] = (nu[0] + math.pi) % (2 * math.pi) - math.pi
-        nis = _quadratic_2(s, nu)
-        held = (
-            bool(abs(nu[0]) > accel_gate_z * math.sqrt(s[0, 0]) or abs(nu[1]) > accel_gate_z * math.sqrt(s[1, 1]))
-            if accel_gate_z is not None
-            else _gated(nu, s, gate_angle_z, gate_rate_z)
-        )
-        if held:
+        nis = float(nu @ _inverse_2(s) @ nu)
+        if held(nu, s):
             return Update(t_s, node, nu, s, nis, applied=False)
         self.x, self.p = self.x.copy(), self.p.copy()  # arrays handed out before stay as they were
         correct(self.x, self.p, s, pxz, nu)

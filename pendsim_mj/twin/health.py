@@ -164,14 +164,17 @@ class _Bank:
 
     def take(self, sample) -> None:
         for k, f in enumerate(self.filters):
-            u = f.update(
-                sample.t_s, sample.node, sample.phi_rad, sample.omega_rad_s, sample.torques_n_m, late_s=BANK_LATE_S
-            )
-            self.loglik[k] -= 0.5 * (u.nis + math.log(np.linalg.det(u.covariance)))
+            updates = [
+                f.update(
+                    sample.t_s, sample.node, sample.phi_rad, sample.omega_rad_s, sample.torques_n_m, late_s=BANK_LATE_S
+                )
+            ]
             if sample.accel_m_s2 is not None:
                 tangential, normal = sample.accel_m_s2
-                u = f.update_accel(sample.t_s, sample.node, tangential, normal, sample.torques_n_m, late_s=BANK_LATE_S)
-                self.loglik[k] -= 0.5 * (u.nis + math.log(np.linalg.det(u.covariance)))
+                updates.append(
+                    f.update_accel(sample.t_s, sample.node, tangential, normal, sample.torques_n_m, late_s=BANK_LATE_S)
+                )
+            self.loglik[k] -= 0.5 * sum(u.nis + math.log(np.linalg.det(u.covariance)) for u in updates)
 
 
 class HealthMonitor:
