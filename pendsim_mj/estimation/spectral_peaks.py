@@ -10,7 +10,7 @@ COARSE_FACTOR). A peak of S lies between the coarse samples around a local maxim
 the coarse sample nearest it is at most P / 2 fine bins away, where a Hann main lobe has lost at
 most 4 % of its height (coarse bins are at most half the window's bin 1 / (n dt): W(1/4) = 0.960).
 So every local maximum of S_c within ``CANDIDATE_SHARE`` of the highest is a candidate, and
-around each the fine bins from one coarse neighbour to the other (2 P + 1 bins) are evaluated
+around each the fine bins within P / 2 + 1 of it (P + 3 bins: the peak and its two neighbours) are evaluated
 exactly by Goertzel's recurrence, O(n) each, in rounds: the highest coarse bins first, then any
 left within ``CANDIDATE_SHARE`` of the best peak found (a peak on the shoulder of a higher one is
 no coarse local maximum of its own, but its coarse samples are high). The
@@ -54,12 +54,14 @@ _TINY = 1e-300  # added before the log, as analysis does
 _BLOCK_BYTES = 64 * 2**20  # bound on one block's coarse spectra
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, fastmath={"contract"})
 def _goertzel(y: FloatArray, bins: NDArray[np.int64], nfft: int) -> FloatArray:
     """log(|sum_j y_j exp(-2 pi i k j / nfft)| + tiny) for each fine bin k of ``bins``: Goertzel's
     recurrence, eight bins at a time over the samples (eight independent chains in registers: the
     recurrence is bound by its latency, 0.48 ns per bin and sample against 0.83 for one chain at
-    a time)."""
+    a time). Each step is written (x - s[j - 2]) + c s[j - 1] and may be contracted into one fused
+    multiply-add (the only fast-math licence taken): two operations per chain instead of three,
+    1.2-1.7x faster (8 to 24 bins of 3001 samples; values within 1e-13 of the unfused)."""
     count = len(bins)
     out = np.empty(count)
     c = np.zeros(8)
@@ -74,14 +76,14 @@ def _goertzel(y: FloatArray, bins: NDArray[np.int64], nfft: int) -> FloatArray:
         b0 = b1 = b2 = b3 = b4 = b5 = b6 = b7 = 0.0  # s[j - 2]
         for j in range(len(y)):
             v = y[j]
-            a0, b0 = v + c0 * a0 - b0, a0
-            a1, b1 = v + c1 * a1 - b1, a1
-            a2, b2 = v + c2 * a2 - b2, a2
-            a3, b3 = v + c3 * a3 - b3, a3
-            a4, b4 = v + c4 * a4 - b4, a4
-            a5, b5 = v + c5 * a5 - b5, a5
-            a6, b6 = v + c6 * a6 - b6, a6
-            a7, b7 = v + c7 * a7 - b7, a7
+            a0, b0 = (v - b0) + c0 * a0, a0
+            a1, b1 = (v - b1) + c1 * a1, a1
+            a2, b2 = (v - b2) + c2 * a2, a2
+            a3, b3 = (v - b3) + c3 * a3, a3
+            a4, b4 = (v - b4) + c4 * a4, a4
+            a5, b5 = (v - b5) + c5 * a5, a5
+            a6, b6 = (v - b6) + c6 * a6, a6
+            a7, b7 = (v - b7) + c7 * a7, a7
         s1[0], s1[1], s1[2], s1[3], s1[4], s1[5], s1[6], s1[7] = a0, a1, a2, a3, a4, a5, a6, a7
         s2[0], s2[1], s2[2], s2[3], s2[4], s2[5], s2[6], s2[7] = b0, b1, b2, b3, b4, b5, b6, b7
         for b in range(min(8, count - g)):
@@ -90,51 +92,62 @@ def _goertzel(y: FloatArray, bins: NDArray[np.int64], nfft: int) -> FloatArray:
     return out
 
 
+_FINITE, _NOT_FINITE, _CONSTANT = 0, 1, 2  # what ``_windowed`` says of a row
+
+
 @numba.njit(parallel=True, cache=True)
-def _windowed(rows: FloatArray, window: FloatArray, out: FloatArray, out32: NDArray[np.float32]) -> None:
+def _windowed(
+    rows: FloatArray, window: FloatArray, out: FloatArray, out32: NDArray[np.float32], kind: NDArray[np.int8]
+) -> None:
     """(row - its mean) * window for every row (m, n), into out and, rounded, out32 (the coarse
-    transform's input: its magnitudes only choose candidates); a row with a non-finite value as
-    zeros (its results are NaN anyway)."""
+    transform's input: its magnitudes only choose candidates; (m, N >= n), its columns from n on
+    zeroed: the transform's padding, so it takes out32 as it is); a row with a non-finite value
+    as zeros (its results are NaN anyway). kind (m,): ``_NOT_FINITE``, ``_CONSTANT`` (every value
+    equal, zero included) or ``_FINITE``."""
     n = rows.shape[1]
     for r in numba.prange(rows.shape[0]):
         total = 0.0
         finite = True
+        constant = True
+        first = rows[r, 0]
         for j in range(n):
             total += rows[r, j]
             finite = finite and math.isfinite(rows[r, j])
+            constant = constant and rows[r, j] == first
         mean = total / n
         for j in range(n):
             v = (rows[r, j] - mean) * window[j] if finite else 0.0
             out[r, j] = v
             out32[r, j] = v
+        out32[r, n:] = 0.0
+        kind[r] = _NOT_FINITE if not finite else (_CONSTANT if constant else _FINITE)
 
 
-@numba.njit(cache=True)
-def _windows(centres: NDArray[np.bool_], p: int, nbins: int) -> NDArray[np.int64]:
-    """The fine bins from P (j - 1) to P (j + 1) around every coarse centre j, within
-    0 .. nbins - 1, ascending and each once."""
-    take = np.zeros(nbins, dtype=np.bool_)
-    for j in range(len(centres)):
-        if centres[j]:
-            take[max(0, p * (j - 1)) : min(nbins, p * (j + 1) + 1)] = True
-    return np.flatnonzero(take)
-
-
-@numba.njit(cache=True)
-def _centres(c: FloatArray, eligible: NDArray[np.bool_], is_peak: NDArray[np.bool_], share: float) -> NDArray[np.bool_]:
-    """The eligible coarse bins within ``share`` of the highest eligible one, and the eligible
-    coarse local maxima within ``share`` of the highest of those (a peak beside a higher slope:
-    a drift at the lowest bins)."""
-    top, top_peak = 0.0, 0.0
-    for j in range(len(c)):
-        if eligible[j]:
-            top = max(top, c[j])
-            if is_peak[j]:
-                top_peak = max(top_peak, c[j])
-    out = np.zeros(len(c), dtype=np.bool_)
-    for j in range(len(c)):
-        out[j] = eligible[j] and (c[j] >= share * top or (is_peak[j] and c[j] >= share * top_peak))
+@numba.njit(parallel=True, cache=True)
+def _magnitudes(z: NDArray[np.complex64]) -> FloatArray:
+    """|z| as float64, (m, k), in one pass (numpy's abs then astype took two, and a copy)."""
+    out = np.empty(z.shape)
+    for r in numba.prange(z.shape[0]):
+        for j in range(z.shape[1]):
+            v = z[r, j]
+            out[r, j] = math.sqrt(float(v.real) * float(v.real) + float(v.imag) * float(v.imag))
     return out
+
+
+@numba.njit(cache=True)
+def _windows(centres: NDArray[np.int64], count: int, p: int, nbins: int) -> NDArray[np.int64]:
+    """The fine bins from P j - P / 2 - 1 to P j + P / 2 + 1 around every coarse centre j of
+    centres[:count] (ascending): a peak whose nearest coarse sample is j, and its two neighbours;
+    within 0 .. nbins - 1, ascending and each once."""
+    reach = p // 2 + 1
+    out = np.empty(count * (2 * reach + 1), dtype=np.int64)
+    size = 0
+    for q in range(count):
+        lo = max(0, p * centres[q] - reach, out[size - 1] + 1 if size else 0)
+        for k in range(lo, min(nbins, p * centres[q] + reach + 1)):
+            out[size] = k
+            size += 1
+    return out[:size]
 
 
 @numba.njit(cache=True)
@@ -156,6 +169,7 @@ def _highest_peak(
     away_from: int,
     away_by: float,
     top: FloatArray,
+    bounded: bool,
 ) -> tuple[int, float]:
     """The fine local maximum of bins 2 .. nbins - 2 farther than ``away_by`` from bin
     ``away_from`` with the highest parabola vertex (its bin, its log height; -1, -inf if none):
@@ -163,17 +177,42 @@ def _highest_peak(
     below ``share`` of the best found (at most MAX_ROUNDS rounds). Also keeps in ``top`` the highest
     bin of 1 .. nbins - 1 evaluated and the log-magnitudes around it: (bin, log S(k - 1), log S(k),
     log S(k + 1)), the neighbours NaN where not evaluated; the first round holds the coarse bins
-    within ``share`` of the highest eligible one, so over every bin this is the argmax."""
+    within ``share`` of the highest eligible one, so over every bin this is the argmax.
+    ``bounded``: the eligible bins are few (above a floor): a round that found no peak is followed
+    by one over all of them at once, instead of walking down a main lobe's flank round by round."""
     nbins = nfft // 2 + 1
-    done = np.zeros(len(c), dtype=np.bool_)
+    nc = len(c)
+    done = np.zeros(nc, dtype=np.bool_)
+    centres = np.empty(nc, dtype=np.int64)
     best_k, best_h = -1, -np.inf
-    for _ in range(MAX_ROUNDS):
-        left = eligible & ~done
-        centres = _centres(c, left, is_peak, share) if best_k < 0 else left & (c >= share * math.exp(best_h))
-        if not np.any(centres):
+    for round_ in range(MAX_ROUNDS):
+        # this round's centres, in one pass over the coarse bins (each refined once): those
+        # within share of the best peak found; with none found yet, every one left of a bounded
+        # set after its first round, else those within share of the highest left and the local
+        # maxima within share of the highest local maximum left (a peak beside a higher slope:
+        # a drift at the lowest bins)
+        bar, bar_peak = math.inf, math.inf
+        if best_k >= 0:
+            bar = share * math.exp(best_h)
+        elif bounded and round_ > 0:
+            bar = -math.inf
+        else:
+            top_left, top_peak = 0.0, 0.0
+            for j in range(nc):
+                if eligible[j] and not done[j]:
+                    top_left = max(top_left, c[j])
+                    if is_peak[j]:
+                        top_peak = max(top_peak, c[j])
+            bar, bar_peak = share * top_left, share * top_peak
+        count = 0
+        for j in range(nc):
+            if eligible[j] and not done[j] and (c[j] >= bar or (is_peak[j] and c[j] >= bar_peak)):
+                done[j] = True
+                centres[count] = j
+                count += 1
+        if count == 0:
             break
-        done |= centres
-        bins = _windows(centres, p, nbins)
+        bins = _windows(centres, count, p, nbins)
         logs = _goertzel(y, bins, nfft)
         for b in range(len(bins)):
             if bins[b] >= 1 and (logs[b] > top[2] or top[0] < 0):
@@ -214,7 +253,7 @@ def _refine_kernel(
         everywhere = np.ones(nc, dtype=np.bool_)
         # the highest peak (its vertex), and on the way the highest fine bin (argmax) with its neighbours
         top = np.array([-1.0, np.nan, -np.inf, np.nan])
-        first_k, first_h = _highest_peak(y, c, everywhere, is_peak, share, p, nfft, -1, -1.0, top)
+        first_k, first_h = _highest_peak(y, c, everywhere, is_peak, share, p, nfft, -1, -1.0, top, False)
         best_k = int(top[0])
         shift = 0.0
         if 1 <= best_k < nbins - 1:
@@ -229,10 +268,16 @@ def _refine_kernel(
         if first_k < 0:
             ratio[r] = 0.0
             continue
+        # a second peak of ratio >= RATIO_EXACT_FROM has a coarse sample within 4 % of its height,
+        # so coarse bins below the floor (share of that ratio) need no refining: a ratio below
+        # RATIO_EXACT_FROM is only promised to stay below it
+        floor = share * RATIO_EXACT_FROM * math.exp(first_h)
         outside = np.zeros(nc, dtype=np.bool_)
         for j in range(nc):
-            outside[j] = abs(p * j - first_k) > lobe - p
-        second_k, second_h = _highest_peak(y, c, outside, is_peak, share, p, nfft, first_k, lobe, np.full(4, np.nan))
+            outside[j] = abs(p * j - first_k) > lobe - p and c[j] >= floor
+        second_k, second_h = _highest_peak(
+            y, c, outside, is_peak, share, p, nfft, first_k, lobe, np.full(4, np.nan), True
+        )
         ratio[r] = math.exp(second_h - first_h) if second_k >= 0 else 0.0
 
 
@@ -256,18 +301,18 @@ def peaks_and_ratios(t_s: np.ndarray, x: np.ndarray, *, nthread: int | None = No
     for lo in range(0, len(rows), block):
         raw = np.ascontiguousarray(rows[lo : lo + block])
         y = np.empty(raw.shape)
-        y32 = np.empty(raw.shape, dtype=np.float32)
-        _windowed(raw, window, y, y32)
-        coarse = np.abs(scipy.fft.rfft(y32, n=nfft_c, axis=1, workers=workers)).astype(np.float64)
+        y32 = np.empty((len(raw), nfft_c), dtype=np.float32)
+        kind = np.empty(len(raw), dtype=np.int8)
+        _windowed(raw, window, y, y32, kind)
+        coarse = _magnitudes(scipy.fft.rfft(y32, axis=1, workers=workers))
         peak = np.empty(len(y))
         share = np.empty(len(y))
         _refine_kernel(y, coarse, COARSE_FACTOR, nfft, lobe, CANDIDATE_SHARE, peak, share)
-        finite = np.all(np.isfinite(raw), axis=1)
         f = peak / (nfft * dt)
-        f[~np.any(raw != raw[:, :1], axis=1)] = 0.0  # a constant row (zero included) has no frequency
-        share[~np.any(raw != raw[:, :1], axis=1)] = 0.0
-        f[~finite] = np.nan
-        share[~finite] = np.nan
+        f[kind == _CONSTANT] = 0.0  # a constant row (zero included) has no frequency
+        share[kind == _CONSTANT] = 0.0
+        f[kind == _NOT_FINITE] = np.nan
+        share[kind == _NOT_FINITE] = np.nan
         freq[lo : lo + block] = f
         ratio[lo : lo + block] = share
     return freq, ratio

@@ -5,6 +5,7 @@ path and the padded transform they replace."""
 import math
 
 import numpy as np
+import pytest
 
 from pendsim_mj.engines import fast_planar
 from pendsim_mj.estimation.analysis import second_peak_ratio_batch, spectral_peak_hz_batch
@@ -14,15 +15,17 @@ from pendsim_mj.sweep.plan import SweepPlan
 from pendsim_mj.sweep.run import run_task
 
 
-def test_the_summary_pass_reduces_the_states_of_integrate_bit_for_bit():
+@pytest.mark.parametrize("driven", [False, True], ids=["undriven: the fused pass", "driven: blocks folded"])
+def test_the_summary_pass_reduces_the_states_of_integrate_bit_for_bit(driven):
     rng = np.random.default_rng(3)
     k, nstep, every = 70, 600, 3  # 70: one full chunk of 64 and a remainder
     coef = fast_planar.coefficients([DEFAULT_PARAMS] * k)
     phi0, omega0 = rng.uniform(-2.5, 2.5, (k, 2)), rng.uniform(-4.0, 4.0, (k, 2))
+    inputs = rng.uniform(-0.05, 0.05, (k, nstep, fast_planar.NINPUT)) if driven else None  # held torques, N m
     head = 40
     stats, phi = fast_planar.summarise(coef, phi0, omega0, nstep, 0.01, head_samples=head, save_every=every,
-                                       keep_phi=True)  # fmt: skip
-    states = fast_planar.integrate(coef, phi0, omega0, nstep, 0.01, save_every=every)  # (n, 5, k)
+                                       keep_phi=True, inputs=inputs)  # fmt: skip
+    states = fast_planar.integrate(coef, phi0, omega0, nstep, 0.01, save_every=every, inputs=inputs)  # (n, 5, k)
     row = {name: stats[i] for i, name in enumerate(fast_planar.SUMMARY_ROWS)}
     mag = np.abs(states[:, :2])
     n = len(states)
