@@ -9,8 +9,9 @@ first ``@numba.njit``; it does two things, once per process:
 - **The cache folder.** Where numba keeps what it compiled is chosen when a function is
   decorated. Unless numba already has a folder (``NUMBA_CACHE_DIR``, or ``cache_dir`` in a
   ``.numba_config.yaml``), pendsim sets ``NUMBA_CACHE_DIR`` to ``cache_folder()``: the user's
-  cache folder for pendsim, one subfolder per numba version (``~/.cache/pendsim/numba-0.68.1``
-  on Linux, ``$XDG_CACHE_HOME`` if set; numba adds one subfolder per source folder). Without
+  cache folder for pendsim, one subfolder per numba version and version of the kernels that
+  inline each other across files (``~/.cache/pendsim/numba-0.68.1-1a2b3c4d`` on Linux,
+  ``$XDG_CACHE_HOME`` if set; numba adds one subfolder per source folder). Without
   it numba writes beside the source (``__pycache__``), falls back to ``~/.cache/numba`` when the
   source is read-only, and refuses to import a kernel module at all ("cannot cache function")
   when neither is writable; and environments with different numba versions that share a
@@ -25,6 +26,7 @@ first ``@numba.njit``; it does two things, once per process:
 from __future__ import annotations
 
 import atexit
+import hashlib
 import os
 import shutil
 import tempfile
@@ -41,14 +43,37 @@ _watching = False
 _kept = True  # False: the kernels live in a temporary folder for this process only
 
 
+INLINING_PACKAGES = ("engines/fast_planar",)
+"""pendsim_mj's packages whose kernels inline helpers defined in another of their files."""
+
+
+def sources_digest(folders: tuple[str, ...] = INLINING_PACKAGES) -> str:
+    """8 hex digits of a SHA-256 over the Python sources of ``folders`` (relative to pendsim_mj):
+    what the cache folder's name carries, because numba's ``cache=True`` notices an edit only in
+    the file a cached function is defined in, and a kernel that inlines another file's helper
+    would otherwise load its old compiled code after that helper changed."""
+    root = os.path.dirname(os.path.abspath(__file__))
+    digest = hashlib.sha256()
+    for folder in folders:
+        path = os.path.join(root, folder)
+        for name in sorted(os.listdir(path)):
+            if name.endswith(".py"):
+                digest.update(name.encode())
+                with open(os.path.join(path, name), "rb") as source:
+                    digest.update(source.read())
+    return digest.hexdigest()[:8]
+
+
 def cache_folder() -> str:
     """pendsim's default numba cache folder: the user's cache folder for pendsim (numba's own
     rule: ``$XDG_CACHE_HOME`` or ``~/.cache`` on Linux, ``~/Library/Caches`` on macOS,
-    ``%LOCALAPPDATA%`` on Windows), one subfolder per numba version. numba must be importable."""
+    ``%LOCALAPPDATA%`` on Windows), one subfolder per numba version and version of the kernels'
+    shared sources (``sources_digest``): ``numba-0.68.1-1a2b3c4d``. numba must be importable."""
     import numba
     from numba.misc.appdirs import AppDirs  # numba's copy of appdirs: the rule numba's own cache uses
 
-    return os.path.join(AppDirs(appname="pendsim", appauthor=False).user_cache_dir, f"numba-{numba.__version__}")
+    name = f"numba-{numba.__version__}-{sources_digest()}"
+    return os.path.join(AppDirs(appname="pendsim", appauthor=False).user_cache_dir, name)
 
 
 def _writable(folder: str) -> bool:

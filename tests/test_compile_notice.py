@@ -25,6 +25,7 @@ from pathlib import Path
 import numba
 
 from pendsim_bridge.cli import _say_compiling, main
+from pendsim_mj import compile_notice
 
 
 def _stderr_on_a_terminal(args: list[str], env: dict[str, str]) -> str:
@@ -112,7 +113,7 @@ def _smallest_kernel(tmp_path: Path, **env: str) -> dict:
 
 def test_kernels_are_cached_per_numba_version_in_the_users_cache_folder_not_beside_the_source(tmp_path):
     xdg = tmp_path / "xdg"
-    folder = xdg / "pendsim" / f"numba-{numba.__version__}"
+    folder = xdg / "pendsim" / f"numba-{numba.__version__}-{compile_notice.sources_digest()}"
     first = _smallest_kernel(tmp_path, XDG_CACHE_HOME=str(xdg))
     assert first["variable"] == str(folder)  # set for child processes too
     assert Path(first["path"]).parent == folder  # numba's subfolder per source folder, in pendsim's
@@ -137,3 +138,19 @@ def test_without_a_writable_cache_folder_the_kernels_still_run_and_the_line_says
     assert result["misses"] == 1
     assert "not kept: no writable cache folder, set NUMBA_CACHE_DIR" in result["line"]
     assert not Path(result["variable"]).exists()  # the temporary folder went with the process
+
+
+def test_the_cache_folder_changes_when_a_helper_another_file_inlines_changes(tmp_path, monkeypatch):
+    # summary_kernel inlines kernel's RK4 step: numba would reload its stale compiled code after
+    # an edit to kernel.py alone, so the folder is keyed on the whole package's sources
+    import shutil
+
+    package = tmp_path / "pendsim_mj" / "engines" / "fast_planar"
+    shutil.copytree(Path(compile_notice.__file__).parent / "engines" / "fast_planar", package,
+                    ignore=shutil.ignore_patterns("__pycache__"))  # fmt: skip
+    monkeypatch.setattr(compile_notice, "__file__", str(tmp_path / "pendsim_mj" / "compile_notice.py"))
+    before = compile_notice.sources_digest()
+    assert before == compile_notice.sources_digest() and len(before) == 8
+    kernel = package / "kernel.py"
+    kernel.write_text(kernel.read_text().replace("h6 = h / 6.0", "h6 = h * (1.0 / 6.0)"))
+    assert compile_notice.sources_digest() != before

@@ -11,7 +11,7 @@ import numba
 import numpy as np
 
 from pendsim_mj import compile_notice
-from pendsim_mj.engines.fast_planar import kernel
+from pendsim_mj.engines.fast_planar import summary_kernel
 from pendsim_mj.engines.fast_planar.closed_form import NINPUT, FloatArray, _check_coef
 from pendsim_mj.engines.fast_planar.kernel import (
     _integrate_kernel,
@@ -255,7 +255,7 @@ def _summarise_undriven(
     nthread: int | None,
 ) -> tuple[FloatArray, FloatArray | None]:
     """``summarise`` of an undriven batch: the reductions folded into the batch loop itself
-    (``kernel.summarise_kernel_undriven``), no block of states stored. On a 20 000-case sweep
+    (``summary_kernel.summarise_kernel_undriven``), no block of states stored. On a 20 000-case sweep
     batch (3000 steps) it ran 3x faster than integrating blocks of states and folding them."""
     nbatch = y0.shape[1]
     last = nstep // every
@@ -266,7 +266,7 @@ def _summarise_undriven(
     previous = numba.get_num_threads()
     numba.set_num_threads(max(1, min(threads, -(-nbatch // chunk))))
     try:
-        kernel.summarise_kernel_undriven(
+        summary_kernel.summarise_kernel_undriven(
             np.ascontiguousarray(k), y0, nstep, h, every, head_samples, last - head_samples, stats, phi, chunk
         )
     finally:
@@ -285,11 +285,11 @@ def _fold(
     pool: ThreadPoolExecutor | None,
 ) -> None:
     """Fold samples r0 .. r0 + len(states) - 1 (states (count, 5, nbatch)) into ``stats``
-    (``kernel.fold_block``), each thread its share of the members."""
+    (``summary_kernel.fold_block``), each thread its share of the members."""
     if pool is None:
-        kernel.fold_block(states, r0, head, tail, k, stats, 0, stats.shape[1])
+        summary_kernel.fold_block(states, r0, head, tail, k, stats, 0, stats.shape[1])
         return
-    jobs = [pool.submit(kernel.fold_block, states, r0, head, tail, k, stats, lo, hi) for lo, hi in shares[1:]]
-    kernel.fold_block(states, r0, head, tail, k, stats, *shares[0])
+    jobs = [pool.submit(summary_kernel.fold_block, states, r0, head, tail, k, stats, lo, hi) for lo, hi in shares[1:]]
+    summary_kernel.fold_block(states, r0, head, tail, k, stats, *shares[0])
     for job in jobs:
         job.result()
