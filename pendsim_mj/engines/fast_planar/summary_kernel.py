@@ -48,6 +48,33 @@ FOLD_AMP, FOLD_HEAD, FOLD_HEAD_INDEX, FOLD_TAIL, FOLD_TAIL_INDEX = 0, 2, 4, 6, 8
 FOLD_ENERGY_START, FOLD_ENERGY_MAX, FOLD_ENERGY_END, FOLD_END, FOLD_NONFINITE = 10, 11, 12, 13, 18
 
 
+@numba.njit(cache=True)
+def _fold_amplitudes(
+    acc: FloatArray, nonfinite_row: int, r: int, head: int, tail: int, p1: FloatArray, p2: FloatArray,
+    w1: FloatArray, w2: FloatArray,
+) -> None:  # fmt: skip
+    """Fold sample r of m members (their states p1, p2, w1, w2, (m,) each) into the amplitude
+    rows of acc (rows, m): ``FOLD_AMP`` .. ``FOLD_TAIL_INDEX`` (|phi_n| largest over the run, in
+    the head window r <= head and the tail window r >= tail with the first sample that reached
+    it) and 1.0 in row ``nonfinite_row`` where a state was not finite. A NaN never compares
+    larger, so it never wins. The rule of both folds (``fold_block``, the fused pass); compiled
+    on its own and called once per sample, so the fused pass's step loop stays free of its
+    stores and vectorises."""
+    for i in range(len(p1)):
+        for n in range(2):
+            a = abs(p1[i]) if n == 0 else abs(p2[i])
+            if a > acc[FOLD_AMP + n, i]:
+                acc[FOLD_AMP + n, i] = a
+            if r <= head and a > acc[FOLD_HEAD + n, i]:
+                acc[FOLD_HEAD + n, i] = a
+                acc[FOLD_HEAD_INDEX + n, i] = r
+            if r >= tail and a > acc[FOLD_TAIL + n, i]:
+                acc[FOLD_TAIL + n, i] = a
+                acc[FOLD_TAIL_INDEX + n, i] = r
+        if not (math.isfinite(p1[i]) and math.isfinite(p2[i]) and math.isfinite(w1[i]) and math.isfinite(w2[i])):
+            acc[nonfinite_row, i] = 1.0
+
+
 @numba.njit(cache=True, nogil=True)
 def fold_block(
     states: FloatArray, r0: int, head: int, tail: int, k: FloatArray, stats: FloatArray, lo: int, hi: int
@@ -64,8 +91,6 @@ def fold_block(
         r = r0 + s
         for b in range(lo, hi):
             p1, p2, w1, w2 = states[s, 0, b], states[s, 1, b], states[s, 2, b], states[s, 3, b]
-            if not (math.isfinite(p1) and math.isfinite(p2) and math.isfinite(w1) and math.isfinite(w2)):
-                stats[FOLD_NONFINITE, b] = 1.0
             energy = _energy_at(_trig(p1, p2), w1, w2, _member_of(k, b))
             if r == 0:
                 stats[FOLD_ENERGY_START, b] = energy
@@ -73,49 +98,15 @@ def fold_block(
                 stats[FOLD_ENERGY_MAX, b] = energy
             if s == count - 1:
                 stats[FOLD_ENERGY_END, b] = energy
-            for n in range(2):
-                m = abs(p1) if n == 0 else abs(p2)
-                if m > stats[FOLD_AMP + n, b]:
-                    stats[FOLD_AMP + n, b] = m
-                if r <= head and m > stats[FOLD_HEAD + n, b]:
-                    stats[FOLD_HEAD + n, b] = m
-                    stats[FOLD_HEAD_INDEX + n, b] = r
-                if r >= tail and m > stats[FOLD_TAIL + n, b]:
-                    stats[FOLD_TAIL + n, b] = m
-                    stats[FOLD_TAIL_INDEX + n, b] = r
+        _fold_amplitudes(stats[:, lo:hi], FOLD_NONFINITE, r, head, tail, states[s, 0, lo:hi], states[s, 1, lo:hi],
+                         states[s, 2, lo:hi], states[s, 3, lo:hi])  # fmt: skip
 
 
 # --- the summary pass fused into the batch loop (undriven) -----------------------------------
 
 
-# rows of a chunk's running amplitude reductions (``_fold_amplitudes``)
-_A_AMP, _A_HEAD, _A_HEAD_INDEX, _A_TAIL, _A_TAIL_INDEX, _A_NONFINITE = 0, 2, 4, 6, 8, 10
-
-
-@numba.njit(cache=True)
-def _fold_amplitudes(
-    acc: FloatArray, r: int, head: int, tail: int, p1: FloatArray, p2: FloatArray, w1: FloatArray, w2: FloatArray
-) -> None:
-    """Fold sample r of a chunk's members (their states p1, p2, w1, w2, (m,) each) into its
-    amplitude reductions acc (11, m) (rows ``_A_*``: |phi_n| largest over the run, over the head
-    window and its first sample, over the tail window and its first sample; 1.0 where a state was
-    not finite), by ``fold_block``'s rules. Compiled on its own and called once per sample: the
-    batch loop around it stays free of its stores and vectorises."""
-    for i in range(len(p1)):
-        for n in range(2):
-            a = abs(p1[i]) if n == 0 else abs(p2[i])
-            if a > acc[_A_AMP + n, i]:
-                acc[_A_AMP + n, i] = a
-            if r <= head and a > acc[_A_HEAD + n, i]:
-                acc[_A_HEAD + n, i] = a
-                acc[_A_HEAD_INDEX + n, i] = r
-            if r >= tail and a > acc[_A_TAIL + n, i]:
-                acc[_A_TAIL + n, i] = a
-                acc[_A_TAIL_INDEX + n, i] = r
-        if not (math.isfinite(p1[i]) and math.isfinite(p2[i]) and math.isfinite(w1[i]) and math.isfinite(w2[i])):
-            acc[_A_NONFINITE, i] = 1.0
-
-
+_ACC_NONFINITE = FOLD_TAIL_INDEX + 2  # the fused pass's non-finite flag, after the amplitude rows
+_ACC_ROWS = _ACC_NONFINITE + 1
 _PHI_BLOCK = 64  # samples of angles gathered member by member before they go to phi, member by member
 
 
@@ -168,8 +159,8 @@ def summarise_kernel_undriven(
         w1 = y0[2, lo:hi].copy()
         w2 = y0[3, lo:hi].copy()
         d = y0[4, lo:hi].copy()
-        acc = np.zeros((11, m))
-        for row in (_A_AMP, _A_AMP + 1, _A_HEAD, _A_HEAD + 1, _A_TAIL, _A_TAIL + 1):
+        acc = np.zeros((_ACC_ROWS, m))  # FOLD_AMP .. FOLD_TAIL_INDEX, then the non-finite flag
+        for row in (FOLD_AMP, FOLD_AMP + 1, FOLD_HEAD, FOLD_HEAD + 1, FOLD_TAIL, FOLD_TAIL + 1):
             acc[row] = -np.inf
         emax = np.full(m, -np.inf)
         buf = np.empty((_PHI_BLOCK if keep else 0, 2, m))  # the angles of the last samples, member last
@@ -187,7 +178,7 @@ def summarise_kernel_undriven(
                         buf[slot, 1, i] = p2[i]
                     if slot == _PHI_BLOCK - 1:
                         _flush_angles(buf, phi, lo, r - slot, _PHI_BLOCK)
-                _fold_amplitudes(acc, r, head, tail, p1, p2, w1, w2)
+                _fold_amplitudes(acc, _ACC_NONFINITE, r, head, tail, p1, p2, w1, w2)
             for i in range(m):
                 c = _member(kc, i)
                 e = _energy_at(_trig(p1[i], p2[i]), w1[i], w2[i], c)
@@ -200,15 +191,15 @@ def summarise_kernel_undriven(
                 buf[slot, 0, i] = p1[i]
                 buf[slot, 1, i] = p2[i]
             _flush_angles(buf, phi, lo, last - slot, slot + 1)
-        _fold_amplitudes(acc, last, head, tail, p1, p2, w1, w2)
+        _fold_amplitudes(acc, _ACC_NONFINITE, last, head, tail, p1, p2, w1, w2)
         for i in range(m):
             e = _energy_at(_trig(p1[i], p2[i]), w1[i], w2[i], _member(kc, i))
             emax[i] = e if e > emax[i] else emax[i]
             b = lo + i
-            for row in range(10):
-                stats[FOLD_AMP + row, b] = acc[_A_AMP + row, i]
+            for row in range(FOLD_AMP, FOLD_TAIL_INDEX + 2):
+                stats[row, b] = acc[row, i]
             stats[FOLD_ENERGY_MAX, b] = emax[i]
             stats[FOLD_ENERGY_END, b] = e
             stats[FOLD_END, b], stats[FOLD_END + 1, b], stats[FOLD_END + 2, b] = p1[i], p2[i], w1[i]
             stats[FOLD_END + 3, b], stats[FOLD_END + 4, b] = w2[i], d[i]
-            stats[FOLD_NONFINITE, b] = acc[_A_NONFINITE, i]
+            stats[FOLD_NONFINITE, b] = acc[_ACC_NONFINITE, i]
