@@ -4,7 +4,9 @@ held) inputs of drives."""
 
 from __future__ import annotations
 
+import contextlib
 import os
+from collections.abc import Iterator
 from concurrent.futures import ThreadPoolExecutor
 
 import numba
@@ -74,19 +76,26 @@ def _run(
     threads = _threads(nthread)
     chunk = _chunk(nbatch, threads)
     out = np.empty((nstep // every + 1, 5, nbatch))
-    used = max(1, min(threads, -(-nbatch // chunk)))
     if nbatch <= chunk:  # one chunk: the serial twin (its loop does not vectorise: many chunks run faster in parallel)
         serial = _integrate_serial if held.shape[0] else _integrate_serial_undriven
         serial(k, y0, held, step0, nstep, h, every, out, chunk)
         return out
-    previous = numba.get_num_threads()
-    numba.set_num_threads(used)
-    try:
+    with _threads_for_chunks(nbatch, chunk, threads):
         kernel = _integrate_kernel if held.shape[0] else _integrate_kernel_undriven
         kernel(k, y0, held, step0, nstep, h, every, out, chunk)
+    return out
+
+
+@contextlib.contextmanager
+def _threads_for_chunks(nbatch: int, chunk: int, threads: int) -> Iterator[None]:
+    """numba's thread count set to min(threads, chunks of the batch) for a parallel kernel's call,
+    and set back after it."""
+    previous = numba.get_num_threads()
+    numba.set_num_threads(max(1, min(threads, -(-nbatch // chunk))))
+    try:
+        yield
     finally:
         numba.set_num_threads(previous)
-    return out
 
 
 def _held(inputs: FloatArray | None, nbatch: int, nstep: int) -> FloatArray:
@@ -263,14 +272,10 @@ def _summarise_undriven(
     phi = np.empty((nbatch, 2, last + 1)) if keep_phi else np.empty((0, 2, 0))
     threads = _threads(nthread)
     chunk = _chunk(nbatch, threads)
-    previous = numba.get_num_threads()
-    numba.set_num_threads(max(1, min(threads, -(-nbatch // chunk))))
-    try:
+    with _threads_for_chunks(nbatch, chunk, threads):
         summary_kernel.summarise_kernel_undriven(
             np.ascontiguousarray(k), y0, nstep, h, every, head_samples, last - head_samples, stats, phi, chunk
         )
-    finally:
-        numba.set_num_threads(previous)
     return stats, phi if keep_phi else None
 
 

@@ -124,6 +124,13 @@ def _chunk_coefficients(k: FloatArray, lo: int, hi: int) -> tuple[FloatArray, ..
 
 
 @numba.njit(inline="always", cache=True)
+def _chunk_state(y0: FloatArray, lo: int, hi: int) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray, FloatArray]:
+    """Members lo..hi-1's state rows of y0 (5, nbatch) as five fresh 1-D arrays (phi1, phi2,
+    omega1, omega2, D): copies, which the batch loop updates in place."""
+    return y0[0, lo:hi].copy(), y0[1, lo:hi].copy(), y0[2, lo:hi].copy(), y0[3, lo:hi].copy(), y0[4, lo:hi].copy()
+
+
+@numba.njit(inline="always", cache=True)
 def _member(kc: tuple[FloatArray, ...], i: int) -> tuple[float, ...]:
     """Member i's constants from ``_chunk_coefficients``: a tuple of NCOEF floats."""
     return (
@@ -248,11 +255,7 @@ def _integrate_chunk(
     m = hi - lo
     driven = held.shape[0] > 0
     kc = _chunk_coefficients(k, lo, hi)
-    p1 = y0[0, lo:hi].copy()
-    p2 = y0[1, lo:hi].copy()
-    w1 = y0[2, lo:hi].copy()
-    w2 = y0[3, lo:hi].copy()
-    d = y0[4, lo:hi].copy()
+    p1, p2, w1, w2, d = _chunk_state(y0, lo, hi)
     a0, a1, a2, a3 = np.zeros(m), np.zeros(m), np.zeros(m), np.zeros(m)  # start of the step
     b0, b1, b2, b3 = np.zeros(m), np.zeros(m), np.zeros(m), np.zeros(m)  # midpoint
     c0, c1, c2, c3 = np.zeros(m), np.zeros(m), np.zeros(m), np.zeros(m)  # end
@@ -320,11 +323,7 @@ def _integrate_chunk_undriven(
     path it runs (both paths in one kernel took 122 s of CPU to compile)."""
     m = hi - lo
     kc = _chunk_coefficients(k, lo, hi)
-    p1 = y0[0, lo:hi].copy()
-    p2 = y0[1, lo:hi].copy()
-    w1 = y0[2, lo:hi].copy()
-    w2 = y0[3, lo:hi].copy()
-    d = y0[4, lo:hi].copy()
+    p1, p2, w1, w2, d = _chunk_state(y0, lo, hi)
     zero = (0.0, 0.0, 0.0, 0.0)
     for i in range(m):
         for q in range(5):

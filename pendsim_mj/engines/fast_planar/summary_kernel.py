@@ -17,7 +17,7 @@ import numpy as np
 
 from pendsim_mj import compile_notice
 from pendsim_mj.engines.fast_planar.closed_form import _FC, _FS, _G1, _G2, _J1, _J2, _KC, _KS, FloatArray
-from pendsim_mj.engines.fast_planar.kernel import _chunk_coefficients, _member, _rk4, _trig
+from pendsim_mj.engines.fast_planar.kernel import _chunk_coefficients, _chunk_state, _member, _rk4, _trig
 
 compile_notice.watch()  # the cache folder; one line on a cold compile (the CLI prints it)
 
@@ -154,11 +154,7 @@ def summarise_kernel_undriven(
         hi = min(n, lo + chunk)
         m = hi - lo
         kc = _chunk_coefficients(k, lo, hi)
-        p1 = y0[0, lo:hi].copy()
-        p2 = y0[1, lo:hi].copy()
-        w1 = y0[2, lo:hi].copy()
-        w2 = y0[3, lo:hi].copy()
-        d = y0[4, lo:hi].copy()
+        p1, p2, w1, w2, d = _chunk_state(y0, lo, hi)
         acc = np.zeros((_ACC_ROWS, m))  # FOLD_AMP .. FOLD_TAIL_INDEX, then the non-finite flag
         for row in (FOLD_AMP, FOLD_AMP + 1, FOLD_HEAD, FOLD_HEAD + 1, FOLD_TAIL, FOLD_TAIL + 1):
             acc[row] = -np.inf
