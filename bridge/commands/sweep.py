@@ -164,7 +164,11 @@ def _plan(args: argparse.Namespace) -> SweepPlan:
         )
     data: dict[str, object] = {"base": dict(args.overrides)}
     try:
-        data["vary"] = {a.name: axis_mapping(a) for a in (parse_vary(v) for v in args.vary)}
+        axes = [parse_vary(v) for v in args.vary]
+        twice = sorted({a.name for a in axes if [b.name for b in axes].count(a.name) > 1})
+        if twice:
+            raise ParameterError(f"{', '.join(twice)} given more than once; vary each input once")
+        data["vary"] = {a.name: axis_mapping(a) for a in axes}
     except ParameterError as exc:
         raise options.UsageError(f"argument --vary: {exc}") from None
     method = "random" if args.random else "lhs" if args.lhs else "csv" if args.cases else None

@@ -191,6 +191,9 @@ class SweepPlan:
                 _check_range(axis.name, listed, f"vary {axis.name}:")
         if len(set(names)) != len(names):
             raise ParameterError(f"an input is varied twice: {', '.join(names)}")
+        fixed = sorted({name for name, _ in self.base} & set(names))
+        if fixed:
+            raise ParameterError(f"{', '.join(fixed)} both set (base) and varied; give each input one or the other")
         if self.method in ("random", "lhs") and (
             not isinstance(self.samples, int) or isinstance(self.samples, bool) or self.samples < 1
         ):
@@ -198,6 +201,11 @@ class SweepPlan:
         for axis in self.axes:
             if self.method in ("random", "lhs") and (axis.low is None or axis.high is None):
                 raise ParameterError(f"vary {axis.name}: random and lhs need a range (from:to), not a list of values")
+            if self.method in ("random", "lhs") and axis.num is not None:
+                raise ParameterError(
+                    f"vary {axis.name}: {self.method} draws its {self.samples} cases in the range; give from:to "
+                    f"without num ({axis.num})"
+                )
             if self.method == "grid" and axis.values is None and axis.num is None:
                 raise ParameterError(f"vary {axis.name}: a grid needs num (from:to:num) or a list of values")
         if self.method in ("grid", "random", "lhs") and not self.axes:
@@ -423,14 +431,14 @@ def parse_vary(text: str) -> Axis:
     name, sep, spec = text.partition("=")
     name = name.strip()
     if not sep or not name or not spec:
-        raise ParameterError(f"expected NAME=FROM:TO:NUM, NAME=FROM:TO or NAME=V1,V2,..., got {text!r}")
+        raise ParameterError(f"expected NAME=FROM:TO:NUM[:log], NAME=FROM:TO[:log] or NAME=V1,V2,..., got {text!r}")
     if ":" in spec:
         parts = spec.split(":")
         log = parts[-1].strip().lower() == "log"
         if log:
             parts = parts[:-1]
         if len(parts) not in (2, 3):
-            raise ParameterError(f"vary {name}: expected FROM:TO or FROM:TO:NUM, got {spec!r}")
+            raise ParameterError(f"vary {name}: expected FROM:TO[:log] or FROM:TO:NUM[:log], got {spec!r}")
         mapping: dict[str, Any] = {"from": _float_text(parts[0], name), "to": _float_text(parts[1], name)}
         if len(parts) == 3:
             mapping["num"] = _whole(_float_text(parts[2], name), f"vary {name} num")

@@ -126,6 +126,11 @@ def test_the_definition_file_shown_in_the_docs_loads(tmp_path):
         ({"vary": {"c1_n_m": {"from": 1.0}}}, "vary c1_n_m: expected keys from, to"),
         ({"method": "random", "vary": {"c1_n_m": {"from": 1, "to": 2}}}, "method random needs samples >= 1"),
         ({"method": "random", "samples": 5, "vary": {"c1_n_m": [1.0, 2.0]}}, "random and lhs need a range"),
+        (
+            {"method": "lhs", "samples": 5, "vary": {"c1_n_m": {"from": 1, "to": 2, "num": 3}}},
+            "vary c1_n_m: lhs draws its 5 cases in the range; give from:to without num (3)",
+        ),
+        ({"vary": {"c1_n_m": [1.0]}, "base": {"c1_n_m": 2.0}}, "c1_n_m both set (base) and varied"),
         ({"vary": {"c1_n_m": [1.0]}, "features": ["colour"]}, "unknown feature 'colour'; allowed: frequency"),
         ({"vary": {"c1_n_m": [1.0]}, "engine": "mujoco", "features": ["lyapunov"]}, "lyapunov feature needs the fast"),
         ({"vary": {"c1_n_m": [1.0]}, "duration_s": 1.005}, "must be a whole number of steps"),
@@ -439,6 +444,10 @@ def test_a_definition_file_runs_and_a_second_run_resumes(tmp_path, capsys):
         (["--vary", "phi1_deg=0:10:3", "--set", "phi1_deg=1e300"], "argument --set: phi1_deg must be a finite"),
         (["--vary", "j1_kg_m2=1e-9,0.03"], None),
         (["--random", "5", "--vary", "c1_n_m=1,2"], "random and lhs need a range"),
+        (["--random", "5", "--vary", "c1_n_m=1:2:4"], "random draws its 5 cases in the range; give from:to without"),
+        (["--vary", "c1_n_m=1:2:3", "--vary", "c1_n_m=1:3:3"], "c1_n_m given more than once; vary each input once"),
+        (["--vary", "c1_n_m=1:2:3", "--set", "c1_n_m=2"], "c1_n_m both set (base) and varied"),
+        (["--vary", "c1_n_m=1:2:3:lin"], "expected FROM:TO[:log] or FROM:TO:NUM[:log], got '1:2:3:lin'"),
         (
             ["--vary", "c1_n_m=1:2:3", "--engine", "mujoco", "--features", "lyapunov"],
             "lyapunov feature needs the fast engine",
