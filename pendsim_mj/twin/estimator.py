@@ -40,6 +40,7 @@ from __future__ import annotations
 import collections
 import copy
 import dataclasses
+import itertools
 import math
 from collections.abc import Callable
 from typing import NamedTuple
@@ -79,6 +80,10 @@ TRACKABLE: dict[str, tuple[str | None, str, float]] = {
     "offset_m2_rad": (None, "rad", 1e-3),
     "offset_rate_m1_rad_s": (None, "rad/s", 1e-4),
     "offset_rate_m2_rad_s": (None, "rad/s", 1e-4),
+    "offset_accel_m1_rad_s2": (None, "rad/s^2", 1e-5),
+    "offset_accel_m2_rad_s2": (None, "rad/s^2", 1e-5),
+    "offset_jerk_m1_rad_s3": (None, "rad/s^3", 1e-5),
+    "offset_jerk_m2_rad_s3": (None, "rad/s^3", 1e-5),
     "delay_m2_s": (None, "s", 1e-5),
     "accel_turn_m1_rad": (None, "rad", 1e-6),
     "accel_turn_m2_rad": (None, "rad", 1e-6),
@@ -95,7 +100,24 @@ hinge from the swing frame it is read in (``update_accel``): the frame's own err
 the in-plane axes about 0.1 deg off: 0.02 m/s^2 on the tangential reading, twice its noise), and a
 turn on the mount after it was found; the fused orientation's slow error, which the offset also
 carries, the accelerometer does not share."""
+OFFSET_CHAIN = ("offset", "offset_rate", "offset_accel", "offset_jerk")
+OFFSET_CHAIN_UNITS = ("rad", "rad_s", "rad_s2", "rad_s3")
 DELAY_SIGMA0_S = 0.25e-2 / math.sqrt(6.0)  # the start: two nodes' errors, each uniform over a 2.5 ms stretch, s
+
+
+class _Terms:
+    """A matrix that is a sum of terms coefficient * h**power * scale, each at a flat index into
+    (n, n); built from rows (flat index, power, coefficient, which scale)."""
+
+    def __init__(self, rows: Floats) -> None:
+        self.size = len(rows)
+        self.flat = rows[:, 0].astype(np.intp)
+        self.power, self.coefficient = rows[:, 1], rows[:, 2]
+        self.which = rows[:, 3].astype(np.intp)
+
+    def matrix(self, h: float, n: int, scale: Floats | float = 1.0) -> Floats:
+        w = self.coefficient * h**self.power * scale
+        return np.asarray(np.bincount(self.flat, w, minlength=n * n), dtype=np.float64).reshape(n, n)
 
 
 class Sample(NamedTuple):
@@ -254,10 +276,8 @@ class RigEstimator:
             int(name[8]) - 1: NSTATE + i for i, name in enumerate(self.track) if name.startswith("offset_m")
         }
         self._delays = {int(name[7]) - 1: NSTATE + i for i, name in enumerate(self.track) if name.startswith("delay")}
-        rates = {int(name[13]) - 1: NSTATE + i for i, name in enumerate(self.track) if name.startswith("offset_rate")}
-        if not set(rates) <= set(self._offsets):
-            raise ParameterError("a node's offset rate needs its offset tracked too (offset_m1_rad, offset_m2_rad)")
-        self._offset_rates = [(self._offsets[k], i) for k, i in rates.items()]  # (offset's index, its rate's)
+        self._chains = [self._chain(k) for k in self._offsets]  # each node's offset and its derivatives' indices
+        self._chain_terms()
         self._turns = {
             int(name[12]) - 1: NSTATE + i for i, name in enumerate(self.track) if name.startswith("accel_turn")
         }
@@ -271,6 +291,35 @@ class RigEstimator:
         self.keep_s = float(keep_s)
         self.count = 0
         self.recent: collections.deque[Sample] = collections.deque()
+
+    def _chain(self, node: int) -> list[int]:
+        """The node's offset and the derivatives tracked with it (``OFFSET_CHAIN``): their indices in
+        the state, lowest first; each derivative needs the ones below it."""
+        chain: list[int] = []
+        for level, stem in enumerate(OFFSET_CHAIN):
+            name = f"{stem}_m{node + 1}_{OFFSET_CHAIN_UNITS[level]}"
+            if name in self.track:
+                if len(chain) != level:
+                    raise ParameterError(f"{name} needs the node's {OFFSET_CHAIN[len(chain)]} tracked too")
+                chain.append(NSTATE + self.track.index(name))
+        return chain
+
+    def _chain_terms(self) -> None:
+        """The offset chains over a step h as sums of terms coefficient * h**power: the transition
+        (``_taylor``: each level's Taylor series in those above it) and the covariance added by
+        each derivative's random walk integrated into those below it (``_walk``, with the walking
+        parameter's index in ``track``); each term's place is a flat index into (n, n)."""
+        taylor, walk = [], []
+        for chain in self._chains:
+            for level in range(len(chain)):
+                for j in range(1, len(chain) - level):
+                    taylor.append((chain[level + j] * self.n + chain[level], j, 1.0 / math.factorial(j), 0))
+                for i, k in itertools.product(range(level + 1), repeat=2):
+                    if level > 0 and (i != level or k != level):  # the walk's own variance: the diagonal
+                        a, b = level - i, level - k
+                        coefficient = 1.0 / (math.factorial(a) * math.factorial(b) * (a + b + 1))
+                        walk.append((chain[i] * self.n + chain[k], a + b + 1, coefficient, chain[level] - NSTATE))
+        self._taylor, self._walk = (_Terms(np.array(t, dtype=float).reshape(-1, 4)) for t in (taylor, walk))
 
     def copy(self, *, drift_per_s: ArrayLike | None = None) -> RigEstimator:
         """An independent copy of the filter (its rig, settings, estimate and covariance), without
@@ -329,10 +378,8 @@ class RigEstimator:
         and by the tracked parameters' random walks."""
         q = np.zeros((self.n, self.n))
         q[NSTATE:, NSTATE:] = np.diag(self.drift_per_s**2 * h)
-        for offset, rate in self._offset_rates:  # an offset that integrates its rate's random walk
-            s = self.drift_per_s[rate - NSTATE] ** 2
-            q[offset, offset] += s * h**3 / 3.0
-            q[offset, rate] = q[rate, offset] = s * h**2 / 2.0
+        if self._walk.size:  # an offset that integrates its derivatives' random walks (``_chain_terms``)
+            q += self._walk.matrix(h, self.n, self.drift_per_s[self._walk.which] ** 2)
         for k in range(2):
             s = (self.torque_noise_n_m / self._inertia[k]) ** 2  # rad^2/s^3
             q[k, k] = s * h**3 / 3.0
@@ -369,8 +416,8 @@ class RigEstimator:
         rk4_held(self._plant.coef, np.ascontiguousarray(points[:, :NSTATE].T), u, h, after)  # compiled: 35x numpy's
         moved = points.copy()
         moved[:, :NSTATE] = after.T
-        for offset, rate in self._offset_rates:
-            moved[:, offset] += h * points[:, rate]
+        if self._taylor.size:  # the offset chains, exact over h (``_chain_terms``)
+            moved += points @ self._taylor.matrix(h, self.n)
         return moved
 
     def _set_coefficients(self, points: Floats) -> None:
@@ -577,10 +624,13 @@ class RigEstimator:
         parameters' units)."""
         return np.sqrt(np.diag(self.p))
 
-    def forecast(self, horizon_s: float, *, step_s: float = 0.0125) -> Forecast:
+    def forecast(
+        self, horizon_s: float, *, step_s: float = 0.0125, drive: Callable[[float], tuple[float, float]] | None = None
+    ) -> Forecast:
         """The motion predicted from now over ``horizon_s`` with its uncertainty: the filter's
-        prediction carried on without measurements (no torques), every ``step_s``; the estimate
-        itself is left as it is."""
+        prediction carried on without measurements, every ``step_s``, with the hinge torques
+        ``drive`` gives (s -> (2,) N m, held at the middle of each step; None: no torques); the
+        estimate itself is left as it is."""
         if not (math.isfinite(horizon_s) and 0 < horizon_s <= 600):
             raise ParameterError(f"the forecast horizon must be in (0, 600] s, got {horizon_s!r}")
         if not (math.isfinite(step_s) and 0 < step_s <= 0.05):
@@ -590,7 +640,8 @@ class RigEstimator:
         times, means, sigmas = [self.t_s], [self.x[:NSTATE].copy()], [self.sigma[:NSTATE]]
         try:
             for k in range(1, n + 1):
-                self.predict(saved[0] + min(k * step_s, horizon_s))
+                t_s = saved[0] + min(k * step_s, horizon_s)
+                self.predict(t_s, (0.0, 0.0) if drive is None else drive(0.5 * (self.t_s + t_s)))
                 times.append(self.t_s)
                 means.append(self.x[:NSTATE].copy())
                 sigmas.append(self.sigma[:NSTATE])

@@ -43,21 +43,27 @@ from pendsim_mj.twin.outputs import Estimates, ParameterCheck
 from pendsim_mj.twin.whiteness import Whiteness
 
 Floats = NDArray[np.float64]
-NODE_PARAMETERS = ("offset_m1_rad", "offset_m2_rad", "offset_rate_m1_rad_s", "offset_rate_m2_rad_s", "delay_m2_s",
-                   "accel_turn_m1_rad", "accel_turn_m2_rad")  # fmt: skip
-"""What real nodes need tracked, always: each node's mount offset with its rate (which follows the
-fused orientation's slow error), M2's delay against M1 (``twin.measurement``), each node's
-accelerometer turn (its learned frame's axes 0.1 deg off). Without them the learned frames'
+NODE_PARAMETERS = ("offset_m1_rad", "offset_m2_rad", "offset_rate_m1_rad_s", "offset_rate_m2_rad_s",
+                   "offset_accel_m1_rad_s2", "offset_accel_m2_rad_s2", "offset_jerk_m1_rad_s3", "offset_jerk_m2_rad_s3",
+                   "delay_m2_s", "accel_turn_m1_rad", "accel_turn_m2_rad")  # fmt: skip
+"""What real nodes need tracked, always: each node's mount offset with its first three derivatives
+(rate, acceleration, jerk: a chain whose jerk walks follows the fused orientation's slow error;
+docs/twin.md, Whiteness on the whole twin), M2's delay against M1 (``twin.measurement``), each
+node's accelerometer turn (its learned frame's axes 0.1 deg off). Without them the learned frames'
 half-degree offsets alone make the innovations hundreds of sigmas."""
 RIG_PARAMETERS = tuple(name for name in TRACKABLE if name not in NODE_PARAMETERS)
 """The rig's own parameters that can drift: damping, dry friction, the coupling springs."""
 DEFAULT_TRACK = RIG_PARAMETERS
-NODE_DRIFT_PER_S = {"offset_m1_rad": 1e-5, "offset_m2_rad": 1e-5, "offset_rate_m1_rad_s": 3e-4,
-                    "offset_rate_m2_rad_s": 3e-4}  # fmt: skip
-# the random walks of the node states on real nodes (docs/twin.md, Measurement: innovations white)
+NODE_DRIFT_PER_S = {"offset_m1_rad": 1e-7, "offset_m2_rad": 1e-7, "offset_rate_m1_rad_s": 0.0,
+                    "offset_rate_m2_rad_s": 0.0, "offset_accel_m1_rad_s2": 0.0, "offset_accel_m2_rad_s2": 0.0,
+                    "offset_jerk_m1_rad_s3": 1.2e-4, "offset_jerk_m2_rad_s3": 1.2e-4, "delay_m2_s": 3e-5}  # fmt: skip
+# the random walks of the node states on real nodes: the offset's own 1e-7 rad/sqrt(s) (a step is the jump
+# check's and the health monitor's), its chain's only at the jerk; M2's delay 3e-5 s/sqrt(s), which follows
+# the learned fusion phase's slow error under a drifting clock (docs/twin.md, Whiteness on the whole twin)
 NODE_SIGMA0 = {"offset_m1_rad": 0.01, "offset_m2_rad": 0.01, "offset_rate_m1_rad_s": 1e-3,
                "offset_rate_m2_rad_s": 1e-3, "delay_m2_s": 1e-3, "accel_turn_m1_rad": 0.01,
-               "accel_turn_m2_rad": 0.01}  # fmt: skip
+               "accel_turn_m2_rad": 0.01, "offset_accel_m1_rad_s2": 1e-3, "offset_accel_m2_rad_s2": 1e-3,
+               "offset_jerk_m1_rad_s3": 5e-4, "offset_jerk_m2_rad_s3": 5e-4}  # fmt: skip
 # ... and their start: the learned frames' offsets are good to about 0.5 deg
 NODE_BASELINE_S = 10.0  # the node states' references: their estimates this long after the start (the
 # learned frames leave each offset about 0.5 deg uncertain; the rig's own parameters keep the stated rig)
@@ -238,6 +244,7 @@ class TwinSession:
         self._node_baseline_done = False
         self._rows: list[tuple] = []
         self._forecasts: list[tuple[float, Forecast]] = []
+        self._drive: Callable[[float], tuple[float, float]] | None = None
         self._checks: list[ParameterCheck] = []
         self._alarms: list[Alarm] = []
         self._all_alarms: list[Alarm] = []
@@ -273,9 +280,12 @@ class TwinSession:
         command), or the drive as a function of time (s -> (2,) N m: a recording's ``/drive``),
         which the estimator holds at the middle of each interval it predicts over (the value's
         instant is up to a fusion period before the sample: a sine drive of 3 mN m at 0.87 Hz held
-        at the sample's instant left a mean NIS of 3.2 and false alarms; at the middle, 2.0)."""
+        at the sample's instant left a mean NIS of 3.2 and false alarms; at the middle, 2.0). The
+        forecasts carry a drive given as a function on over their horizon (a programmed drive is
+        known ahead); held torques are not carried on (a controller's next command is not)."""
         if node not in (0, 1):
             raise ParameterError(f"node must be 0 (M1) or 1 (M2), got {node!r}")
+        self._drive = torques_n_m if callable(torques_n_m) else None  # the forecasts' torques
         self._samples[node] += 1
         got = self.measurements[node].add(t_s, quat_wxyz, gyro_rad_s, accel_m_s2)
         if isinstance(got, Waiting):
@@ -353,7 +363,7 @@ class TwinSession:
                 self._checks.append(self._parameter_check())
         if t_v >= self._next_forecast_s:
             self._next_forecast_s = t_v + self.forecast_every_s
-            forecast = self.estimator.forecast(self.forecast_horizon_s, step_s=FORECAST_STEP_S)
+            forecast = self.estimator.forecast(self.forecast_horizon_s, step_s=FORECAST_STEP_S, drive=self._drive)
             self._forecasts.append((t_v, forecast))
             self._open_forecasts.append(forecast)
         return True

@@ -86,8 +86,8 @@ def test_a_recording_whose_log_times_are_arrivals_is_replayed_on_its_stamps(tmp_
 def test_a_driven_recording_is_replayed_with_its_torques_and_its_replay_again_gives_the_same(tmp_path):
     """A motor's sine torque on M1 (``record --torque1-n-m``): the twin holds the recorded drive at
     the middle of each interval it predicts over (held at the samples' own instants it left a
-    mean NIS of 3.2 and false alarms), and its recording keeps ``/drive``, so a replay of it gives
-    the same estimates."""
+    mean NIS of 3.2 and false alarms), its forecasts carry it on (without it, 16-66 % within 3
+    sigma), and its recording keeps ``/drive``, so a replay of it gives the same estimates."""
     rec = tmp_path / "driven.mcap"
     assert main(["record", "-o", str(rec), "--duration-s", "12", "--torque1-n-m", "sine:0.003,0.87"]) == 0
     out, again = tmp_path / "twin.mcap", tmp_path / "again.mcap"
@@ -96,6 +96,10 @@ def test_a_driven_recording_is_replayed_with_its_torques_and_its_replay_again_gi
         meta = {m.name: m.metadata for m in make_reader(f).iter_metadata()}[twin_topics.TWIN_RESULT_METADATA]
     assert json.loads(meta["alarms"]) == []
     assert max(json.loads(meta["nis_mean"])) < 2.5
+    # the forecasts carry the recorded drive over their horizon and hold within their band
+    forecast = json.loads(meta["forecast"])
+    scored = [(n, w) for n, w in zip(forecast["count"], forecast["within_3_sigma"], strict=True) if n]
+    assert scored and all(w >= 0.9 for _, w in scored), forecast
     assert len(_messages(out, "/drive")) == len(_messages(rec, "/drive"))
     assert main(["twin", "--replay", str(out), "--speed", "0", "-o", str(again)]) == 0
     a = np.array([m.data for _, m in _messages(out, twin_topics.ESTIMATE_TOPIC)])
@@ -234,3 +238,24 @@ def test_the_live_views_see_the_twins_estimates_and_end_with_it(recording, repla
     with socket.socket() as s:
         s.bind(("127.0.0.1", port))  # the Foxglove server has let go of its port
     assert not [t for t in threading.enumerate() if t.name == "pendsim-twin-views"]
+
+
+def test_the_summary_says_when_a_parameter_a_rig_cannot_have_below_zero_is_estimated_there():
+    from pendsim_bridge.acquire.twin.pipeline import TwinResult, summary_text
+    from pendsim_mj.twin.session import ForecastScore, TwinSummary
+
+    summary = TwinSummary(
+        samples=(800, 800), started_s=1.0, nis_mean=(2.0, 2.0), whiteness_p=((0.5, 0.5), (0.5, 0.5)),
+        forecast=ForecastScore((), (), (), ()), alarms=(), monitored_from_s=2.0,
+        parameters={"friction1_n_m": (-5e-6, 1e-5), "friction2_n_m": (-5e-5, 1e-5), "b1_n_m_s": (7e-4, 1e-5),
+                    "offset_m1_rad": (-1e-3, 1e-5), "offset_accel_m2_rad_s2": (1e-5, 1e-4)},
+    )  # fmt: skip
+    text = summary_text(TwinResult(None, 10.0, "end", summary, (), (0.0, 0.0), 0))
+    rows = {line.split()[0]: line for line in text.splitlines() if line.startswith("  ")}
+    assert rows["friction1_n_m"].endswith("(below 0, which a rig cannot have: 0 within 2 sigma)")
+    assert rows["friction2_n_m"].endswith(
+        "(below 0 beyond 2 sigma, which a rig cannot have: the model misses something)"
+    )
+    assert "below 0" not in rows["offset_m1_rad"] and "below 0" not in rows["b1_n_m_s"]
+    # the values line up under the longest name
+    assert len({line.index(line.split()[1]) for line in rows.values()}) == 1

@@ -138,3 +138,38 @@ def test_the_innovations_are_white_with_the_covariance_the_filter_predicts(measu
         for j in range(2):
             assert ljung_box_p(nu[:, j]) > 0.01, (node, j)
             assert 0.85 < np.std(nu[:, j]) < 1.15, (node, j, np.std(nu[:, j]))
+
+
+@pytest.mark.parametrize("order", [2, 3, 4])
+def test_an_offset_chain_moves_and_spreads_as_the_continuous_model_discretised_exactly(order):
+    """A node's offset with ``order - 1`` derivatives, each a random walk: over a step h the
+    filter's transition and added covariance equal Van Loan's discretisation of the continuous
+    chain (scipy's matrix exponential of [[-A, G G'], [0, A']] h), an independent computation."""
+    from scipy.linalg import expm
+
+    from pendsim_mj.twin.estimator import NSTATE, OFFSET_CHAIN, OFFSET_CHAIN_UNITS
+
+    names = [f"{stem}_m1_{unit}" for stem, unit in zip(OFFSET_CHAIN[:order], OFFSET_CHAIN_UNITS[:order], strict=True)]
+    walks = np.array([3e-6, 2e-4, 5e-4, 1.2e-4][:order])
+    estimator = RigEstimator(DEFAULT_PARAMS, track=names, drift_per_s=dict(zip(names, walks, strict=True)))
+    estimator.start(0.0, [0.3, -0.1, 0.5, 0.2])
+    estimator.x[NSTATE:] = [0.01, -2e-3, 4e-4, -1e-4][:order]
+    h = 0.37
+    a = np.diag(np.ones(order - 1), 1)  # d/dt of each level is the next
+    qc = np.diag(walks**2)
+    van_loan = expm(np.block([[-a, qc], [np.zeros((order, order)), a.T]]) * h)
+    phi = van_loan[order:, order:].T
+    q = phi @ van_loan[:order, order:]
+    chain = slice(NSTATE, NSTATE + order)
+    np.testing.assert_allclose(estimator._process_noise(h)[chain, chain], q, rtol=1e-12, atol=1e-30)
+    before = estimator.x.copy()
+    points = np.stack([before, before + 1e-3 * np.arange(estimator.n)])
+    moved = estimator._advance(points, h, (0.0, 0.0))
+    np.testing.assert_allclose(moved[:, chain], points[:, chain] @ phi.T, rtol=1e-12, atol=1e-18)
+
+
+def test_an_offset_derivative_without_the_ones_below_it_is_refused():
+    from pendsim_mj.errors import ParameterError
+
+    with pytest.raises(ParameterError, match="offset_jerk_m2_rad_s3 needs the node's offset_accel tracked too"):
+        RigEstimator(DEFAULT_PARAMS, track=("offset_m2_rad", "offset_rate_m2_rad_s", "offset_jerk_m2_rad_s3"))

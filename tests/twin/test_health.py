@@ -22,7 +22,8 @@ from pendsim_mj.twin.estimator import NSTATE, TRACKABLE, RigEstimator
 from pendsim_mj.twin.health import UNCHANGED, HealthMonitor
 
 # the rig and the mounts
-TRACKED = tuple(name for name in TRACKABLE if not name.startswith(("offset_rate", "delay", "accel_turn")))
+NUISANCES = ("offset_rate", "offset_accel", "offset_jerk", "delay", "accel_turn")  # the node states not monitored
+TRACKED = tuple(name for name in TRACKABLE if not name.startswith(NUISANCES))
 STEP_S = 0.0125  # one simulation step per node sample (80 Hz)
 PAPER = DEFAULT_PARAMS
 FAULT_AT_S = 8.0

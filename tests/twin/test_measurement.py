@@ -267,3 +267,23 @@ def test_a_quiet_node_glued_askew_reads_its_swing_about_the_axis_its_gyro_turns_
     assert np.ptp(error) < 2e-6  # a constant offset (the mount's), no swing-frequency error
     naive = gravity_frame(start, quats[0]).angle(np.array(quats)) - phi
     assert np.ptp(naive) > 2e-5  # about the start frame's axis: the error the fallback removes
+
+
+def test_a_reading_that_is_not_finite_is_left_out_and_the_frame_learned_without_it(fused):
+    """Non-finite values (a reader's gap, a foreign file) never reach the frame or the angle: an
+    orientation or gyro with a NaN is left out; an accelerometer NaN is left out of the frame's
+    fit, and once the frame is fixed the angle and rate are still read (the accelerometer not)."""
+    t, quat, gyro, accel = _node_samples(fused[2], 0, 0.003)
+    front = NodeMeasurement(0)
+    bad_quat = quat[0].copy()
+    bad_quat[1] = math.nan
+    assert "not finite" in front.add(t[0], bad_quat, gyro[0], accel[0]).reason
+    accel = accel.copy()
+    accel[::7] = math.nan  # every seventh accelerometer reading lost
+    got = [front.add(t[k], quat[k], gyro[k], accel[k]) for k in range(1, len(t))]
+    taken = [(k + 1, g) for k, g in enumerate(got) if isinstance(g, NodeSample)]
+    assert taken, "the frame was never learned"
+    assert front.learned.frame is not None and np.all(np.isfinite(front.learned.frame.hinge_axis))
+    assert all(math.isfinite(g.phi_rad) and math.isfinite(g.omega_rad_s) for _, g in taken)
+    lost = [g for k, g in taken if k % 7 == 0]
+    assert lost and all(math.isnan(g.accel_tangential_m_s2) for g in lost)

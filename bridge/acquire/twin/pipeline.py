@@ -35,7 +35,7 @@ from pendsim_mj.errors import RecordingError
 from pendsim_mj.rig.params import DEFAULT_PARAMS, RigParams
 from pendsim_mj.sensors.bno055 import FUSION_RATE_HZ
 from pendsim_mj.twin.estimator import TRACKABLE, Forecast
-from pendsim_mj.twin.health import WHAT, Alarm
+from pendsim_mj.twin.health import NON_NEGATIVE, WHAT, Alarm
 from pendsim_mj.twin.measurement import Learned
 from pendsim_mj.twin.merge import DEFAULT_HOLD_S, Held, SampleMerger
 from pendsim_mj.twin.outputs import Estimates, ParameterCheck
@@ -711,8 +711,16 @@ def summary_text(result: TwinResult) -> str:
         )
     if s.parameters:
         lines.append("tracked at the end (+- 2 sigma):")
+    width = max((len(name) for name in s.parameters), default=0)
     for name, (value, sigma) in s.parameters.items():
-        lines.append(f"  {name:<21} {value:.5g} +- {2 * sigma:.2g} {TRACKABLE[name][1]}")
+        line = f"  {name:<{width}} {value:.5g} +- {2 * sigma:.2g} {TRACKABLE[name][1]}"
+        if name in NON_NEGATIVE and value < 0:
+            line += (
+                " (below 0, which a rig cannot have: 0 within 2 sigma)"
+                if value + 2 * sigma >= 0
+                else (" (below 0 beyond 2 sigma, which a rig cannot have: the model misses something)")
+            )
+        lines.append(line)
     if math.isnan(s.monitored_from_s):
         lines.append("health: never checked (the references were not taken: --baseline-s past the end?)")
     lines.append(f"alarms: {len(s.alarms)}" + "".join(f"\n  {a.describe()}" for a in s.alarms))
