@@ -141,8 +141,9 @@ class Alarm:
         return self.value - self.reference
 
     def describe(self) -> str:
-        """One line: what changed, by how much (2-sigma interval), since when and when it was
-        alarmed (s on the twin's clock)."""
+        """One line: what changed, by how much (2-sigma interval at the alarm, from the hypothesis
+        that this parameter alone stepped: narrower than the estimate's later, with every
+        parameter free), since when and when it was alarmed (s on the twin's clock)."""
         unit = TRACKABLE[self.parameter][1]
         relative = (
             f" ({100 * self.change / self.reference:+.0f} %)" if self.reference and self.parameter in RELATIVE else ""
@@ -151,7 +152,8 @@ class Alarm:
             relative = f" (turned {math.degrees(self.change):+.2f} deg)"
         line = (
             f"{self.what}: {self.parameter} {self.reference:.4g} -> {self.value:.4g} {unit} "
-            f"(+- {2 * self.sigma:.2g}, 2 sigma){relative}; changing since {self.since_s:.1f} s, "
+            f"(+- {2 * self.sigma:.2g}, 2 sigma, at the alarm under this hypothesis){relative}; changing since "
+            f"{self.since_s:.1f} s, "
             f"alarm at {self.t_s:.1f} s"
         )
         if self.runner_up:
