@@ -290,6 +290,7 @@ class RigEstimator:
         self.p = np.eye(self.n)
         self.keep_s = float(keep_s)
         self.count = 0
+        self.repaired = 0  # times P was found indefinite and replaced by its nearest PSD matrix
         self.recent: collections.deque[Sample] = collections.deque()
 
     def _chain(self, node: int) -> list[int]:
@@ -393,7 +394,14 @@ class RigEstimator:
         random walk of its own to every parameter: 1e-18 / scale per step, 4e-6 per sqrt(s) at
         160 Hz)."""
         out = np.empty((2 * self.n + 1, self.n))
-        sigma_points(self.x, np.ascontiguousarray(self.p), self._scale, out)
+        try:
+            sigma_points(self.x, np.ascontiguousarray(self.p), self._scale, out)
+        except np.linalg.LinAlgError:  # rounding left P indefinite: the nearest PSD correlation, counted
+            self.repaired += 1
+            d = np.sqrt(np.maximum(np.diag(self.p), 1e-300))
+            w, v = np.linalg.eigh(0.5 * (self.p + self.p.T) / np.outer(d, d))
+            self.p = np.outer(d, d) * ((v * np.maximum(w, 1e-9)) @ v.T)
+            sigma_points(self.x, np.ascontiguousarray(self.p), self._scale, out)
         return out
 
     def _kept(self, t_s: float, node: int, phi_rad: float, omega_rad_s: float, torques_n_m: ArrayLike) -> None:

@@ -173,3 +173,20 @@ def test_an_offset_derivative_without_the_ones_below_it_is_refused():
 
     with pytest.raises(ParameterError, match="offset_jerk_m2_rad_s3 needs the node's offset_accel tracked too"):
         RigEstimator(DEFAULT_PARAMS, track=("offset_m2_rad", "offset_rate_m2_rad_s", "offset_jerk_m2_rad_s3"))
+
+
+def test_an_indefinite_covariance_is_replaced_by_its_nearest_semidefinite_one_and_counted():
+    """Rounding can leave P slightly indefinite (seen with a state that has no process noise of its
+    own): the filter goes on from the nearest positive semidefinite correlation, its spreads kept,
+    instead of stopping the twin with numpy's LinAlgError."""
+    estimator = RigEstimator(DEFAULT_PARAMS, track=("b1_n_m_s",))
+    estimator.start(0.0, [0.3, -0.1, 0.5, 0.2])
+    sigma = np.sqrt(np.diag(estimator.p)).copy()
+    corr = np.eye(estimator.n)
+    corr[0, 2] = corr[2, 0] = corr[2, 4] = corr[4, 2] = 0.9
+    corr[0, 4] = corr[4, 0] = -0.9  # three variables cannot correlate so: eigenvalue -0.8
+    estimator.p = np.outer(sigma, sigma) * corr
+    assert np.linalg.eigvalsh(estimator.p).min() < 0
+    estimator.predict(0.01)
+    assert estimator.repaired == 1
+    assert np.all(np.isfinite(estimator.x)) and np.linalg.eigvalsh(estimator.p / np.outer(sigma, sigma)).min() > -1e-12
