@@ -10,7 +10,7 @@ Grammar (times in s after the release; docs/acquisition.md, "Scripted faults")::
 
     stiffness:[c1|c2]CHANGE   spring constant c1 (springs 1-2, 1-3: M1 to M2; the default) or c2
                               (springs 5-6, 5-7: M2 to the frame), N/m
-    damping:m1|m2 CHANGE      the hinge's viscous damping b1 or b2, N m s
+    damping:m1|m2 CHANGE      the hinge's viscous damping b1 or b2, N m s/rad
     friction:m1|m2 CHANGE     the hinge's dry friction friction1_n_m or friction2_n_m, N m
         CHANGE := "*" FACTOR (0 < FACTOR <= 100) | "=" VALUE (the parameter's unit and range)
                 | ("+"|"-") PERCENT "%" (-100 < change <= +1000 %)
@@ -56,8 +56,8 @@ _NUMBER = r"[0-9]*\.?[0-9]+(?:[eE][+-]?[0-9]+)?"
 _PARAMETERS = {
     ("stiffness", "c1"): ("c1_n_m", "N/m"),
     ("stiffness", "c2"): ("c2_n_m", "N/m"),
-    ("damping", "m1"): ("b1_n_m_s", "N m s"),
-    ("damping", "m2"): ("b2_n_m_s", "N m s"),
+    ("damping", "m1"): ("b1_n_m_s", "N m s/rad"),
+    ("damping", "m2"): ("b2_n_m_s", "N m s/rad"),
     ("friction", "m1"): ("friction1_n_m", "N m"),
     ("friction", "m2"): ("friction2_n_m", "N m"),
 }

@@ -161,7 +161,7 @@ class TwinFoxgloveView(BufferedView):
             if "in use" in str(exc):
                 raise ProcessError(
                     f"port {port} on {bind} is in use (another Foxglove server?): choose another port for the "
-                    "Foxglove view"
+                    "Foxglove view (--foxglove PORT)"
                 ) from None
             raise ProcessError(f"the Foxglove server cannot listen on {bind} port {port}: {exc}") from None
         try:

@@ -153,7 +153,7 @@ class Alarm:
         line = (
             f"{self.what}: {self.parameter} {self.reference:.4g} -> {self.value:.4g} {unit} "
             f"(+- {2 * self.sigma:.2g}, 2 sigma, at the alarm under this hypothesis){relative}; changing since "
-            f"{self.since_s:.1f} s, "
+            f"{self.since_s:.1f} s (its last check within 2 sigma of the reference), "
             f"alarm at {self.t_s:.1f} s"
         )
         if self.runner_up:

@@ -592,12 +592,16 @@ class TwinSession:
         if t_v < self._hold_checked_s + HOLD_EVERY_S:
             return self._holding
         self._hold_checked_s = t_v
-        worst = max(self.recent_nis()) if all(len(v) == RECENT_NIS for v in self._nis) else math.nan
+        recent = self.recent_nis()
+        worst = max(recent) if all(len(v) == RECENT_NIS for v in self._nis) else math.nan
         holding = worst > HOLD_NIS
         if holding != self._holding:
             self._holding = holding
             if holding:
-                self._event(t_v, f"health checks held: the model does not fit the data (a node's mean NIS {worst:.0f})")
+                node = int(np.argmax(recent)) + 1
+                self._event(
+                    t_v, f"health checks held: the model does not fit the data (M{node}'s mean NIS {worst:.0f})"
+                )
             else:
                 self._event(t_v, "health checks resumed")
         return self._holding

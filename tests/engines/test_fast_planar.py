@@ -352,3 +352,23 @@ def test_normal_equations_at_equal_the_explicit_jacobians_products(start):
     assert rr == pytest.approx(ref_rr, rel=1e-12)
     no_columns = fast_planar.normal_equations_at(*args, 0.01, release_s=release_s, inputs=inputs)
     assert no_columns[0].shape == (0, 0) and no_columns[2] == pytest.approx(ref_rr, rel=1e-12)
+
+
+def test_one_undriven_run_has_the_batch_kernels_bits():
+    """A single undriven run goes through ``single.integrate_one_undriven`` (compiled in a quarter of
+    the batch kernel's time); its rows equal the same member's in a batch run by the serial batch
+    kernel and by the parallel one, bit for bit (dry friction, large angles, every 3rd step kept)."""
+    from pendsim_mj.engines.fast_planar import batch
+    from pendsim_mj.engines.fast_planar.closed_form import coefficients
+
+    params = [DEFAULT_PARAMS.with_overrides(friction1_n_m=2e-4, b2_n_m_s=1e-3), DEFAULT_PARAMS, DEFAULT_PARAMS]
+    k = coefficients(params)
+    y0 = np.array([[2.5, 0.3, -1.0], [-0.4, 0.0, 1.2], [1.0, 0.0, 0.0], [0.0, 3.0, -2.0], [0.0, 0.0, 0.0]])
+    none = np.zeros((0, 3, 4, 3))
+    one = batch._run(k[:, :1], y0[:, :1], none[..., :1], 0, 900, 0.01, 3, 1)
+    serial = batch._run(k, y0, none, 0, 900, 0.01, 3, 1)  # one chunk: the serial batch kernel
+    parallel = batch._run(np.repeat(k, 40, axis=1), np.repeat(y0, 40, axis=1), np.repeat(none, 40, axis=3),
+                          0, 900, 0.01, 3, 2)  # fmt: skip
+    assert one.shape == (301, 5, 1)
+    np.testing.assert_array_equal(one[:, :, 0], serial[:, :, 0])
+    np.testing.assert_array_equal(one[:, :, 0], parallel[:, :, 0])

@@ -176,7 +176,8 @@ def test_an_alarm_says_what_since_when_by_how_much_and_against_what():
     alarm = Alarm("friction2_n_m", "dry friction at M2's hinge", 22.0, 14.0, 0.0, 2.0e-4, 2e-5, "b2_n_m_s", 7.2)
     assert alarm.describe() == (
         "dry friction at M2's hinge: friction2_n_m 0 -> 0.0002 N m (+- 4e-05, 2 sigma, at the alarm under this "
-        "hypothesis); changing since 14.0 s, alarm at 22.0 s; likelier than b2_n_m_s by e^7"
+        "hypothesis); changing since 14.0 s (its last check within 2 sigma of the reference), alarm at 22.0 s; "
+        "likelier than b2_n_m_s by e^7"
     )
     assert UNCHANGED == "unchanged"
 

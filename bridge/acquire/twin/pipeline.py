@@ -639,9 +639,10 @@ def summary_text(result: TwinResult) -> str:
     """What a twin's run found, for the terminal."""
     s = result.summary
     stopped = STOPPED.get(result.stop_reason, result.stop_reason)
+    timed = bool(s.alarms) or any(what != "tracking" for _, what in s.events)
     lines = [
-        f"twin: {stopped} after {result.duration_s:.1f} s of running; samples m1 {s.samples[0]}, m2 {s.samples[1]} "
-        "(times below: s on the twin's clock, from its start)"
+        f"twin: {stopped} after {result.duration_s:.1f} s of running; samples m1 {s.samples[0]}, m2 {s.samples[1]}"
+        + (" (times below: s on the twin's clock, from its start)" if timed else "")
     ]
     if math.isnan(s.started_s):
         if min(s.samples) == 0:
