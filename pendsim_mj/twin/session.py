@@ -133,6 +133,7 @@ class TwinSummary:
         after ``settle_s`` (``whiteness.Whiteness``, 20 lags, over the whole run; NaN: too few).
       accel_nis_mean: per node, the accelerometer's mean normalised innovation squared (2 on a
         healthy rig; NaN: none fused).
+      stated: each tracked rig parameter's value in the rig the twin was given (its model's).
       accel_whiteness_p: per node, the Ljung-Box p-values of its normalised tangential and normal
         accelerometer innovations.
       forecast: the forecasts' scores.
@@ -153,6 +154,7 @@ class TwinSummary:
     monitored_from_s: float = math.nan  # the first health check against the references (NaN: none)
     accel_nis_mean: tuple[float, float] = (math.nan, math.nan)
     accel_whiteness_p: tuple[tuple[float, float], tuple[float, float]] = ((math.nan, math.nan), (math.nan, math.nan))
+    stated: dict[str, float] = dataclasses.field(default_factory=dict)  # the rig's value of each tracked rig parameter
 
 
 class TwinSession:
@@ -681,4 +683,5 @@ class TwinSession:
             else math.nan,
             accel_nis_mean=(accel_nis[0], accel_nis[1]),
             accel_whiteness_p=((t1.p_value(), n1.p_value()), (t2.p_value(), n2.p_value())),
+            stated={name: self.estimator.stated(name) for name in self.estimator.track if name in RIG_PARAMETERS},
         )

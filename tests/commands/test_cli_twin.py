@@ -240,7 +240,7 @@ def test_the_live_views_see_the_twins_estimates_and_end_with_it(recording, repla
     assert not [t for t in threading.enumerate() if t.name == "pendsim-twin-views"]
 
 
-def test_the_summary_says_when_a_parameter_a_rig_cannot_have_below_zero_is_estimated_there():
+def test_the_summary_gives_the_models_value_and_says_when_a_parameter_is_where_no_rig_can_be():
     from pendsim_bridge.acquire.twin.pipeline import TwinResult, summary_text
     from pendsim_mj.twin.session import ForecastScore, TwinSummary
 
@@ -249,6 +249,7 @@ def test_the_summary_says_when_a_parameter_a_rig_cannot_have_below_zero_is_estim
         forecast=ForecastScore((), (), (), ()), alarms=(), monitored_from_s=2.0,
         parameters={"friction1_n_m": (-5e-6, 1e-5), "friction2_n_m": (-5e-5, 1e-5), "b1_n_m_s": (7e-4, 1e-5),
                     "offset_m1_rad": (-1e-3, 1e-5), "offset_accel_m2_rad_s2": (1e-5, 1e-4)},
+        stated={"friction1_n_m": 0.0, "friction2_n_m": 0.0, "b1_n_m_s": 6.953e-4},
     )  # fmt: skip
     text = summary_text(TwinResult(None, 10.0, "end", summary, (), (0.0, 0.0), 0))
     rows = {line.split()[0]: line for line in text.splitlines() if line.startswith("  ")}
@@ -257,5 +258,7 @@ def test_the_summary_says_when_a_parameter_a_rig_cannot_have_below_zero_is_estim
         "(below 0 beyond 2 sigma, which a rig cannot have: the model misses something)"
     )
     assert "below 0" not in rows["offset_m1_rad"] and "below 0" not in rows["b1_n_m_s"]
+    assert rows["b1_n_m_s"].endswith("N m s/rad (the model's rig: 0.0006953)")  # what the estimate is against
+    assert "the model's rig" not in rows["offset_m1_rad"]
     # the values line up under the longest name
     assert len({line.index(line.split()[1]) for line in rows.values()}) == 1

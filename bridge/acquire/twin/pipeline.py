@@ -715,6 +715,8 @@ def summary_text(result: TwinResult) -> str:
     width = max((len(name) for name in s.parameters), default=0)
     for name, (value, sigma) in s.parameters.items():
         line = f"  {name:<{width}} {value:.5g} +- {2 * sigma:.2g} {TRACKABLE[name][1]}"
+        if name in s.stated:
+            line += f" (the model's rig: {s.stated[name]:.5g})"
         if name in NON_NEGATIVE and value < 0:
             line += (
                 " (below 0, which a rig cannot have: 0 within 2 sigma)"
