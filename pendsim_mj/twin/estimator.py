@@ -43,7 +43,7 @@ import dataclasses
 import itertools
 import math
 from collections.abc import Callable
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -309,17 +309,26 @@ class RigEstimator:
         """The offset chains over a step h as sums of terms coefficient * h**power: the transition
         (``_taylor``: each level's Taylor series in those above it) and the covariance added by
         each derivative's random walk integrated into those below it (``_walk``, with the walking
-        parameter's index in ``track``); each term's place is a flat index into (n, n)."""
+        parameter's index in ``track``); each term's place is a flat index into the chains' block
+        (``_chain_cols``, c of them: (c, c))."""
+        self._chain_cols: Any = np.array(sorted(i for chain in self._chains for i in chain), dtype=np.intp)
+        self._chain_block: Any = np.ix_(self._chain_cols, self._chain_cols)
+        if len(self._chain_cols) and np.all(np.diff(self._chain_cols) == 1):  # one run of states: views
+            self._chain_cols = slice(int(self._chain_cols[0]), int(self._chain_cols[-1]) + 1)
+            self._chain_block = (self._chain_cols, self._chain_cols)
+        self._parameter_diagonal = np.arange(NSTATE, self.n)
+        at = {i: j for j, i in enumerate(sorted(i for chain in self._chains for i in chain))}  # place in the block
+        c = self._chain_size = len(at)
         taylor, walk = [], []
         for chain in self._chains:
             for level in range(len(chain)):
                 for j in range(1, len(chain) - level):
-                    taylor.append((chain[level + j] * self.n + chain[level], j, 1.0 / math.factorial(j), 0))
+                    taylor.append((at[chain[level + j]] * c + at[chain[level]], j, 1.0 / math.factorial(j), 0))
                 for i, k in itertools.product(range(level + 1), repeat=2):
                     if level > 0 and (i != level or k != level):  # the walk's own variance: the diagonal
                         a, b = level - i, level - k
                         coefficient = 1.0 / (math.factorial(a) * math.factorial(b) * (a + b + 1))
-                        walk.append((chain[i] * self.n + chain[k], a + b + 1, coefficient, chain[level] - NSTATE))
+                        walk.append((at[chain[i]] * c + at[chain[k]], a + b + 1, coefficient, chain[level] - NSTATE))
         self._taylor, self._walk = (_Terms(np.array(t, dtype=float).reshape(-1, 4)) for t in (taylor, walk))
 
     def copy(self, *, drift_per_s: ArrayLike | None = None) -> RigEstimator:
@@ -378,9 +387,10 @@ class RigEstimator:
         """Covariance added over h by a white torque on each hinge (double integrator per hinge)
         and by the tracked parameters' random walks."""
         q = np.zeros((self.n, self.n))
-        q[NSTATE:, NSTATE:] = np.diag(self.drift_per_s**2 * h)
+        q[self._parameter_diagonal, self._parameter_diagonal] = self.drift_per_s**2 * h
         if self._walk.size:  # an offset that integrates its derivatives' random walks (``_chain_terms``)
-            q += self._walk.matrix(h, self.n, self.drift_per_s[self._walk.which] ** 2)
+            c = self._chain_size
+            q[self._chain_block] += self._walk.matrix(h, c, self.drift_per_s[self._walk.which] ** 2)
         for k in range(2):
             s = (self.torque_noise_n_m / self._inertia[k]) ** 2  # rad^2/s^3
             q[k, k] = s * h**3 / 3.0
@@ -425,7 +435,8 @@ class RigEstimator:
         moved = points.copy()
         moved[:, :NSTATE] = after.T
         if self._taylor.size:  # the offset chains, exact over h (``_chain_terms``)
-            moved += points @ self._taylor.matrix(h, self.n)
+            cols = self._chain_cols
+            moved[:, cols] += points[:, cols] @ self._taylor.matrix(h, self._chain_size)
         return moved
 
     def _set_coefficients(self, points: Floats) -> None:
