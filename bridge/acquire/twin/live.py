@@ -16,6 +16,7 @@ node's newest used), are not used (counted per node in the summary's metadata).
 from __future__ import annotations
 
 import collections
+import math
 import contextlib
 import selectors
 import socket
@@ -94,6 +95,9 @@ class _TwinNodeView(NodeView):
         return used
 
 
+DRAIN_S = 2.0  # at the stop, datagrams already received are taken in for at most this long, s
+
+
 def _stderr(line: str) -> None:
     print(line, file=sys.stderr, flush=True)
 
@@ -167,6 +171,24 @@ def run_twin_live(
         )
         stop = "duration"
         next_settle_s = 0.0
+
+        def take(key: selectors.SelectorKey, before_ns: float = math.inf) -> None:
+            """The datagrams waiting on one node's socket into the pipeline (those that arrived
+            before ``before_ns``; later ones are read and dropped)."""
+            view = key.data
+            jumps = len(view.jumps)
+            node = 0 if view is node_views[0] else 1
+            for datagram in read_stamped(key.fileobj):  # type: ignore[arg-type]
+                if datagram.arrival_ns < before_ns and view.receive(datagram.data, datagram.arrival_ns, start_ns):
+                    assert view.newest is not None
+                    _, taken_s, row, _, _ = view.newest
+                    arrived = (datagram.arrival_ns - start_ns) * 1e-9
+                    pipeline.push(node, taken_s, np.asarray(row, dtype=float), arrived)
+            for at_s, jump_s in view.jumps[jumps:]:
+                text = f"{view.spec.name}: its clock jumped by {jump_s:+.3f} s; its timeline restarted"
+                session.note(at_s, text)
+                say(f"twin: {text}")
+
         with stop_signals() as signalled:
             while True:
                 now = now_s()
@@ -184,19 +206,7 @@ def run_twin_live(
                 if duration_s is not None:
                     wait = min(wait, duration_s - now)
                 for key, _ in selector.select(max(0.0, wait)):
-                    view = key.data
-                    jumps = len(view.jumps)
-                    node = 0 if view is node_views[0] else 1
-                    for datagram in read_stamped(key.fileobj):  # type: ignore[arg-type]
-                        if view.receive(datagram.data, datagram.arrival_ns, start_ns):
-                            assert view.newest is not None
-                            _, taken_s, row, _, _ = view.newest
-                            arrived = (datagram.arrival_ns - start_ns) * 1e-9
-                            pipeline.push(node, taken_s, np.asarray(row, dtype=float), arrived)
-                    for at_s, jump_s in view.jumps[jumps:]:
-                        text = f"{view.spec.name}: its clock jumped by {jump_s:+.3f} s; its timeline restarted"
-                        session.note(at_s, text)
-                        say(f"twin: {text}")
+                    take(key)
                 now = now_s()
                 pipeline.step(now, clock=now_s)
                 if now >= next_settle_s:  # the timelines decide at acquire's cadence, not at every packet
@@ -205,6 +215,13 @@ def run_twin_live(
                         view.settle(now)
                 if pipeline.tick(now, session.estimator.t_s) and status is not None:
                     status(status_text(pipeline, now))
+        # what arrived before the stop and waits in the OS is taken in (a twin behind the nodes on a
+        # busy machine lost the last seconds of a run at its stop), for at most DRAIN_S
+        stopped_ns, until = time.monotonic_ns(), time.monotonic() + DRAIN_S
+        while time.monotonic() < until and (ready := selector.select(0)):
+            for key, _ in ready:
+                take(key, stopped_ns)
+            pipeline.step(now_s(), clock=now_s)
         pipeline.finish()
         duration = now_s()
         messages = 0
