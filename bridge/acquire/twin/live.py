@@ -16,8 +16,8 @@ node's newest used), are not used (counted per node in the summary's metadata).
 from __future__ import annotations
 
 import collections
-import math
 import contextlib
+import math
 import selectors
 import socket
 import statistics
