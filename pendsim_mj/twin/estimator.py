@@ -311,14 +311,15 @@ class RigEstimator:
         each derivative's random walk integrated into those below it (``_walk``, with the walking
         parameter's index in ``track``); each term's place is a flat index into the chains' block
         (``_chain_cols``, c of them: (c, c))."""
-        self._chain_cols: Any = np.array(sorted(i for chain in self._chains for i in chain), dtype=np.intp)
+        ordered = sorted(i for chain in self._chains for i in chain)
+        at = {i: j for j, i in enumerate(ordered)}  # a state's place in the block
+        c = self._chain_size = len(ordered)
+        self._chain_cols: Any = np.array(ordered, dtype=np.intp)
         self._chain_block: Any = np.ix_(self._chain_cols, self._chain_cols)
-        if len(self._chain_cols) and np.all(np.diff(self._chain_cols) == 1):  # one run of states: views
-            self._chain_cols = slice(int(self._chain_cols[0]), int(self._chain_cols[-1]) + 1)
+        if c and ordered[-1] - ordered[0] == c - 1:  # one run of states: views
+            self._chain_cols = slice(ordered[0], ordered[-1] + 1)
             self._chain_block = (self._chain_cols, self._chain_cols)
         self._parameter_diagonal = np.arange(NSTATE, self.n)
-        at = {i: j for j, i in enumerate(sorted(i for chain in self._chains for i in chain))}  # place in the block
-        c = self._chain_size = len(at)
         taylor, walk = [], []
         for chain in self._chains:
             for level in range(len(chain)):
