@@ -172,13 +172,15 @@ def run_twin_live(
         stop = "duration"
         next_settle_s = 0.0
 
-        def take(key: selectors.SelectorKey, before_ns: float = math.inf) -> None:
+        def take(key: selectors.SelectorKey, before_ns: float = math.inf) -> int:
             """The datagrams waiting on one node's socket into the pipeline (those that arrived
-            before ``before_ns``; later ones are read and dropped)."""
+            before ``before_ns``; later ones are read and dropped); how many arrived before it."""
             view = key.data
             jumps = len(view.jumps)
             node = 0 if view is node_views[0] else 1
+            before = 0
             for datagram in read_stamped(key.fileobj):  # type: ignore[arg-type]
+                before += datagram.arrival_ns < before_ns
                 if datagram.arrival_ns < before_ns and view.receive(datagram.data, datagram.arrival_ns, start_ns):
                     assert view.newest is not None
                     _, taken_s, row, _, _ = view.newest
@@ -188,6 +190,7 @@ def run_twin_live(
                 text = f"{view.spec.name}: its clock jumped by {jump_s:+.3f} s; its timeline restarted"
                 session.note(at_s, text)
                 say(f"twin: {text}")
+            return before
 
         with stop_signals() as signalled:
             while True:
@@ -219,8 +222,8 @@ def run_twin_live(
         # busy machine lost the last seconds of a run at its stop), for at most DRAIN_S
         stopped_ns, until = time.monotonic_ns(), time.monotonic() + DRAIN_S
         while time.monotonic() < until and (ready := selector.select(0)):
-            for key, _ in ready:
-                take(key, stopped_ns)
+            if not sum(take(key, stopped_ns) for key, _ in ready):  # only what came after the stop is left
+                break
             pipeline.step(now_s(), clock=now_s)
         pipeline.finish()
         duration = now_s()
