@@ -86,25 +86,77 @@ def draw_maps(results: Path, plan: SweepPlan, table: CaseTable, directory: Path)
             written.append(_bars(directory / f"sensitivity_{feature}.png", e[:, j], table.names, feature, title))
         return written
     x = table.values
+    logs = log_inputs(plan, table)
     note = f", {int(diverged.sum())} diverged" if diverged.any() else ""
+    columns = pq.read_schema(results).names
     for j, feature in enumerate(names):
-        title = f"{feature}: {len(table)} cases ({plan.method}{note})\n{head}"
+        marks = _ambiguous(results, feature, columns)
+        count = f", {int(marks.sum())} ambiguous: ringed" if marks is not None and marks.any() else ""
+        title = f"{feature}: {len(table)} cases ({plan.method}{note}{count})\n{head}"
         path = directory / f"{feature}.png"
         if len(table.names) == 1:
-            written.append(_line(path, x[:, 0], values[:, j], table.names[0], feature, title))
+            written.append(_line(path, x[:, 0], values[:, j], table.names[0], feature, title, logs, marks))
         elif len(table.names) == 2 and plan.method == "grid":
             shape = tuple(len(a.grid_values()) for a in plan.axes)
-            written.append(_heat(path, x, values[:, j], shape, table.names, feature, title))
+            written.append(_heat(path, x, values[:, j], shape, table.names, feature, title, logs, marks))
         elif len(table.names) == 2:
-            written.append(_scatter(path, x, values[:, j], table.names, feature, title))
+            written.append(_scatter(path, x, values[:, j], table.names, feature, title, logs, marks))
         else:
-            written.append(_panels(path, x, values[:, j], table.names, feature, title))
-    columns = pq.read_schema(results).names
+            written.append(_panels(path, x, values[:, j], table.names, feature, title, logs, marks))
     if len(table.names) == 1 and "poincare_phi2_rad" in columns:
         samples = pq.read_table(results, columns=["poincare_phi2_rad"]).column("poincare_phi2_rad").to_pylist()
         title = f"Poincare section phi1 = 0 (rising): phi2 against {table.names[0]}\n{head}"
-        written.append(_bifurcation(directory / "poincare_phi2_rad.png", x[:, 0], samples, table.names[0], title))
+        bifurcation = directory / "poincare_phi2_rad.png"
+        written.append(_bifurcation(bifurcation, x[:, 0], samples, table.names[0], title, logs))
     return written
+
+
+def log_inputs(plan: SweepPlan, table: CaseTable) -> tuple[bool, ...]:
+    """Per input of ``table``: whether the plan varies it on a log scale (a case file's: none)."""
+    scaled = {a.name for a in plan.axes if a.log}
+    return tuple(name in scaled for name in table.names)
+
+
+def _ambiguous(results: Path, feature: str, columns: list[str]) -> NDArray[np.bool_] | None:
+    """A frequency feature's ``freqN_ambiguous`` column, ordered by case_id; None for another
+    feature or when the file has no such column."""
+    flag = feature.removesuffix("_hz") + "_ambiguous"
+    if not feature.endswith("_hz") or flag not in columns:
+        return None
+    data = pq.read_table(results, columns=["case_id", flag]).sort_by("case_id")
+    return np.asarray(data.column(flag).to_numpy(zero_copy_only=False), dtype=bool)
+
+
+AMBIGUOUS_LABEL = "ambiguous: two modes'\npeaks within 20 %"
+
+
+def _ring(
+    ax: plt.Axes,
+    x: NDArray[np.float64],
+    y: NDArray[np.float64],
+    marks: NDArray[np.bool_] | None,
+    legend_at: float | None,
+) -> None:
+    """Ring the ambiguous cases (``marks``) at (x, y) in red; with ``legend_at``, a legend to the
+    right of the axes, its left edge there (in axes widths: beyond a colour bar for 1.25)."""
+    if marks is None or not marks.any():
+        return
+    ax.plot(x[marks], y[marks], "o", mfc="none", mec="tab:red", ms=7, mew=1.2, label=AMBIGUOUS_LABEL)
+    if legend_at is not None:
+        ax.legend(loc="upper left", bbox_to_anchor=(legend_at, 1.0), fontsize=8)
+
+
+def _cell_edges(centres: NDArray[np.float64], log: bool) -> NDArray[np.float64]:
+    """The edges of a heat map's cells around sorted grid values: midway between neighbours
+    (geometrically on a log axis), the outer edges as far out as the inner ones."""
+    c = np.log(centres) if log else np.asarray(centres, dtype=float)
+    if len(c) == 1:  # one value: a cell half a unit wide each way (of ln x on a log axis, of x or |x| else)
+        half = 0.5 if log or c[0] == 0 else 0.5 * abs(c[0])
+        edges = np.array([c[0] - half, c[0] + half])
+    else:
+        mid = (c[1:] + c[:-1]) / 2
+        edges = np.concatenate([[2 * c[0] - mid[0]], mid, [2 * c[-1] - mid[-1]]])
+    return np.exp(edges) if log else edges
 
 
 def _feature_values(results: Path) -> tuple[list[str], NDArray[np.float64]]:
@@ -156,10 +208,22 @@ def _bars(path: Path, e: NDArray[np.float64], params: tuple[str, ...], feature: 
     return figures.save_figure(fig, path, replace=True, crop=False)
 
 
-def _line(path: Path, x: NDArray[np.float64], y: NDArray[np.float64], xname: str, yname: str, title: str) -> Path:
+def _line(
+    path: Path,
+    x: NDArray[np.float64],
+    y: NDArray[np.float64],
+    xname: str,
+    yname: str,
+    title: str,
+    logs: tuple[bool, ...],
+    marks: NDArray[np.bool_] | None = None,
+) -> Path:
     order = np.argsort(x, kind="stable")
     fig, ax = plt.subplots(figsize=(7.5, 4.8), dpi=110)
     ax.plot(x[order], y[order], "o-", markersize=3, linewidth=1.2)
+    _ring(ax, x, y, marks, 1.02)
+    if logs[0]:
+        ax.set_xscale("log")
     ax.set_xlabel(label(xname))
     ax.set_ylabel(label(yname))
     ax.set_title(title, fontsize=10)
@@ -176,13 +240,23 @@ def _heat(
     names: tuple[str, ...],
     feature: str,
     title: str,
+    logs: tuple[bool, ...],
+    marks: NDArray[np.bool_] | None = None,
 ) -> Path:
     grid = y.reshape(shape)  # the grid's first input is the slowest: rows
     a = x[:, 0].reshape(shape)[:, 0]
     b = x[:, 1].reshape(shape)[0, :]
+    rows, cols = np.argsort(a, kind="stable"), np.argsort(b, kind="stable")  # a list of values may be unsorted
+    grid = grid[rows][:, cols]
     fig, ax = plt.subplots(figsize=(7.5, 5.5), dpi=110)
-    mesh = ax.pcolormesh(b, a, np.ma.masked_invalid(grid), shading="nearest", cmap="viridis")
+    a_edges, b_edges = _cell_edges(a[rows], logs[0]), _cell_edges(b[cols], logs[1])
+    mesh = ax.pcolormesh(b_edges, a_edges, np.ma.masked_invalid(grid), shading="flat", cmap="viridis")
     fig.colorbar(mesh, ax=ax, label=label(feature))
+    _ring(ax, x[:, 1], x[:, 0], marks, 1.25)
+    if logs[0]:
+        ax.set_yscale("log")
+    if logs[1]:
+        ax.set_xscale("log")
     ax.set_xlabel(label(names[1]))
     ax.set_ylabel(label(names[0]))
     ax.set_title(title, fontsize=10)
@@ -191,7 +265,14 @@ def _heat(
 
 
 def _scatter(
-    path: Path, x: NDArray[np.float64], y: NDArray[np.float64], names: tuple[str, ...], feature: str, title: str
+    path: Path,
+    x: NDArray[np.float64],
+    y: NDArray[np.float64],
+    names: tuple[str, ...],
+    feature: str,
+    title: str,
+    logs: tuple[bool, ...],
+    marks: NDArray[np.bool_] | None = None,
 ) -> Path:
     fig, ax = plt.subplots(figsize=(7.5, 5.5), dpi=110)
     ok = np.isfinite(y)
@@ -199,7 +280,12 @@ def _scatter(
     if (~ok).any():
         ax.scatter(x[~ok, 1], x[~ok, 0], marker="x", color="tab:red", s=14, label="diverged")
         ax.legend(loc="upper left", bbox_to_anchor=(1.25, 1.0), fontsize=8)
+    _ring(ax, x[:, 1], x[:, 0], marks, 1.25)
     fig.colorbar(points, ax=ax, label=label(feature))
+    if logs[0]:
+        ax.set_yscale("log")
+    if logs[1]:
+        ax.set_xscale("log")
     ax.set_xlabel(label(names[1]))
     ax.set_ylabel(label(names[0]))
     ax.set_title(title, fontsize=10)
@@ -208,7 +294,14 @@ def _scatter(
 
 
 def _panels(
-    path: Path, x: NDArray[np.float64], y: NDArray[np.float64], names: tuple[str, ...], feature: str, title: str
+    path: Path,
+    x: NDArray[np.float64],
+    y: NDArray[np.float64],
+    names: tuple[str, ...],
+    feature: str,
+    title: str,
+    logs: tuple[bool, ...],
+    marks: NDArray[np.bool_] | None = None,
 ) -> Path:
     cols = min(3, len(names))
     rows = -(-len(names) // cols)
@@ -218,6 +311,9 @@ def _panels(
             ax.axis("off")
             continue
         ax.plot(x[:, k], y, ".", markersize=3)
+        _ring(ax, x[:, k], y, marks, None)  # the title says what the rings are
+        if logs[k]:
+            ax.set_xscale("log")
         ax.set_xlabel(label(names[k]))
         ax.set_ylabel(label(feature))
         ax.grid(True, alpha=0.3)
@@ -226,11 +322,15 @@ def _panels(
     return figures.save_figure(fig, path, replace=True, crop=False)
 
 
-def _bifurcation(path: Path, x: NDArray[np.float64], samples: list[list[float]], xname: str, title: str) -> Path:
+def _bifurcation(
+    path: Path, x: NDArray[np.float64], samples: list[list[float]], xname: str, title: str, logs: tuple[bool, ...]
+) -> Path:
     xs = np.concatenate([np.full(len(s), v) for v, s in zip(x, samples, strict=True)]) if samples else np.zeros(0)
     ys = np.concatenate([np.asarray(s, dtype=float) for s in samples]) if samples else np.zeros(0)
     fig, ax = plt.subplots(figsize=(7.5, 5.0), dpi=110)
     ax.plot(xs, ys, ",", color="black", alpha=0.6)
+    if logs[0]:
+        ax.set_xscale("log")
     ax.set_xlabel(label(xname))
     ax.set_ylabel(label("poincare_phi2_rad"))
     ax.set_title(title, fontsize=10)

@@ -82,7 +82,9 @@ def test_every_png_legend_lies_outside_the_plot_areas(recordings, validated, tmp
         path=tmp_path / "allan.png",
     )
     x = np.array([[1.0, 10.0], [2.0, 20.0], [3.0, 30.0]])
-    sweep_plots._scatter(tmp_path / "scatter.png", x, np.array([0.5, np.nan, 0.7]), ("a", "b"), "f", "diverged")
+    sweep_plots._scatter(
+        tmp_path / "scatter.png", x, np.array([0.5, np.nan, 0.7]), ("a", "b"), "f", "diverged", (False, True)
+    )
     assert len(checked) == 7 + 3 + 1 + 1
     assert sum(n for _, n in checked) >= 11  # the figures have legends: 6 validation, 4 compare, Allan, sweep
     assert matplotlib.get_backend().lower() == "agg"

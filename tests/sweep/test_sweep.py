@@ -395,6 +395,61 @@ def test_maps_are_drawn_for_one_and_two_inputs(tmp_path):
         assert path.read_bytes().startswith(PNG_MAGIC) and path.stat().st_size > 5000
 
 
+def test_an_input_varied_on_a_log_scale_is_drawn_on_a_log_axis_with_geometric_cells(tmp_path, monkeypatch):
+    from pendsim_bridge.report import figures
+
+    drawn = {}
+    save = figures.save_figure
+
+    def keep_scales(fig, path, **kw):
+        ax = fig.axes[0]
+        meshes = [c.get_coordinates() for c in ax.collections if hasattr(c, "get_coordinates")]
+        drawn[Path(path).parent.parent.name] = (ax.get_xscale(), ax.get_yscale(), meshes)
+        return save(fig, path, **kw)
+
+    monkeypatch.setattr(figures, "save_figure", keep_scales)
+    damping = {"from": 1e-4, "to": 1e-2, "num": 3, "scale": "log"}
+    run_sweep(_plan(vary={"b1_n_m_s": damping}, duration_s=2.0, features=["energy"]), tmp_path / "line", progress=False)
+    assert drawn["line"][:2] == ("log", "linear")
+    grid = _plan(vary={"phi1_deg": [30.0, 10.0], "b1_n_m_s": damping}, duration_s=2.0, features=["energy"])
+    run_sweep(grid, tmp_path / "heat", progress=False)
+    xscale, yscale, (corners,) = drawn["heat"]
+    assert (xscale, yscale) == ("log", "linear")
+    x_edges, y_edges = corners[0, :, 0], corners[:, 0, 1]
+    # cells centred on 1e-4, 1e-3, 1e-2 in ln x: edges a factor sqrt(10) apart; the unsorted list sorted
+    np.testing.assert_allclose(x_edges, 10.0 ** np.array([-4.5, -3.5, -2.5, -1.5]), rtol=1e-12)
+    np.testing.assert_allclose(y_edges, [0.0, 20.0, 40.0])
+    log_range = {"from": 1e-4, "to": 1e-2, "scale": "log"}
+    rand = _plan(method="random", samples=6, vary={"phi1_deg": {"from": 5, "to": 20}, "b1_n_m_s": log_range},
+                 duration_s=2.0, features=["energy"])  # fmt: skip
+    run_sweep(rand, tmp_path / "scatter", progress=False)
+    assert drawn["scatter"][:2] == ("log", "linear")
+
+
+def test_frequency_maps_ring_the_cases_whose_frequency_is_ambiguous(tmp_path, monkeypatch):
+    from pendsim_bridge.report import figures
+
+    rings = {}
+    save = figures.save_figure
+
+    def keep_rings(fig, path, **kw):
+        ax = fig.axes[0]
+        red = [line for line in ax.lines if line.get_markeredgecolor() == "tab:red" and line.get_marker() == "o"]
+        rings[Path(path).stem] = (ax.get_title(), [tuple(line.get_xdata()) for line in red])
+        return save(fig, path, **kw)
+
+    monkeypatch.setattr(figures, "save_figure", keep_rings)
+    # M1 released alone swings M2 in both modes about equally (freq2 ambiguous); M1's own peak is clear
+    out = tmp_path / "rings"
+    run_sweep(_plan(vary={"phi1_deg": [5.0, 20.0, 40.0]}, duration_s=20.0, features=["frequency"]), out, progress=False)
+    flags = pq.read_table(out / "results.parquet").sort_by("case_id").to_pydict()
+    assert flags["freq2_ambiguous"] == [True, True, True] and flags["freq1_ambiguous"] == [False] * 3
+    title, ringed = rings["freq2_hz"]
+    assert "3 ambiguous: ringed" in title and ringed == [(5.0, 20.0, 40.0)]
+    title, ringed = rings["freq1_hz"]
+    assert "ambiguous" not in title and ringed == []
+
+
 # -- the command ----------------------------------------------------------------------------
 
 
