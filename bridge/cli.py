@@ -65,10 +65,11 @@ def _termination_unwinds() -> Iterator[None]:
 
 
 def _say_compiling(line: str) -> None:
-    """The one line of a cold numba compile, on a terminal only (as the progress bars)."""
+    """The one line of a cold numba compile, on standard error whatever it is (a terminal, a
+    notebook's cell, a log file): unlike a progress bar it is written once and says why a first
+    run is slow where nobody watches a terminal either."""
     with contextlib.suppress(AttributeError, ValueError, OSError):
-        if sys.stderr.isatty():
-            print(f"pendsim: {line}", file=sys.stderr, flush=True)
+        print(f"pendsim: {line}", file=sys.stderr, flush=True)
 
 
 def main(argv: Sequence[str] | None = None) -> int:

@@ -219,7 +219,8 @@ def test_view_serve_with_an_output_named_like_an_option_serves_it_and_stops_on_s
     finally:
         proc.terminate()
         _, err = proc.communicate(timeout=60)
-    assert proc.returncode == 0 and err == ""
+    said = [line for line in err.splitlines() if not line.startswith("pendsim: compiling")]  # a cold cache's line
+    assert proc.returncode == 0 and said == []
     assert _wait_gone(children) == []
 
 
