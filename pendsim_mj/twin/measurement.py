@@ -12,8 +12,9 @@ node's own samples, as they come:
   over one fusion period, the gyro's second divided differences over the value instants that
   phase gives, squared and summed with exponential forgetting (``phase_memory_s``) over the
   samples taken while the node swings. Wrong instants make the gyro rough; the true phase makes
-  it smooth. A drifting phase (the chip's oscillator against the twin's clock) is followed within
-  the memory. The data decide the phase only up to a *stretch*: between two of the samples'
+  it smooth. A drifting phase (the chip's oscillator against the twin's clock) is followed by a
+  second grid that moves at the drift the found phase shows (``FusionPhase``). The data
+  decide the phase only up to a *stretch*: between two of the samples'
   own phases in the fusion period every value instant moves alike, so the values fit all of
   them equally (80 Hz samples of 100 Hz fusion on one clock: a stretch 2.5 ms wide, one quarter
   of the period; a drift between the clocks narrows it). The middle is taken, within half the
@@ -69,6 +70,11 @@ DEFAULT_LEARN_S = 1.0  # the frame is fitted on this long of samples, s (most of
 DEFAULT_SWING_RAD_S = 0.5  # ... once the node's rate reaches this within them (10x the rest threshold)
 DEFAULT_PHASE_MEMORY_S = 10.0  # the phase's roughness sums forget with this time constant, s
 ESTIMATE_EVERY_S = 0.1  # the phase's estimate is found anew this often, s
+RATE_WINDOW_S = 20.0  # the phase's drift is fitted to this long of its estimates, s ...
+RATE_MIN_S_S = 2e-6  # ... and followed when it is at least this (2 ppm: 0.5 grid steps a minute) ...
+RATE_MAX_S_S = 2e-3  # ... up to this (a 2000 ppm oscillator); the fit's rms about its line below ...
+RATE_FIT_RMS_S = 0.5 * PHASE_STEP_S  # ... this (a steady drift, not a stretch that jumped), s
+SWITCH_MARGIN = 0.01  # the estimate changes grid when the other's roughness is this share lower
 GAP_PERIODS = 2.5  # triples spanning more than this many sample periods (a loss) are skipped
 MOVING_SHARE = 0.75  # the frame's window: this share of its samples turning faster than PHASE_MOTION_RAD_S
 RADIUS_TOLERANCE = 0.3  # a fitted frame more than this share off the start frame's radius is refused
@@ -116,6 +122,9 @@ class Learned:
         (None: not yet, or a node without fusion timing).
       phase_stretch_s: (lo, hi) the phases the data cannot tell apart, s (hi - lo: twice the
         phase's largest error; lo may be negative and hi past the period: not reduced).
+      phase_drift_ppm: how fast the ticks move on the twin's clock, ppm (us per s; negative: the
+        chip's clock runs fast against the twin's); 0 while the fixed grid explains the data
+        better (``FusionPhase``); None with the phase.
       frame: the node's swing frame (None: not yet).
       frame_t_s: the instant of the last sample of the window the frame was fitted on, s.
       hinge_to_start_deg: the angle between the found hinge axis and the start frame's, deg.
@@ -126,6 +135,7 @@ class Learned:
     node: int
     fusion_phase_s: float | None
     phase_stretch_s: tuple[float, float] | None
+    phase_drift_ppm: float | None
     frame: SwingFrame | None
     frame_t_s: float | None
     hinge_to_start_deg: float | None
@@ -163,6 +173,15 @@ class Waiting:
 class FusionPhase:
     """The chip's fusion phase on the twin's clock, tracked sample by sample (module docstring).
 
+    Two grids of candidate phases take every sample: one fixed on the twin's clock (a chip
+    fusing on the clock the samples' instants are on) and one that moves with the phase's drift
+    as the data show it (``rate_s_s``: a chip fusing on its own oscillator, or on the node's
+    clock while the instants are the host's: tens of ppm move the ticks 0.5 ms every 10 s at 50
+    ppm, which the sums' memory alone follows a memory behind, M2's NIS 24 on a 90 s replay).
+    The estimate is the grid whose smallest roughness is lower (by ``SWITCH_MARGIN`` to change):
+    a moving grid where the ticks stay put is rougher (a node whose samples drift across fixed
+    ticks made it follow -23 ppm), and a fixed one where they move.
+
     Args:
       fusion_rate_hz: the chip's fusion rate, Hz.
       sample_rate_hz: the node's nominal rate, Hz.
@@ -174,11 +193,18 @@ class FusionPhase:
         self.phases_s = np.arange(0.0, self.period_s - 1e-12, PHASE_STEP_S)
         self.max_span_s = GAP_PERIODS / sample_rate_hz
         self.memory_s = float(memory_s)
-        self.cost = np.zeros(len(self.phases_s))
+        n = len(self.phases_s)
+        self.cost = np.zeros(2 * n)  # the fixed grid's candidates, then the moving grid's
         self.weight = 0.0
         self._last: deque[tuple[float, Floats]] = deque(maxlen=2)
         self._estimate: tuple[float, tuple[float, float]] | None = None
         self._estimate_t_s = -math.inf
+        # the moving grid's candidate j stands for the phase phases_s[j] + shift_s(t),
+        # shift_s(t) = anchor shift + rate_s_s (t - anchor t)
+        self.rate_s_s = 0.0
+        self.moving = False  # the estimate is the moving grid's
+        self._anchor = (0.0, 0.0)  # (t_s, shift_s)
+        self._history: deque[tuple[float, float]] = deque()  # (t_s, the moving grid's phase, unwrapped)
 
     def value_instants(self, t_s: Floats | float, phase_s: Floats | float) -> Floats:
         """The latest fusion tick (ticks at phase_s + k period) at or before each t_s, s."""
@@ -193,7 +219,8 @@ class FusionPhase:
             and float(np.linalg.norm(last[1][1])) > PHASE_MOTION_RAD_S
         ):
             t = np.array([[last[0][0]], [last[1][0]], [t_s]])
-            v = self.value_instants(t, self.phases_s)  # (3, phases)
+            phases = np.concatenate([self.phases_s, self.phases_s + self.shift_s(t_s)])
+            v = self.value_instants(t, phases)  # (3, 2 phases)
             h1, h2 = v[1] - v[0], v[2] - v[1]
             g0, g1, g2 = last[0][1], last[1][1], gyro_rad_s
             d1, d2 = g1 - g0, g2 - g1
@@ -205,9 +232,53 @@ class FusionPhase:
             self.cost += second
             self.weight = self.weight * forget + 1.0
             if self._estimate is None or t_s - self._estimate_t_s >= ESTIMATE_EVERY_S:
-                self._estimate = self._find()
+                self._estimate = self._choose(t_s)
                 self._estimate_t_s = t_s
         last.append((float(t_s), np.array(gyro_rad_s, dtype=float)))
+
+    def shift_s(self, t_s: float) -> float:
+        """Where the moving grid's phase 0 is at ``t_s`` (s on the twin's clock), s."""
+        t0, shift = self._anchor
+        return shift + self.rate_s_s * (t_s - t0)
+
+    def _choose(self, t_s: float) -> tuple[float, tuple[float, float]]:
+        """Both grids' phases found at ``t_s``, the moving grid's drift followed; the estimate
+        from the grid whose smallest roughness is lower."""
+        n = len(self.phases_s)
+        fixed, moving = self.cost[:n], self.cost[n:]
+        on_fixed, on_moving = self._find(fixed), self._find(moving)
+        if self.ready:
+            self._follow_drift(t_s, on_moving[0])
+        lowest_fixed, lowest_moving = float(fixed.min()), float(moving.min())
+        if self.moving and lowest_fixed < lowest_moving * (1.0 - SWITCH_MARGIN):
+            self.moving = False
+        elif not self.moving and lowest_moving < lowest_fixed * (1.0 - SWITCH_MARGIN):
+            self.moving = True
+        mid, (lo, hi) = on_moving if self.moving else on_fixed
+        shift = self.shift_s(t_s) if self.moving else 0.0
+        return ((mid + shift) % self.period_s, (lo + shift, hi + shift))
+
+    def _follow_drift(self, t_s: float, found: float) -> None:
+        """Fit a line to the last ``RATE_WINDOW_S`` of the phase found on the moving grid; a
+        steady drift (rms about the line under ``RATE_FIT_RMS_S``) of at least ``RATE_MIN_S_S``
+        is added to the grid's rate, from this instant on (the grid's place now is kept: its sums
+        stay where they are)."""
+        history = self._history
+        if history:  # unwrapped: the phase moves by far less than half a period in 0.1 s
+            previous = history[-1][1]
+            found = previous + ((found - previous + 0.5 * self.period_s) % self.period_s - 0.5 * self.period_s)
+        history.append((t_s, found))
+        while history and t_s - history[0][0] > RATE_WINDOW_S:
+            history.popleft()
+        if t_s - history[0][0] < 0.95 * RATE_WINDOW_S:
+            return
+        t, phase = np.array(history).T
+        slope, offset = np.polyfit(t - t_s, phase, 1)
+        rms = float(np.sqrt(np.mean(np.square(phase - (offset + slope * (t - t_s))))))
+        if abs(slope) >= RATE_MIN_S_S and rms <= RATE_FIT_RMS_S:
+            self._anchor = (t_s, self.shift_s(t_s))
+            self.rate_s_s = float(np.clip(self.rate_s_s + slope, -RATE_MAX_S_S, RATE_MAX_S_S))
+            history.clear()
 
     @property
     def ready(self) -> bool:
@@ -216,13 +287,15 @@ class FusionPhase:
     def estimate(self) -> tuple[float, tuple[float, float]]:
         """(phase s in [0, period), (lo, hi) its stretch), found anew every ``ESTIMATE_EVERY_S``."""
         if self._estimate is None:
-            self._estimate = self._find()
+            self._estimate = self._choose(self._last[-1][0] if self._last else 0.0)
         return self._estimate
 
-    def _find(self) -> tuple[float, tuple[float, float]]:
-        """The middle of the run of grid phases whose roughness equals the smallest (to 1e-9
-        relative), wrapping round the period, and that run's stretch."""
-        cost, n, step = self.cost, len(self.cost), PHASE_STEP_S
+    @staticmethod
+    def _find(cost: Floats) -> tuple[float, tuple[float, float]]:
+        """On one grid (its roughness ``cost``): the middle of the run of grid phases whose
+        roughness equals the smallest (to 1e-9 relative), wrapping round the period, and that
+        run's stretch, s on the grid."""
+        n, step = len(cost), PHASE_STEP_S
         best = int(np.argmin(cost))
         flat = cost <= cost[best] * (1.0 + 1e-9) + 1e-300
         lo = hi = best
@@ -232,7 +305,7 @@ class FusionPhase:
             hi += 1
         # the stretch ends half a grid step beyond the last flat phase on each side
         mid = 0.5 * (lo + hi) * step
-        return (mid % self.period_s, ((lo - 0.5) * step, (hi + 0.5) * step))
+        return (mid % (n * step), ((lo - 0.5) * step, (hi + 0.5) * step))
 
 
 class NodeMeasurement:
@@ -485,10 +558,11 @@ class NodeMeasurement:
     @property
     def learned(self) -> Learned:
         """The phase and frame learned so far."""
-        phase = stretch = None
+        phase = stretch = drift = None
         if self.phase is not None and self.phase.ready:
             phase, stretch = self.phase.estimate()
-        return Learned(self.node, phase, stretch, self.frame, self._frame_t_s, self._hinge_deg, self._sense)
+            drift = self.phase.rate_s_s * 1e6 if self.phase.moving else 0.0
+        return Learned(self.node, phase, stretch, drift, self.frame, self._frame_t_s, self._hinge_deg, self._sense)
 
 
 def _positive(name: str, value: float, high: float) -> None:

@@ -141,6 +141,8 @@ class TwinSummary:
       parameters: each tracked parameter's final (value, sigma).
       events: (t_s, what) the estimate started, a node held, the rig touched, a node's angle
         jumped, what the caller noted.
+      phase_drift_ppm: per node, how fast its chip's fusion ticks move on the twin's clock, ppm
+        (``measurement.Learned.phase_drift_ppm``; 0: they stay put; NaN: no phase learned).
     """
 
     samples: tuple[int, int]
@@ -155,6 +157,7 @@ class TwinSummary:
     accel_nis_mean: tuple[float, float] = (math.nan, math.nan)
     accel_whiteness_p: tuple[tuple[float, float], tuple[float, float]] = ((math.nan, math.nan), (math.nan, math.nan))
     stated: dict[str, float] = dataclasses.field(default_factory=dict)  # the rig's value of each tracked rig parameter
+    phase_drift_ppm: tuple[float, float] = (math.nan, math.nan)
 
 
 class TwinSession:
@@ -669,6 +672,7 @@ class TwinSession:
             t / n if n else math.nan for t, n in zip(self._accel_nis_sum, self._accel_nis_count, strict=True)
         )
         (t1, n1), (t2, n2) = self._accel_whiteness
+        drift = [math.nan if d.phase_drift_ppm is None else d.phase_drift_ppm for d in self.learned()]
         return TwinSummary(
             samples=self.samples,
             started_s=self.started_s,
@@ -684,4 +688,5 @@ class TwinSession:
             accel_nis_mean=(accel_nis[0], accel_nis[1]),
             accel_whiteness_p=((t1.p_value(), n1.p_value()), (t2.p_value(), n2.p_value())),
             stated={name: self.estimator.stated(name) for name in self.estimator.track if name in RIG_PARAMETERS},
+            phase_drift_ppm=(drift[0], drift[1]),
         )

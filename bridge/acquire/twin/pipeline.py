@@ -543,6 +543,7 @@ def _learned(learned: Learned) -> dict[str, object]:
     return {
         "fusion_phase_s": learned.fusion_phase_s,
         "phase_stretch_s": list(learned.phase_stretch_s) if learned.phase_stretch_s else None,
+        "phase_drift_ppm": learned.phase_drift_ppm,
         "frame_t_s": learned.frame_t_s,
         "hinge_to_start_deg": learned.hinge_to_start_deg,
         "hinge_axis": None if frame is None else [float(v) for v in frame.hinge_axis],
@@ -688,6 +689,12 @@ def summary_text(result: TwinResult) -> str:
             f"note: not white (p <= {WHITE_P:g}): {', '.join(coloured)}: the innovations keep some structure the "
             "model does not explain (on healthy emulated runs mostly the angle's: the node states' random walks and "
             "the fused orientation's slow error; docs/twin.md, Whiteness on the whole twin)"
+        )
+    drifting = [f"m{k + 1} {v:+.1f} ppm" for k, v in enumerate(s.phase_drift_ppm) if math.isfinite(v) and v]
+    if drifting:
+        lines.append(
+            f"fusion timing: the chip's ticks drift on the twin's clock ({', '.join(drifting)}; negative: the chip's "
+            "clock runs fast), followed (docs/twin.md, Measurement)"
         )
     unfit = [f"M{k + 1}'s mean NIS {v:.1f}" for k, v in enumerate(s.nis_mean) if v > RUN_MISFIT_NIS]
     unfit += [
