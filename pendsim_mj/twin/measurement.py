@@ -70,8 +70,10 @@ DEFAULT_LEARN_S = 1.0  # the frame is fitted on this long of samples, s (most of
 DEFAULT_SWING_RAD_S = 0.5  # ... once the node's rate reaches this within them (10x the rest threshold)
 DEFAULT_PHASE_MEMORY_S = 10.0  # the phase's roughness sums forget with this time constant, s
 ESTIMATE_EVERY_S = 0.1  # the phase's estimate is found anew this often, s
-RATE_WINDOW_S = 20.0  # the phase's drift is fitted to this long of its estimates, s ...
-RATE_MIN_S_S = 2e-6  # ... and followed when it is at least this (2 ppm: 0.5 grid steps a minute) ...
+RATE_WINDOW_S = 30.0  # the phase's drift is fitted to at most this long of its estimates, s ...
+RATE_MIN_SPAN_S = 5.0  # ... and at least this long ...
+RATE_SLOPE_Z = 3.0  # ... and followed when its slope is this many of its standard errors ...
+RATE_MIN_S_S = 2e-6  # ... and at least this (2 ppm: 0.5 grid steps a minute) ...
 RATE_MAX_S_S = 2e-3  # ... up to this (a 2000 ppm oscillator); the fit's rms about its line below ...
 RATE_FIT_RMS_S = 0.5 * PHASE_STEP_S  # ... this (a steady drift, not a stretch that jumped), s
 SWITCH_MARGIN = 0.01  # the estimate changes grid when the other's roughness is this share lower
@@ -180,7 +182,7 @@ class FusionPhase:
     ppm, which the sums' memory alone follows a memory behind, M2's NIS 24 on a 90 s replay).
     The estimate is the grid whose smallest roughness is lower (by ``SWITCH_MARGIN`` to change):
     a moving grid where the ticks stay put is rougher (a node whose samples drift across fixed
-    ticks made it follow -23 ppm), and a fixed one where they move.
+    ticks made it follow -29 ppm), and a fixed one where they move.
 
     Args:
       fusion_rate_hz: the chip's fusion rate, Hz.
@@ -204,7 +206,7 @@ class FusionPhase:
         self.rate_s_s = 0.0
         self.moving = False  # the estimate is the moving grid's
         self._anchor = (0.0, 0.0)  # (t_s, shift_s)
-        self._history: deque[tuple[float, float]] = deque()  # (t_s, the moving grid's phase, unwrapped)
+        self._history: deque[tuple[float, float]] = deque()  # (t_s, the moving grid's phase on the twin's clock)
 
     def value_instants(self, t_s: Floats | float, phase_s: Floats | float) -> Floats:
         """The latest fusion tick (ticks at phase_s + k period) at or before each t_s, s."""
@@ -259,10 +261,14 @@ class FusionPhase:
         return ((mid + shift) % self.period_s, (lo + shift, hi + shift))
 
     def _follow_drift(self, t_s: float, found: float) -> None:
-        """Fit a line to the last ``RATE_WINDOW_S`` of the phase found on the moving grid; a
-        steady drift (rms about the line under ``RATE_FIT_RMS_S``) of at least ``RATE_MIN_S_S``
-        is added to the grid's rate, from this instant on (the grid's place now is kept: its sums
-        stay where they are)."""
+        """The moving grid's rate: the slope of a line through the last ``RATE_WINDOW_S`` (at
+        least ``RATE_MIN_SPAN_S``) of the phase it found, on the twin's clock (unwrapped), where
+        that slope is steady (rms about the line under ``RATE_FIT_RMS_S``) and at least
+        ``RATE_SLOPE_Z`` standard errors and ``RATE_MIN_S_S``. A new rate applies from this
+        instant on (the grid's place now is kept: its sums stay where they are). Where the rate
+        is wrong the grid's phase lags the ticks by a steady amount, so the found phase still
+        moves at the ticks' rate."""
+        found = found + self.shift_s(t_s)
         history = self._history
         if history:  # unwrapped: the phase moves by far less than half a period in 0.1 s
             previous = history[-1][1]
@@ -270,15 +276,17 @@ class FusionPhase:
         history.append((t_s, found))
         while history and t_s - history[0][0] > RATE_WINDOW_S:
             history.popleft()
-        if t_s - history[0][0] < 0.95 * RATE_WINDOW_S:
+        if t_s - history[0][0] < RATE_MIN_SPAN_S:
             return
         t, phase = np.array(history).T
         slope, offset = np.polyfit(t - t_s, phase, 1)
-        rms = float(np.sqrt(np.mean(np.square(phase - (offset + slope * (t - t_s))))))
-        if abs(slope) >= RATE_MIN_S_S and rms <= RATE_FIT_RMS_S:
+        residual = phase - (offset + slope * (t - t_s))
+        rms = float(np.sqrt(np.mean(np.square(residual))))
+        spread = float(np.sum(np.square(t - t.mean())))
+        slope_sigma = math.sqrt(float(residual @ residual) / max(len(t) - 2, 1) / spread)
+        if abs(slope) >= max(RATE_MIN_S_S, RATE_SLOPE_Z * slope_sigma) and rms <= RATE_FIT_RMS_S:
             self._anchor = (t_s, self.shift_s(t_s))
-            self.rate_s_s = float(np.clip(self.rate_s_s + slope, -RATE_MAX_S_S, RATE_MAX_S_S))
-            history.clear()
+            self.rate_s_s = float(np.clip(slope, -RATE_MAX_S_S, RATE_MAX_S_S))
 
     @property
     def ready(self) -> bool:
