@@ -245,7 +245,7 @@ class FusionPhase:
 
     def _choose(self, t_s: float) -> tuple[float, tuple[float, float]]:
         """Both grids' phases found at ``t_s``, the moving grid's drift followed; the estimate
-        from the grid whose smallest roughness is lower."""
+        (on its grid: ``estimate`` places it) from the grid whose smallest roughness is lower."""
         n = len(self.phases_s)
         fixed, moving = self.cost[:n], self.cost[n:]
         on_fixed, on_moving = self._find(fixed), self._find(moving)
@@ -256,9 +256,7 @@ class FusionPhase:
             self.moving = False
         elif not self.moving and lowest_moving < lowest_fixed * (1.0 - SWITCH_MARGIN):
             self.moving = True
-        mid, (lo, hi) = on_moving if self.moving else on_fixed
-        shift = self.shift_s(t_s) if self.moving else 0.0
-        return ((mid + shift) % self.period_s, (lo + shift, hi + shift))
+        return on_moving if self.moving else on_fixed
 
     def _follow_drift(self, t_s: float, found: float) -> None:
         """The moving grid's rate: the slope of a line through the last ``RATE_WINDOW_S`` (at
@@ -284,19 +282,26 @@ class FusionPhase:
         rms = float(np.sqrt(np.mean(np.square(residual))))
         spread = float(np.sum(np.square(t - t.mean())))
         slope_sigma = math.sqrt(float(residual @ residual) / max(len(t) - 2, 1) / spread)
+        rate = float(np.clip(slope, -RATE_MAX_S_S, RATE_MAX_S_S))
         if abs(slope) >= max(RATE_MIN_S_S, RATE_SLOPE_Z * slope_sigma) and rms <= RATE_FIT_RMS_S:
             self._anchor = (t_s, self.shift_s(t_s))
-            self.rate_s_s = float(np.clip(slope, -RATE_MAX_S_S, RATE_MAX_S_S))
+            self.rate_s_s = rate
 
     @property
     def ready(self) -> bool:
         return self.weight >= PHASE_SAMPLES
 
-    def estimate(self) -> tuple[float, tuple[float, float]]:
-        """(phase s in [0, period), (lo, hi) its stretch), found anew every ``ESTIMATE_EVERY_S``."""
+    def estimate(self, t_s: float | None = None) -> tuple[float, tuple[float, float]]:
+        """(phase s in [0, period), (lo, hi) its stretch) at ``t_s`` (s on the twin's clock;
+        default: the last sample's instant), found anew every ``ESTIMATE_EVERY_S`` while the node
+        swings; the moving grid's phase carried on at its rate in between (a node that turns
+        slower than ``PHASE_MOTION_RAD_S`` adds nothing to the sums, while its ticks drift on)."""
+        at = (self._last[-1][0] if self._last else 0.0) if t_s is None else float(t_s)
         if self._estimate is None:
-            self._estimate = self._choose(self._last[-1][0] if self._last else 0.0)
-        return self._estimate
+            self._estimate = self._choose(at)
+        mid, (lo, hi) = self._estimate
+        shift = self.shift_s(at) if self.moving else 0.0
+        return ((mid + shift) % self.period_s, (lo + shift, hi + shift))
 
     @staticmethod
     def _find(cost: Floats) -> tuple[float, tuple[float, float]]:
@@ -470,7 +475,7 @@ class NodeMeasurement:
             return float(t_s)
         if not self.phase.ready:  # a quiet node: its values are on average half a fusion period old
             return float(t_s) - 0.5 * self.phase.period_s
-        p, period = self.phase.estimate()[0], self.phase.period_s
+        p, period = self.phase.estimate(t_s)[0], self.phase.period_s
         return p + period * math.floor((t_s - p) / period + 1e-9)
 
     def _angle(self, q: Floats) -> float:
@@ -508,7 +513,7 @@ class NodeMeasurement:
             return Waiting("frame: the last fit was refused; trying again soon")
         self._tried_t_s = t
         t_w = np.array([w[0] for w in window])
-        instants = t_w if self.phase is None else self.phase.value_instants(t_w, self.phase.estimate()[0])
+        instants = t_w if self.phase is None else self.phase.value_instants(t_w, self.phase.estimate(t)[0])
         try:
             frame = fit_swing_frame(
                 instants, np.array([w[1] for w in window]), np.array([w[2] for w in window]),

@@ -549,7 +549,7 @@ class TwinSession:
         if m.phase is None or not m.phase.ready:
             return got.t_s
         period = m.phase.period_s
-        lo, hi = m.phase.estimate()[1]
+        lo, hi = m.phase.estimate(got.sample_t_s)[1]
         near = max(TICK_NEAR_S, hi - lo)  # the learned phase is good to its stretch
         age = got.sample_t_s - got.t_s  # in [0, period)
         if near <= age <= period - near:

@@ -690,11 +690,19 @@ def summary_text(result: TwinResult) -> str:
             "model does not explain (on healthy emulated runs mostly the angle's: the node states' random walks and "
             "the fused orientation's slow error; docs/twin.md, Whiteness on the whole twin)"
         )
-    drifting = [f"m{k + 1} {v:+.1f} ppm" for k, v in enumerate(s.phase_drift_ppm) if math.isfinite(v) and v]
+    drifting = [(k, v) for k, v in enumerate(s.phase_drift_ppm) if math.isfinite(v) and v]
     if drifting:
+        rates = ", ".join(f"m{k + 1} {v:+.1f} ppm" for k, v in drifting)
+        unfollowed = [f"M{k + 1}'s mean NIS {s.nis_mean[k]:.1f}" for k, _ in drifting if s.nis_mean[k] > RUN_MISFIT_NIS]
         lines.append(
-            f"fusion timing: the chip's ticks drift on the twin's clock ({', '.join(drifting)}; negative: the chip's "
-            "clock runs fast), followed (docs/twin.md, Measurement)"
+            f"fusion timing: the chip's ticks drift on the twin's clock ({rates}; negative: the chip's clock "
+            "runs fast), "
+            + (
+                f"NOT followed well ({', '.join(unfollowed)}: a drift faster than about 200 ppm is not followed)"
+                if unfollowed
+                else "followed"
+            )
+            + " (docs/twin.md, Measurement)"
         )
     unfit = [f"M{k + 1}'s mean NIS {v:.1f}" for k, v in enumerate(s.nis_mean) if v > RUN_MISFIT_NIS]
     unfit += [
