@@ -33,9 +33,10 @@ import tempfile
 from collections.abc import Callable
 from typing import Any
 
-COLD_COMPILE_S = "about 5-20 s of CPU; longer on a busy machine"
+COLD_COMPILE_S = "about 5-60 s of CPU, a sweep's the most; longer on a busy machine"
 """What a cold compile costs a command (2 cores, 2026-11-26: allan 2-3 s, validate and identify
-13-19 s, a sweep's parallel kernel 11-15 s more)."""
+13-19 s, a sweep's parallel kernel 11-15 s more; 2026-11-27 on a slower machine: validate 18 s,
+a 6-case frequency sweep 62 s of CPU, measured by a fresh user's trial)."""
 
 _notice: Callable[[str], None] | None = None
 _said = False
@@ -110,10 +111,14 @@ def set_notice(notice: Callable[[str], None] | None) -> None:
 
 
 def _cache_folder(dispatcher: Any) -> str:
-    """Where numba keeps the compiled function (beside the source, or NUMBA_CACHE_DIR)."""
+    """Where numba keeps the compiled kernels: the cache folder (NUMBA_CACHE_DIR, which numba fills
+    with one subfolder per source folder), else where it keeps this function (beside the source)."""
+    folder = os.environ.get("NUMBA_CACHE_DIR")
+    if folder:
+        return folder
     cache = getattr(dispatcher, "_cache", None)
     path = getattr(cache, "_cache_path", None)
-    return str(path) if path else os.environ.get("NUMBA_CACHE_DIR", "numba's cache folder")
+    return str(path) if path else "numba's cache folder"
 
 
 def message(dispatcher: Any) -> str:
