@@ -111,9 +111,19 @@ def draw_maps(results: Path, plan: SweepPlan, table: CaseTable, directory: Path)
     return written
 
 
+LOG_LIST_SPAN = 100.0
+"""A list of values (``--vary NAME=V1,V2,...``), all positive, whose largest is at least this many
+times its smallest is drawn on a log axis too (1e-4,1e-3,1e-2 squeezed two of three together)."""
+
+
 def log_inputs(plan: SweepPlan, table: CaseTable) -> tuple[bool, ...]:
-    """Per input of ``table``: whether the plan varies it on a log scale (a case file's: none)."""
+    """Per input of ``table``: whether it is drawn on a log axis: varied on a log scale, or a list
+    of positive values spanning ``LOG_LIST_SPAN`` or more (a case file's inputs: never)."""
     scaled = {a.name for a in plan.axes if a.log}
+    for a in plan.axes:
+        values = np.asarray(a.values if a.values is not None else [], dtype=float)
+        if len(values) > 1 and np.all(values > 0) and values.max() >= LOG_LIST_SPAN * values.min():
+            scaled.add(a.name)
     return tuple(name in scaled for name in table.names)
 
 

@@ -420,6 +420,12 @@ def test_an_input_varied_on_a_log_scale_is_drawn_on_a_log_axis_with_geometric_ce
     np.testing.assert_allclose(x_edges, 10.0 ** np.array([-4.5, -3.5, -2.5, -1.5]), rtol=1e-12)
     np.testing.assert_allclose(y_edges, [0.0, 20.0, 40.0])
     log_range = {"from": 1e-4, "to": 1e-2, "scale": "log"}
+    listed = _plan(vary={"b1_n_m_s": [1e-2, 1e-4, 1e-3]}, duration_s=2.0, features=["energy"])
+    run_sweep(listed, tmp_path / "listed", progress=False)
+    assert drawn["listed"][:2] == ("log", "linear")  # positive values over two decades
+    narrow = _plan(vary={"phi1_deg": [10.0, 30.0, 50.0]}, duration_s=2.0, features=["energy"])
+    run_sweep(narrow, tmp_path / "narrow", progress=False)
+    assert drawn["narrow"][:2] == ("linear", "linear")
     rand = _plan(method="random", samples=6, vary={"phi1_deg": {"from": 5, "to": 20}, "b1_n_m_s": log_range},
                  duration_s=2.0, features=["energy"])  # fmt: skip
     run_sweep(rand, tmp_path / "scatter", progress=False)
