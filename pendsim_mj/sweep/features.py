@@ -10,7 +10,9 @@ MuJoCo Trajectory) and gets the same features. Feature groups and the columns th
   the second-highest spectral peak over the highest (``analysis.second_peak_ratio_batch``, the same way; 0.03
   for a pure sine: the window's side lobes), and ``freq1_ambiguous``, ``freq2_ambiguous`` (bool):
   that ratio is at least ``AMBIGUOUS_PEAK_RATIO``, so that which peak the frequency is can flip
-  with a small change (M2 released at 0 swings in both modes about equally: 0.97 to 1).
+  with a small change (M2 released at 0 swings in both modes about equally: 0.97 to 1). A peak
+  below one cycle in the run (f < 1 / duration) is no swing's frequency (an overdamped hinge, a
+  pendulum that creeps or goes over the top): NaN, with a NaN ratio and not ambiguous.
 - ``amplitude``: ``amp1_rad``, ``amp2_rad``: largest |phi| over the run; ``amp1_end_rad``,
   ``amp2_end_rad``: largest |phi| over its last fifth (what is left at the end).
 - ``decay``: ``decay1_per_s``, ``decay2_per_s``: ln(A_head / A_tail) / (t_tail - t_head), where
@@ -232,6 +234,12 @@ def compute_summary(
         freq, ratio = (
             v.reshape(m, 2) for v in peaks_and_ratios(t, summary.phi_rad.reshape(2 * m, -1), nthread=nthread)
         )
+        # below one cycle in the run the largest peak is the window's view of a decay or a drift, not
+        # a swing (an overdamped hinge gave 4.6e-6 Hz): no frequency
+        duration_s = float(t[-1] - t[0]) if len(t) > 1 else 0.0
+        slow = freq * duration_s < 1.0
+        freq[slow] = np.nan
+        ratio[slow] = np.nan
         columns["freq1_hz"], columns["freq2_hz"] = freq[:, 0], freq[:, 1]
         ratio[summary.diverged] = np.nan
         for k in (0, 1):

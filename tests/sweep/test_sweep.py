@@ -432,6 +432,21 @@ def test_an_input_varied_on_a_log_scale_is_drawn_on_a_log_axis_with_geometric_ce
     assert drawn["scatter"][:2] == ("log", "linear")
 
 
+def test_a_run_without_a_full_cycle_has_no_frequency():
+    """An overdamped hinge (b1 = 0.5 N m s/rad: M1 creeps back to rest) has its spectrum's largest
+    peak at the lowest bin, a few micro-hertz: not a swing. The swinging case beside it keeps the
+    estimate ``pendsim simulate`` prints."""
+    plan = _plan(vary={"b1_n_m_s": [1e-3, 0.5]}, duration_s=20.0, features=["frequency"])
+    table, ref = _reference_runs(plan)
+    feats = run_task(plan, table, np.arange(2)).features
+    creeping = ref.member(1)
+    assert spectral_peak_hz(creeping.t_s, creeping.phi_rad[:, 0]) * 20.0 < 1.0  # under one cycle in the run
+    freq = feats.column("freq1_hz")
+    assert freq[0] == pytest.approx(spectral_peak_hz(ref.member(0).t_s, ref.member(0).phi_rad[:, 0]), abs=1e-9)
+    assert np.isnan(freq[1]) and np.isnan(feats.quality["freq1_peak_ratio"][1])
+    assert not feats.quality["freq1_ambiguous"][1]
+
+
 def test_frequency_maps_ring_the_cases_whose_frequency_is_ambiguous(tmp_path, monkeypatch):
     from pendsim_bridge.report import figures
 
