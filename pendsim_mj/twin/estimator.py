@@ -102,6 +102,12 @@ turn on the mount after it was found; the fused orientation's slow error, which 
 carries, the accelerometer does not share."""
 OFFSET_CHAIN = ("offset", "offset_rate", "offset_accel", "offset_jerk")
 OFFSET_CHAIN_UNITS = ("rad", "rad_s", "rad_s2", "rad_s3")
+DIVERGED_RAD = 1.0
+"""An angle estimate that moves further than this in one sample (12.5 ms: 80 rad/s), or a
+hypothesis whose angles are this far from the estimate's, has diverged: seen, 207 rad (33 whole
+turns) on a node whose fusion timing was not followed, where the angle's innovation wraps and the
+filter went on as if it fitted. The session restarts its estimate; the health monitor does not
+take such a hypothesis as the explanation of a change."""
 DELAY_SIGMA0_S = 0.25e-2 / math.sqrt(6.0)  # the start: two nodes' errors, each uniform over a 2.5 ms stretch, s
 
 

@@ -60,7 +60,7 @@ import math
 import numpy as np
 
 from pendsim_mj.errors import ParameterError
-from pendsim_mj.twin.estimator import NSTATE, TRACKABLE, RigEstimator
+from pendsim_mj.twin.estimator import DIVERGED_RAD, NSTATE, TRACKABLE, RigEstimator
 
 DEFAULT_THRESHOLD = 5.0  # sigmas
 DEFAULT_PERSIST_S = 3.0
@@ -391,6 +391,12 @@ class HealthMonitor:
         name = bank.names[best]
         i = self.estimator.track.index(name)
         winner = bank.filters[best]
+        if not np.max(np.abs(winner.x[:2] - self.estimator.x[:2])) <= DIVERGED_RAD:
+            # the winning explanation's own estimate diverged (its likelihood is no evidence): dismissed
+            self._bank = None
+            self.dismissed.append(t)
+            self._quiet_until_s = t + self.decide_s
+            return []
         value, sigma = float(winner.x[NSTATE + i]), float(math.sqrt(winner.p[NSTATE + i, NSTATE + i]))
         since = min(self._calm_s[name], bank.since_s)
         self._bank = None

@@ -36,7 +36,7 @@ from pendsim_mj.estimation.swing_frame import SwingFrame
 from pendsim_mj.rig.params import DEFAULT_PARAMS, RigParams
 from pendsim_mj.sensors.bno055 import FUSION_RATE_HZ, Bno055
 from pendsim_mj.sensors.imperfections import Imperfections
-from pendsim_mj.twin.estimator import NSTATE, TRACKABLE, Forecast, RigEstimator
+from pendsim_mj.twin.estimator import DIVERGED_RAD, NSTATE, TRACKABLE, Forecast, RigEstimator
 from pendsim_mj.twin.health import DEFAULT_PERSIST_S, DEFAULT_THRESHOLD, Alarm, HealthMonitor
 from pendsim_mj.twin.measurement import FALLBACK_S, TWIST_SIGMA_RAD, Learned, NodeMeasurement, NodeSample, Waiting
 from pendsim_mj.twin.outputs import Estimates, ParameterCheck
@@ -311,6 +311,7 @@ class TwinSession:
         self._score(node, t_v, phi)
         if callable(torques_n_m):
             torques_n_m = torques_n_m(0.5 * (max(self.estimator.t_s, t_v - LATE_S) + t_v))
+        angles_before = self.estimator.x[:2].copy()
         update = self.estimator.update(
             t_v, node, phi, omega, torques_n_m=torques_n_m, late_s=LATE_S, gate_angle_z=JUMP_Z, gate_rate_z=JUMP_RATE_Z
         )
@@ -320,6 +321,11 @@ class TwinSession:
             return False
         self._recent_z[node].clear()
         accel = self._take_accel(node, t_v, got, torques_n_m)
+        moved = float(np.max(np.abs(self.estimator.x[:2] - angles_before)))
+        if not moved <= DIVERGED_RAD:  # (NaN too) no swing moves that far between two samples
+            self._event(t_v, f"the estimate diverged (an angle moved {moved:.3g} rad at one sample): restarted")
+            self._touched(t_v, quiet=True)
+            return False
         x, sigma = self.estimator.x, self.estimator.sigma
         s_sigma = np.sqrt(np.diag(update.covariance))
         seen = phi - self._offset(node)  # what the node measured, its mount's offset (as estimated) taken out
@@ -474,13 +480,15 @@ class TwinSession:
         self._event(t_v, f"m{node + 1} angle jumped by {math.degrees(jump):+.2f} deg")
         return True
 
-    def _touched(self, t_v: float) -> None:
-        """The innovations say the rig no longer moves as the model does (a hand on it): stop the
-        estimate until it is free again; the tracked parameters go back to before."""
+    def _touched(self, t_v: float, *, quiet: bool = False) -> None:
+        """The innovations say the rig no longer moves as the model does (a hand on it), or the
+        estimate diverged (``quiet``: the caller said so): stop the estimate until it is free
+        again; the tracked parameters go back to before."""
         self._tracking = False
         self._open_forecasts = []
         self._next_forecast_s = math.inf
-        self._event(t_v, "touched")
+        if not quiet:
+            self._event(t_v, "touched")
 
     def note(self, t_s: float, what: str) -> None:
         """An event the caller saw (e.g. a node's clock jumped), kept with the twin's own."""

@@ -13,11 +13,13 @@ import math
 
 import numpy as np
 from mcap.reader import make_reader
+from mcap_ros2.decoder import DecoderFactory
 
 from pendsim_bridge.acquire.emulator import plan
 from pendsim_bridge.acquire.packets import GROUP_SLICES
 from pendsim_bridge.cli import build_parser, main
 from pendsim_bridge.commands.nodes import spec_from
+from pendsim_bridge.io import twin_topics
 from pendsim_mj.rig.params import DEFAULT_PARAMS
 from pendsim_mj.twin import session as twin_session
 from pendsim_mj.twin.session import TwinSession
@@ -74,3 +76,64 @@ def test_a_chip_fusing_on_a_node_clock_that_drifts_against_the_twins_is_followed
     assert max(nis) < 3.0, nis
     b2, sigma_b2 = json.loads(meta["parameters"])["b2_n_m_s"][:2]
     assert abs(b2 - DEFAULT_PARAMS.b2_n_m_s) < 3 * sigma_b2, (b2, sigma_b2)
+
+
+def test_a_drift_too_fast_to_follow_warns_and_neither_diverges_nor_alarms(tmp_path):
+    """600 ppm: the ticks cross the whole fusion period within the phase's memory and are not
+    followed (M2's NIS over 100). The angle's innovation wraps, so a hypothesis filter of the
+    health monitor had diverged by 33 whole turns (-207 rad) unnoticed, won, and was handed to the
+    estimate with a false alarm on M2's dry friction (found by a fresh helper's trial). Now the
+    estimate stays within the rig's own swing (the recording's joint states: an independent
+    truth), nothing is alarmed, and the summary says the model does not fit."""
+    recording, twin = tmp_path / "fast.mcap", tmp_path / "twin.mcap"
+    said = io.StringIO()
+    with contextlib.redirect_stdout(said), contextlib.redirect_stderr(said):
+        assert main(["record", "--clock-drift-ppm", "600", "--duration-s", "120", "-o", str(recording)]) == 0
+        assert main(["twin", "--replay", str(recording), "--speed", "0", "-o", str(twin)]) == 0
+    assert "warning: the model does not fit the data" in said.getvalue()
+    largest = 0.0
+    with open(recording, "rb") as f:
+        for decoded in make_reader(f, decoder_factories=[DecoderFactory()]).iter_decoded_messages(
+            topics=["/joint_states"]
+        ):
+            largest = max(largest, *(abs(v) for v in decoded.decoded_message.position))
+    estimate = twin_topics.layout(twin_topics.ESTIMATE_COLUMNS)
+    columns = twin_topics.ESTIMATE_COLUMNS
+    with open(twin, "rb") as f:
+        reader = make_reader(f)
+        topics = [twin_topics.ESTIMATE_TOPIC]
+        payloads = [np.frombuffer(m.data, np.uint8) for _, _, m in reader.iter_messages(topics=topics)]
+        meta = {m.name: m.metadata for m in reader.iter_metadata()}[twin_topics.TWIN_RESULT_METADATA]
+    rows = np.concatenate([twin_topics.decode(estimate, p[None, :]) for p in payloads])
+    angles = rows[:, [columns.index("phi1_rad"), columns.index("phi2_rad")]]
+    assert np.max(np.abs(angles)) < largest + 0.1, (np.max(np.abs(angles)), largest)
+    assert json.loads(meta["alarms"]) == []
+
+
+def test_an_estimate_that_jumps_whole_turns_in_one_sample_is_restarted(monkeypatch):
+    """The session's own guard (the health monitor's is above): an update that moves an angle by
+    more than a swing can in 12.5 ms restarts the estimate from the nodes' values, with an event,
+    instead of going on 33 turns off (the angle's innovation wraps: nothing else would notice)."""
+    p = plan(spec_from(build_parser().parse_args(NODES)))
+    session = TwinSession()
+    update = session.estimator.update
+    spun = []
+
+    def spinning(*args, **kwargs):
+        result = update(*args, **kwargs)
+        if args[0] > 12.0 and not spun:  # once, 12 s in: the estimate spins 33 turns
+            session.estimator.x[0] -= 33 * 2 * math.pi
+            spun.append(args[0])
+        return result
+
+    monkeypatch.setattr(session.estimator, "update", spinning)
+    q, g, a = GROUP_SLICES["quat"], GROUP_SLICES["gyro"], GROUP_SLICES["accel"]
+    angles = []
+    for t, k, i in p.sent_in_time_order():
+        row = p.streams[k].rows[i]
+        session.take(k, t, row[q], row[g], row[a])
+        angles += list(session.drain().estimates.state[:, 0])
+    assert spun
+    assert any(what.startswith("the estimate diverged (an angle moved 207 rad") for _, what in session.events)
+    assert any(what == "released" and t > spun[0] for t, what in session.events)  # restarted from the nodes
+    assert max(abs(v) for v in angles) < 1.0  # no estimate 33 turns off was given out
