@@ -249,6 +249,21 @@ def test_pendsim_simulate_runs_on_the_fast_engine_and_writes_the_reference_traje
     assert np.max(np.abs(np.load(out)["phi_rad"] - expected.phi_rad)) < 1e-12
 
 
+def test_pendsim_simulate_gives_no_frequency_for_a_pendulum_that_does_not_complete_a_cycle(capsys):
+    """M1 on an overdamped hinge (0.5 N m s/rad) creeps back to rest: its spectrum's largest peak is
+    the lowest bin (a few micro-hertz), which was printed as 0.0000 Hz; M2, still swinging, keeps its
+    frequency (the reference run's own spectral peak)."""
+    from pendsim_bridge.cli import main
+    from pendsim_mj.estimation.analysis import spectral_peak_hz
+
+    assert main(["simulate", "--engine", "fast", "--duration-s", "20", "--set", "b1_n_m_s=0.5"]) == 0
+    rows = {line.split()[0]: line for line in capsys.readouterr().out.splitlines() if line.startswith("phi")}
+    assert "n/a (< 1 cycle)" in rows["phi1"]
+    run = reference.solve(DEFAULT_PARAMS.with_overrides(b1_n_m_s=0.5), (30 * DEG, 0.0), (0.0, 0.0), 20.0)
+    assert spectral_peak_hz(run.t_s, run.phi_rad[:, 0]) * 20.0 < 1.0
+    assert float(rows["phi2"].split()[1]) == pytest.approx(spectral_peak_hz(run.t_s, run.phi_rad[:, 1]), abs=1e-4)
+
+
 def test_blocks_continue_one_run_bit_for_bit_and_equal_the_reference_blocks():
     from pendsim_mj.engines import dispatch as engines
 
