@@ -54,13 +54,18 @@ def _stderr_on_a_terminal(args: list[str], env: dict[str, str]) -> str:
     return b"".join(chunks).decode(errors="replace")
 
 
-def test_a_cold_cache_says_it_compiles_once_and_a_warm_one_says_nothing(tmp_path):
+def _static_and_an_empty_cache(tmp_path: Path) -> tuple[Path, Path, dict[str, str]]:
+    """A 5 s static recording, an empty numba cache folder and the environment that points at it."""
     static = tmp_path / "static.mcap"
     with contextlib.redirect_stdout(io.StringIO()):
         assert main(["record", "--static", "--duration-s", "5", "-o", str(static)]) == 0
     cache = tmp_path / "numba-cache"
     cache.mkdir()
-    env = {**os.environ, "NUMBA_CACHE_DIR": str(cache), "MPLBACKEND": "Agg"}
+    return static, cache, {**os.environ, "NUMBA_CACHE_DIR": str(cache), "MPLBACKEND": "Agg"}
+
+
+def test_a_cold_cache_says_it_compiles_once_and_a_warm_one_says_nothing(tmp_path):
+    static, cache, env = _static_and_an_empty_cache(tmp_path)
     args = ["allan", str(static), "--no-plots"]
     lines = _stderr_on_a_terminal(args, env).splitlines()
     cold = [line for line in lines if "compiling" in line]
@@ -74,16 +79,8 @@ def test_a_cold_cache_says_it_compiles_once_and_a_warm_one_says_nothing(tmp_path
     assert "compiling" not in warm, warm
 
 
-def test_the_line_is_also_said_when_standard_error_is_a_pipe(tmp_path):
-    """A notebook cell (``!pendsim ...``) or a log file is not a terminal: a first run there is
-    as slow and must say why (a progress bar is for terminals only, this one line is not)."""
-    static = tmp_path / "static.mcap"
-    with contextlib.redirect_stdout(io.StringIO()):
-        assert main(["record", "--static", "--duration-s", "5", "-o", str(static)]) == 0
-    cache = tmp_path / "numba-cache"
-    cache.mkdir()
-    env = {**os.environ, "NUMBA_CACHE_DIR": str(cache), "MPLBACKEND": "Agg"}
-    done = subprocess.run(
+def _allan_on_a_pipe(static: Path, env: dict[str, str]) -> subprocess.CompletedProcess[str]:
+    return subprocess.run(
         [sys.executable, "-m", "pendsim_bridge.cli", "allan", str(static), "--no-plots"],
         stdin=subprocess.DEVNULL,
         capture_output=True,
@@ -91,18 +88,18 @@ def test_the_line_is_also_said_when_standard_error_is_a_pipe(tmp_path):
         env=env,
         timeout=600,
     )
+
+
+def test_the_line_is_also_said_when_standard_error_is_a_pipe(tmp_path):
+    """A notebook cell (``!pendsim ...``) or a log file is not a terminal: a first run there is
+    as slow and must say why (a progress bar is for terminals only, this one line is not)."""
+    static, cache, env = _static_and_an_empty_cache(tmp_path)
+    done = _allan_on_a_pipe(static, env)
     assert done.returncode == 0, done.stderr
     lines = done.stderr.splitlines()
     assert len(lines) == 1 and lines[0].startswith("pendsim: compiling pendsim's numba kernels once"), lines
     assert lines[0].endswith(f"cached in {cache})") and "\r" not in done.stderr
-    again = subprocess.run(
-        [sys.executable, "-m", "pendsim_bridge.cli", "allan", str(static), "--no-plots"],
-        stdin=subprocess.DEVNULL,
-        capture_output=True,
-        text=True,
-        env=env,
-        timeout=600,
-    )
+    again = _allan_on_a_pipe(static, env)
     assert again.returncode == 0 and again.stderr == ""  # warm: nothing on a pipe either
 
 

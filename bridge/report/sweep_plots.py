@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
+from typing import Any
 
 import matplotlib
 
@@ -263,6 +264,14 @@ def _heat(
     mesh = ax.pcolormesh(b_edges, a_edges, np.ma.masked_invalid(grid), shading="flat", cmap="viridis")
     fig.colorbar(mesh, ax=ax, label=label(feature))
     _ring(ax, x[:, 1], x[:, 0], marks, 1.25)
+    return _two_inputs_drawn(fig, ax, path, names, title, logs)
+
+
+def _two_inputs_drawn(
+    fig: Any, ax: Any, path: Path, names: tuple[str, ...], title: str, logs: tuple[bool, ...]
+) -> Path:
+    """A map over two inputs finished and written: the first input up the side, the second along
+    the bottom, each on a log axis where ``logs`` says."""
     if logs[0]:
         ax.set_yscale("log")
     if logs[1]:
@@ -292,15 +301,7 @@ def _scatter(
         ax.legend(loc="upper left", bbox_to_anchor=(1.25, 1.0), fontsize=8)
     _ring(ax, x[:, 1], x[:, 0], marks, 1.25)
     fig.colorbar(points, ax=ax, label=label(feature))
-    if logs[0]:
-        ax.set_yscale("log")
-    if logs[1]:
-        ax.set_xscale("log")
-    ax.set_xlabel(label(names[1]))
-    ax.set_ylabel(label(names[0]))
-    ax.set_title(title, fontsize=10)
-    fig.tight_layout()
-    return figures.save_figure(fig, path, replace=True, crop=False)
+    return _two_inputs_drawn(fig, ax, path, names, title, logs)
 
 
 def _panels(
