@@ -268,9 +268,11 @@ class FusionPhase:
         moves at the ticks' rate."""
         found = found + self.shift_s(t_s)
         history = self._history
-        if history:  # unwrapped: the phase moves by far less than half a period in 0.1 s
-            previous = history[-1][1]
-            found = previous + ((found - previous + 0.5 * self.period_s) % self.period_s - 0.5 * self.period_s)
+        if history:  # unwrapped against where the last one has moved to at the rate in use (a node
+            # quiet for 20 s at 200 ppm: 4 ms, near half a period)
+            t_last, last = history[-1]
+            expected = last + self.rate_s_s * (t_s - t_last)
+            found = expected + ((found - expected + 0.5 * self.period_s) % self.period_s - 0.5 * self.period_s)
         history.append((t_s, found))
         while history and t_s - history[0][0] > RATE_WINDOW_S:
             history.popleft()
