@@ -378,24 +378,18 @@ class HealthMonitor:
         timed_out = t - bank.t0_s >= self.decide_s
         if best == 0:
             if lead >= self.margin or timed_out:  # nothing changed after all: dismissed
-                self._bank = None
-                self.dismissed.append(t)
-                self._quiet_until_s = t + self.decide_s
+                self._dismiss(t)
             return []
         if lead < self.margin and not (timed_out and over_null >= self.margin):
             if timed_out:
-                self._bank = None
-                self.dismissed.append(t)
-                self._quiet_until_s = t + self.decide_s
+                self._dismiss(t)
             return []
         name = bank.names[best]
         i = self.estimator.track.index(name)
         winner = bank.filters[best]
         if not np.max(np.abs(winner.x[:2] - self.estimator.x[:2])) <= DIVERGED_RAD:
             # the winning explanation's own estimate diverged (its likelihood is no evidence): dismissed
-            self._bank = None
-            self.dismissed.append(t)
-            self._quiet_until_s = t + self.decide_s
+            self._dismiss(t)
             return []
         value, sigma = float(winner.x[NSTATE + i]), float(math.sqrt(winner.p[NSTATE + i, NSTATE + i]))
         since = min(self._calm_s[name], bank.since_s)
@@ -406,6 +400,12 @@ class HealthMonitor:
             # once, not again on a parameter it traded off against, as dry friction against damping)
         alarm = Alarm(name, WHAT[name], t, since, self.reference[name], value, sigma, bank.names[second], lead)
         return self._raise(alarm)
+
+    def _dismiss(self, t: float) -> None:
+        """The bank ends with nothing alarmed; the checks stay quiet for ``decide_s``."""
+        self._bank = None
+        self.dismissed.append(t)
+        self._quiet_until_s = t + self.decide_s
 
     def _is_free(self, name: str) -> bool:
         """Left free in the checks: alarmed already, or set aside at an impossible value."""
