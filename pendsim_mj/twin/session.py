@@ -323,8 +323,7 @@ class TwinSession:
         accel = self._take_accel(node, t_v, got, torques_n_m)
         moved = float(np.max(np.abs(self.estimator.x[:2] - angles_before)))
         if not moved <= DIVERGED_RAD:  # (NaN too) no swing moves that far between two samples
-            self._event(t_v, f"the estimate diverged (an angle moved {moved:.3g} rad at one sample): restarted")
-            self._touched(t_v, quiet=True)
+            self._touched(t_v, f"the estimate diverged (an angle moved {moved:.3g} rad at one sample): restarted")
             return False
         x, sigma = self.estimator.x, self.estimator.sigma
         s_sigma = np.sqrt(np.diag(update.covariance))
@@ -480,15 +479,14 @@ class TwinSession:
         self._event(t_v, f"m{node + 1} angle jumped by {math.degrees(jump):+.2f} deg")
         return True
 
-    def _touched(self, t_v: float, *, quiet: bool = False) -> None:
+    def _touched(self, t_v: float, why: str = "touched") -> None:
         """The innovations say the rig no longer moves as the model does (a hand on it), or the
-        estimate diverged (``quiet``: the caller said so): stop the estimate until it is free
+        estimate diverged (``why`` says which, as the event): stop the estimate until it is free
         again; the tracked parameters go back to before."""
         self._tracking = False
         self._open_forecasts = []
         self._next_forecast_s = math.inf
-        if not quiet:
-            self._event(t_v, "touched")
+        self._event(t_v, why)
 
     def note(self, t_s: float, what: str) -> None:
         """An event the caller saw (e.g. a node's clock jumped), kept with the twin's own."""
