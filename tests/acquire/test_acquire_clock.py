@@ -4,6 +4,9 @@ The synthetic truth: host = a + x / (1 + drift) for a node whose clock gains ``d
 arrival adds a minimum delay and a random one (exponential, plus bursts of 100 ms on some packets).
 """
 
+import socket
+import time
+
 import numpy as np
 import pytest
 
@@ -123,3 +126,57 @@ def test_a_clock_map_done_in_place_gives_the_same_instants_in_the_stamps_own_arr
     assert mapped is own
     np.testing.assert_array_equal(mapped, expected)
     np.testing.assert_array_equal(relation.to_recorder(stamps), expected)
+
+
+class _PausedClocks:
+    """time.monotonic_ns and time.time_ns of a process paused ``pause_ns`` between the two calls
+    of the first reading (a busy machine's preemption, a profiler's stop); the real-time clock is
+    ``offset_ns`` behind the monotonic one."""
+
+    def __init__(self, offset_ns: int, pause_ns: int) -> None:
+        self.now_ns, self.offset_ns, self.pause_ns, self.calls = 5_000_000_000, offset_ns, pause_ns, 0
+
+    def monotonic_ns(self) -> int:
+        self.now_ns += 300
+        return self.now_ns
+
+    def time_ns(self) -> int:
+        self.calls += 1
+        self.now_ns += 300 + (self.pause_ns if self.calls == 1 else 0)
+        return self.now_ns - self.offset_ns
+
+
+def test_a_pause_between_the_two_clocks_readings_does_not_move_arrival_times(monkeypatch):
+    from pendsim_bridge.acquire import receiver
+
+    clocks = _PausedClocks(offset_ns=1_234_567_890, pause_ns=5_000_000)
+    monkeypatch.setattr(receiver.time, "monotonic_ns", clocks.monotonic_ns)
+    monkeypatch.setattr(receiver.time, "time_ns", clocks.time_ns)
+    # read once, the 5 ms pause put every packet of the read 5 ms early; the narrowest of the
+    # brackets is off by at most half its width (0.3 us here)
+    assert abs(receiver.realtime_to_monotonic_ns() - clocks.offset_ns) <= 1_000
+    assert clocks.calls >= 2
+
+
+def test_loopback_arrival_stamps_lie_between_the_send_and_the_read():
+    from pendsim_bridge.acquire.receiver import listen_udp, read_stamped
+
+    sock = listen_udp("127.0.0.1", 0, what="the test", option="--port")
+    sender = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    try:
+        port = sock.getsockname()[1]
+        windows = []
+        for k in range(50):
+            sent_ns = time.monotonic_ns()
+            sender.sendto(b"x%d" % k, ("127.0.0.1", port))
+            got = []
+            while not got:
+                got = read_stamped(sock)
+            windows.append((sent_ns, got[0].arrival_ns, time.monotonic_ns()))
+        for sent_ns, arrival_ns, read_ns in windows:
+            # the kernel's real-time stamp mapped onto the monotonic clock: after the send (to the
+            # mapping's error, a few us) and before the read returned
+            assert sent_ns - 50_000 <= arrival_ns <= read_ns
+    finally:
+        sock.close()
+        sender.close()
