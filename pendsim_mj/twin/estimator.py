@@ -49,12 +49,13 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from pendsim_mj.control.plant import FastPlant
-from pendsim_mj.engines.fast_planar.closed_form import COEFFICIENTS, accelerations
+from pendsim_mj.engines.fast_planar.closed_form import COEFFICIENTS
 from pendsim_mj.engines.fast_planar.step import accel_readings, rk4_held
 from pendsim_mj.errors import ParameterError, PendsimError
 from pendsim_mj.rig.params import DEFAULT_PARAMS, RigParams
-from pendsim_mj.sensors.bno055 import SWING_ANGLE_SIGMA_RAD, Bno055
-from pendsim_mj.twin.unscented import correct, moments, sigma_points
+from pendsim_mj.sensors.bno055 import FUSION_RATE_HZ, SAMPLE_RATE_HZ, SWING_ANGLE_SIGMA_RAD, Bno055
+from pendsim_mj.twin.measurement import FusionPhase
+from pendsim_mj.twin.unscented import correct, moments, predict, set_rows, sigma_points, swing_readings
 
 Floats = NDArray[np.float64]
 NSTATE = 4
@@ -120,6 +121,7 @@ class _Terms:
         self.flat = rows[:, 0].astype(np.intp)
         self.power, self.coefficient = rows[:, 1], rows[:, 2]
         self.which = rows[:, 3].astype(np.intp)
+        self.arrays = (self.flat, np.ascontiguousarray(self.power), np.ascontiguousarray(self.coefficient), self.which)
 
     def matrix(self, h: float, n: int, scale: Floats | float = 1.0) -> Floats:
         w = self.coefficient * h**self.power * scale
@@ -278,6 +280,7 @@ class RigEstimator:
         self.drift_per_s = np.array([drift[name] for name in self.track])
         self.n = NSTATE + len(self.track)
         self._rows = [COEFFICIENTS.index(TRACKABLE[name][0] or "") if TRACKABLE[name][0] else -1 for name in self.track]
+        self._row_of = np.array(self._rows, dtype=np.intp)  # each tracked parameter's force-law row, -1: none
         self._offsets = {
             int(name[8]) - 1: NSTATE + i for i, name in enumerate(self.track) if name.startswith("offset_m")
         }
@@ -321,6 +324,7 @@ class RigEstimator:
         at = {i: j for j, i in enumerate(ordered)}  # a state's place in the block
         c = self._chain_size = len(ordered)
         self._chain_cols: Any = np.array(ordered, dtype=np.intp)
+        self._chain_index = self._chain_cols.copy()  # always indices (the compiled prediction's)
         self._chain_block: Any = np.ix_(self._chain_cols, self._chain_cols)
         if c and ordered[-1] - ordered[0] == c - 1:  # one run of states: views
             self._chain_cols = slice(ordered[0], ordered[-1] + 1)
@@ -413,13 +417,17 @@ class RigEstimator:
         out = np.empty((2 * self.n + 1, self.n))
         try:
             sigma_points(self.x, np.ascontiguousarray(self.p), self._scale, out)
-        except np.linalg.LinAlgError:  # rounding left P indefinite: the nearest PSD correlation, counted
-            self.repaired += 1
-            d = np.sqrt(np.maximum(np.diag(self.p), 1e-300))
-            w, v = np.linalg.eigh(0.5 * (self.p + self.p.T) / np.outer(d, d))
-            self.p = np.outer(d, d) * ((v * np.maximum(w, 1e-9)) @ v.T)
+        except np.linalg.LinAlgError:
+            self._repair()
             sigma_points(self.x, np.ascontiguousarray(self.p), self._scale, out)
         return out
+
+    def _repair(self) -> None:
+        """Rounding left P indefinite: the nearest PSD correlation instead, counted (``repaired``)."""
+        self.repaired += 1
+        d = np.sqrt(np.maximum(np.diag(self.p), 1e-300))
+        w, v = np.linalg.eigh(0.5 * (self.p + self.p.T) / np.outer(d, d))
+        self.p = np.outer(d, d) * ((v * np.maximum(w, 1e-9)) @ v.T)
 
     def _kept(self, t_s: float, node: int, phi_rad: float, omega_rad_s: float, torques_n_m: ArrayLike) -> None:
         """Count a sample taken in, and keep it for ``keep_s`` (``recent``)."""
@@ -449,9 +457,7 @@ class RigEstimator:
     def _set_coefficients(self, points: Floats) -> None:
         """Each sigma point (2n + 1, n) with its own parameters in the force law's coefficients
         (unclipped: a spread about 0 stays symmetric)."""
-        for i, row in enumerate(self._rows):
-            if row >= 0:
-                self._plant.coef[row] = points[:, NSTATE + i]
+        set_rows(self._plant.coef, self._row_of, np.ascontiguousarray(points))
 
     def predict(self, t_s: float, torques_n_m: ArrayLike = (0.0, 0.0)) -> None:
         """Advance the estimate to ``t_s`` (not before the filter's time) with the hinge torques
@@ -461,13 +467,20 @@ class RigEstimator:
             raise StaleSample(f"a sample at {t_s:.6f} s is older than the estimate at {self.t_s:.6f} s")
         if h <= 0:
             return
-        points = self._sigma_points()
-        moved = self._advance(points, h, torques_n_m)
-        mean = self._wm @ moved
-        d = moved - mean
-        self.x = mean
-        self.p = (d.T * self._wc) @ d + self._process_noise(h)
-        self.p = 0.5 * (self.p + self.p.T)
+        tau = np.asarray(torques_n_m, dtype=float)
+        hinge = np.square(self.torque_noise_n_m / self._inertia)
+        for attempt in range(2):
+            try:  # compiled: the sigma points, their step, the moments and the process noise in one call
+                self.x, self.p = predict(
+                    self.x, np.ascontiguousarray(self.p), self._scale, self._wm, self._wc, self._plant.coef,
+                    self._row_of, tau, h, self._chain_index, self._taylor.arrays, self._walk.arrays,
+                    np.ascontiguousarray(self.drift_per_s, dtype=float), hinge,
+                )  # fmt: skip
+                break
+            except np.linalg.LinAlgError:
+                if attempt:
+                    raise
+                self._repair()
         self.t_s = float(t_s)
 
     def update(
@@ -595,19 +608,10 @@ class RigEstimator:
         """(2n + 1, 2) the node's swing angle and hinge rate at each sigma point: with a tracked delay
         d its values d older (phi - d omega, omega - d alpha, alpha from the force law; first order,
         d^2 alpha / 2 < 1e-5 rad for d < 2 ms), with a tracked offset its angle plus the offset."""
-        zs = at[:, [node, 2 + node]].copy()
-        if node in self._delays:
-            d = at[:, self._delays[node]]
-            tau = np.asarray(torques_n_m, dtype=float)
-            u = np.zeros((4, len(at)))
-            u[0], u[1] = tau[0], tau[1]
-            self._set_coefficients(at)
-            alpha = accelerations(at[:, 0], at[:, 1], at[:, 2], at[:, 3], self._plant.coef, u)[node]
-            zs[:, 0] -= d * at[:, 2 + node]
-            zs[:, 1] -= d * alpha
-        if node in self._offsets:
-            zs[:, 0] += at[:, self._offsets[node]]
-        return zs
+        out = np.empty((len(at), 2))
+        swing_readings(np.ascontiguousarray(at), node, self._delays.get(node, -1), self._offsets.get(node, -1),
+                       self._plant.coef, self._row_of, np.asarray(torques_n_m, dtype=float), out)  # fmt: skip
+        return out
 
     def _unscented_update(
         self,
@@ -693,3 +697,6 @@ def warm_up() -> None:
     est.update_accel(0.0125, 0, 1.0, 9.8)
     est.update(0.01, 1, 0.05, 0.0, late_s=0.0125)  # a late sample: the model run back to its instant
     est.update_accel(0.01, 1, 0.5, 9.8, late_s=0.0125)
+    phase = FusionPhase(FUSION_RATE_HZ, SAMPLE_RATE_HZ)  # the measurement's front end
+    for k, t in enumerate((0.0, 0.0125, 0.025)):
+        phase.add(t, np.array([1.0 + k, 0.0, 0.0]))

@@ -42,9 +42,11 @@ import dataclasses
 import math
 from collections import deque
 
+import numba
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from pendsim_mj import compile_notice
 from pendsim_mj.errors import ParameterError, RecordingError
 from pendsim_mj.estimation.swing_frame import SwingFrame, dominant_axis, fit_swing_frame
 from pendsim_mj.rig.params import DEFAULT_PARAMS, RigParams
@@ -52,6 +54,8 @@ from pendsim_mj.sensors import rotations
 from pendsim_mj.sensors.bno055 import FUSION_RATE_HZ, QUAT_LSB, SAMPLE_RATE_HZ
 
 Floats = NDArray[np.float64]
+
+compile_notice.watch()  # the cache folder; one line on a cold compile (the CLI prints it)
 
 # The swing angle's noise on a node at any orientation: the twist is read from all four quantised
 # components of conj(reference) q, whose rounding (variance LSB^2/12 each) is isotropic in the
@@ -172,6 +176,39 @@ class Waiting:
     reason: str
 
 
+@numba.njit(cache=True, error_model="numpy")
+def add_roughness(
+    cost: Floats,
+    phases_s: Floats,
+    shift_s: float,
+    period_s: float,
+    t0_s: float,
+    t1_s: float,
+    t2_s: float,
+    d11: float,
+    d12: float,
+    d22: float,
+    forget: float,
+) -> None:
+    """``FusionPhase.add``'s sums, in place: cost (2 k,) (the fixed grid's k candidate phases
+    ``phases_s``, then the moving grid's, shifted by ``shift_s``) forgotten by ``forget`` and each
+    candidate's squared second divided difference of the gyro added over three samples at t0, t1,
+    t2 (s), their values at the ticks at or before them: |d2 / h2 - d1 / h1|^2 (2 / (h1 + h2))^2
+    with the gyro's differences' dot products d1.d1, d1.d2, d2.d2 ((rad/s)^2) and the value
+    instants' spacings h1, h2 (two samples on one tick: an infinite roughness, that phase ruled
+    out)."""
+    k = phases_s.shape[0]
+    for j in range(2 * k):
+        phase = phases_s[j % k] + (shift_s if j >= k else 0.0)
+        v0 = phase + period_s * math.floor((t0_s - phase) / period_s + 1e-9)
+        v1 = phase + period_s * math.floor((t1_s - phase) / period_s + 1e-9)
+        v2 = phase + period_s * math.floor((t2_s - phase) / period_s + 1e-9)
+        h1, h2 = v1 - v0, v2 - v1
+        second = d22 / (h2 * h2) - 2.0 * d12 / (h1 * h2) + d11 / (h1 * h1)
+        scale = 2.0 / (h1 + h2)
+        cost[j] = cost[j] * forget + second * (scale * scale)
+
+
 class FusionPhase:
     """The chip's fusion phase on the twin's clock, tracked sample by sample (module docstring).
 
@@ -220,18 +257,11 @@ class FusionPhase:
             and t_s - last[0][0] <= self.max_span_s
             and float(np.linalg.norm(last[1][1])) > PHASE_MOTION_RAD_S
         ):
-            t = np.array([[last[0][0]], [last[1][0]], [t_s]])
-            phases = np.concatenate([self.phases_s, self.phases_s + self.shift_s(t_s)])
-            v = self.value_instants(t, phases)  # (3, 2 phases)
-            h1, h2 = v[1] - v[0], v[2] - v[1]
-            g0, g1, g2 = last[0][1], last[1][1], gyro_rad_s
-            d1, d2 = g1 - g0, g2 - g1
-            # |d2 / h2 - d1 / h1|^2 (2 / (h1 + h2))^2, expanded: no (phases, 3) arrays
-            second = (d2 @ d2) / (h2 * h2) - 2.0 * (d1 @ d2) / (h1 * h2) + (d1 @ d1) / (h1 * h1)
-            second *= np.square(2.0 / (h1 + h2))
+            g0, g1 = last[0][1], last[1][1]
+            d1, d2 = g1 - g0, np.asarray(gyro_rad_s, dtype=float) - g1
             forget = math.exp(-(t_s - last[1][0]) / self.memory_s)
-            self.cost *= forget
-            self.cost += second
+            add_roughness(self.cost, self.phases_s, self.shift_s(t_s), self.period_s, last[0][0], last[1][0], t_s,
+                          float(d1 @ d1), float(d1 @ d2), float(d2 @ d2), forget)  # fmt: skip
             self.weight = self.weight * forget + 1.0
             if self._estimate is None or t_s - self._estimate_t_s >= ESTIMATE_EVERY_S:
                 self._estimate = self._choose(t_s)

@@ -14,8 +14,10 @@ import numpy as np
 from numpy.typing import NDArray
 
 from pendsim_mj import compile_notice
+from pendsim_mj.engines.fast_planar.kernel import _accel, _rk4
 
 Floats = NDArray[np.float64]
+IntArray = NDArray[np.intp]
 JITTER = 1e-12  # relative to each variance (an absolute one would add a random walk to every parameter)
 
 compile_notice.watch()  # the cache folder; one line on a cold compile (the CLI prints it)
@@ -82,3 +84,145 @@ def correct(x: Floats, p: Floats, s: Floats, pxz: Floats, nu: Floats) -> None:
             v = 0.5 * (p[i, j] + p[j, i])
             p[i, j] = v
             p[j, i] = v
+
+
+@numba.njit(cache=True)
+def _terms_into(out: Floats, flat: IntArray, power: Floats, coefficient: Floats, scale: Floats, h: float) -> None:
+    """Add sum of coefficient * h**power * scale at each flat index of out (c, c) (``estimator._Terms``)."""
+    c = out.shape[0]
+    for t in range(flat.shape[0]):
+        out[flat[t] // c, flat[t] % c] += coefficient[t] * h ** power[t] * scale[t]
+
+
+@numba.njit(cache=True)
+def predict(
+    x: Floats,
+    p: Floats,
+    scale: float,
+    wm: Floats,
+    wc: Floats,
+    coef: Floats,
+    rows: IntArray,
+    tau: Floats,
+    h: float,
+    cols: IntArray,
+    taylor: tuple[IntArray, Floats, Floats, IntArray],
+    walk: tuple[IntArray, Floats, Floats, IntArray],
+    drift: Floats,
+    hinge: Floats,
+) -> tuple[Floats, Floats]:
+    """The unscented prediction over h (s) in one call: the estimate x (n,) with covariance p (n, n)
+    to its mean and covariance h later (``estimator.RigEstimator.predict``, numpy's per-call
+    overhead gone: each of the 2n + 1 sigma points (``sigma_points``) advanced by one RK4 step of
+    the force law with its own tracked parameters, the offset chains by their Taylor series, then
+    the weighted moments plus the process noise).
+
+    coef (NCOEF, 2n + 1): the force law's constants per point (rows[j] >= 0: tracked parameter j
+    sets that row); tau (2,): the hinge torques held over h, N m; cols (c,): the offset chains'
+    states; taylor and walk (flat, power, coefficient, which tracked
+    parameter walks) over their (c, c) block (``estimator._Terms``); drift (n - 4,): the tracked
+    parameters' random-walk rates per sqrt(s); hinge (2,): the white torque's spectral density
+    over each hinge's inertia squared, rad^2/s^3."""
+    n = x.shape[0]
+    m = 2 * n + 1
+    points = np.empty((m, n))
+    sigma_points(x, p, scale, points)
+    moved = points.copy()
+    ntrack = n - 4
+    u = (tau[0], tau[1], 0.0, 0.0)
+    for i in range(m):
+        for j in range(ntrack):
+            if rows[j] >= 0:
+                coef[rows[j], i] = points[i, 4 + j]
+        k = coef
+        c = (k[0, i], k[1, i], k[2, i], k[3, i], k[4, i], k[5, i], k[6, i], k[7, i], k[8, i], k[9, i], k[10, i],
+             k[11, i], k[12, i], k[13, i])  # fmt: skip
+        p1, p2, w1, w2, _ = _rk4(points[i, 0], points[i, 1], points[i, 2], points[i, 3], 0.0, h, c, u, u, u)
+        moved[i, 0] = p1
+        moved[i, 1] = p2
+        moved[i, 2] = w1
+        moved[i, 3] = w2
+    nc = cols.shape[0]
+    if nc:
+        t = np.zeros((nc, nc))
+        flat, power, coefficient, _ = taylor
+        _terms_into(t, flat, power, coefficient, np.ones(flat.shape[0]), h)
+        for i in range(m):
+            for b in range(nc):
+                acc = 0.0
+                for a in range(nc):
+                    acc += points[i, cols[a]] * t[a, b]
+                moved[i, cols[b]] += acc
+    mean = np.zeros(n)
+    for i in range(m):
+        for j in range(n):
+            mean[j] += wm[i] * moved[i, j]
+    cov = np.zeros((n, n))
+    d = np.empty(n)
+    for i in range(m):
+        for j in range(n):
+            d[j] = moved[i, j] - mean[j]
+        w = wc[i]
+        for a in range(n):
+            wa = w * d[a]
+            for b in range(a, n):
+                cov[a, b] += wa * d[b]
+    for j in range(ntrack):
+        cov[4 + j, 4 + j] += drift[j] * drift[j] * h
+    if nc:
+        q = np.zeros((nc, nc))
+        flat, power, coefficient, which = walk
+        scale_w = np.empty(flat.shape[0])
+        for t_ in range(flat.shape[0]):
+            scale_w[t_] = drift[which[t_]] * drift[which[t_]]
+        _terms_into(q, flat, power, coefficient, scale_w, h)
+        for a in range(nc):
+            for b in range(nc):
+                ia, ib = cols[a], cols[b]
+                if ia <= ib:
+                    cov[ia, ib] += q[a, b] if ia == ib else 0.5 * (q[a, b] + q[b, a])
+    for k_ in range(2):
+        s = hinge[k_]
+        cov[k_, k_] += s * h * h * h / 3.0
+        cov[k_, 2 + k_] += s * h * h / 2.0
+        cov[2 + k_, 2 + k_] += s * h
+    for a in range(n):
+        for b in range(a + 1, n):
+            cov[b, a] = cov[a, b]
+    return mean, cov
+
+
+@numba.njit(cache=True)
+def set_rows(coef: Floats, rows: IntArray, points: Floats) -> None:
+    """Each point's (m, n) tracked parameters into the force law's constants coef (NCOEF, m): row
+    rows[j] (>= 0) of column i takes points[i, 4 + j] (unclipped: a spread about 0 stays symmetric)."""
+    for i in range(points.shape[0]):
+        for j in range(rows.shape[0]):
+            if rows[j] >= 0:
+                coef[rows[j], i] = points[i, 4 + j]
+
+
+@numba.njit(cache=True)
+def swing_readings(
+    at: Floats, node: int, delay_col: int, offset_col: int, coef: Floats, rows: IntArray, tau: Floats, out: Floats
+) -> None:
+    """The node's swing angle and hinge rate at each point (m, n) into out (m, 2): with a tracked
+    delay d (state ``delay_col`` >= 0) its values d older (phi - d omega, omega - d alpha, alpha from
+    the force law with the point's own parameters, ``set_rows``, and the torques tau (2,)), with a
+    tracked offset (``offset_col`` >= 0) its angle plus the offset."""
+    if delay_col >= 0:
+        set_rows(coef, rows, at)
+    u = (tau[0], tau[1], 0.0, 0.0)
+    for i in range(at.shape[0]):
+        out[i, 0] = at[i, node]
+        out[i, 1] = at[i, 2 + node]
+        if delay_col >= 0:
+            k = coef
+            c = (k[0, i], k[1, i], k[2, i], k[3, i], k[4, i], k[5, i], k[6, i], k[7, i], k[8, i], k[9, i], k[10, i],
+                 k[11, i], k[12, i], k[13, i])  # fmt: skip
+            a1, a2 = _accel(at[i, 0], at[i, 1], at[i, 2], at[i, 3], c, u)
+            d = at[i, delay_col]
+            out[i, 0] -= d * at[i, 2 + node]
+            out[i, 1] -= d * (a1 if node == 0 else a2)
+        if offset_col >= 0:
+            out[i, 0] += at[i, offset_col]

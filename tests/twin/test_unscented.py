@@ -58,11 +58,12 @@ def test_a_linear_measurements_moments_and_correction_are_the_kalman_filters(est
 
 WARM_CHECK = """
 import json
+from numba.core.registry import CPUDispatcher
 from pendsim_mj.engines.fast_planar import step
-from pendsim_mj.twin import unscented
+from pendsim_mj.twin import measurement, unscented
 from pendsim_mj.twin.estimator import warm_up
-kernels = {"rk4_held": step.rk4_held, "accel_readings": step.accel_readings, "sigma_points": unscented.sigma_points,
-           "moments": unscented.moments, "correct": unscented.correct}
+kernels = {f"{m.__name__}.{name}": k for m in (step, unscented, measurement) for name, k in vars(m).items()
+           if isinstance(k, CPUDispatcher) and k.py_func.__module__ == m.__name__ and not name.startswith("_")}
 warm_up()
 warm = {name: sorted(map(str, k.signatures)) for name, k in kernels.items()}
 from pendsim_bridge.acquire.emulator import plan
