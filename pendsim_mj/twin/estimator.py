@@ -50,12 +50,20 @@ from numpy.typing import ArrayLike, NDArray
 
 from pendsim_mj.control.plant import FastPlant
 from pendsim_mj.engines.fast_planar.closed_form import COEFFICIENTS
-from pendsim_mj.engines.fast_planar.step import accel_readings, rk4_held
 from pendsim_mj.errors import ParameterError, PendsimError
 from pendsim_mj.rig.params import DEFAULT_PARAMS, RigParams
 from pendsim_mj.sensors.bno055 import FUSION_RATE_HZ, SAMPLE_RATE_HZ, SWING_ANGLE_SIGMA_RAD, Bno055
 from pendsim_mj.twin.measurement import FusionPhase
-from pendsim_mj.twin.unscented import correct, moments, predict, set_rows, sigma_points, swing_readings
+from pendsim_mj.twin.unscented import (
+    ACCEL,
+    SWING,
+    add_process_noise,
+    advanced,
+    correct,
+    predict,
+    readings,
+    update_moments,
+)
 
 Floats = NDArray[np.float64]
 NSTATE = 4
@@ -396,31 +404,16 @@ class RigEstimator:
 
     def _process_noise(self, h: float) -> Floats:
         """Covariance added over h by a white torque on each hinge (double integrator per hinge)
-        and by the tracked parameters' random walks."""
+        and by the tracked parameters' random walks (compiled: ``unscented.add_process_noise``,
+        which ``predict`` adds in its own call)."""
         q = np.zeros((self.n, self.n))
-        q[self._parameter_diagonal, self._parameter_diagonal] = self.drift_per_s**2 * h
-        if self._walk.size:  # an offset that integrates its derivatives' random walks (``_chain_terms``)
-            c = self._chain_size
-            q[self._chain_block] += self._walk.matrix(h, c, self.drift_per_s[self._walk.which] ** 2)
-        for k in range(2):
-            s = (self.torque_noise_n_m / self._inertia[k]) ** 2  # rad^2/s^3
-            q[k, k] = s * h**3 / 3.0
-            q[k, 2 + k] = q[2 + k, k] = s * h**2 / 2.0
-            q[2 + k, 2 + k] = s * h
-        return q
+        add_process_noise(q, h, np.ascontiguousarray(self.drift_per_s, dtype=float), self._chain_index,
+                          self._walk.arrays, self._hinge_density())  # fmt: skip
+        return np.triu(q) + np.triu(q, 1).T
 
-    def _sigma_points(self) -> Floats:
-        """(2n + 1, n) Merwe's scaled sigma points of the estimate (compiled: ``sigma_points``):
-        the square root with a jitter relative to each variance (an absolute one would add a
-        random walk of its own to every parameter: 1e-18 / scale per step, 4e-6 per sqrt(s) at
-        160 Hz)."""
-        out = np.empty((2 * self.n + 1, self.n))
-        try:
-            sigma_points(self.x, np.ascontiguousarray(self.p), self._scale, out)
-        except np.linalg.LinAlgError:
-            self._repair()
-            sigma_points(self.x, np.ascontiguousarray(self.p), self._scale, out)
-        return out
+    def _hinge_density(self) -> Floats:
+        """(2,) the white torque's spectral density over each hinge's inertia squared, rad^2/s^3."""
+        return np.square(self.torque_noise_n_m / self._inertia)
 
     def _repair(self) -> None:
         """Rounding left P indefinite: the nearest PSD correlation instead, counted (``repaired``)."""
@@ -440,24 +433,11 @@ class RigEstimator:
 
     def _advance(self, points: Floats, h: float, torques_n_m: ArrayLike) -> Floats:
         """The sigma points (2n + 1, n) moved by one RK4 step of h (s; negative: back in time)
-        with the torques (2,) held over it; the tracked parameters ride along unchanged."""
+        with the torques (2,) held over it; the tracked parameters ride along unchanged (compiled:
+        ``unscented.advanced``, which ``predict`` calls in its own)."""
         tau = np.asarray(torques_n_m, dtype=float)
-        u = np.zeros((4, len(points)))
-        u[0], u[1] = tau[0], tau[1]
-        self._set_coefficients(points)
-        after = np.empty((NSTATE, len(points)))
-        rk4_held(self._plant.coef, np.ascontiguousarray(points[:, :NSTATE].T), u, h, after)  # compiled: 35x numpy's
-        moved = points.copy()
-        moved[:, :NSTATE] = after.T
-        if self._taylor.size:  # the offset chains, exact over h (``_chain_terms``)
-            cols = self._chain_cols
-            moved[:, cols] += points[:, cols] @ self._taylor.matrix(h, self._chain_size)
-        return moved
-
-    def _set_coefficients(self, points: Floats) -> None:
-        """Each sigma point (2n + 1, n) with its own parameters in the force law's coefficients
-        (unclipped: a spread about 0 stays symmetric)."""
-        set_rows(self._plant.coef, self._row_of, np.ascontiguousarray(points))
+        return advanced(np.ascontiguousarray(points), self._plant.coef, self._row_of, tau, float(h), self._chain_index,
+                        self._taylor.arrays)  # fmt: skip
 
     def predict(self, t_s: float, torques_n_m: ArrayLike = (0.0, 0.0)) -> None:
         """Advance the estimate to ``t_s`` (not before the filter's time) with the hinge torques
@@ -468,7 +448,7 @@ class RigEstimator:
         if h <= 0:
             return
         tau = np.asarray(torques_n_m, dtype=float)
-        hinge = np.square(self.torque_noise_n_m / self._inertia)
+        hinge = self._hinge_density()
         for attempt in range(2):
             try:  # compiled: the sigma points, their step, the moments and the process noise in one call
                 self.x, self.p = predict(
@@ -515,8 +495,7 @@ class RigEstimator:
             self.predict(t_s, torques_n_m)
         if late or node in self._delays:
             update = self._unscented_update(
-                float(t_s), node, z, r, torques_n_m, self._swing_readings, wraps=True,
-                held=_gated(gate_angle_z, gate_rate_z),
+                float(t_s), node, z, r, torques_n_m, SWING, wraps=True, held=_gated(gate_angle_z, gate_rate_z),
             )  # fmt: skip
             if update.applied:
                 self._kept(float(t_s), node, phi_rad, omega_rad_s, torques_n_m)
@@ -580,9 +559,7 @@ class RigEstimator:
         r = np.diag(self.accel_sigma_m_s2[node] ** 2)
         if not 0 < self.t_s - float(t_s) <= late_s:
             self.predict(t_s, torques_n_m)
-        update = self._unscented_update(
-            float(t_s), node, z, r, torques_n_m, self._accel_readings, wraps=False, held=_beyond(gate_z)
-        )
+        update = self._unscented_update(float(t_s), node, z, r, torques_n_m, ACCEL, wraps=False, held=_beyond(gate_z))
         kept = self.recent[-1] if self.recent else None
         if update.applied and kept is not None and kept.node == node and kept.t_s == float(t_s):
             self.recent[-1] = kept._replace(accel_m_s2=(float(z[0]), float(z[1])))
@@ -590,28 +567,24 @@ class RigEstimator:
 
     def _accel_readings(self, at: Floats, node: int, torques_n_m: ArrayLike) -> Floats:
         """(2n + 1, 2) what the node's accelerometer reads at each sigma point (``update_accel``;
-        compiled: ``fast_planar.step.accel_readings``)."""
-        tau = np.asarray(torques_n_m, dtype=float)
-        m = len(at)
-        u = np.zeros((4, m))
-        u[0], u[1] = tau[0], tau[1]
-        self._set_coefficients(at)
-        delay = at[:, self._delays[node]] if node in self._delays else np.zeros(m)
-        turn = at[:, self._turns[node]] if node in self._turns else np.zeros(m)
-        out = np.empty((2, m))
-        accel_readings(self._plant.coef, np.ascontiguousarray(at[:, :NSTATE].T), u, node,
-                       float(self.accel_radius_m[node]), float(self.params.g_m_s2), np.ascontiguousarray(delay),
-                       np.ascontiguousarray(turn), out)  # fmt: skip
-        return out.T
+        compiled: ``unscented.readings``, ``fast_planar.step.accel_readings``)."""
+        return self._readings(ACCEL, at, node, torques_n_m)
 
     def _swing_readings(self, at: Floats, node: int, torques_n_m: ArrayLike) -> Floats:
         """(2n + 1, 2) the node's swing angle and hinge rate at each sigma point: with a tracked delay
         d its values d older (phi - d omega, omega - d alpha, alpha from the force law; first order,
-        d^2 alpha / 2 < 1e-5 rad for d < 2 ms), with a tracked offset its angle plus the offset."""
-        out = np.empty((len(at), 2))
-        swing_readings(np.ascontiguousarray(at), node, self._delays.get(node, -1), self._offsets.get(node, -1),
-                       self._plant.coef, self._row_of, np.asarray(torques_n_m, dtype=float), out)  # fmt: skip
-        return out
+        d^2 alpha / 2 < 1e-5 rad for d < 2 ms), with a tracked offset its angle plus the offset
+        (compiled: ``unscented.swing_readings``)."""
+        return self._readings(SWING, at, node, torques_n_m)
+
+    def _columns(self, node: int) -> tuple[int, int, int]:
+        """The node's tracked delay's, offset's and accelerometer turn's states (-1: not tracked)."""
+        return self._delays.get(node, -1), self._offsets.get(node, -1), self._turns.get(node, -1)
+
+    def _readings(self, kind: int, at: Floats, node: int, torques_n_m: ArrayLike) -> Floats:
+        return readings(np.ascontiguousarray(at), kind, node, *self._columns(node), float(self.accel_radius_m[node]),
+                        float(self.params.g_m_s2), self._plant.coef, self._row_of,
+                        np.asarray(torques_n_m, dtype=float))  # fmt: skip
 
     def _unscented_update(
         self,
@@ -620,7 +593,7 @@ class RigEstimator:
         z: Floats,
         r: Floats,
         torques_n_m: ArrayLike,
-        readings: Callable[[Floats, int, ArrayLike], Floats],
+        kind: int,
         *,
         wraps: bool,
         held: Callable[[Floats, Floats], bool],
@@ -628,16 +601,24 @@ class RigEstimator:
         """The update through the sigma points, where the measurement is not linear in the
         state: a sample from before the estimate's time (the state run back to its instant, one
         RK4 step of t_s - self.t_s per sigma point; the estimate's time stays), a node with a
-        tracked delay (``_swing_readings``), the accelerometer (``_accel_readings``). ``readings``
-        gives the measurement (2,) at each sigma point; ``wraps``: its first component is an angle
+        tracked delay (``_swing_readings``), the accelerometer (``_accel_readings``); ``kind``
+        (``unscented.SWING`` or ``ACCEL``) names which. ``wraps``: its first component is an angle
         (its innovation wraps); ``held(nu, s)``: the sample is held out. The torque noise over a
         late sample's gap (at most a fusion period: 1e-4 rad/s at the default level, a tenth of the
         gyro's noise) is neglected."""
-        points = self._sigma_points()
         gap = t_s - self.t_s
-        at = self._advance(points, gap, torques_n_m) if gap < 0 else points
-        zs = readings(at, node, torques_n_m)
-        z_mean, s, pxz = moments(points, self.x, np.ascontiguousarray(zs), self._wm, self._wc, r)
+        for attempt in range(2):
+            try:  # compiled: the sigma points, run back by a late sample's gap, their readings, the moments
+                z_mean, s, pxz = update_moments(
+                    self.x, np.ascontiguousarray(self.p), self._scale, self._wm, self._wc, self._plant.coef,
+                    self._row_of, np.asarray(torques_n_m, dtype=float), gap, self._chain_index, self._taylor.arrays,
+                    kind, node, *self._columns(node), float(self.accel_radius_m[node]), float(self.params.g_m_s2), r,
+                )  # fmt: skip
+                break
+            except np.linalg.LinAlgError:
+                if attempt:
+                    raise
+                self._repair()
         nu = z - z_mean
         if wraps:
             nu[0] = (nu[0] + math.pi) % (2 * math.pi) - math.pi

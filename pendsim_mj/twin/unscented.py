@@ -15,6 +15,7 @@ from numpy.typing import NDArray
 
 from pendsim_mj import compile_notice
 from pendsim_mj.engines.fast_planar.kernel import _accel, _rk4
+from pendsim_mj.engines.fast_planar.step import accel_readings
 
 Floats = NDArray[np.float64]
 IntArray = NDArray[np.intp]
@@ -95,6 +96,74 @@ def _terms_into(out: Floats, flat: IntArray, power: Floats, coefficient: Floats,
 
 
 @numba.njit(cache=True)
+def advanced(
+    points: Floats, coef: Floats, rows: IntArray, tau: Floats, h: float, cols: IntArray,
+    taylor: tuple[IntArray, Floats, Floats, IntArray],
+) -> Floats:  # fmt: skip
+    """The points (m, n) moved by one RK4 step of h (s; negative: back in time) of the force law,
+    each with its own tracked parameters (``set_rows``) and the torques tau (2,) held; the offset
+    chains (states ``cols``) by their Taylor series (``taylor``: ``estimator._Terms``); the other
+    tracked parameters ride along unchanged."""
+    m = points.shape[0]
+    moved = points.copy()
+    set_rows(coef, rows, points)
+    u = (tau[0], tau[1], 0.0, 0.0)
+    for i in range(m):
+        k = coef
+        c = (k[0, i], k[1, i], k[2, i], k[3, i], k[4, i], k[5, i], k[6, i], k[7, i], k[8, i], k[9, i], k[10, i],
+             k[11, i], k[12, i], k[13, i])  # fmt: skip
+        p1, p2, w1, w2, _ = _rk4(points[i, 0], points[i, 1], points[i, 2], points[i, 3], 0.0, h, c, u, u, u)
+        moved[i, 0] = p1
+        moved[i, 1] = p2
+        moved[i, 2] = w1
+        moved[i, 3] = w2
+    nc = cols.shape[0]
+    if nc:
+        t = np.zeros((nc, nc))
+        flat, power, coefficient, _ = taylor
+        _terms_into(t, flat, power, coefficient, np.ones(flat.shape[0]), h)
+        for i in range(m):
+            for b in range(nc):
+                acc = 0.0
+                for a in range(nc):
+                    acc += points[i, cols[a]] * t[a, b]
+                moved[i, cols[b]] += acc
+    return moved
+
+
+@numba.njit(cache=True)
+def add_process_noise(
+    cov: Floats, h: float, drift: Floats, cols: IntArray, walk: tuple[IntArray, Floats, Floats, IntArray], hinge: Floats
+) -> None:
+    """Add the process noise over h (s) to the upper triangle of cov (n, n) (``predict``'s): each
+    tracked parameter's random walk (drift (n - 4,) per sqrt(s)), the offset chains' walks
+    integrated into the levels below (states ``cols``, terms ``walk``: ``estimator._Terms``), and a
+    white torque on each hinge (hinge (2,): its spectral density over the inertia squared,
+    rad^2/s^3; a double integrator per hinge, its exact covariance)."""
+    ntrack = cov.shape[0] - 4
+    for j in range(ntrack):
+        cov[4 + j, 4 + j] += drift[j] * drift[j] * h
+    nc = cols.shape[0]
+    if nc:
+        q = np.zeros((nc, nc))
+        flat, power, coefficient, which = walk
+        scale_w = np.empty(flat.shape[0])
+        for t in range(flat.shape[0]):
+            scale_w[t] = drift[which[t]] * drift[which[t]]
+        _terms_into(q, flat, power, coefficient, scale_w, h)
+        for a in range(nc):
+            for b in range(nc):
+                ia, ib = cols[a], cols[b]
+                if ia <= ib:
+                    cov[ia, ib] += q[a, b] if ia == ib else 0.5 * (q[a, b] + q[b, a])
+    for k in range(2):
+        s = hinge[k]
+        cov[k, k] += s * h * h * h / 3.0
+        cov[k, 2 + k] += s * h * h / 2.0
+        cov[2 + k, 2 + k] += s * h
+
+
+@numba.njit(cache=True)
 def predict(
     x: Floats,
     p: Floats,
@@ -127,32 +196,7 @@ def predict(
     m = 2 * n + 1
     points = np.empty((m, n))
     sigma_points(x, p, scale, points)
-    moved = points.copy()
-    ntrack = n - 4
-    u = (tau[0], tau[1], 0.0, 0.0)
-    for i in range(m):
-        for j in range(ntrack):
-            if rows[j] >= 0:
-                coef[rows[j], i] = points[i, 4 + j]
-        k = coef
-        c = (k[0, i], k[1, i], k[2, i], k[3, i], k[4, i], k[5, i], k[6, i], k[7, i], k[8, i], k[9, i], k[10, i],
-             k[11, i], k[12, i], k[13, i])  # fmt: skip
-        p1, p2, w1, w2, _ = _rk4(points[i, 0], points[i, 1], points[i, 2], points[i, 3], 0.0, h, c, u, u, u)
-        moved[i, 0] = p1
-        moved[i, 1] = p2
-        moved[i, 2] = w1
-        moved[i, 3] = w2
-    nc = cols.shape[0]
-    if nc:
-        t = np.zeros((nc, nc))
-        flat, power, coefficient, _ = taylor
-        _terms_into(t, flat, power, coefficient, np.ones(flat.shape[0]), h)
-        for i in range(m):
-            for b in range(nc):
-                acc = 0.0
-                for a in range(nc):
-                    acc += points[i, cols[a]] * t[a, b]
-                moved[i, cols[b]] += acc
+    moved = advanced(points, coef, rows, tau, h, cols, taylor)
     mean = np.zeros(n)
     for i in range(m):
         for j in range(n):
@@ -167,25 +211,7 @@ def predict(
             wa = w * d[a]
             for b in range(a, n):
                 cov[a, b] += wa * d[b]
-    for j in range(ntrack):
-        cov[4 + j, 4 + j] += drift[j] * drift[j] * h
-    if nc:
-        q = np.zeros((nc, nc))
-        flat, power, coefficient, which = walk
-        scale_w = np.empty(flat.shape[0])
-        for t_ in range(flat.shape[0]):
-            scale_w[t_] = drift[which[t_]] * drift[which[t_]]
-        _terms_into(q, flat, power, coefficient, scale_w, h)
-        for a in range(nc):
-            for b in range(nc):
-                ia, ib = cols[a], cols[b]
-                if ia <= ib:
-                    cov[ia, ib] += q[a, b] if ia == ib else 0.5 * (q[a, b] + q[b, a])
-    for k_ in range(2):
-        s = hinge[k_]
-        cov[k_, k_] += s * h * h * h / 3.0
-        cov[k_, 2 + k_] += s * h * h / 2.0
-        cov[2 + k_, 2 + k_] += s * h
+    add_process_noise(cov, h, drift, cols, walk, hinge)
     for a in range(n):
         for b in range(a + 1, n):
             cov[b, a] = cov[a, b]
@@ -226,3 +252,85 @@ def swing_readings(
             out[i, 1] -= d * (a1 if node == 0 else a2)
         if offset_col >= 0:
             out[i, 0] += at[i, offset_col]
+
+
+SWING, ACCEL = 0, 1  # ``update_moments``' readings: a node's swing angle and rate, its accelerometer
+
+
+@numba.njit(cache=True)
+def readings(
+    at: Floats,
+    kind: int,
+    node: int,
+    delay_col: int,
+    offset_col: int,
+    turn_col: int,
+    radius_m: float,
+    g_m_s2: float,
+    coef: Floats,
+    rows: IntArray,
+    tau: Floats,
+) -> Floats:
+    """The node's readings (m, 2) at each point of at (m, n) (``update_moments``' kind, columns
+    and arguments)."""
+    m = at.shape[0]
+    zs = np.empty((m, 2))
+    if kind == SWING:
+        swing_readings(at, node, delay_col, offset_col, coef, rows, tau, zs)
+        return zs
+    set_rows(coef, rows, at)
+    state = np.ascontiguousarray(at[:, :4].T)
+    u = np.zeros((4, m))
+    delay = np.zeros(m)
+    turn = np.zeros(m)
+    for i in range(m):
+        u[0, i] = tau[0]
+        u[1, i] = tau[1]
+        if delay_col >= 0:
+            delay[i] = at[i, delay_col]
+        if turn_col >= 0:
+            turn[i] = at[i, turn_col]
+    out = np.empty((2, m))
+    accel_readings(coef, state, u, node, radius_m, g_m_s2, delay, turn, out)
+    for i in range(m):
+        zs[i, 0] = out[0, i]
+        zs[i, 1] = out[1, i]
+    return zs
+
+
+@numba.njit(cache=True)
+def update_moments(
+    x: Floats,
+    p: Floats,
+    scale: float,
+    wm: Floats,
+    wc: Floats,
+    coef: Floats,
+    rows: IntArray,
+    tau: Floats,
+    gap: float,
+    cols: IntArray,
+    taylor: tuple[IntArray, Floats, Floats, IntArray],
+    kind: int,
+    node: int,
+    delay_col: int,
+    offset_col: int,
+    turn_col: int,
+    radius_m: float,
+    g_m_s2: float,
+    r: Floats,
+) -> tuple[Floats, Floats, Floats]:
+    """The predicted measurement's moments over the sigma points of x (n,), p (n, n) in one call
+    (``estimator.RigEstimator._unscented_update``): the points run back by ``gap`` (s, < 0: a late
+    sample; ``advanced``), the node's readings at each (``kind``: ``SWING``, ``swing_readings``
+    with the tracked delay's and offset's states; ``ACCEL``, ``step.accel_readings`` at
+    ``radius_m`` with the delay and the accelerometer's turn), then ``moments`` with the noise r
+    (2, 2): the mean (2,), its covariance (2, 2) and the cross covariance (n, 2). A column index
+    < 0: not tracked."""
+    n = x.shape[0]
+    m = 2 * n + 1
+    points = np.empty((m, n))
+    sigma_points(x, p, scale, points)
+    at = advanced(points, coef, rows, tau, gap, cols, taylor) if gap < 0 else points
+    zs = readings(at, kind, node, delay_col, offset_col, turn_col, radius_m, g_m_s2, coef, rows, tau)
+    return moments(points, x, zs, wm, wc, r)

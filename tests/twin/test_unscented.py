@@ -94,5 +94,6 @@ def test_the_warm_up_loads_every_kernel_in_every_form_a_twin_then_uses():
     out = subprocess.run([sys.executable, "-c", WARM_CHECK], capture_output=True, text=True, timeout=240, check=True)
     warm, after, count = json.loads(out.stdout.strip().splitlines()[-1])
     assert count > 300  # the twin ran
-    assert all(warm[name] for name in warm), warm
+    used = {name.rsplit(".", 1)[1] for name, signatures in after.items() if signatures}
+    assert {"predict", "update_moments", "correct", "add_roughness"} <= used, used
     assert after == warm
