@@ -309,10 +309,12 @@ class FusionPhase:
         if t_s - history[0][0] < RATE_MIN_SPAN_S:
             return
         t, phase = np.array(history).T
-        slope, offset = np.polyfit(t - t_s, phase, 1)
-        residual = phase - (offset + slope * (t - t_s))
-        rms = float(np.sqrt(np.mean(np.square(residual))))
-        spread = float(np.sum(np.square(t - t.mean())))
+        t = t - t_s
+        dt = t - t.mean()
+        spread = float(dt @ dt)
+        slope = float(dt @ (phase - phase.mean())) / spread  # the least-squares line, in closed form
+        residual = phase - phase.mean() - slope * dt
+        rms = math.sqrt(float(residual @ residual) / len(t))
         slope_sigma = math.sqrt(float(residual @ residual) / max(len(t) - 2, 1) / spread)
         rate = float(np.clip(slope, -RATE_MAX_S_S, RATE_MAX_S_S))
         if abs(slope) >= max(RATE_MIN_S_S, RATE_SLOPE_Z * slope_sigma) and rms <= RATE_FIT_RMS_S:
@@ -514,7 +516,7 @@ class NodeMeasurement:
         """``SwingFrame.angle`` of one orientation (4,) on floats: the twist about the frame's
         quat_axis from its reference (conj(reference) q), plus its offset, rad in (-pi, pi] + offset."""
         rw, rx, ry, rz, ax, ay, az, offset = self._frame_floats
-        qw, qx, qy, qz = (float(v) for v in q)
+        qw, qx, qy, qz = q.tolist()
         w = rw * qw - rx * qx - ry * qy - rz * qz
         x = rw * qx + rx * qw + ry * qz - rz * qy
         y = rw * qy - rx * qz + ry * qw + rz * qx

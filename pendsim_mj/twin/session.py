@@ -321,12 +321,14 @@ class TwinSession:
             return False
         self._recent_z[node].clear()
         accel = self._take_accel(node, t_v, got, torques_n_m)
-        moved = float(np.max(np.abs(self.estimator.x[:2] - angles_before)))
+        after = self.estimator.x
+        moved = max(abs(float(after[0] - angles_before[0])), abs(float(after[1] - angles_before[1])))
         if not moved <= DIVERGED_RAD:  # (NaN too) no swing moves that far between two samples
             self._touched(t_v, f"the estimate diverged (an angle moved {moved:.3g} rad at one sample): restarted")
             return False
         x, sigma = self.estimator.x, self.estimator.sigma
-        s_sigma = np.sqrt(np.diag(update.covariance))
+        cov = update.covariance
+        s_sigma = (math.sqrt(cov[0, 0]), math.sqrt(cov[1, 1]))
         seen = phi - self._offset(node)  # what the node measured, its mount's offset (as estimated) taken out
         self._rows.append(
             (t_v, node, seen, omega, *x[:NSTATE], *sigma[:NSTATE], *update.innovation, *s_sigma, update.nis, *accel)
@@ -344,7 +346,8 @@ class TwinSession:
                     series.add(nu / s)
         z_rate = update.innovation[1] / s_sigma[1]
         self._recent_nis.append(z_rate * z_rate)
-        if len(self._recent_nis) == INTERVENTION_WINDOW and np.mean(self._recent_nis) > INTERVENTION_NIS:
+        recent = self._recent_nis
+        if len(recent) == INTERVENTION_WINDOW and sum(recent) > INTERVENTION_NIS * INTERVENTION_WINDOW:
             self._touched(t_v)
             return True
         if not self._snapshots or t_v - self._snapshots[-1][0] >= SNAPSHOT_S:
@@ -454,8 +457,8 @@ class TwinSession:
         update = self.estimator.update_accel(t_v, node, *measured, torques_n_m, late_s=LATE_S, gate_z=JUMP_Z)
         if not update.applied:
             return (*measured, *none[2:])
-        s_sigma = np.sqrt(np.diag(update.covariance))
-        return (*measured, *update.innovation, *s_sigma, update.nis)
+        cov = update.covariance
+        return (*measured, *update.innovation, math.sqrt(cov[0, 0]), math.sqrt(cov[1, 1]), update.nis)
 
     def _jumped(self, node: int, t_v: float) -> bool:
         """A node's angle jumped while its rate still follows the model (it turned on its mount):
