@@ -489,7 +489,8 @@ class RigEstimator:
         if node not in (0, 1):
             raise ParameterError(f"node must be 0 (M1) or 1 (M2), got {node!r}")
         z = np.array([phi_rad, omega_rad_s], dtype=float)
-        r = np.diag(self.measurement_sigma[node] ** 2)
+        a, b = self.measurement_sigma[node]
+        r = np.array([[a * a, 0.0], [0.0, b * b]])
         late = 0 < self.t_s - float(t_s) <= late_s
         if not late:
             self.predict(t_s, torques_n_m)
@@ -556,7 +557,8 @@ class RigEstimator:
         if node not in (0, 1):
             raise ParameterError(f"node must be 0 (M1) or 1 (M2), got {node!r}")
         z = np.array([tangential_m_s2, normal_m_s2], dtype=float)
-        r = np.diag(self.accel_sigma_m_s2[node] ** 2)
+        a, b = self.accel_sigma_m_s2[node]
+        r = np.array([[a * a, 0.0], [0.0, b * b]])
         if not 0 < self.t_s - float(t_s) <= late_s:
             self.predict(t_s, torques_n_m)
         update = self._unscented_update(float(t_s), node, z, r, torques_n_m, ACCEL, wraps=False, held=_beyond(gate_z))
@@ -633,7 +635,7 @@ class RigEstimator:
     def sigma(self) -> Floats:
         """(n,) the estimate's standard deviations (the state's rad and rad/s, then the tracked
         parameters' units)."""
-        return np.sqrt(np.diag(self.p))
+        return np.sqrt(self.p.diagonal())
 
     def forecast(
         self, horizon_s: float, *, step_s: float = 0.0125, drive: Callable[[float], tuple[float, float]] | None = None
