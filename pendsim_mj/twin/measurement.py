@@ -131,6 +131,12 @@ class Learned:
       phase_drift_ppm: how fast the ticks move on the twin's clock, ppm (us per s; negative: the
         chip's clock runs fast against the twin's); 0 while the fixed grid explains the data
         better (``FusionPhase``); None with the phase.
+      phase_moving_unfollowed: (ppm, ms) where the phase found over the last 30 s moves (its line's
+        slope at least 3 standard errors) but scatters about that line by more than half a grid
+        step, so that no rate is followed: the ticks drift too fast for the roughness sums (seen
+        from about 300 ppm) or jumped (the twin's clock for that node moved); the slope of the
+        most precise such line since the phase last held steady, ppm, and its scatter's rms, ms.
+        None otherwise.
       frame: the node's swing frame (None: not yet).
       frame_t_s: the instant of the last sample of the window the frame was fitted on, s.
       hinge_to_start_deg: the angle between the found hinge axis and the start frame's, deg.
@@ -146,6 +152,7 @@ class Learned:
     frame_t_s: float | None
     hinge_to_start_deg: float | None
     sense_from_start: bool | None
+    phase_moving_unfollowed: tuple[float, float] | None = None
 
 
 @dataclasses.dataclass(frozen=True)
@@ -244,6 +251,9 @@ class FusionPhase:
         self.moving = False  # the estimate is the moving grid's
         self._anchor = (0.0, 0.0)  # (t_s, shift_s)
         self._history: deque[tuple[float, float]] = deque()  # (t_s, the moving grid's phase on the twin's clock)
+        # (slope s/s, rms s) of a phase that moves but too unsteadily to follow (``_follow_drift``), else None
+        self.unfollowed: tuple[float, float] | None = None
+        self._unfollowed_sigma = math.inf  # that line's slope's standard error, s/s
 
     def value_instants(self, t_s: Floats | float, phase_s: Floats | float) -> Floats:
         """The latest fusion tick (ticks at phase_s + k period) at or before each t_s, s."""
@@ -317,7 +327,12 @@ class FusionPhase:
         rms = math.sqrt(float(residual @ residual) / len(t))
         slope_sigma = math.sqrt(float(residual @ residual) / max(len(t) - 2, 1) / spread)
         rate = float(np.clip(slope, -RATE_MAX_S_S, RATE_MAX_S_S))
-        if abs(slope) >= max(RATE_MIN_S_S, RATE_SLOPE_Z * slope_sigma) and rms <= RATE_FIT_RMS_S:
+        moves = abs(slope) >= max(RATE_MIN_S_S, RATE_SLOPE_Z * slope_sigma)
+        if rms <= RATE_FIT_RMS_S:  # a steady phase, still or followed
+            self.unfollowed, self._unfollowed_sigma = None, math.inf
+        elif moves and slope_sigma < self._unfollowed_sigma:  # the most precise line of an unsteady phase
+            self.unfollowed, self._unfollowed_sigma = (slope, rms), slope_sigma
+        if moves and rms <= RATE_FIT_RMS_S:
             self._anchor = (t_s, self.shift_s(t_s))
             self.rate_s_s = rate
 
@@ -605,11 +620,16 @@ class NodeMeasurement:
     @property
     def learned(self) -> Learned:
         """The phase and frame learned so far."""
-        phase = stretch = drift = None
+        phase = stretch = drift = unfollowed = None
         if self.phase is not None and self.phase.ready:
             phase, stretch = self.phase.estimate()
             drift = self.phase.rate_s_s * 1e6 if self.phase.moving else 0.0
-        return Learned(self.node, phase, stretch, drift, self.frame, self._frame_t_s, self._hinge_deg, self._sense)
+            if self.phase.unfollowed is not None:
+                slope, rms = self.phase.unfollowed
+                unfollowed = (slope * 1e6, rms * 1e3)
+        return Learned(
+            self.node, phase, stretch, drift, self.frame, self._frame_t_s, self._hinge_deg, self._sense, unfollowed
+        )
 
 
 def _positive(name: str, value: float, high: float) -> None:

@@ -143,6 +143,8 @@ class TwinSummary:
         jumped, what the caller noted.
       phase_drift_ppm: per node, how fast its chip's fusion ticks move on the twin's clock, ppm
         (``measurement.Learned.phase_drift_ppm``; 0: they stay put; NaN: no phase learned).
+      phase_moving_unfollowed: per node, (ppm, ms) a found phase that moves too unsteadily to
+        follow (``measurement.Learned.phase_moving_unfollowed``), else None.
     """
 
     samples: tuple[int, int]
@@ -158,6 +160,7 @@ class TwinSummary:
     accel_whiteness_p: tuple[tuple[float, float], tuple[float, float]] = ((math.nan, math.nan), (math.nan, math.nan))
     stated: dict[str, float] = dataclasses.field(default_factory=dict)  # the rig's value of each tracked rig parameter
     phase_drift_ppm: tuple[float, float] = (math.nan, math.nan)
+    phase_moving_unfollowed: tuple[tuple[float, float] | None, tuple[float, float] | None] = (None, None)
 
 
 class TwinSession:
@@ -681,7 +684,8 @@ class TwinSession:
             t / n if n else math.nan for t, n in zip(self._accel_nis_sum, self._accel_nis_count, strict=True)
         )
         (t1, n1), (t2, n2) = self._accel_whiteness
-        drift = [math.nan if d.phase_drift_ppm is None else d.phase_drift_ppm for d in self.learned()]
+        learned = self.learned()
+        drift = [math.nan if d.phase_drift_ppm is None else d.phase_drift_ppm for d in learned]
         return TwinSummary(
             samples=self.samples,
             started_s=self.started_s,
@@ -698,4 +702,5 @@ class TwinSession:
             accel_whiteness_p=((t1.p_value(), n1.p_value()), (t2.p_value(), n2.p_value())),
             stated={name: self.estimator.stated(name) for name in self.estimator.track if name in RIG_PARAMETERS},
             phase_drift_ppm=(drift[0], drift[1]),
+            phase_moving_unfollowed=(learned[0].phase_moving_unfollowed, learned[1].phase_moving_unfollowed),
         )

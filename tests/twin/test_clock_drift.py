@@ -10,6 +10,7 @@ import contextlib
 import io
 import json
 import math
+import re
 
 import numpy as np
 from mcap.reader import make_reader
@@ -67,6 +68,7 @@ def test_a_chip_fusing_on_a_node_clock_that_drifts_against_the_twins_is_followed
         assert main(["twin", "--replay", str(recording), "--speed", "0", "-o", str(twin)]) == 0
     (line,) = [x for x in said.getvalue().splitlines() if x.startswith("fusion timing:")]
     assert "(m2 -" in line and "m1" not in line, line  # said, for M2 alone
+    assert "NOT followed" not in said.getvalue()
     with open(twin, "rb") as f:
         meta = {m.name: m.metadata for m in make_reader(f).iter_metadata()}["pendsim/twin_result"]
     m1, m2 = json.loads(meta["learned"])
@@ -80,17 +82,22 @@ def test_a_chip_fusing_on_a_node_clock_that_drifts_against_the_twins_is_followed
 
 def test_a_drift_too_fast_to_follow_warns_and_neither_diverges_nor_alarms(tmp_path):
     """600 ppm: the ticks cross the whole fusion period within the phase's memory and are not
-    followed (M2's NIS over 100). The angle's innovation wraps, so a hypothesis filter of the
-    health monitor had diverged by 33 whole turns (-207 rad) unnoticed, won, and was handed to the
-    estimate with a false alarm on M2's dry friction (found by a fresh helper's trial). Now the
-    estimate stays within the rig's own swing (the recording's joint states: an independent
-    truth), nothing is alarmed, and the summary says the model does not fit."""
+    followed (M2's NIS over 100; the summary names the drift it saw). The angle's innovation
+    wraps, so a hypothesis filter of the health monitor had diverged by 33 whole turns (-207 rad)
+    unnoticed, won, and was handed to the estimate with a false alarm on M2's dry friction (found
+    by a fresh helper's trial). Now the estimate stays within the rig's own swing (the recording's
+    joint states: an independent truth), nothing is alarmed, and the summary says the model does
+    not fit."""
     recording, twin = tmp_path / "fast.mcap", tmp_path / "twin.mcap"
     said = io.StringIO()
     with contextlib.redirect_stdout(said), contextlib.redirect_stderr(said):
         assert main(["record", "--clock-drift-ppm", "600", "--duration-s", "120", "-o", str(recording)]) == 0
         assert main(["twin", "--replay", str(recording), "--speed", "0", "-o", str(twin)]) == 0
     assert "warning: the model does not fit the data" in said.getvalue()
+    # and names the cause: M2's fusion phase moves at about the recording's -600 ppm, unfollowed
+    named = re.search(r"fusion timing NOT followed: .*M2's at about ([-+]\d+) ppm", said.getvalue())
+    assert named is not None, said.getvalue()
+    assert -700 < int(named.group(1)) < -500
     largest = 0.0
     with open(recording, "rb") as f:
         for decoded in make_reader(f, decoder_factories=[DecoderFactory()]).iter_decoded_messages(

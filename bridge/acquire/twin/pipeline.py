@@ -544,6 +544,7 @@ def _learned(learned: Learned) -> dict[str, object]:
         "fusion_phase_s": learned.fusion_phase_s,
         "phase_stretch_s": list(learned.phase_stretch_s) if learned.phase_stretch_s else None,
         "phase_drift_ppm": learned.phase_drift_ppm,
+        "phase_moving_unfollowed": list(learned.phase_moving_unfollowed) if learned.phase_moving_unfollowed else None,
         "frame_t_s": learned.frame_t_s,
         "hinge_to_start_deg": learned.hinge_to_start_deg,
         "hinge_axis": None if frame is None else [float(v) for v in frame.hinge_axis],
@@ -703,6 +704,18 @@ def summary_text(result: TwinResult) -> str:
                 else "followed"
             )
             + " (docs/twin.md, Measurement)"
+        )
+    unsteady = [
+        f"M{k + 1}'s at about {ppm:+.0f} ppm, scattered {rms:.1f} ms about that line"
+        for k, moving in enumerate(s.phase_moving_unfollowed)
+        if moving is not None and s.nis_mean[k] > RUN_MISFIT_NIS
+        for ppm, rms in (moving,)
+    ]
+    if unsteady:
+        lines.append(
+            f"fusion timing NOT followed: the fusion phase found moves ({'; '.join(unsteady)}) too unsteadily to "
+            "follow: the chip's ticks drift faster than the twin follows (about 200 ppm), or the node's timing "
+            "jumped; its values' instants are off by up to a fusion period (docs/twin.md, Measurement)"
         )
     unfit = [f"M{k + 1}'s mean NIS {v:.1f}" for k, v in enumerate(s.nis_mean) if v > RUN_MISFIT_NIS]
     unfit += [
