@@ -176,6 +176,7 @@ def test_parameters_and_diagnostics_are_written_once_a_second(replayed):
     [
         (["--speed", "2"], "--speed is for --replay"),
         (["--node", "m3=5601"], "m3"),
+        (["--node", "m1=5701"], "give --node for each (e.g. --node m1=5701 --node m2=5702), or neither"),
         (["--track", "springs"], "allowed: all, none"),
         (["--threshold-sigma", "1"], "--threshold-sigma"),
     ],
@@ -254,7 +255,7 @@ def test_the_summary_gives_the_models_value_and_says_when_a_parameter_is_where_n
     )  # fmt: skip
     text = summary_text(TwinResult(None, 10.0, "end", summary, (), (0.0, 0.0), 0))
     rows = {line.split()[0]: line for line in text.splitlines() if line.startswith("  ")}
-    assert rows["friction1_n_m"].endswith("(below 0, which a rig cannot have: 0 within 2 sigma)")
+    assert rows["friction1_n_m"].endswith("(below 0, but 0 is within 2 sigma: none found)")
     assert rows["friction2_n_m"].endswith(
         "(below 0 beyond 2 sigma, which a rig cannot have: the model misses something)"
     )

@@ -127,7 +127,10 @@ def run_twin_live(
     """
     nodes = check_nodes(tuple(nodes))
     if [n.name for n in nodes] != ["m1", "m2"]:
-        raise ParameterError("the twin needs both nodes, m1 and m2")
+        raise ParameterError(
+            "the twin needs both nodes, m1 and m2: give --node for each (e.g. --node m1=5701 --node m2=5702), "
+            "or neither for the defaults m1=5601 m2=5602"
+        )
     stream = stream if stream is not None else StreamFormat()
     frames = model_frames(spec.params)  # NodeView's own state (unused here) needs one; the twin learns its own
     node_views = [_TwinNodeView(n, stream, rate_hz, frames[i]) for i, n in enumerate(nodes)]

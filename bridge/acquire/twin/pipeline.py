@@ -643,8 +643,8 @@ def summary_text(result: TwinResult) -> str:
     stopped = STOPPED.get(result.stop_reason, result.stop_reason)
     timed = bool(s.alarms) or any(what != "tracking" for _, what in s.events)
     lines = [
-        f"twin: {stopped} after {result.duration_s:.1f} s of running; samples m1 {s.samples[0]}, m2 {s.samples[1]}"
-        + (" (times below: s on the twin's clock, from its start)" if timed else "")
+        f"twin: {stopped} after {result.duration_s:.1f} s of running; samples given to the twin m1 {s.samples[0]}, "
+        f"m2 {s.samples[1]}" + (" (times below: s on the twin's clock, from its start)" if timed else "")
     ]
     if math.isnan(s.started_s):
         if min(s.samples) == 0:
@@ -714,8 +714,9 @@ def summary_text(result: TwinResult) -> str:
     if unsteady:
         lines.append(
             f"fusion timing NOT followed: the fusion phase found moves ({'; '.join(unsteady)}) too unsteadily to "
-            "follow: the chip's ticks drift faster than the twin follows (about 200 ppm), or the node's timing "
-            "jumped; its values' instants are off by up to a fusion period (docs/twin.md, Measurement)"
+            "follow: the chip's ticks drift faster than the twin can follow (followed in tests up to 200 ppm), or "
+            "the node's timing jumped; its values' instants are off by up to a fusion period, and its 'angle "
+            "jumped' events are most likely that, not its mount (docs/twin.md, Measurement)"
         )
     unfit = [f"M{k + 1}'s mean NIS {v:.1f}" for k, v in enumerate(s.nis_mean) if v > RUN_MISFIT_NIS]
     unfit += [
@@ -747,7 +748,7 @@ def summary_text(result: TwinResult) -> str:
             line += f" (the model's rig: {s.stated[name]:.5g})"
         if name in NON_NEGATIVE and value < 0:
             line += (
-                " (below 0, which a rig cannot have: 0 within 2 sigma)"
+                " (below 0, but 0 is within 2 sigma: none found)"
                 if value + 2 * sigma >= 0
                 else (" (below 0 beyond 2 sigma, which a rig cannot have: the model misses something)")
             )
@@ -765,7 +766,11 @@ def summary_text(result: TwinResult) -> str:
             f"established (not used), {other} others not used (stale, off time, malformed, implausible)"
         )
     if result.late:
-        lines.append(f"{len(result.late)} samples came after later ones had been taken in; left out")
+        per_node = [sum(1 for node, _ in result.late if node == k) for k in range(2)]
+        lines.append(
+            f"{len(result.late)} samples (m1 {per_node[0]}, m2 {per_node[1]}) came after later ones had been taken "
+            "in: used by the receiver, left out by the twin"
+        )
     if math.isfinite(result.latency_ms[0]):
         p50, p99 = result.latency_ms
         lines.append(f"latency, sample arrival -> estimate: median {p50:.1f} ms, p99 {p99:.1f} ms")
