@@ -43,7 +43,7 @@ import dataclasses
 import itertools
 import math
 from collections.abc import Callable
-from typing import Any, NamedTuple
+from typing import Any, NamedTuple, TypeVar
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -66,6 +66,7 @@ from pendsim_mj.twin.unscented import (
 )
 
 Floats = NDArray[np.float64]
+_T = TypeVar("_T")
 NSTATE = 4
 HINGE_AXIS = 2  # the sensor axis along the hinge (z) in the default mount
 DEFAULT_TORQUE_NOISE_N_M = 1e-6  # N m / sqrt(Hz): white torque standing for the model's error. On the
@@ -415,6 +416,15 @@ class RigEstimator:
         """(2,) the white torque's spectral density over each hinge's inertia squared, rad^2/s^3."""
         return np.square(self.torque_noise_n_m / self._inertia)
 
+    def _repaired(self, compute: Callable[[], _T]) -> _T:
+        """``compute()`` (a compiled step that factors P), once more after ``_repair`` where P was
+        found indefinite (numpy's LinAlgError from the Cholesky factor)."""
+        try:
+            return compute()
+        except np.linalg.LinAlgError:
+            self._repair()
+            return compute()
+
     def _repair(self) -> None:
         """Rounding left P indefinite: the nearest PSD correlation instead, counted (``repaired``)."""
         self.repaired += 1
@@ -449,18 +459,12 @@ class RigEstimator:
             return
         tau = np.asarray(torques_n_m, dtype=float)
         hinge = self._hinge_density()
-        for attempt in range(2):
-            try:  # compiled: the sigma points, their step, the moments and the process noise in one call
-                self.x, self.p = predict(
-                    self.x, np.ascontiguousarray(self.p), self._scale, self._wm, self._wc, self._plant.coef,
-                    self._row_of, tau, h, self._chain_index, self._taylor.arrays, self._walk.arrays,
-                    np.ascontiguousarray(self.drift_per_s, dtype=float), hinge,
-                )  # fmt: skip
-                break
-            except np.linalg.LinAlgError:
-                if attempt:
-                    raise
-                self._repair()
+        # compiled: the sigma points, their step, the moments and the process noise in one call
+        self.x, self.p = self._repaired(lambda: predict(
+            self.x, np.ascontiguousarray(self.p), self._scale, self._wm, self._wc, self._plant.coef, self._row_of,
+            tau, h, self._chain_index, self._taylor.arrays, self._walk.arrays,
+            np.ascontiguousarray(self.drift_per_s, dtype=float), hinge,
+        ))  # fmt: skip
         self.t_s = float(t_s)
 
     def update(
@@ -609,18 +613,12 @@ class RigEstimator:
         late sample's gap (at most a fusion period: 1e-4 rad/s at the default level, a tenth of the
         gyro's noise) is neglected."""
         gap = t_s - self.t_s
-        for attempt in range(2):
-            try:  # compiled: the sigma points, run back by a late sample's gap, their readings, the moments
-                z_mean, s, pxz = update_moments(
-                    self.x, np.ascontiguousarray(self.p), self._scale, self._wm, self._wc, self._plant.coef,
-                    self._row_of, np.asarray(torques_n_m, dtype=float), gap, self._chain_index, self._taylor.arrays,
-                    kind, node, *self._columns(node), float(self.accel_radius_m[node]), float(self.params.g_m_s2), r,
-                )  # fmt: skip
-                break
-            except np.linalg.LinAlgError:
-                if attempt:
-                    raise
-                self._repair()
+        # compiled: the sigma points, run back by a late sample's gap, their readings, the moments
+        z_mean, s, pxz = self._repaired(lambda: update_moments(
+            self.x, np.ascontiguousarray(self.p), self._scale, self._wm, self._wc, self._plant.coef, self._row_of,
+            np.asarray(torques_n_m, dtype=float), gap, self._chain_index, self._taylor.arrays, kind, node,
+            *self._columns(node), float(self.accel_radius_m[node]), float(self.params.g_m_s2), r,
+        ))  # fmt: skip
         nu = z - z_mean
         if wraps:
             nu[0] = (nu[0] + math.pi) % (2 * math.pi) - math.pi
