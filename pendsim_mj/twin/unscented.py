@@ -1,8 +1,13 @@
 """The unscented filter's arithmetic, compiled: Merwe's scaled sigma points of an estimate, the
-predicted measurement's moments over them, and the gain's correction. The filter (``estimator``)
-draws sigma points two or three times per node sample and updates once or twice; numpy's
-per-call overhead on a 16-state estimate (a Cholesky factor and its scaling, weighted sums, small
-solves) was 90 us of each draw and about as much per update, most of the twin's cost.
+predicted measurement's moments over them, and the gain's correction; and the filter's two steps
+whole, each in one call: the prediction (``predict``: the points advanced by the force law with
+their own tracked parameters, ``advanced``, the moments, the process noise) and an unscented
+update's measurement side (``update_moments``: the points, run back for a late sample, a node's
+swing or accelerometer readings, ``readings``, the moments). The filter (``estimator``) draws
+sigma points two or three times per node sample and updates once or twice; numpy's per-call
+overhead on a 16-state estimate (a Cholesky factor and its scaling, weighted sums, small solves)
+was 90 us of each draw and about as much per update, most of the twin's cost; a whole prediction
+in numpy took 125 us on 20 states, compiled in one call 46 us.
 """
 
 from __future__ import annotations
