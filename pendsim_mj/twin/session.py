@@ -249,6 +249,7 @@ class TwinSession:
         self._tracking = False
         self._checks_from_s = -math.inf
         self._measuring_since: list[float | None] = [None, None]
+        self._waiting: list[str | None] = [None, None]  # each node's last reason to wait (``waiting_text``)
         self._node_baseline_done = False
         self._rows: list[tuple] = []
         self._forecasts: list[tuple[float, Forecast]] = []
@@ -296,6 +297,7 @@ class TwinSession:
         self._drive = torques_n_m if callable(torques_n_m) else None  # the forecasts' torques
         self._samples[node] += 1
         got = self.measurements[node].add(t_s, quat_wxyz, gyro_rad_s, accel_m_s2)
+        self._waiting[node] = got.reason if isinstance(got, Waiting) else None
         if isinstance(got, Waiting):
             measuring = self._measuring_since[1 - node]
             if measuring is not None and t_s - measuring >= FALLBACK_S:
@@ -594,6 +596,17 @@ class TwinSession:
         name = f"offset_m{node + 1}_rad"
         track = self.estimator.track
         return float(self.estimator.x[NSTATE + track.index(name)]) if name in track else 0.0
+
+    def waiting_text(self) -> str:
+        """Why the estimate has not started, for a status line: a node not heard from yet, or
+        what each node's measurement still learns (its fusion timing and frame need it to swing)."""
+        silent = [f"m{k + 1}" for k in range(2) if self._samples[k] == 0]
+        if silent:
+            return f"waiting for {' and '.join(silent)}'s samples"
+        learning = [f"m{k + 1} {why}" for k, why in enumerate(self._waiting) if why is not None]
+        if learning:
+            return "learning (the nodes must swing): " + "; ".join(learning)
+        return "waiting to start (both nodes measuring)"
 
     @property
     def samples(self) -> tuple[int, int]:

@@ -441,7 +441,7 @@ class TwinPipeline:
             ros2.DiagnosticStatus(
                 0 if started and misfit is None else 1,
                 "pendsim twin: estimator",
-                ("tracking" if misfit is None else misfit) if started else "waiting for both nodes",
+                ("tracking" if misfit is None else misfit) if started else session.waiting_text(),
                 "estimator",
                 (
                     ("t_s", f"{session.estimator.t_s:.3f}"),
@@ -622,7 +622,7 @@ def status_text(pipeline: TwinPipeline, elapsed_s: float) -> str:
     nis = s.recent_nis()
     alarms = len(pipeline.alarms)
     state = (
-        "waiting for both nodes"
+        s.waiting_text()
         if math.isnan(s.started_s)
         else (f"phi1 {math.degrees(s.estimator.x[0]):+6.1f} deg  phi2 {math.degrees(s.estimator.x[1]):+6.1f} deg")
     )
