@@ -571,23 +571,15 @@ class RigEstimator:
             self.recent[-1] = kept._replace(accel_m_s2=(float(z[0]), float(z[1])))
         return update
 
-    def _accel_readings(self, at: Floats, node: int, torques_n_m: ArrayLike) -> Floats:
-        """(2n + 1, 2) what the node's accelerometer reads at each sigma point (``update_accel``;
-        compiled: ``unscented.readings``, ``fast_planar.step.accel_readings``)."""
-        return self._readings(ACCEL, at, node, torques_n_m)
-
-    def _swing_readings(self, at: Floats, node: int, torques_n_m: ArrayLike) -> Floats:
-        """(2n + 1, 2) the node's swing angle and hinge rate at each sigma point: with a tracked delay
-        d its values d older (phi - d omega, omega - d alpha, alpha from the force law; first order,
-        d^2 alpha / 2 < 1e-5 rad for d < 2 ms), with a tracked offset its angle plus the offset
-        (compiled: ``unscented.swing_readings``)."""
-        return self._readings(SWING, at, node, torques_n_m)
-
     def _columns(self, node: int) -> tuple[int, int, int]:
         """The node's tracked delay's, offset's and accelerometer turn's states (-1: not tracked)."""
         return self._delays.get(node, -1), self._offsets.get(node, -1), self._turns.get(node, -1)
 
     def _readings(self, kind: int, at: Floats, node: int, torques_n_m: ArrayLike) -> Floats:
+        """(m, 2) the node's readings at each point of at (m, n): ``kind`` ``unscented.SWING``, its swing
+        angle and hinge rate (a tracked delay d: its values d older, first order, d^2 alpha / 2 <
+        1e-5 rad for d < 2 ms; a tracked offset added to the angle), or ``ACCEL``, what its
+        accelerometer reads (``update_accel``); compiled: ``unscented.readings``."""
         return readings(np.ascontiguousarray(at), kind, node, *self._columns(node), float(self.accel_radius_m[node]),
                         float(self.params.g_m_s2), self._plant.coef, self._row_of,
                         np.asarray(torques_n_m, dtype=float))  # fmt: skip
@@ -607,7 +599,7 @@ class RigEstimator:
         """The update through the sigma points, where the measurement is not linear in the
         state: a sample from before the estimate's time (the state run back to its instant, one
         RK4 step of t_s - self.t_s per sigma point; the estimate's time stays), a node with a
-        tracked delay (``_swing_readings``), the accelerometer (``_accel_readings``); ``kind``
+        tracked delay, the accelerometer (``_readings``); ``kind``
         (``unscented.SWING`` or ``ACCEL``) names which. ``wraps``: its first component is an angle
         (its innovation wraps); ``held(nu, s)``: the sample is held out. The torque noise over a
         late sample's gap (at most a fusion period: 1e-4 rad/s at the default level, a tenth of the

@@ -19,6 +19,7 @@ from pendsim_mj.rig.params import DEFAULT_PARAMS
 from pendsim_mj.sensors.bno055 import Bno055, sample_imu
 from pendsim_mj.twin.estimator import NSTATE, RigEstimator
 from pendsim_mj.twin.session import TwinSession
+from pendsim_mj.twin.unscented import ACCEL
 
 IMPERFECT = ["--phi1-deg", "31.9", "--heading-deg", "230", "--mount-misalignment-deg", "2", "--fusion-error-deg", "0.2",
              "--hold-wobble-deg", "1", "--loss", "0.02"]  # fmt: skip
@@ -49,7 +50,7 @@ def _readings(estimator: RigEstimator, states: np.ndarray, node: int) -> np.ndar
     for a in range(0, len(states), m):
         block = states[a : a + m]
         padded = np.concatenate([block, np.repeat(block[-1:], m - len(block), axis=0)])
-        out.append(estimator._accel_readings(padded, node, (0.0, 0.0))[: len(block)])
+        out.append(estimator._readings(ACCEL, padded, node, (0.0, 0.0))[: len(block)])
     return np.concatenate(out)
 
 
