@@ -15,9 +15,10 @@ import dataclasses
 import itertools
 import math
 from collections.abc import Sequence
+from typing import overload
 
 import numpy as np
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 
 from pendsim_mj.errors import ParameterError, RecordingError
 
@@ -43,8 +44,17 @@ class ClockRelation:
         """How fast the node's clock runs against the recorder's, ppm (+: the node's runs fast)."""
         return (1.0 / self.rate - 1.0) * 1e6
 
-    def to_recorder(self, stamp_s: float | Floats) -> Floats:
-        return self.offset_s + self.rate * (np.asarray(stamp_s, dtype=float) - self.stamp0_s)
+    @overload
+    def to_recorder(self, stamp_s: float) -> float: ...
+
+    @overload
+    def to_recorder(self, stamp_s: ArrayLike) -> Floats: ...
+
+    def to_recorder(self, stamp_s: float | ArrayLike) -> float | Floats:
+        """Recorder time (s) of node stamps (s): a float for a float (the live loop maps one packet
+        at a time: numpy's scalar round trip cost more than the arithmetic), else an array."""
+        stamp = stamp_s if isinstance(stamp_s, float) else np.asarray(stamp_s, dtype=float)
+        return self.offset_s + self.rate * (stamp - self.stamp0_s)
 
     def to_recorder_in_place(self, stamp_s: np.ndarray) -> np.ndarray:
         """``to_recorder`` of float64 stamps (n,) computed in their own array, which it returns

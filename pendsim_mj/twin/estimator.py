@@ -16,9 +16,10 @@ on its mount in rad), with covariance P. A tracked parameter is a random walk (i
   and the unmodelled disturbances), discretised over the interval (its exact covariance for a
   double integrator per hinge, scaled by 1/J).
 - **Update** with one node's sample: its swing angle (the fused orientation's angle about the
-  hinge) and its gyro's rate about the hinge, z = (phi_n + offset_n, omega_n), linear in x: the Kalman update
-  is exact (Joseph form). Noise: the BNO055 model's gyro sigma on the hinge axis and the
-  orientation's quantisation plus its fusion error (``observe.NodeObserver``'s numbers).
+  hinge) and its gyro's rate about the hinge, z = (phi_n + offset_n, omega_n), linear in x: the
+  Kalman update is exact (``unscented.swing_moments`` and ``corrected``: P - K S K', kept
+  symmetric). Noise: the BNO055 model's gyro sigma on the hinge axis and the orientation's
+  quantisation plus its fusion error (``observe.NodeObserver``'s numbers).
 - **Innovations** nu = z - H x and their covariance S are kept with each update: on a healthy rig
   nu is white with covariance S, and the normalised innovation squared nu' S^-1 nu has a chi^2
   distribution with 2 degrees of freedom (mean 2): the health monitor's input.
@@ -57,11 +58,13 @@ from pendsim_mj.twin.measurement import FusionPhase
 from pendsim_mj.twin.unscented import (
     ACCEL,
     SWING,
+    accelerations_at,
     add_process_noise,
     advanced,
-    correct,
+    corrected,
     predict,
     readings,
+    swing_moments,
     update_moments,
 )
 
@@ -174,28 +177,23 @@ class Update:
     applied: bool = True
 
 
-def _inverse_2(s: Floats) -> Floats:
-    """The inverse of a 2 x 2 matrix, in closed form (an innovation's covariance: numpy's solve on
-    one this small is mostly its call's overhead)."""
-    return np.array([[s[1, 1], -s[0, 1]], [-s[1, 0], s[0, 0]]]) / (s[0, 0] * s[1, 1] - s[0, 1] * s[1, 0])
+def _gated(gate_angle_z: float, gate_rate_z: float) -> Callable[[float, float, float, float], bool]:
+    """Whether a swing sample is held out: its angle's innovation nu0 beyond ``gate_angle_z``
+    sigmas (of its variance s00) while its rate's nu1 is within ``gate_rate_z`` (of s11): the
+    node's angle jumped (its mount), not the rig's motion."""
 
-
-def _gated(gate_angle_z: float, gate_rate_z: float) -> Callable[[Floats, Floats], bool]:
-    """Whether a swing sample is held out: its angle's innovation nu beyond ``gate_angle_z``
-    sigmas (of its covariance s) while its rate's is within ``gate_rate_z``: the node's angle
-    jumped (its mount), not the rig's motion."""
-
-    def held(nu: Floats, s: Floats) -> bool:
-        return bool(abs(nu[0]) > gate_angle_z * math.sqrt(s[0, 0]) and abs(nu[1]) <= gate_rate_z * math.sqrt(s[1, 1]))
+    def held(nu0: float, nu1: float, s00: float, s11: float) -> bool:
+        return abs(nu0) > gate_angle_z * math.sqrt(s00) and abs(nu1) <= gate_rate_z * math.sqrt(s11)
 
     return held
 
 
-def _beyond(gate_z: float) -> Callable[[Floats, Floats], bool]:
-    """Whether a reading is held out: its innovation nu beyond ``gate_z`` sigmas on either axis."""
+def _beyond(gate_z: float) -> Callable[[float, float, float, float], bool]:
+    """Whether a reading is held out: its innovation (nu0, nu1) beyond ``gate_z`` sigmas (of its
+    variances s00, s11) on either axis."""
 
-    def held(nu: Floats, s: Floats) -> bool:
-        return bool(abs(nu[0]) > gate_z * math.sqrt(s[0, 0]) or abs(nu[1]) > gate_z * math.sqrt(s[1, 1]))
+    def held(nu0: float, nu1: float, s00: float, s11: float) -> bool:
+        return abs(nu0) > gate_z * math.sqrt(s00) or abs(nu1) > gate_z * math.sqrt(s11)
 
     return held
 
@@ -303,6 +301,8 @@ class RigEstimator:
         self._plant = FastPlant(params, nenv=2 * self.n + 1)
         self._coef = self._plant.coef.copy()
         self._inertia = np.array([params.j1_kg_m2, params.j2_kg_m2])
+        self._density_of: float | None = None  # the torque noise ``_hinge_density`` was found for
+        self._density = np.zeros(2)
         self.t_s = 0.0
         self.x = np.zeros(self.n)
         self.p = np.eye(self.n)
@@ -413,8 +413,12 @@ class RigEstimator:
         return np.triu(q) + np.triu(q, 1).T
 
     def _hinge_density(self) -> Floats:
-        """(2,) the white torque's spectral density over each hinge's inertia squared, rad^2/s^3."""
-        return np.square(self.torque_noise_n_m / self._inertia)
+        """(2,) the white torque's spectral density over each hinge's inertia squared, rad^2/s^3
+        (kept while ``torque_noise_n_m`` stays what it was)."""
+        if self._density_of != self.torque_noise_n_m:
+            self._density = np.square(self.torque_noise_n_m / self._inertia)
+            self._density_of = self.torque_noise_n_m
+        return self._density
 
     def _repaired(self, compute: Callable[[], _T]) -> _T:
         """``compute()`` (a compiled step that factors P), once more after ``_repair`` where P was
@@ -436,7 +440,7 @@ class RigEstimator:
         """Count a sample taken in, and keep it for ``keep_s`` (``recent``)."""
         self.count += 1
         if self.keep_s > 0:
-            tau = np.asarray(torques_n_m, dtype=float)
+            tau = torques_n_m if isinstance(torques_n_m, tuple) else np.asarray(torques_n_m, dtype=float).tolist()
             self.recent.append(Sample(t_s, node, float(phi_rad), float(omega_rad_s), (float(tau[0]), float(tau[1]))))
             while self.recent[0].t_s < self.t_s - self.keep_s:
                 self.recent.popleft()
@@ -492,37 +496,22 @@ class RigEstimator:
         it (the caller decides what the jump is)."""
         if node not in (0, 1):
             raise ParameterError(f"node must be 0 (M1) or 1 (M2), got {node!r}")
-        z = np.array([phi_rad, omega_rad_s], dtype=float)
-        a, b = self.measurement_sigma[node]
-        r = np.array([[a * a, 0.0], [0.0, b * b]])
+        a, b = self.measurement_sigma[node].tolist()
         late = 0 < self.t_s - float(t_s) <= late_s
         if not late:
             self.predict(t_s, torques_n_m)
+        held = _gated(gate_angle_z, gate_rate_z)
         if late or node in self._delays:
+            r = np.array([[a * a, 0.0], [0.0, b * b]])
             update = self._unscented_update(
-                float(t_s), node, z, r, torques_n_m, SWING, wraps=True, held=_gated(gate_angle_z, gate_rate_z),
-            )  # fmt: skip
-            if update.applied:
-                self._kept(float(t_s), node, phi_rad, omega_rad_s, torques_n_m)
-            return update
-        h = np.zeros((2, self.n))
-        h[0, node] = h[1, 2 + node] = 1.0
-        if node in self._offsets:
-            h[0, self._offsets[node]] = 1.0  # the node reads its angle plus its mount's offset
-        nu = z - h @ self.x
-        nu[0] = (nu[0] + math.pi) % (2 * math.pi) - math.pi  # an angle's innovation wraps
-        ph = self.p @ h.T
-        s = h @ ph + r
-        s_inv = _inverse_2(s)
-        nis = float(nu @ s_inv @ nu)
-        if _gated(gate_angle_z, gate_rate_z)(nu, s):
-            return Update(self.t_s, node, nu, s, nis, applied=False)
-        gain = ph @ s_inv  # (n, 2) = P H' S^-1
-        self.x = self.x + gain @ nu
-        keep = np.eye(self.n) - gain @ h
-        self.p = keep @ self.p @ keep.T + gain @ r @ gain.T  # Joseph form
-        self._kept(self.t_s, node, phi_rad, omega_rad_s, torques_n_m)
-        return Update(self.t_s, node, nu, s, nis)
+                float(t_s), node, float(phi_rad), float(omega_rad_s), r, torques_n_m, SWING, wraps=True, held=held
+            )
+        else:  # linear in the state: the angle x[node] (plus the mount's offset), the rate x[2 + node]
+            z_mean, s, pxz = swing_moments(self.x, self.p, node, self._offsets.get(node, -1), a * a, b * b)
+            update = self._corrected(self.t_s, node, float(phi_rad), float(omega_rad_s), z_mean, s, pxz, True, held)
+        if update.applied:
+            self._kept(update.t_s, node, phi_rad, omega_rad_s, torques_n_m)
+        return update
 
     def set_accel_frame(self, node: int, radius_m: float, sigma_m_s2: ArrayLike) -> None:
         """A node's accelerometer as its swing frame found it (``twin.measurement``): its distance
@@ -560,15 +549,17 @@ class RigEstimator:
         sigmas on either axis is held out (``Update.applied`` False)."""
         if node not in (0, 1):
             raise ParameterError(f"node must be 0 (M1) or 1 (M2), got {node!r}")
-        z = np.array([tangential_m_s2, normal_m_s2], dtype=float)
-        a, b = self.accel_sigma_m_s2[node]
+        z0, z1 = float(tangential_m_s2), float(normal_m_s2)
+        a, b = self.accel_sigma_m_s2[node].tolist()
         r = np.array([[a * a, 0.0], [0.0, b * b]])
         if not 0 < self.t_s - float(t_s) <= late_s:
             self.predict(t_s, torques_n_m)
-        update = self._unscented_update(float(t_s), node, z, r, torques_n_m, ACCEL, wraps=False, held=_beyond(gate_z))
+        update = self._unscented_update(
+            float(t_s), node, z0, z1, r, torques_n_m, ACCEL, wraps=False, held=_beyond(gate_z)
+        )
         kept = self.recent[-1] if self.recent else None
         if update.applied and kept is not None and kept.node == node and kept.t_s == float(t_s):
-            self.recent[-1] = kept._replace(accel_m_s2=(float(z[0]), float(z[1])))
+            self.recent[-1] = kept._replace(accel_m_s2=(z0, z1))
         return update
 
     def _columns(self, node: int) -> tuple[int, int, int]:
@@ -588,20 +579,21 @@ class RigEstimator:
         self,
         t_s: float,
         node: int,
-        z: Floats,
+        z0: float,
+        z1: float,
         r: Floats,
         torques_n_m: ArrayLike,
         kind: int,
         *,
         wraps: bool,
-        held: Callable[[Floats, Floats], bool],
+        held: Callable[[float, float, float, float], bool],
     ) -> Update:
-        """The update through the sigma points, where the measurement is not linear in the
+        """The update through the sigma points, where the measurement (z0, z1) is not linear in the
         state: a sample from before the estimate's time (the state run back to its instant, one
         RK4 step of t_s - self.t_s per sigma point; the estimate's time stays), a node with a
         tracked delay, the accelerometer (``_readings``); ``kind``
-        (``unscented.SWING`` or ``ACCEL``) names which. ``wraps``: its first component is an angle
-        (its innovation wraps); ``held(nu, s)``: the sample is held out. The torque noise over a
+        (``unscented.SWING`` or ``ACCEL``) names which; r (2, 2) its noise. ``wraps``: its first component is an angle
+        (its innovation wraps); ``held(nu0, nu1, s00, s11)``: the sample is held out. The torque noise over a
         late sample's gap (at most a fusion period: 1e-4 rad/s at the default level, a tenth of the
         gyro's noise) is neglected."""
         gap = t_s - self.t_s
@@ -611,14 +603,33 @@ class RigEstimator:
             np.asarray(torques_n_m, dtype=float), gap, self._chain_index, self._taylor.arrays, kind, node,
             *self._columns(node), float(self.accel_radius_m[node]), float(self.params.g_m_s2), r,
         ))  # fmt: skip
-        nu = z - z_mean
-        if wraps:
-            nu[0] = (nu[0] + math.pi) % (2 * math.pi) - math.pi
-        nis = float(nu @ _inverse_2(s) @ nu)
-        if held(nu, s):
+        return self._corrected(t_s, node, z0, z1, z_mean, s, pxz, wraps, held)
+
+    def _corrected(
+        self,
+        t_s: float,
+        node: int,
+        z0: float,
+        z1: float,
+        z_mean: Floats,
+        s: Floats,
+        pxz: Floats,
+        wraps: bool,
+        held: Callable[[float, float, float, float], bool],
+    ) -> Update:
+        """The measurement (z0, z1) against its prediction: z_mean (2,), its covariance s (2, 2) and
+        the cross covariance pxz (n, 2); the estimate corrected (``unscented.corrected``) unless
+        ``held``. In floats: numpy's per-call overhead on 2-vectors is most of their cost."""
+        m0, m1 = z_mean.tolist()
+        (s00, s01), (s10, s11) = s.tolist()
+        nu0, nu1 = z0 - m0, z1 - m1
+        if wraps:  # an angle's innovation wraps
+            nu0 = (nu0 + math.pi) % (2 * math.pi) - math.pi
+        nis = (nu0 * (s11 * nu0 - s01 * nu1) + nu1 * (s00 * nu1 - s10 * nu0)) / (s00 * s11 - s01 * s10)
+        nu = np.array([nu0, nu1])
+        if held(nu0, nu1, s00, s11):
             return Update(t_s, node, nu, s, nis, applied=False)
-        self.x, self.p = self.x.copy(), self.p.copy()  # arrays handed out before stay as they were
-        correct(self.x, self.p, s, pxz, nu)
+        self.x, self.p = corrected(self.x, self.p, s, pxz, nu)  # new arrays: those handed out before stay
         return Update(t_s, node, nu, s, nis)
 
     @property
@@ -670,6 +681,7 @@ def warm_up() -> None:
     est.update_accel(0.0125, 0, 1.0, 9.8)
     est.update(0.01, 1, 0.05, 0.0, late_s=0.0125)  # a late sample: the model run back to its instant
     est.update_accel(0.01, 1, 0.5, 9.8, late_s=0.0125)
+    accelerations_at(est.x, est._plant.coef[:, 0].copy(), 0.0, 0.0)  # the session's tick check
     phase = FusionPhase(FUSION_RATE_HZ, SAMPLE_RATE_HZ)  # the measurement's front end
     for k, t in enumerate((0.0, 0.0125, 0.025)):
         phase.add(t, np.array([1.0 + k, 0.0, 0.0]))

@@ -39,6 +39,7 @@ twin's recording. No I/O.
 from __future__ import annotations
 
 import dataclasses
+import itertools
 import math
 from collections import deque
 
@@ -242,7 +243,7 @@ class FusionPhase:
         n = len(self.phases_s)
         self.cost = np.zeros(2 * n)  # the fixed grid's candidates, then the moving grid's
         self.weight = 0.0
-        self._last: deque[tuple[float, Floats]] = deque(maxlen=2)
+        self._last: deque[tuple[float, tuple[float, float, float]]] = deque(maxlen=2)  # (t_s, gyro rad/s)
         self._estimate: tuple[float, tuple[float, float]] | None = None
         self._estimate_t_s = -math.inf
         # the moving grid's candidate j stands for the phase phases_s[j] + shift_s(t),
@@ -262,21 +263,19 @@ class FusionPhase:
     def add(self, t_s: float, gyro_rad_s: Floats) -> None:
         """One sample (instant on the twin's clock, s; gyro (3,), rad/s)."""
         last = self._last
-        if (
-            len(last) == 2
-            and t_s - last[0][0] <= self.max_span_s
-            and float(np.linalg.norm(last[1][1])) > PHASE_MOTION_RAD_S
-        ):
-            g0, g1 = last[0][1], last[1][1]
-            d1, d2 = g1 - g0, np.asarray(gyro_rad_s, dtype=float) - g1
+        x, y, z = np.asarray(gyro_rad_s, dtype=float).tolist()  # floats: numpy's calls on 3-vectors cost more
+        if len(last) == 2 and t_s - last[0][0] <= self.max_span_s and math.hypot(*last[1][1]) > PHASE_MOTION_RAD_S:
+            (x0, y0, z0), (x1, y1, z1) = last[0][1], last[1][1]
+            a, b, c = x1 - x0, y1 - y0, z1 - z0
+            d, e, f = x - x1, y - y1, z - z1
             forget = math.exp(-(t_s - last[1][0]) / self.memory_s)
             add_roughness(self.cost, self.phases_s, self.shift_s(t_s), self.period_s, last[0][0], last[1][0], t_s,
-                          float(d1 @ d1), float(d1 @ d2), float(d2 @ d2), forget)  # fmt: skip
+                          a * a + b * b + c * c, a * d + b * e + c * f, d * d + e * e + f * f, forget)  # fmt: skip
             self.weight = self.weight * forget + 1.0
             if self._estimate is None or t_s - self._estimate_t_s >= ESTIMATE_EVERY_S:
                 self._estimate = self._choose(t_s)
                 self._estimate_t_s = t_s
-        last.append((float(t_s), np.array(gyro_rad_s, dtype=float)))
+        last.append((float(t_s), (x, y, z)))
 
     def shift_s(self, t_s: float) -> float:
         """Where the moving grid's phase 0 is at ``t_s`` (s on the twin's clock), s."""
@@ -318,7 +317,7 @@ class FusionPhase:
             history.popleft()
         if t_s - history[0][0] < RATE_MIN_SPAN_S:
             return
-        t, phase = np.array(history).T
+        t, phase = np.fromiter(itertools.chain.from_iterable(history), float, 2 * len(history)).reshape(-1, 2).T
         t = t - t_s
         dt = t - t.mean()
         spread = float(dt @ dt)
@@ -429,6 +428,7 @@ class NodeMeasurement:
         self._first_t_s: float | None = None
         self._fall_back = False
         self._tied = np.ones((4, 4), dtype=bool)  # components of equal magnitude on every sample so far
+        self._tied_pairs = [(i, j) for i in range(4) for j in range(i + 1, 4)]  # the pairs still tied
         self._quats: deque[Floats] = deque(maxlen=TIED_SAMPLES)
         self.from_gravity = False  # the frame is the gravity frame (the node did not swing enough to fit one)
 
@@ -449,14 +449,17 @@ class NodeMeasurement:
                 f"expected quat (4,), gyro (3,), accel (3,), got {quat.shape}, {gyro.shape}, {accel.shape}"
             )
         self._t_s = t
-        if not math.isfinite(float(quat.sum() + gyro.sum())):  # a NaN or an infinity anywhere
+        q = quat.tolist()  # floats: numpy's calls on 3- and 4-vectors cost more than their arithmetic
+        if not math.isfinite(sum(q) + sum(gyro.tolist())):  # a NaN or an infinity anywhere
             return Waiting("a sample whose orientation or gyro is not finite is left out")
-        if not math.isfinite(float(accel.sum())):
+        if not math.isfinite(sum(accel.tolist())):
             if self.frame is None:
                 return Waiting("a sample without a finite accelerometer reading cannot teach the frame")
             accel = np.full(3, math.nan)  # the angle and rate are taken; the accelerometer is not
-        size = np.abs(quat)
-        self._tied &= np.abs(size[:, None] - size[None, :]) < QUAT_LSB / 2
+        for i, j in list(self._tied_pairs):
+            if not abs(abs(q[i]) - abs(q[j])) < QUAT_LSB / 2:
+                self._tied[i, j] = self._tied[j, i] = False
+                self._tied_pairs.remove((i, j))
         self._quats.append(quat)
         if self._first_t_s is None:
             self._first_t_s = t
@@ -477,8 +480,10 @@ class NodeMeasurement:
         if self._phi is not None:  # continuous from the previous sample
             phi = self._phi + (phi - self._phi + math.pi) % math.tau - math.pi
         self._phi = phi
-        omega = float(gyro @ self.frame.hinge_axis)
-        tangential, normal = float(accel @ self.frame.tangential), float(accel @ self.frame.toward_pivot)
+        (gx, gy, gz), (ax, ay, az) = gyro.tolist(), accel.tolist()
+        (h0, h1, h2), (t0, t1, t2), (n0, n1, n2) = self._axes
+        omega = gx * h0 + gy * h1 + gz * h2
+        tangential, normal = ax * t0 + ay * t1 + az * t2, ax * n0 + ay * n1 + az * n2
         return NodeSample(self.value_instant(t), phi, omega, t, tangential, normal)
 
     def _start_on_gyro_axis(self) -> SwingFrame:
@@ -543,6 +548,9 @@ class NodeMeasurement:
         r, a = frame.reference_quat_wxyz, frame.quat_axis
         conj = (float(r[0]), -float(r[1]), -float(r[2]), -float(r[3]))
         self._frame_floats = (*conj, float(a[0]), float(a[1]), float(a[2]), float(frame.angle_offset_rad))
+        self._axes = tuple(
+            tuple(np.asarray(v, dtype=float).tolist()) for v in (frame.hinge_axis, frame.tangential, frame.toward_pivot)
+        )  # fmt: skip
 
     def _learn_frame(self, t: float, quat: Floats, gyro: Floats, accel: Floats) -> Waiting | None:
         window = self._window

@@ -102,12 +102,15 @@ class SampleMerger(Generic[T]):
         out: list[Held[T]] = []
         queues = self._queues
         while True:
-            heads = [q[0] for q in queues if q]
-            if not heads:
+            head: Held[T] | None = None
+            for q in queues:  # the oldest head (the lower node on a tie), in plain loops: called per sample
+                if q and (head is None or (q[0].t_s, q[0].node) < (head.t_s, head.node)):
+                    head = q[0]
+            if head is None:
                 break
-            head = min(heads, key=lambda h: (h.t_s, h.node))
-            waits = any(self._waits_on(head, n, now_s) for n in range(self.nodes) if n != head.node)
-            if not (final or not waits or now_s - head.arrived_s >= self.hold_s):
+            if not (final or now_s - head.arrived_s >= self.hold_s) and any(
+                self._waits_on(head, n, now_s) for n in range(self.nodes) if n != head.node
+            ):
                 break
             queues[head.node].popleft()
             self.released_s = max(self.released_s, head.t_s)

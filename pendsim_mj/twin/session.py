@@ -40,6 +40,7 @@ from pendsim_mj.twin.estimator import DIVERGED_RAD, NSTATE, TRACKABLE, Forecast,
 from pendsim_mj.twin.health import DEFAULT_PERSIST_S, DEFAULT_THRESHOLD, Alarm, HealthMonitor
 from pendsim_mj.twin.measurement import FALLBACK_S, TWIST_SIGMA_RAD, Learned, NodeMeasurement, NodeSample, Waiting
 from pendsim_mj.twin.outputs import Estimates, ParameterCheck
+from pendsim_mj.twin.unscented import accelerations_at
 from pendsim_mj.twin.whiteness import Whiteness
 
 Floats = NDArray[np.float64]
@@ -268,7 +269,7 @@ class TwinSession:
         self._accel_frames: list[SwingFrame | None] = [None, None]  # the frame each node's accelerometer is read in
         self._holding, self._hold_checked_s = False, -math.inf  # health checks held (``_checks_held``)
         self._ticks_moved = [0, 0]  # samples whose value was moved to the tick on the sample's other side
-        self._stated_coef = coefficients([params])  # (NCOEF, 1): the stated rig's force law
+        self._stated_coef = coefficients([params])[:, 0].copy()  # (NCOEF,): the stated rig's force law
         nbins = len(HORIZON_BINS_S)
         self._score_n, self._score_sq, self._score_in = np.zeros(nbins), np.zeros(nbins), np.zeros(nbins)
 
@@ -316,7 +317,7 @@ class TwinSession:
         self._score(node, t_v, phi)
         if callable(torques_n_m):
             torques_n_m = torques_n_m(0.5 * (max(self.estimator.t_s, t_v - LATE_S) + t_v))
-        angles_before = self.estimator.x[:2].copy()
+        before1, before2 = self.estimator.x[:2].tolist()
         update = self.estimator.update(
             t_v, node, phi, omega, torques_n_m=torques_n_m, late_s=LATE_S, gate_angle_z=JUMP_Z, gate_rate_z=JUMP_RATE_Z
         )
@@ -326,30 +327,30 @@ class TwinSession:
             return False
         self._recent_z[node].clear()
         accel = self._take_accel(node, t_v, got, torques_n_m)
-        after = self.estimator.x
-        moved = max(abs(float(after[0] - angles_before[0])), abs(float(after[1] - angles_before[1])))
+        after1, after2 = self.estimator.x[:2].tolist()
+        moved = max(abs(after1 - before1), abs(after2 - before2))
         if not moved <= DIVERGED_RAD:  # (NaN too) no swing moves that far between two samples
             self._touched(t_v, f"the estimate diverged (an angle moved {moved:.3g} rad at one sample): restarted")
             return False
         x, sigma = self.estimator.x, self.estimator.sigma
-        cov = update.covariance
-        s_sigma = (math.sqrt(cov[0, 0]), math.sqrt(cov[1, 1]))
+        innovation = update.innovation.tolist()
+        (s00, _), (_, s11) = update.covariance.tolist()
+        s_sigma = (math.sqrt(s00), math.sqrt(s11))
         seen = phi - self._offset(node)  # what the node measured, its mount's offset (as estimated) taken out
-        self._rows.append(
-            (t_v, node, seen, omega, *x[:NSTATE], *sigma[:NSTATE], *update.innovation, *s_sigma, update.nis, *accel)
-        )
+        state, spread = x[:NSTATE].tolist(), sigma[:NSTATE].tolist()
+        self._rows.append((t_v, node, seen, omega, *state, *spread, *innovation, *s_sigma, update.nis, *accel))
         if t_v - self.started_s >= self.settle_s:
             self._nis[node].append(update.nis)
             self._nis_sum[node] += update.nis
             self._nis_count[node] += 1
-            for series, nu, s in zip(self._whiteness[node], update.innovation, s_sigma, strict=True):
+            for series, nu, s in zip(self._whiteness[node], innovation, s_sigma, strict=True):
                 series.add(nu / s)
             if math.isfinite(accel[-1]):
                 self._accel_nis_sum[node] += accel[-1]
                 self._accel_nis_count[node] += 1
                 for series, nu, s in zip(self._accel_whiteness[node], accel[2:4], accel[4:6], strict=True):
                     series.add(nu / s)
-        z_rate = update.innovation[1] / s_sigma[1]
+        z_rate = innovation[1] / s_sigma[1]
         self._recent_nis.append(z_rate * z_rate)
         recent = self._recent_nis
         if len(recent) == INTERVENTION_WINDOW and sum(recent) > INTERVENTION_NIS * INTERVENTION_WINDOW:
@@ -462,8 +463,8 @@ class TwinSession:
         update = self.estimator.update_accel(t_v, node, *measured, torques_n_m, late_s=LATE_S, gate_z=JUMP_Z)
         if not update.applied:
             return (*measured, *none[2:])
-        cov = update.covariance
-        return (*measured, *update.innovation, math.sqrt(cov[0, 0]), math.sqrt(cov[1, 1]), update.nis)
+        (s00, _), (_, s11) = update.covariance.tolist()
+        return (*measured, *update.innovation.tolist(), math.sqrt(s00), math.sqrt(s11), update.nis)
 
     def _jumped(self, node: int, t_v: float) -> bool:
         """A node's angle jumped while its rate still follows the model (it turned on its mount):
@@ -572,8 +573,7 @@ class TwinSession:
         est = self.estimator
         x = est.x
         tau = np.asarray(torques_n_m(got.t_s) if callable(torques_n_m) else torques_n_m, dtype=float)
-        u = np.array([[tau[0]], [tau[1]], [0.0], [0.0]])
-        alpha = accelerations(x[:1], x[1:2], x[2:3], x[3:4], self._stated_coef, u)[node][0]
+        alpha = accelerations_at(x, self._stated_coef, float(tau[0]), float(tau[1]))[node]
         sigma = math.sqrt(float(est.p[node, node]) + float(est.measurement_sigma[node, 0]) ** 2)
 
         def miss(t: float) -> float:

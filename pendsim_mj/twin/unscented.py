@@ -79,17 +79,63 @@ def moments(points: Floats, x: Floats, zs: Floats, wm: Floats, wc: Floats, r: Fl
 
 
 @numba.njit(cache=True)
-def correct(x: Floats, p: Floats, s: Floats, pxz: Floats, nu: Floats) -> None:
-    """The update in place: gain K = pxz s^-1, x += K nu, p -= K s K' (kept symmetric)."""
+def corrected(x: Floats, p: Floats, s: Floats, pxz: Floats, nu: Floats) -> tuple[Floats, Floats]:
+    """The Kalman update of a 2-vector measurement, as new arrays: gain K = pxz s^-1 (s (2, 2) in
+    closed form), x + K nu, p - K s K' = p - K pxz' (kept symmetric). In loops: LAPACK's inverse
+    and BLAS's products on a 2 x 2 and an (n, 2) cost more in their calls than in their arithmetic."""
     n = x.shape[0]
-    gain = pxz @ np.linalg.inv(s)
-    x += gain @ nu
-    p -= gain @ s @ gain.T
+    det = s[0, 0] * s[1, 1] - s[0, 1] * s[1, 0]
+    i00, i01, i10, i11 = s[1, 1] / det, -s[0, 1] / det, -s[1, 0] / det, s[0, 0] / det
+    gain = np.empty((n, 2))
+    x_new = np.empty(n)
+    for j in range(n):
+        gain[j, 0] = pxz[j, 0] * i00 + pxz[j, 1] * i10
+        gain[j, 1] = pxz[j, 0] * i01 + pxz[j, 1] * i11
+        x_new[j] = x[j] + gain[j, 0] * nu[0] + gain[j, 1] * nu[1]
+    p_new = np.empty((n, n))
     for i in range(n):
-        for j in range(i + 1, n):
-            v = 0.5 * (p[i, j] + p[j, i])
-            p[i, j] = v
-            p[j, i] = v
+        for j in range(i, n):
+            a = p[i, j] - (gain[i, 0] * pxz[j, 0] + gain[i, 1] * pxz[j, 1])
+            b = p[j, i] - (gain[j, 0] * pxz[i, 0] + gain[j, 1] * pxz[i, 1])
+            v = 0.5 * (a + b)
+            p_new[i, j] = v
+            p_new[j, i] = v
+    return x_new, p_new
+
+
+@numba.njit(cache=True)
+def swing_moments(
+    x: Floats, p: Floats, node: int, offset_col: int, var_angle: float, var_rate: float
+) -> tuple[Floats, Floats, Floats]:
+    """A node's swing reading where it is linear in the state (no tracked delay, not late): its
+    angle x[node] plus its mount's offset x[offset_col] (< 0: not tracked) with variance
+    ``var_angle`` (rad^2), its rate x[2 + node] with ``var_rate`` ((rad/s)^2); the predicted
+    reading (2,), its covariance (2, 2) and the cross covariance (n, 2), as ``moments`` gives them
+    for the unscented update (H x, H P H' + R, P H')."""
+    n = x.shape[0]
+    pxz = np.empty((n, 2))
+    for j in range(n):
+        pxz[j, 0] = p[j, node] + (p[j, offset_col] if offset_col >= 0 else 0.0)
+        pxz[j, 1] = p[j, 2 + node]
+    mean = np.empty(2)
+    mean[0] = x[node] + (x[offset_col] if offset_col >= 0 else 0.0)
+    mean[1] = x[2 + node]
+    s = np.empty((2, 2))
+    s[0, 0] = pxz[node, 0] + (pxz[offset_col, 0] if offset_col >= 0 else 0.0) + var_angle
+    s[0, 1] = pxz[node, 1] + (pxz[offset_col, 1] if offset_col >= 0 else 0.0)
+    s[1, 0] = s[0, 1]
+    s[1, 1] = pxz[2 + node, 1] + var_rate
+    return mean, s, pxz
+
+
+@numba.njit(cache=True)
+def accelerations_at(state: Floats, coef: Floats, tau0: float, tau1: float) -> tuple[float, float]:
+    """phi1'', phi2'' (rad/s^2) of one state (4,) (phi1, phi2 rad, omega1, omega2 rad/s) under the
+    force law's constants coef (NCOEF,) with hinge torques tau0, tau1 (N m): ``kernel._accel``
+    from Python in one call (numpy's closed form on one state costs 15-25 us, most of it calls)."""
+    c = (coef[0], coef[1], coef[2], coef[3], coef[4], coef[5], coef[6], coef[7], coef[8], coef[9], coef[10],
+         coef[11], coef[12], coef[13])  # fmt: skip
+    return _accel(state[0], state[1], state[2], state[3], c, (tau0, tau1, 0.0, 0.0))
 
 
 @numba.njit(cache=True)
@@ -98,6 +144,19 @@ def _terms_into(out: Floats, flat: IntArray, power: Floats, coefficient: Floats,
     c = out.shape[0]
     for t in range(flat.shape[0]):
         out[flat[t] // c, flat[t] % c] += coefficient[t] * h ** power[t] * scale[t]
+
+
+@numba.njit(cache=True)
+def _same_motion(points: Floats, rows: IntArray, i: int) -> bool:
+    """Whether point i has the first point's state and force-law parameters (rows[j] >= 0: tracked
+    parameter j sets one), bit for bit: then its step is the first point's."""
+    for j in range(4):
+        if points[i, j] != points[0, j]:
+            return False
+    same = True
+    for j in range(rows.shape[0]):
+        same = same and not (rows[j] >= 0 and points[i, 4 + j] != points[0, 4 + j])
+    return same
 
 
 @numba.njit(cache=True)
@@ -114,6 +173,10 @@ def advanced(
     set_rows(coef, rows, points)
     u = (tau[0], tau[1], 0.0, 0.0)
     for i in range(m):
+        if i > 0 and _same_motion(points, rows, i):  # the first point's step, exactly (sigma points along
+            for j in range(4):  # the tracked parameters that do not move the rig: half of them)
+                moved[i, j] = moved[0, j]
+            continue
         k = coef
         c = (k[0, i], k[1, i], k[2, i], k[3, i], k[4, i], k[5, i], k[6, i], k[7, i], k[8, i], k[9, i], k[10, i],
              k[11, i], k[12, i], k[13, i])  # fmt: skip

@@ -180,3 +180,17 @@ def test_loopback_arrival_stamps_lie_between_the_send_and_the_read():
     finally:
         sock.close()
         sender.close()
+
+
+def test_a_stamp_maps_to_the_same_instant_as_a_float_and_in_an_array():
+    """``ClockRelation.to_recorder`` on one float (the live loop, a packet at a time) gives a float,
+    the same number as the array form gives for it."""
+    from pendsim_mj.estimation.timing import ClockRelation
+
+    relation = ClockRelation(offset_s=12.5, rate=1.0 + 37e-6, stamp0_s=1000.25)
+    stamps = np.array([0.0, 1000.25, 1234.5678, 86400.125])
+    mapped = relation.to_recorder(stamps)
+    for stamp, expected in zip(stamps.tolist(), mapped.tolist(), strict=True):
+        one = relation.to_recorder(stamp)
+        assert isinstance(one, float) and one == expected
+    assert mapped[1] == 12.5 and mapped[2] == pytest.approx(12.5 + (1234.5678 - 1000.25) * (1 + 37e-6), abs=1e-12)

@@ -56,3 +56,24 @@ def test_steps_of_the_held_kernel_follow_the_reference_solver():
         x = advanced(x, plant.coef, NO_ROWS, np.zeros(2), dt, NO_ROWS, NO_CHAIN)
     np.testing.assert_allclose(x[0, :2], truth.phi_rad[-1], atol=1e-9)
     np.testing.assert_allclose(x[0, 2:], truth.omega_rad_s[-1], atol=1e-9)
+
+
+def test_a_point_that_moves_as_the_first_takes_its_step_and_every_other_its_own():
+    """Sigma points along a tracked parameter that does not enter the force law (an offset) have
+    the first point's state and constants: they take its step (bit for bit the same numbers), while
+    a point with its own damping or its own state is stepped on its own: each equals the point
+    stepped alone."""
+    from pendsim_mj.engines.fast_planar.closed_form import COEFFICIENTS
+
+    rows = np.array([COEFFICIENTS.index("b1_n_m_s"), -1], dtype=np.intp)  # tracked: b1, then an offset
+    first = np.array([0.3, -0.2, 1.0, 0.5, DEFAULT_PARAMS.b1_n_m_s, 0.0])
+    moves = np.array([[0, 0, 0, 0, 0, 0.0], [0, 0, 0, 0, 0, 0.01], [0, 0, 0, 0, 1e-3, 0], [1e-3, 0, 0, 0, 0, 0]])
+    points = first + moves  # the first; its offset moved; its damping moved; its angle moved
+    tau = np.array([0.004, -0.002])
+    out = advanced(points, FastPlant(DEFAULT_PARAMS, nenv=4).coef, rows, tau, 0.01, NO_ROWS, NO_CHAIN)
+    for i, point in enumerate(points):
+        one = FastPlant(DEFAULT_PARAMS, nenv=1).coef
+        alone = advanced(point[None, :].copy(), one, rows, tau, 0.01, NO_ROWS, NO_CHAIN)
+        assert np.array_equal(out[i], alone[0])
+    assert np.array_equal(out[1, :4], out[0, :4]) and out[1, 5] == 0.01
+    assert np.all(out[2, 2:4] != out[0, 2:4]) and out[3, 0] != out[0, 0]

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from pendsim_mj.twin.estimator import _sigma_weights
-from pendsim_mj.twin.unscented import correct, moments, sigma_points
+from pendsim_mj.twin.unscented import accelerations_at, corrected, moments, sigma_points, swing_moments
 
 
 @pytest.fixture
@@ -49,8 +49,7 @@ def test_a_linear_measurements_moments_and_correction_are_the_kalman_filters(est
     np.testing.assert_allclose(pxz, p @ h.T, rtol=1e-6, atol=1e-12)
     z = h @ x + np.array([2e-3, -1e-3])
     gain = p @ h.T @ np.linalg.inv(h @ p @ h.T + r)
-    x_new, p_new = x.copy(), p.copy()
-    correct(x_new, p_new, s, pxz, z - mean)
+    x_new, p_new = corrected(x, p, s, pxz, z - mean)
     np.testing.assert_allclose(x_new, x + gain @ (z - h @ x), rtol=1e-6, atol=1e-12)
     np.testing.assert_allclose(p_new, p - gain @ h @ p, rtol=1e-5, atol=1e-9 * np.abs(p).max())
     assert np.array_equal(p_new, p_new.T)
@@ -95,5 +94,43 @@ def test_the_warm_up_loads_every_kernel_in_every_form_a_twin_then_uses():
     warm, after, count = json.loads(out.stdout.strip().splitlines()[-1])
     assert count > 300  # the twin ran
     used = {name.rsplit(".", 1)[1] for name, signatures in after.items() if signatures}
-    assert {"predict", "update_moments", "correct", "add_roughness"} <= used, used
+    assert {"predict", "update_moments", "corrected", "swing_moments", "accelerations_at", "add_roughness"} <= used, (
+        used
+    )
     assert after == warm
+
+
+@pytest.mark.parametrize(("node", "offset_col"), [(0, -1), (1, -1), (0, 5), (1, 9)])
+def test_a_swing_readings_moments_are_the_linear_filters(estimate, node, offset_col):
+    """``swing_moments``: the angle x[node] (+ the offset's state), the rate x[2 + node]: H x,
+    H P H' + R and P H' with H written out."""
+    x, p = estimate
+    h = np.zeros((2, len(x)))
+    h[0, node] = h[1, 2 + node] = 1.0
+    if offset_col >= 0:
+        h[0, offset_col] = 1.0
+    r = np.diag([3e-4, 2e-3]) ** 2
+    mean, s, pxz = swing_moments(x, p, node, offset_col, r[0, 0], r[1, 1])
+    np.testing.assert_allclose(mean, h @ x, rtol=1e-12)
+    np.testing.assert_allclose(s, h @ p @ h.T + r, rtol=1e-12)
+    np.testing.assert_allclose(pxz, p @ h.T, rtol=1e-12, atol=1e-300)
+
+
+def test_one_states_accelerations_are_the_closed_forms():
+    """``accelerations_at`` (the compiled force law from Python) against the numpy closed form, on
+    a rig with dry friction and hinge torques."""
+    import dataclasses
+
+    from pendsim_mj.engines.fast_planar.closed_form import accelerations, coefficients
+    from pendsim_mj.rig.params import DEFAULT_PARAMS
+
+    params = dataclasses.replace(DEFAULT_PARAMS, friction1_n_m=2e-4, friction2_n_m=1e-4)
+    c = coefficients([params])
+    rng = np.random.default_rng(3)
+    for _ in range(50):
+        x = rng.normal(size=4) * [1.5, 1.5, 3.0, 3.0]
+        tau = rng.normal(size=2) * 0.01
+        a1, a2 = accelerations(x[:1], x[1:2], x[2:3], x[3:4], c, np.array([[tau[0]], [tau[1]], [0.0], [0.0]]))
+        b1, b2 = accelerations_at(x, c[:, 0].copy(), tau[0], tau[1])
+        assert b1 == pytest.approx(a1[0], rel=1e-12, abs=1e-12)
+        assert b2 == pytest.approx(a2[0], rel=1e-12, abs=1e-12)
