@@ -360,7 +360,7 @@ def _stderr(line: str) -> None:
     print(line, file=sys.stderr, flush=True)
 
 
-class _StatusLine:
+class StatusLine:
     """The live status line on stderr: rewritten in place on a terminal, every 10 s otherwise."""
 
     def __init__(self, write: Callable[[str], None] | None) -> None:
@@ -471,7 +471,7 @@ def _run(
     if not _is_loopback(spec.bind):
         say(f"note: bound to {spec.bind}: these ports are reachable from the network")
     listen_ns = time.monotonic_ns()  # a node not heard from yet is waited for from here (not from the set-up)
-    status_line = _StatusLine(status)
+    status_line = StatusLine(status)
     deadline = start_ns + nanoseconds(spec.duration_s) if spec.duration_s is not None else None
     next_tick = start_ns
     next_flush = start_ns + nanoseconds(FLUSH_S)

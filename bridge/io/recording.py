@@ -43,6 +43,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from pendsim_mj import __version__
+from pendsim_mj.engines.dispatch import ENGINE_NAMES
 from pendsim_mj.engines.trajectory import Trajectory
 from pendsim_mj.errors import ParameterError, RecordingError
 from pendsim_mj.rig.drives import NCHANNEL, Drive, recorded_drive
@@ -205,10 +206,9 @@ class Recording:
         raw = self._metadata("pendsim/run")
         where = "pendsim/run"
         engine = raw.get("engine", "")
-        if engine not in ("mujoco", "reference", "static"):
-            raise RecordingError(
-                f"{self.path}: metadata {where}: engine = {engine!r}; allowed: mujoco, reference, static"
-            )
+        allowed = (*ENGINE_NAMES, "static")  # every engine ``record`` runs, and a static noise test
+        if engine not in allowed:
+            raise RecordingError(f"{self.path}: metadata {where}: engine = {engine!r}; allowed: {', '.join(allowed)}")
         model = raw.get("model", "planar")
         if model not in ("planar", "spatial", "static"):
             raise RecordingError(f"{self.path}: metadata {where}: model = {model!r}; allowed: planar, spatial, static")

@@ -131,6 +131,9 @@ def test_scripted_faults_sent_over_udp_are_alarmed_on_the_right_parameter_within
     meta = _metadata(tmp_path / "live.mcap")[twin_topics.TWIN_RESULT_METADATA]
     alarms = {a["parameter"]: a for a in json.loads(meta["alarms"])}
     assert set(alarms) == {"coupling_sin_n_m", "offset_m2_rad"}, alarms
+    said = [line for line in twin.err if line.startswith("twin: alarm: ")]  # said while running (the summary: stdout)
+    assert len(said) == 2 and "coupling_sin_n_m" in said[0] and "offset_m2_rad" in said[1], twin.err
+    assert any(" samples m1 " in line and " alarms " in line for line in twin.err)  # the status line, every 10 s
     springs, mount = alarms["coupling_sin_n_m"], alarms["offset_m2_rad"]
     assert springs["value"] / springs["reference"] - 1 == pytest.approx(-0.05, abs=0.01)
     assert math.degrees(mount["value"] - mount["reference"]) == pytest.approx(3.0, abs=0.2)

@@ -119,6 +119,9 @@ def run_twin_live(
 ) -> TwinResult:
     """Run the twin on the nodes' packets until ``duration_s``, Ctrl-C, SIGTERM or ``should_stop``;
     ``views_for(start_utc_ns)`` opens the live views (closed at the end, on every exit path).
+    ``say`` gets a line for each event as it happens (listening, a node's clock jump, each alarm,
+    within a second: "twin: alarm: ..."); ``status`` once a second the status line
+    (``pipeline.status_text``).
 
     Raises:
       ParameterError: a port cannot be bound (nothing is written).
@@ -174,6 +177,7 @@ def run_twin_live(
         )
         stop = "duration"
         next_settle_s = 0.0
+        alarms_said = 0
 
         def take(key: selectors.SelectorKey, before_ns: float = math.inf) -> int:
             """The datagrams waiting on one node's socket into the pipeline (those that arrived
@@ -219,8 +223,12 @@ def run_twin_live(
                     next_settle_s = now + SETTLE_S
                     for view in node_views:
                         view.settle(now)
-                if pipeline.tick(now, session.estimator.t_s) and status is not None:
-                    status(status_text(pipeline, now))
+                if pipeline.tick(now, session.estimator.t_s):  # once a second: new alarms said, the status
+                    for alarm in pipeline.alarms[alarms_said:]:
+                        say(f"twin: alarm: {alarm.describe()}")
+                    alarms_said = len(pipeline.alarms)
+                    if status is not None:
+                        status(status_text(pipeline, now))
         # what arrived before the stop and waits in the OS is taken in (a twin behind the nodes on a
         # busy machine lost the last seconds of a run at its stop), for at most DRAIN_S
         stopped_ns, until = time.monotonic_ns(), time.monotonic() + DRAIN_S

@@ -729,14 +729,15 @@ def summary_text(result: TwinResult) -> str:
             "given, a rig unlike its model or a fault; docs/twin.md)"
         )
     f = s.forecast
-    scored = [
-        (h, n, e, w) for h, n, e, w in zip(f.horizon_s, f.count, f.rms_error_rad, f.within_3_sigma, strict=True) if n
-    ]
+    lows = [0.0, *f.horizon_s][: len(f.horizon_s)]  # each bin's lower edge
+    bins = zip(lows, f.horizon_s, f.count, f.rms_error_rad, f.within_3_sigma, strict=True)
+    scored = [(lo, h, e, w) for lo, h, n, e, w in bins if n]  # each horizon's own bin (lo, h], not cumulative
     if scored:
         lines.append(
             "forecast, measured afterwards: "
             + "; ".join(
-                f"<= {h:g} s: rms {math.degrees(e):.3f} deg, {100 * w:.0f} % within 3 sigma" for h, _, e, w in scored
+                f"{lo:g}-{h:g} s ahead: rms {math.degrees(e):.3f} deg, {100 * w:.0f} % within 3 sigma"
+                for lo, h, e, w in scored
             )
         )
     if s.parameters:
