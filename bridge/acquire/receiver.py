@@ -356,7 +356,7 @@ def acquisition_metadata(spec: AcquireSpec, start_utc_ns: int) -> dict[str, dict
     }
 
 
-def _stderr(line: str) -> None:
+def say_on_stderr(line: str) -> None:  # the live loops' default ``say``
     print(line, file=sys.stderr, flush=True)
 
 
@@ -365,7 +365,7 @@ class StatusLine:
 
     def __init__(self, write: Callable[[str], None] | None) -> None:
         self.tty = write is None and sys.stderr.isatty()
-        self.write = write or _stderr
+        self.write = write or say_on_stderr
         self.last_plain = 0.0
         self.shown = False
 
@@ -378,6 +378,10 @@ class StatusLine:
         elif elapsed_s - self.last_plain >= 10.0:
             self.last_plain = elapsed_s
             self.write(text)
+
+    def say(self, text: str) -> None:  # a line of its own (an event), below the status line
+        self.end()
+        self.write(text)
 
     def end(self) -> None:
         """End the line in place (idempotent)."""
@@ -393,7 +397,7 @@ def acquire(
     *,
     replace: bool = False,
     live: LiveSink | None = None,
-    say: Callable[[str], None] = _stderr,
+    say: Callable[[str], None] = say_on_stderr,
     status: Callable[[str], None] | None = None,
 ) -> AcquireResult:
     """Receive the nodes' packets and write the recording to ``output``.

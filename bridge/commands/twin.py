@@ -204,23 +204,17 @@ def run(args: argparse.Namespace) -> int:
         speed = 1.0 if args.speed is None else args.speed
         result = replay(spec, args.replay, output=args.output, replace=args.force, speed=speed, views_for=views_for)
     else:
-        import sys
         import time
 
         from ..acquire.receiver import StatusLine
         from ..acquire.twin.live import run_twin_live
 
         line, started = StatusLine(None), time.monotonic()  # in place on a terminal, every 10 s otherwise
-
-        def say(text: str) -> None:  # a line of its own (a clock jump, an alarm), below the status line
-            line.end()
-            print(text, file=sys.stderr, flush=True)
-
         try:
             result = run_twin_live(
                 spec, output=args.output, replace=args.force, nodes=nodes_from(args), bind=args.bind,
                 stream=stream_from(args), rate_hz=args.rate_hz, duration_s=args.duration_s, views_for=views_for,
-                say=say, status=lambda text: line.show(text, time.monotonic() - started),
+                say=line.say, status=lambda text: line.show(text, time.monotonic() - started),
             )  # fmt: skip
         finally:
             line.end()

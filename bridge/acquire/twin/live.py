@@ -21,7 +21,6 @@ import math
 import selectors
 import socket
 import statistics
-import sys
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -36,7 +35,7 @@ from ...report.twin_views import TwinView
 from ...signals import interrupts_deferred
 from ..packets import PacketError, StreamFormat
 from ..ports import DEFAULT_NODES, NodeSpec, check_nodes
-from ..receiver import listen_udp, read_stamped, stop_signals
+from ..receiver import listen_udp, read_stamped, say_on_stderr, stop_signals
 from ..udp_loop.node_view import NodeView, ViewCounters, model_frames
 from .pipeline import TwinPipeline, TwinResult, TwinSpec, close_sink, open_sink, status_text
 
@@ -98,10 +97,6 @@ class _TwinNodeView(NodeView):
 DRAIN_S = 2.0  # at the stop, datagrams already received are taken in for at most this long, s
 
 
-def _stderr(line: str) -> None:
-    print(line, file=sys.stderr, flush=True)
-
-
 def run_twin_live(
     spec: TwinSpec,
     *,
@@ -114,7 +109,7 @@ def run_twin_live(
     duration_s: float | None = None,
     views_for: Callable[[int], tuple[TwinView, ...]] | None = None,
     should_stop: Callable[[], bool] | None = None,
-    say: Callable[[str], None] = _stderr,
+    say: Callable[[str], None] = say_on_stderr,
     status: Callable[[str], None] | None = None,
 ) -> TwinResult:
     """Run the twin on the nodes' packets until ``duration_s``, Ctrl-C, SIGTERM or ``should_stop``;

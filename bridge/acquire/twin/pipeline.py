@@ -21,7 +21,6 @@ import dataclasses
 import json
 import math
 import queue
-import sys
 import threading
 import time
 from collections.abc import Callable
@@ -146,10 +145,6 @@ class TwinResult:
     latency_ms: tuple[float, float]
     messages: int
     packets: tuple[tuple[int, int, int, int], ...] = ()
-
-
-def _stderr(line: str) -> None:
-    print(line, file=sys.stderr, flush=True)
 
 
 class ViewFeeder:

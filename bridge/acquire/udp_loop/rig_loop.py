@@ -27,7 +27,6 @@ import dataclasses
 import math
 import selectors
 import socket
-import sys
 import time
 from collections.abc import Callable
 
@@ -42,7 +41,7 @@ from pendsim_mj.sensors.bno055 import SAMPLE_RATE_HZ
 
 from ..packets import StreamFormat
 from ..ports import DEFAULT_NODES, NodeSpec, check_nodes
-from ..receiver import listen_udp, read_stamped, stop_signals
+from ..receiver import listen_udp, read_stamped, say_on_stderr, stop_signals
 from .actuator import DEFAULT_ACTUATOR_PORT
 from .node_view import SILENT_S, VALUE_AGE_S, NodeView, ViewCounters, model_frames
 from .packets import MAX_TORQUE_N_M, ActuatorPacketError, Command, Status, decode_status, encode_command
@@ -141,10 +140,6 @@ class RigLoopResult:
             tick_lateness_ms=_p50_p99(self.tick_s - self.t_s),
             compute_ms=_p50_p99((self.sent_s - self.tick_s)[running]),
         )
-
-
-def _stderr(line: str) -> None:
-    print(line, file=sys.stderr, flush=True)
 
 
 class _Loop:
@@ -329,7 +324,7 @@ def run_rig_loop(
     frames: tuple[SwingFrame, SwingFrame] | None = None,
     should_stop: Callable[[], bool] | None = None,
     realtime_priority: bool = True,
-    say: Callable[[str], None] = _stderr,
+    say: Callable[[str], None] = say_on_stderr,
 ) -> RigLoopResult:
     """Run ``controller`` on the rig over UDP (module docstring) and return what happened.
 
