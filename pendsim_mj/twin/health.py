@@ -34,6 +34,22 @@ e^margin), or, after ``decide_s``, once it exceeds H0's by ``margin`` (the alarm
 runner-up and the evidence between them). Otherwise the detection is dismissed: a false detection
 costs the bank's CPU, not an alarm.
 
+**A change still under way** (a spring weakening over a minute, a bearing starting to rub). The
+rig's parameters are weighed twice: as a step (above) and as a change still going on (theta_i
+walking as fast as the change so far: its size over the square root of how long it took). A
+hinge's two laws, in either kind, are one explanation ("the loss at this hinge changed"), named
+once it beats the rest by ``margin``; its law is the steps' better one by ``margin``, left open
+(``Alarm.law_open``) where the changes under way lean to the other law: a damping that
+keeps rising while the swing decays takes out energy as a step of dry friction does (b A^2 per
+cycle with b growing as A falls, against F A), and the step hypotheses then name dry friction
+confidently. After an alarm the parameter walks in the estimator as fast as its change came, so
+that the estimate follows a change that goes on (a slow walk left it to the hinge's other law,
+alarmed later as a second change); once the estimate has moved on from the alarm's value by more
+than ``threshold`` sigmas for ``persist_s``, a second alarm says so (``Alarm.follows_s``) with
+where it has got to. The walk-against-step evidence is not used to say "still changing" at the
+first alarm: a step of dry friction fits a walk better by e^13-15 (the model's small misfit), so
+only the estimate moving on says it.
+
 **The references' spread** (``reference_sigma``): a reference known only within an interval (a
 calibration's; the mount offsets within the nodes' slowly varying fusion error, by default) adds
 its variance to P in g, and leaves the parameter free within it in H0.
@@ -41,7 +57,7 @@ its variance to P in g, and leaves the parameter free within it in H0.
 The alarm says which parameter (and so which node or hinge), since when (the last check with
 |g_i| below 2 before the detection), and by how much (the step's estimate under H_i, with its
 standard deviation), and how much better it explains the data than the runner-up. Each parameter
-alarms once until it is reset.
+alarms once until it is reset, and once more if its change goes on.
 
 False alarms: the checks are strongly correlated (the estimate's memory is tens of seconds) and
 the attribution stage screens detections again, so the rate is what a benchmark over healthy
@@ -71,6 +87,18 @@ SINCE_LEVEL = 2.0  # sigmas: "since when" is the last check below this before th
 KEEP_S = 5.0  # samples the estimator keeps for the attribution's bank between two checks, s
 BANK_LATE_S = 0.0125  # the kept samples' instants interleave out of order as the estimator took them
 PIN_FRACTION = 1e-6  # a parameter held at its reference in a hypothesis: sigma = PRIOR_SIGMA * this
+CHANGING_OVER_S = 60.0  # a change still under way: the walking hypothesis's random walk covers
+# PRIOR_SIGMA in this long (WALK_PER_SQRT_S), as a ramp over a minute or two would need
+OTHER_LAW = {
+    "b1_n_m_s": "friction1_n_m",
+    "friction1_n_m": "b1_n_m_s",
+    "b2_n_m_s": "friction2_n_m",
+    "friction2_n_m": "b2_n_m_s",
+}
+"""The other loss law at the same hinge. At one hinge the two take out energy alike at a steady
+amplitude; a step is told from the other law by how the loss scales with the decaying amplitude
+(b A^2 per cycle against F A), but a damping that keeps rising while the swing decays scales like
+dry friction: while a change goes on the two laws may not be told apart."""
 
 WHAT = {
     "b1_n_m_s": "damping at M1's hinge",
@@ -105,6 +133,11 @@ PRIOR_SIGMA = {
 tracked parameter without one is a nuisance of the measurement (a node's offset rate, M2's delay):
 never alarmed, left free in g and in every hypothesis, as the estimator has it."""
 RELATIVE = ("b1_n_m_s", "b2_n_m_s", "friction1_n_m", "friction2_n_m", "coupling_sin_n_m")  # said in % too
+WALK_PER_SQRT_S = {name: PRIOR_SIGMA[name] / math.sqrt(CHANGING_OVER_S) for name in RELATIVE}
+"""The rig's parameters (not a node's turn, a step by nature) are weighed twice in the bank: as a
+step (constant after it) and as a change still under way: a random walk as fast as the change so
+far (its size over the square root of how long it took: ``walk_for``), at most this fast (unit
+per sqrt(s))."""
 NON_NEGATIVE = RELATIVE  # a rig cannot have these below zero: a change found there is no change of the rig
 
 UNCHANGED = "unchanged"  # the name of H0 in ``Alarm.runner_up``
@@ -123,6 +156,14 @@ class Alarm:
         where no attribution was run).
       evidence: how much better this change explains the data than the runner-up: the natural
         log of their likelihood ratio (inf where no attribution was run).
+      law_open: a change at a hinge whose law the data do not pin down: the other law there
+        (damping for dry friction, and the reverse). Set where the hypotheses of a step and of a
+        change still under way lean to different laws (a damping that keeps rising
+        while the swing decays looks like a step of dry friction), or where neither decides by
+        ``decide_s``.
+      follows_s, followed_value: a second alarm on the same parameter, raised when the change
+        alarmed at ``follows_s`` with ``followed_value`` went on (``still_changing``): ``value``
+        is where it has got to now (None on a first alarm).
     """
 
     parameter: str
@@ -134,6 +175,14 @@ class Alarm:
     sigma: float
     runner_up: str = ""
     evidence: float = math.inf
+    law_open: str = ""
+    follows_s: float | None = None
+    followed_value: float | None = None
+
+    @property
+    def still_changing(self) -> bool:
+        """Whether this alarm says that an alarmed change went on (``follows_s``)."""
+        return self.follows_s is not None
 
     @property
     def change(self) -> float:
@@ -156,16 +205,35 @@ class Alarm:
             f"{self.since_s:.1f} s (its last check within 2 sigma of the reference), "
             f"alarm at {self.t_s:.1f} s"
         )
-        if self.runner_up:
+        if self.follows_s is not None:
+            line += (
+                f"; still changing: it moved on from {self.followed_value:.4g} {unit} at its alarm at "
+                f"{self.follows_s:.1f} s"
+            )
+        if self.law_open and self.follows_s is not None:
+            line += (
+                f"; while it changes, {WHAT[self.parameter]} and {WHAT[self.law_open]} ({self.law_open}) are not "
+                "told apart (a loss that keeps rising over a decaying swing looks like the other law)"
+            )
+        elif self.law_open:
+            line += (
+                f"; {WHAT[self.parameter]} or {WHAT[self.law_open]} ({self.law_open}): the data do not tell "
+                "the two laws apart (a change still under way, or no decision in time)"
+            )
+        elif self.runner_up:
             line += f"; likelier than {self.runner_up} by e^{self.evidence:.0f}"
         return line
 
 
 class _Bank:
-    """The attribution stage: one filter per hypothesis, fed the same samples from ``t0_s`` on."""
+    """The attribution stage: one filter per hypothesis, fed the same samples from ``t0_s`` on.
+    Hypothesis k: parameter ``names[k]`` (``UNCHANGED`` for none) stepped, or, where
+    ``walking[k]``, still changing."""
 
-    def __init__(self, names: list[str], filters: list[RigEstimator], t0_s: float, since_s: float) -> None:
-        self.names, self.filters, self.t0_s, self.since_s = names, filters, t0_s, since_s
+    def __init__(
+        self, names: list[str], walking: list[bool], filters: list[RigEstimator], t0_s: float, since_s: float
+    ) -> None:
+        self.names, self.walking, self.filters, self.t0_s, self.since_s = names, walking, filters, t0_s, since_s
         self.loglik = np.zeros(len(filters))
 
     def take(self, sample) -> None:
@@ -261,8 +329,11 @@ class HealthMonitor:
         self._quiet_until_s = -math.inf
         self.alarmed: dict[str, Alarm] = {}
         self.impossible: list[Alarm] = []  # changes found to values the rig cannot have: not alarmed
-        self._aside: set[str] = set()  # found at an impossible value: left free, as an alarmed one
+        self._aside: set[str] = set()  # left free, as an alarmed one: found at an impossible value, or
+        # the law an alarm at its hinge left open
         self.dismissed: list[float] = []
+        self._drift_per_s = estimator.drift_per_s.copy()  # the estimator's walks before any alarm
+        self._moving_since: dict[str, float] = {}  # an alarmed step moving on from its value since, s
         self.history: list[tuple[float, dict[str, float]]] = []  # (t_s, g per parameter)
 
     def statistics(self) -> dict[str, float]:
@@ -297,6 +368,13 @@ class HealthMonitor:
                 self.reference = {name: float(est.x[NSTATE + i]) for i, name in enumerate(est.track)}
                 self._calm_s = dict.fromkeys(est.track, t)
             return []
+        follow_ups = self._follow_ups(t)
+        return follow_ups + self._detect(t)
+
+    def _detect(self, t: float) -> list[Alarm]:
+        """The detection and attribution stages at a check (module docstring)."""
+        est = self.estimator
+        assert self.reference is not None
         g = self.statistics()
         self.history.append((t, g))
         for name, gi in g.items():
@@ -326,17 +404,63 @@ class HealthMonitor:
             self._aside.add(alarm.parameter)
             return []
         self.alarmed[alarm.parameter] = alarm
+        i = self.estimator.track.index(alarm.parameter)
+        if alarm.parameter in WALK_PER_SQRT_S:  # followed as closely as a change under way needs: a
+            # ramp goes on after its alarm, and a slow walk would leave it to the hinge's other law
+            self.estimator.drift_per_s[i] = self.walk_for(alarm.parameter, alarm.change, alarm.t_s - alarm.since_s)
+        self._moving_since.pop(alarm.parameter, None)
         return [alarm]
+
+    def walk_for(self, name: str, change: float, span_s: float) -> float:
+        """The random walk (unit per sqrt(s)) of a change of ``change`` that took ``span_s``:
+        |change| / sqrt(span), within the estimator's own walk and ``WALK_PER_SQRT_S``."""
+        i = self.estimator.track.index(name)
+        walk = abs(change) / math.sqrt(max(span_s, self.period_s))
+        return min(max(walk, float(self._drift_per_s[i])), WALK_PER_SQRT_S[name])
+
+    def _follow_ups(self, t: float) -> list[Alarm]:
+        """A parameter alarmed as a step whose estimate has since moved on from the alarm's value
+        by more than ``threshold`` sigmas (the alarm's and the estimate's together) for
+        ``persist_s``: the change was still under way; alarmed once more, as still changing."""
+        out: list[Alarm] = []
+        est = self.estimator
+        for name, alarm in list(self.alarmed.items()):
+            if alarm.follows_s is not None or name not in WALK_PER_SQRT_S:
+                self._moving_since.pop(name, None)
+                continue
+            i = NSTATE + est.track.index(name)
+            value, sigma = float(est.x[i]), math.sqrt(float(est.p[i, i]))
+            if abs(value - alarm.value) <= self.threshold * math.hypot(sigma, alarm.sigma):
+                self._moving_since.pop(name, None)
+                continue
+            since = self._moving_since.setdefault(name, t)
+            if t - since >= self.persist_s:
+                other = OTHER_LAW.get(name, "")  # a hinge's loss still changing: its law was told from a
+                # step's hypotheses, which a change under way fools (a rising damping looks like dry friction)
+                follow = dataclasses.replace(
+                    alarm, t_s=t, value=value, sigma=sigma, runner_up="", evidence=math.inf, follows_s=alarm.t_s,
+                    followed_value=alarm.value, law_open=other,
+                )  # fmt: skip
+                if other:
+                    self._aside.add(other)
+                self.alarmed[name] = follow
+                self._moving_since.pop(name, None)
+                out.append(follow)
+        return out
 
     def _start_bank(self, ranked: list[str], since_s: float) -> None:
         """The bank of hypotheses (module docstring) from the estimator's state now."""
         assert self.reference is not None
         est = self.estimator
         t0, x0, p0 = est.t_s, est.x, est.p
-        chosen = ranked if self.candidates == 0 else ranked[: self.candidates]
-        names = [UNCHANGED, *chosen]
+        chosen = list(ranked if self.candidates == 0 else ranked[: self.candidates])
+        chosen += [  # a hinge's other law weighed beside it (``OTHER_LAW``)
+            other for name in chosen if (other := OTHER_LAW.get(name)) in ranked and other not in chosen
+        ]
+        names = [UNCHANGED, *chosen, *(name for name in chosen if name in WALK_PER_SQRT_S)]
+        walking = [k > len(chosen) for k in range(len(names))]
         filters = []
-        for hypothesis in names:
+        for hypothesis, walks in zip(names, walking, strict=True):
             x = x0.copy()
             p = np.zeros_like(p0)
             p[:NSTATE, :NSTATE] = p0[:NSTATE, :NSTATE]
@@ -352,10 +476,12 @@ class HealthMonitor:
                     if name != hypothesis:
                         p[j, j] = self.reference_sigma[i] ** 2
                     drift[i] = est.drift_per_s[i]
+                if walks and name == hypothesis:
+                    drift[i] = self.walk_for(name, x0[j] - self.reference[name], t0 - self._calm_s[name])
             f = est.copy(drift_per_s=drift)
             f.t_s, f.x, f.p = t0, x, p
             filters.append(f)
-        self._bank = _Bank(names, filters, t0, since_s)
+        self._bank = _Bank(names, walking, filters, t0, since_s)
         self._taken = est.count
 
     def _feed(self) -> None:
@@ -369,14 +495,24 @@ class HealthMonitor:
         self._taken = est.count
 
     def _decide(self, t: float) -> list[Alarm]:
+        """Weigh the bank's evidence: a change is named once its explanation beats every other
+        by ``margin`` (H0's included), where a hinge's two laws, stepped or still changing, are one
+        explanation ("the loss at this hinge changed"); then its law: the steps' better law by
+        ``margin`` (waiting for it up to ``decide_s``), left open (``Alarm.law_open``) where the
+        changes under way lean to the other law, or where neither kind decides by then."""
         bank = self._bank
         assert bank is not None and self.reference is not None
-        order = np.argsort(bank.loglik)[::-1]
-        best, second = int(order[0]), int(order[1])
-        lead = float(bank.loglik[best] - bank.loglik[second])
-        over_null = float(bank.loglik[best] - bank.loglik[0])
+        loglik = bank.loglik
+        groups: dict[str, list[int]] = {}
+        for k, name in enumerate(bank.names):
+            groups.setdefault(min(name, OTHER_LAW.get(name, name)), []).append(k)  # a hinge's laws: one
+        best_of = {group: max(members, key=lambda k: loglik[k]) for group, members in groups.items()}
+        ranked = sorted(best_of, key=lambda group: loglik[best_of[group]], reverse=True)
+        top, second = best_of[ranked[0]], best_of[ranked[1]]
+        lead = float(loglik[top] - loglik[second])
+        over_null = float(loglik[top] - loglik[0])
         timed_out = t - bank.t0_s >= self.decide_s
-        if best == 0:
+        if top == 0:
             if lead >= self.margin or timed_out:  # nothing changed after all: dismissed
                 self._dismiss(t)
             return []
@@ -384,7 +520,18 @@ class HealthMonitor:
             if timed_out:
                 self._dismiss(t)
             return []
-        name = bank.names[best]
+        members = groups[ranked[0]]
+        name, law_lead = self._law([k for k in members if not bank.walking[k]])
+        law_open = ""
+        if law_lead < self.margin and not timed_out:
+            return []  # a hinge's change: its law decided on more data, up to decide_s
+        walk_name, walk_lead = self._law([k for k in members if bank.walking[k]])
+        rival = OTHER_LAW.get(name, "")
+        if law_lead < self.margin and walk_lead >= self.margin:
+            name, rival = walk_name, OTHER_LAW.get(walk_name, "")  # the step undecided, the change under way clear
+        elif rival and (law_lead < self.margin or (walk_name == rival and walk_lead > 0)):
+            law_open = rival  # undecided, or the two kinds of change lean to different laws: left open
+        best = max((k for k in members if bank.names[k] == name and not bank.walking[k]), key=lambda k: loglik[k])
         i = self.estimator.track.index(name)
         winner = bank.filters[best]
         if not np.max(np.abs(winner.x[:2] - self.estimator.x[:2])) <= DIVERGED_RAD:
@@ -398,8 +545,25 @@ class HealthMonitor:
         if winner.t_s == est.t_s:  # the estimate goes on from the winning explanation: the others at
             est.x, est.p = winner.x.copy(), winner.p.copy()  # their references (the change is named
             # once, not again on a parameter it traded off against, as dry friction against damping)
-        alarm = Alarm(name, WHAT[name], t, since, self.reference[name], value, sigma, bank.names[second], lead)
+        runner_up, evidence = (bank.names[second], lead) if law_lead >= lead or not rival else (rival, law_lead)
+        alarm = Alarm(
+            name, WHAT[name], t, since, self.reference[name], value, sigma, runner_up, evidence, law_open=law_open
+        )
+        if law_open:
+            self._aside.add(law_open)  # the hinge's change is named once, whichever law it is
         return self._raise(alarm)
+
+    def _law(self, members: list[int]) -> tuple[str, float]:
+        """Among hypotheses of one explanation (a hinge's two laws, of one kind of change): the
+        best one's parameter and its lead over the other law's (inf where alone; "" where none)."""
+        bank = self._bank
+        assert bank is not None
+        if not members:
+            return "", -math.inf
+        loglik = bank.loglik
+        best = max(members, key=lambda k: loglik[k])
+        others = [loglik[k] for k in members if bank.names[k] != bank.names[best]]
+        return bank.names[best], float(loglik[best] - max(others)) if others else math.inf
 
     def _dismiss(self, t: float) -> None:
         """The bank ends with nothing alarmed; the checks stay quiet for ``decide_s``."""
@@ -416,8 +580,12 @@ class HealthMonitor:
         value, _ = self.estimator.parameters()[parameter]
         if self.reference is not None:
             self.reference[parameter] = value
-        self.alarmed.pop(parameter, None)
+        alarm = self.alarmed.pop(parameter, None)
         self._aside.discard(parameter)
+        if alarm is not None and alarm.law_open:
+            self._aside.discard(alarm.law_open)
+        i = self.estimator.track.index(parameter)
+        self.estimator.drift_per_s[i] = self._drift_per_s[i]
 
     def largest_z(self) -> dict[str, float]:
         """Each parameter's largest |g| so far (0 before the baseline)."""

@@ -6,12 +6,14 @@ statistic is the likelihood ratio of one parameter changed (checked by direct mi
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
 import pytest
 from scipy.optimize import minimize
 
+from pendsim_mj.engines.piecewise import ParameterChange, run_pieces, schedule_pieces
 from pendsim_mj.engines.simulation import simulate
 from pendsim_mj.estimation.swing_frame import twist_angle
 from pendsim_mj.rig.drives import Drive, TimeSeries
@@ -89,6 +91,69 @@ def test_each_fault_on_a_free_decay_is_alarmed_within_a_minute_on_its_own_parame
     assert FAULT_AT_S - 2.0 <= alarm.since_s <= alarm.t_s
     assert abs(alarm.value - truth) < 4 * alarm.sigma + 0.05 * abs(truth), alarm.describe()
     assert alarm.runner_up and alarm.evidence >= 5.0  # the default margin over the next explanation
+
+
+RAMP_S = 40.0  # a change still under way: linear from FAULT_AT_S over this long
+
+
+def _ramp_decay(phi0_deg, name: str, value: float, until_s: float, seed: int):
+    """As ``_free_decay``, with the rig's ``name`` ramping linearly to ``value`` from FAULT_AT_S
+    over RAMP_S (constant pieces of 0.1 s, each at the ramp's midpoint value)."""
+    first = round(FAULT_AT_S / STEP_S)
+    change = ParameterChange(name, value, first, first + round(RAMP_S / STEP_S))
+    run = run_pieces("mujoco", schedule_pieces(PAPER, [change], ramp_every=8), np.radians(phi0_deg), (0.0, 0.0),
+                     until_s, STEP_S)  # fmt: skip
+    imu = sample_imu(run, Bno055(fusion_timing=False, seed=seed))
+    rest = static_imu(PAPER, 1.0, Bno055(noise=False)).quat_wxyz[0]
+    phi = np.stack([twist_angle(imu.quat_wxyz[:, n], rest[n], np.array([0.0, 0.0, 1.0])) for n in range(2)], axis=1)
+    return imu.t_s, phi, imu.gyro_rad_s[:, :, 2]
+
+
+def _along_ramp(t_s: float, before: float, after: float) -> float:
+    return before + min(max((t_s - FAULT_AT_S) / RAMP_S, 0.0), 1.0) * (after - before)
+
+
+RAMPS = {  # name: (the rig's field, its value at the ramp's end, the parameter, the parameter's value then)
+    "damping M1 rising to double": ("b1_n_m_s", 2 * PAPER.b1_n_m_s, "b1_n_m_s", 2 * PAPER.b1_n_m_s),
+    "coupling springs weakening 5 %": (
+        "c1_n_m",
+        0.95 * PAPER.c1_n_m,
+        "coupling_sin_n_m",
+        2 * 0.95 * PAPER.c1_n_m * PAPER.l01_m * PAPER.l04_m,
+    ),
+}
+
+
+@pytest.mark.parametrize("ramp", RAMPS)
+def test_a_change_still_under_way_is_alarmed_on_its_parameter_and_said_to_go_on(ramp):
+    """A ramp (a spring weakening, a bearing starting to rub) is alarmed on its own parameter (a
+    hinge's change may leave the law open, never name the other law alone), and before the ramp
+    ends an alarm says the change is still going on, with where it has got to: the ramp's value
+    at that instant within the estimate's interval (and 10 % of the change so far)."""
+    field, value, parameter, after = RAMPS[ramp]
+    reference = {"b1_n_m_s": PAPER.b1_n_m_s, "coupling_sin_n_m": 2 * PAPER.c1_n_m * PAPER.l01_m * PAPER.l04_m}[
+        parameter
+    ]
+    _, alarms = _watch(_ramp_decay((30.0, -8.0), field, value, FAULT_AT_S + RAMP_S + 5.0, seed=23), stop_at_alarm=False)
+    assert alarms, "no alarm during the ramp"
+    for alarm in alarms:
+        assert parameter in (alarm.parameter, alarm.law_open), alarm.describe()
+        assert alarm.t_s >= FAULT_AT_S
+    going_on = [a for a in alarms if a.still_changing]
+    assert going_on, [a.describe() for a in alarms]
+    said = going_on[0]
+    truth = _along_ramp(said.t_s, reference, after)
+    assert said.t_s < FAULT_AT_S + RAMP_S
+    assert abs(said.value - truth) < 4 * said.sigma + 0.1 * abs(truth - reference), (said.describe(), truth)
+
+
+def test_a_step_is_not_said_to_go_on():
+    """After a step's alarm the parameter is followed (faster than before its alarm), and a step
+    that stays put is not alarmed again as still changing."""
+    rig, slip, parameter, _ = FAULTS["damping M1 doubled"]
+    _, alarms = _watch(_free_decay((30.0, -8.0), rig, slip, FAULT_AT_S + 50.0, seed=21), stop_at_alarm=False)
+    assert [a.parameter for a in alarms] == [parameter], [a.describe() for a in alarms]
+    assert not alarms[0].still_changing
 
 
 def test_a_healthy_free_decay_raises_no_alarm():
@@ -195,3 +260,41 @@ def test_a_change_to_a_value_the_rig_cannot_have_is_not_alarmed_and_is_left_free
     assert "friction1_n_m" not in monitor.alarmed and monitor._is_free("friction1_n_m")
     possible = Alarm("friction2_n_m", "dry friction at M2's hinge", 22.0, 14.0, 0.0, 2.0e-4, 2e-5, "b2_n_m_s", 7.2)
     assert monitor._raise(possible) == [possible] and monitor.alarmed["friction2_n_m"] is possible
+
+
+def test_an_alarm_on_a_change_that_went_on_says_so_and_where_it_got_to():
+    from pendsim_mj.twin.health import Alarm
+
+    first = Alarm("b1_n_m_s", "damping at M1's hinge", 17.0, 10.0, 7e-4, 8.4e-4, 1e-6, "friction1_n_m", 7.2)
+    went_on = dataclasses.replace(
+        first, t_s=32.0, value=1.1e-3, sigma=4e-5, runner_up="", evidence=math.inf, follows_s=17.0,
+        followed_value=8.4e-4, law_open="friction1_n_m",
+    )  # fmt: skip
+    assert not first.still_changing and went_on.still_changing
+    text = went_on.describe()
+    assert "b1_n_m_s 0.0007 -> 0.0011 N m s/rad" in text and "(+57 %)" in text
+    assert "still changing: it moved on from 0.00084 N m s/rad at its alarm at 17.0 s" in text
+    assert "damping at M1's hinge and dry friction at M1's hinge (friction1_n_m) are not told apart" in text
+    assert "likelier than" not in text
+    undecided = dataclasses.replace(first, law_open="friction1_n_m")
+    assert "the data do not tell the two laws apart" in undecided.describe()
+
+
+def test_an_alarmed_parameter_is_followed_faster_until_it_is_reset():
+    """After its alarm a rig parameter walks in the estimator as fast as its change came (so that a
+    change that goes on is followed there, not taken up by the hinge's other law); a reset gives it
+    back its own walk, and frees the law an alarm left open."""
+    from pendsim_mj.twin.health import Alarm
+
+    estimator = RigEstimator(PAPER, track=TRACKED)
+    monitor = HealthMonitor(estimator)
+    i = estimator.track.index("b1_n_m_s")
+    own = float(estimator.drift_per_s[i])
+    alarm = Alarm("b1_n_m_s", "damping at M1's hinge", 17.0, 10.0, 7e-4, 8.4e-4, 1e-6, law_open="friction1_n_m")
+    monitor._aside.add("friction1_n_m")
+    assert monitor._raise(alarm) == [alarm]
+    assert estimator.drift_per_s[i] > 10 * own
+    assert estimator.drift_per_s[TRACKED.index("friction1_n_m")] == TRACKABLE["friction1_n_m"][2]
+    monitor.reset("b1_n_m_s")
+    assert estimator.drift_per_s[i] == own
+    assert not monitor._is_free("b1_n_m_s") and not monitor._is_free("friction1_n_m")
