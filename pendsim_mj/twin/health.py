@@ -34,21 +34,25 @@ e^margin), or, after ``decide_s``, once it exceeds H0's by ``margin`` (the alarm
 runner-up and the evidence between them). Otherwise the detection is dismissed: a false detection
 costs the bank's CPU, not an alarm.
 
-**A change still under way** (a spring weakening over a minute, a bearing starting to rub). The
-rig's parameters are weighed twice: as a step (above) and as a change still going on (theta_i
-walking as fast as the change so far: its size over the square root of how long it took). A
-hinge's two laws, in either kind, are one explanation ("the loss at this hinge changed"), named
-once it beats the rest by ``margin``; its law is the steps' better one by ``margin``, left open
-(``Alarm.law_open``) where the changes under way lean to the other law: a damping that
-keeps rising while the swing decays takes out energy as a step of dry friction does (b A^2 per
-cycle with b growing as A falls, against F A), and the step hypotheses then name dry friction
-confidently. After an alarm the parameter walks in the estimator as fast as its change came, so
-that the estimate follows a change that goes on (a slow walk left it to the hinge's other law,
-alarmed later as a second change); once the estimate has moved on from the alarm's value by more
-than ``threshold`` sigmas for ``persist_s``, a second alarm says so (``Alarm.follows_s``) with
-where it has got to. The walk-against-step evidence is not used to say "still changing" at the
-first alarm: a step of dry friction fits a walk better by e^13-15 (the model's small misfit), so
-only the estimate moving on says it.
+**A change still under way** (a spring weakening over a minute, a bearing starting to rub). A
+hinge's damping and dry friction are weighed twice: as a step (above) and as a change still going
+on (theta_i walking as fast as the change so far: its size over the square root of how long it
+took). A hinge's two laws, in either kind, are one explanation ("the loss at this hinge
+changed"), named once it beats the rest by ``margin``; its law is the steps' better one by
+``margin``, unless the changes under way lean to the other law: then, where a change under way
+fits better than every step (by ``margin``), its law if it leads by ``margin``, else the law is
+left open (``Alarm.law_open``); where the steps fit as well, theirs only if their lead less the
+other kind's is still ``margin``. The reason: a damping that keeps rising while the swing decays
+takes out energy as a step of dry friction does (b A^2 per cycle with b growing as A falls,
+against F A), and the step hypotheses then name dry friction confidently (seen: by e^26).
+
+After an alarm the parameter walks in the estimator as fast as its change came, so that the
+estimate follows a change that goes on (a slow walk left it to the hinge's other law, alarmed
+later as a second change); once the estimate has moved on from the alarm's value by more than
+``threshold`` sigmas for ``persist_s`` (where the law was left open, either law's), a second
+alarm says so (``Alarm.follows_s``) with where it has got to. A step of dry friction fits a walk
+better than a step by e^13-15 (the estimator's smooth friction law against the simulator's), so
+a change under way is said only from the estimate moving on, not at the first alarm.
 
 **The references' spread** (``reference_sigma``): a reference known only within an interval (a
 calibration's; the mount offsets within the nodes' slowly varying fusion error, by default) adds
@@ -134,10 +138,10 @@ tracked parameter without one is a nuisance of the measurement (a node's offset 
 never alarmed, left free in g and in every hypothesis, as the estimator has it."""
 RELATIVE = ("b1_n_m_s", "b2_n_m_s", "friction1_n_m", "friction2_n_m", "coupling_sin_n_m")  # said in % too
 WALK_PER_SQRT_S = {name: PRIOR_SIGMA[name] / math.sqrt(CHANGING_OVER_S) for name in RELATIVE}
-"""The rig's parameters (not a node's turn, a step by nature) are weighed twice in the bank: as a
-step (constant after it) and as a change still under way: a random walk as fast as the change so
-far (its size over the square root of how long it took: ``walk_for``), at most this fast (unit
-per sqrt(s))."""
+"""A change still under way: a random walk as fast as the change so far (its size over the square
+root of how long it took: ``walk_for``), at most this fast (unit per sqrt(s)); a hinge's laws are
+weighed so in the bank beside their steps, and each of the rig's parameters (not a node's turn, a
+step by nature) walks so in the estimator after its alarm."""
 NON_NEGATIVE = RELATIVE  # a rig cannot have these below zero: a change found there is no change of the rig
 
 UNCHANGED = "unchanged"  # the name of H0 in ``Alarm.runner_up``
@@ -158,12 +162,15 @@ class Alarm:
         log of their likelihood ratio (inf where no attribution was run).
       law_open: a change at a hinge whose law the data do not pin down: the other law there
         (damping for dry friction, and the reverse). Set where the hypotheses of a step and of a
-        change still under way lean to different laws (a damping that keeps rising
-        while the swing decays looks like a step of dry friction), or where neither decides by
-        ``decide_s``.
-      follows_s, followed_value: a second alarm on the same parameter, raised when the change
-        alarmed at ``follows_s`` with ``followed_value`` went on (``still_changing``): ``value``
-        is where it has got to now (None on a first alarm).
+        change still under way disagree on the law and neither settles it (a damping that keeps
+        rising while the swing decays looks like a step of dry friction), or where nothing
+        decides by ``decide_s``.
+      open_value: with ``law_open``, that law's value (its unit) under its own hypothesis at
+        the alarm (a second alarm: its estimate then).
+      follows_s, followed_value: a second alarm, raised when the change alarmed at ``follows_s``
+        went on (``still_changing``): on the alarmed parameter, or, where that alarm left the law
+        open, on whichever of the hinge's two moved on; ``followed_value`` its value at that alarm,
+        ``value`` where it has got to now (None on a first alarm).
     """
 
     parameter: str
@@ -178,6 +185,7 @@ class Alarm:
     law_open: str = ""
     follows_s: float | None = None
     followed_value: float | None = None
+    open_value: float | None = None
 
     @property
     def still_changing(self) -> bool:
@@ -210,14 +218,17 @@ class Alarm:
                 f"; still changing: it moved on from {self.followed_value:.4g} {unit} at its alarm at "
                 f"{self.follows_s:.1f} s"
             )
+        other = f" ({self.law_open})"
+        if self.law_open and self.open_value is not None:
+            other = f" ({self.law_open} {self.open_value:.4g} {TRACKABLE[self.law_open][1]} as that law)"
         if self.law_open and self.follows_s is not None:
             line += (
-                f"; while it changes, {WHAT[self.parameter]} and {WHAT[self.law_open]} ({self.law_open}) are not "
+                f"; while it changes, {WHAT[self.parameter]} and {WHAT[self.law_open]}{other} are not "
                 "told apart (a loss that keeps rising over a decaying swing looks like the other law)"
             )
         elif self.law_open:
             line += (
-                f"; {WHAT[self.parameter]} or {WHAT[self.law_open]} ({self.law_open}): the data do not tell "
+                f"; {WHAT[self.parameter]} or {WHAT[self.law_open]}{other}: the data do not tell "
                 "the two laws apart (a change still under way, or no decision in time)"
             )
         elif self.runner_up:
@@ -333,7 +344,8 @@ class HealthMonitor:
         # the law an alarm at its hinge left open
         self.dismissed: list[float] = []
         self._drift_per_s = estimator.drift_per_s.copy()  # the estimator's walks before any alarm
-        self._moving_since: dict[str, float] = {}  # an alarmed step moving on from its value since, s
+        self._moving_since: dict[str, float] = {}  # an alarmed change moving on from its value since, s
+        self._followed: set[str] = set()  # alarms whose change has been said to go on
         self.history: list[tuple[float, dict[str, float]]] = []  # (t_s, g per parameter)
 
     def statistics(self) -> dict[str, float]:
@@ -419,34 +431,49 @@ class HealthMonitor:
         return min(max(walk, float(self._drift_per_s[i])), WALK_PER_SQRT_S[name])
 
     def _follow_ups(self, t: float) -> list[Alarm]:
-        """A parameter alarmed as a step whose estimate has since moved on from the alarm's value
-        by more than ``threshold`` sigmas (the alarm's and the estimate's together) for
-        ``persist_s``: the change was still under way; alarmed once more, as still changing."""
+        """An alarmed change that went on: the parameter's estimate has moved on from the alarm's
+        value by more than ``threshold`` sigmas (the alarm's and the estimate's together) for
+        ``persist_s`` (where the alarm left the law open, the other law's from its reference too:
+        what goes on may go there); alarmed once more, on the one that moved, as still changing."""
         out: list[Alarm] = []
-        est = self.estimator
+        assert self.reference is not None
         for name, alarm in list(self.alarmed.items()):
-            if alarm.follows_s is not None or name not in WALK_PER_SQRT_S:
+            if alarm.follows_s is not None or name not in WALK_PER_SQRT_S or name in self._followed:
                 self._moving_since.pop(name, None)
                 continue
-            i = NSTATE + est.track.index(name)
-            value, sigma = float(est.x[i]), math.sqrt(float(est.p[i, i]))
-            if abs(value - alarm.value) <= self.threshold * math.hypot(sigma, alarm.sigma):
+            watched = [(name, alarm.value, alarm.sigma)]
+            if alarm.law_open:
+                watched.append((alarm.law_open, self.reference[alarm.law_open], 0.0))
+            moved, before, z = max(
+                ((n, v, abs(self._estimate(n)[0] - v) / math.hypot(self._estimate(n)[1], s)) for n, v, s in watched),
+                key=lambda row: row[2],
+            )
+            if z <= self.threshold:
                 self._moving_since.pop(name, None)
                 continue
             since = self._moving_since.setdefault(name, t)
-            if t - since >= self.persist_s:
-                other = OTHER_LAW.get(name, "")  # a hinge's loss still changing: its law was told from a
-                # step's hypotheses, which a change under way fools (a rising damping looks like dry friction)
-                follow = dataclasses.replace(
-                    alarm, t_s=t, value=value, sigma=sigma, runner_up="", evidence=math.inf, follows_s=alarm.t_s,
-                    followed_value=alarm.value, law_open=other,
-                )  # fmt: skip
-                if other:
-                    self._aside.add(other)
-                self.alarmed[name] = follow
-                self._moving_since.pop(name, None)
-                out.append(follow)
+            if t - since < self.persist_s:
+                continue
+            other = OTHER_LAW.get(moved, "")  # a hinge's loss still changing: its law was told from a
+            # step's hypotheses, which a change under way fools (a rising damping looks like dry friction)
+            value, sigma = self._estimate(moved)
+            follow = dataclasses.replace(
+                alarm, parameter=moved, what=WHAT[moved], reference=self.reference[moved], t_s=t, value=value,
+                sigma=sigma, runner_up="", evidence=math.inf, follows_s=alarm.t_s, followed_value=before,
+                law_open=other, open_value=self._estimate(other)[0] if other else None,
+            )  # fmt: skip
+            if other:
+                self._aside.add(other)
+            self._followed.add(name)
+            self.alarmed[moved] = follow
+            self._moving_since.pop(name, None)
+            out.append(follow)
         return out
+
+    def _estimate(self, name: str) -> tuple[float, float]:
+        """The estimator's value of a tracked parameter now and its standard deviation."""
+        i = NSTATE + self.estimator.track.index(name)
+        return float(self.estimator.x[i]), math.sqrt(float(self.estimator.p[i, i]))
 
     def _start_bank(self, ranked: list[str], since_s: float) -> None:
         """The bank of hypotheses (module docstring) from the estimator's state now."""
@@ -457,7 +484,8 @@ class HealthMonitor:
         chosen += [  # a hinge's other law weighed beside it (``OTHER_LAW``)
             other for name in chosen if (other := OTHER_LAW.get(name)) in ranked and other not in chosen
         ]
-        names = [UNCHANGED, *chosen, *(name for name in chosen if name in WALK_PER_SQRT_S)]
+        names = [UNCHANGED, *chosen, *(name for name in chosen if name in OTHER_LAW)]  # a hinge's laws also
+        # as changes under way (what tells their law; the springs' or a node's would name nothing new)
         walking = [k > len(chosen) for k in range(len(names))]
         filters = []
         for hypothesis, walks in zip(names, walking, strict=True):
@@ -498,8 +526,10 @@ class HealthMonitor:
         """Weigh the bank's evidence: a change is named once its explanation beats every other
         by ``margin`` (H0's included), where a hinge's two laws, stepped or still changing, are one
         explanation ("the loss at this hinge changed"); then its law: the steps' better law by
-        ``margin`` (waiting for it up to ``decide_s``), left open (``Alarm.law_open``) where the
-        changes under way lean to the other law, or where neither kind decides by then."""
+        ``margin`` (waiting for it up to ``decide_s``); where the changes under way lean to the
+        other law, theirs if they fit better than every step by ``margin`` and name it by
+        ``margin``, else left open (``Alarm.law_open``) unless the steps' lead less theirs is still
+        ``margin``; left open too where neither kind decides by ``decide_s``."""
         bank = self._bank
         assert bank is not None and self.reference is not None
         loglik = bank.loglik
@@ -525,12 +555,24 @@ class HealthMonitor:
         law_open = ""
         if law_lead < self.margin and not timed_out:
             return []  # a hinge's change: its law decided on more data, up to decide_s
-        walk_name, walk_lead = self._law([k for k in members if bank.walking[k]])
+        walks = [k for k in members if bank.walking[k]]
+        walk_name, walk_lead = self._law(walks)
+        under_way = (
+            bool(walks)
+            and max(loglik[k] for k in walks) - max(loglik[k] for k in members if not bank.walking[k]) >= self.margin
+        )  # a change under way explains the data better than any step, by the margin
         rival = OTHER_LAW.get(name, "")
-        if law_lead < self.margin and walk_lead >= self.margin:
-            name, rival = walk_name, OTHER_LAW.get(walk_name, "")  # the step undecided, the change under way clear
-        elif rival and (law_lead < self.margin or (walk_name == rival and walk_lead > 0)):
-            law_open = rival  # undecided, or the two kinds of change lean to different laws: left open
+        if rival and walk_name == rival and (under_way or law_lead < self.margin):
+            # the kinds disagree, and a change under way fits best (a rising damping read as a step of
+            # dry friction) or the steps did not decide: the change under way's law if clear
+            if walk_lead >= self.margin:
+                name, rival, law_lead = walk_name, OTHER_LAW[walk_name], walk_lead
+            else:
+                law_open = rival
+        elif rival and walk_name == rival and law_lead - walk_lead < self.margin:
+            law_open = rival  # a step, but the changes under way hold nearly as much against its law
+        elif rival and law_lead < self.margin and not walk_lead >= self.margin:
+            law_open = rival  # no decision within decide_s
         best = max((k for k in members if bank.names[k] == name and not bank.walking[k]), key=lambda k: loglik[k])
         i = self.estimator.track.index(name)
         winner = bank.filters[best]
@@ -546,9 +588,14 @@ class HealthMonitor:
             est.x, est.p = winner.x.copy(), winner.p.copy()  # their references (the change is named
             # once, not again on a parameter it traded off against, as dry friction against damping)
         runner_up, evidence = (bank.names[second], lead) if law_lead >= lead or not rival else (rival, law_lead)
+        open_value = None
+        if law_open:  # the other law's own estimate, so that the alarm gives the change either way
+            k = max((k for k in members if bank.names[k] == law_open and not bank.walking[k]), key=lambda k: loglik[k])
+            open_value = float(bank.filters[k].x[NSTATE + self.estimator.track.index(law_open)])
         alarm = Alarm(
-            name, WHAT[name], t, since, self.reference[name], value, sigma, runner_up, evidence, law_open=law_open
-        )
+            name, WHAT[name], t, since, self.reference[name], value, sigma, runner_up, evidence, law_open=law_open,
+            open_value=open_value,
+        )  # fmt: skip
         if law_open:
             self._aside.add(law_open)  # the hinge's change is named once, whichever law it is
         return self._raise(alarm)
@@ -582,6 +629,7 @@ class HealthMonitor:
             self.reference[parameter] = value
         alarm = self.alarmed.pop(parameter, None)
         self._aside.discard(parameter)
+        self._followed.discard(parameter)
         if alarm is not None and alarm.law_open:
             self._aside.discard(alarm.law_open)
         i = self.estimator.track.index(parameter)

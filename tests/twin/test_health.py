@@ -298,3 +298,31 @@ def test_an_alarmed_parameter_is_followed_faster_until_it_is_reset():
     monitor.reset("b1_n_m_s")
     assert estimator.drift_per_s[i] == own
     assert not monitor._is_free("b1_n_m_s") and not monitor._is_free("friction1_n_m")
+
+
+def test_a_change_that_goes_on_into_the_law_an_alarm_left_open_is_said_on_that_law():
+    """An alarm that left a hinge's law open (dry friction named, damping open) is followed on both
+    laws: when the damping's estimate moves on from its reference by more than the threshold for
+    persist_s (what a damping that keeps rising does after being read as dry friction), a second
+    alarm names the damping, still changing, from its value at the first alarm."""
+    from pendsim_mj.twin.health import Alarm
+
+    estimator = RigEstimator(PAPER, track=TRACKED)
+    monitor = HealthMonitor(estimator)
+    assert monitor.reference is not None
+    first = Alarm("friction1_n_m", "dry friction at M1's hinge", 17.0, 10.0, 0.0, 1.7e-4, 1e-6, law_open="b1_n_m_s",
+                  open_value=8.4e-4)  # fmt: skip
+    assert monitor._raise(first) == [first]
+    monitor._aside.add("b1_n_m_s")
+    i = NSTATE + estimator.track.index("b1_n_m_s")
+    sigma = math.sqrt(estimator.p[i, i])
+    estimator.x[i] = monitor.reference["b1_n_m_s"] + 0.5 * monitor.threshold * sigma  # within: nothing
+    assert monitor._follow_ups(18.0) == [] and monitor._follow_ups(30.0) == []
+    estimator.x[i] = monitor.reference["b1_n_m_s"] + 2 * monitor.threshold * sigma  # moved on
+    assert monitor._follow_ups(31.0) == []  # not yet for persist_s
+    (went_on,) = monitor._follow_ups(31.0 + monitor.persist_s)
+    assert went_on.parameter == "b1_n_m_s" and went_on.still_changing and went_on.follows_s == 17.0
+    assert went_on.followed_value == monitor.reference["b1_n_m_s"] and went_on.value == estimator.x[i]
+    assert went_on.law_open == "friction1_n_m" and monitor.alarmed["b1_n_m_s"] is went_on
+    assert monitor._follow_ups(40.0) == []  # said once
+    assert "(b1_n_m_s 0.00084 N m s/rad as that law)" in first.describe()
