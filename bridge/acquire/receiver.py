@@ -14,7 +14,8 @@ One socket per node (bound to 127.0.0.1 unless told otherwise), one loop:
    samples every node has passed are written and handed to the OS.
 
 The first samples of a node wait until its clock fit spans ``WARMUP_S``. Stops after
-``duration_s``, on SIGINT or SIGTERM: everything still waiting is written, then the summary. The
+``duration_s``, on SIGINT or SIGTERM: what arrived before the stop and still waits in the OS is
+read, everything still waiting is written, then the summary. The
 file is written under a temporary name beside the output and published when closed; if writing
 fails (full disk, ...) or the process is killed, that temporary file stays for ``pendsim recover``.
 """
@@ -24,7 +25,6 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import datetime
-import errno
 import ipaddress
 import json
 import math
@@ -32,12 +32,11 @@ import selectors
 import shutil
 import signal
 import socket
-import struct
 import sys
 import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
-from typing import Any, Protocol
+from typing import Protocol
 
 import numpy as np
 from numpy.typing import NDArray
@@ -46,7 +45,7 @@ from pendsim_mj import __version__
 from pendsim_mj.errors import ParameterError, RecordingError
 from pendsim_mj.rig.params import DEFAULT_PARAMS, RigParams
 from pendsim_mj.sensors.bno055 import SAMPLE_RATE_HZ
-from pendsim_mj.units import NS_PER_S, nanoseconds, seconds
+from pendsim_mj.units import nanoseconds, seconds
 
 from ..errors import OutputError
 from ..io import ros2
@@ -54,6 +53,7 @@ from ..io.outputs import describe_os_error, publish, replace_hint, temporary_sib
 from ..signals import signal_handlers
 from .accounting import NodeCounters, NodeStream
 from .clock import MAX_DRIFT_PPM, ClockFit, ClockRelation, jitter_summary_ms, residuals_s
+from .datagrams import listen_udp, read_stamped
 from .packets import PacketError, StreamFormat
 from .ports import BNO055_NDOF, DEFAULT_NODES, NodeSpec, check_nodes
 from .sink import RecordingSink
@@ -65,14 +65,7 @@ DIAGNOSTICS_S = 1.0  # /diagnostics and the status line
 WARMUP_S = 0.5  # device time a node's clock fit spans before its first samples are released
 STAMP_REANCHOR_S = 1.0  # a header stamp further than this from its log time starts a new stamp origin
 STALE_S = 2.0  # a node silent this long no longer holds back the writing of the others
-RECEIVE_BUFFER_BYTES = 8 << 20
-MAX_DATAGRAM = 65535
-DRAIN_LIMIT = 4096  # datagrams read from one socket before the loop looks at the others
-# Linux: the kernel stamps each datagram as it arrives (SO_TIMESTAMPNS, CLOCK_REALTIME), so a loop
-# that falls behind does not shift arrival times; SO_RXQ_OVFL reports datagrams the socket dropped.
-SO_TIMESTAMPNS, SO_RXQ_OVFL = 35, 40
-ANCILLARY_BYTES = socket.CMSG_SPACE(16) + socket.CMSG_SPACE(4)
-TIMESPEC = struct.Struct("@qq")
+STOP_DRAIN_S = 2.0  # at the stop, datagrams already received are read for at most this long
 
 
 @dataclasses.dataclass(frozen=True)
@@ -215,97 +208,6 @@ class _Node:
 
 def _bind(spec: NodeSpec, address: str) -> socket.socket:
     return listen_udp(address, spec.port, what=f"node {spec.name}", option="--node")
-
-
-def listen_udp(address: str, port: int, *, what: str, option: str) -> socket.socket:
-    """A non-blocking UDP socket bound to ``address``:``port`` with a large receive buffer and, on
-    Linux, the kernel's arrival stamps and drop count on (``read_stamped``).
-
-    Raises:
-      ParameterError: the port cannot be bound, in one line naming ``what`` listens there and the
-        ``option`` that chooses another port (a port in use: "address already in use").
-    """
-    family = socket.AF_INET6 if ":" in address else socket.AF_INET
-    sock = socket.socket(family, socket.SOCK_DGRAM)
-    try:
-        with contextlib.suppress(OSError):
-            sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, RECEIVE_BUFFER_BYTES)
-        if sys.platform.startswith("linux"):
-            with contextlib.suppress(OSError):
-                sock.setsockopt(socket.SOL_SOCKET, SO_TIMESTAMPNS, 1)
-                sock.setsockopt(socket.SOL_SOCKET, SO_RXQ_OVFL, 1)
-        sock.bind((address, port))
-        sock.setblocking(False)
-    except OSError as exc:
-        sock.close()
-        cause = (
-            f"address already in use (another program listens there); choose another port with {option}"
-            if exc.errno == errno.EADDRINUSE
-            else describe_os_error(exc)
-        )
-        raise ParameterError(f"cannot listen on {address}:{port} for {what}: {cause}") from None
-    return sock
-
-
-@dataclasses.dataclass(frozen=True)
-class Stamped:
-    """A datagram read from a socket: its bytes, when it arrived (host monotonic ns: the kernel's
-    stamp where there is one, else when it was read), its sender, and the socket's count of
-    datagrams its full buffer dropped so far (None: not reported)."""
-
-    data: bytes
-    arrival_ns: int
-    address: Any
-    dropped: int | None
-
-
-CLOCK_PAIR_TRIES = 4  # readings of the two clocks, the tightest kept (``realtime_to_monotonic_ns``)
-CLOCK_PAIR_TIGHT_NS = 20_000  # a bracket this narrow is taken at once, ns
-
-
-def realtime_to_monotonic_ns() -> int:
-    """The monotonic clock minus the real-time clock now, ns: the real time read between two
-    monotonic readings, the middle of the narrowest of ``CLOCK_PAIR_TRIES`` such brackets (error at
-    most half its width). Read once, monotonic then real, a process preempted between the two
-    calls (a busy machine; a profiler's pause) got an offset off by the whole pause, and every
-    packet of that read an arrival that much early: the clock fit, a lower envelope, follows
-    such a point down (a live twin's node instants moved 2.6 ms and their rate 150 ppm)."""
-    best_width, best = -1, 0
-    for _ in range(CLOCK_PAIR_TRIES):
-        before = time.monotonic_ns()
-        real = time.time_ns()
-        after = time.monotonic_ns()
-        width = after - before
-        if best_width < 0 or width < best_width:
-            best_width, best = width, (before + after) // 2 - real
-        if width <= CLOCK_PAIR_TIGHT_NS:
-            break
-    return best
-
-
-def read_stamped(sock: socket.socket, limit: int = DRAIN_LIMIT) -> list[Stamped]:
-    """What waits on a non-blocking socket (at most ``limit`` datagrams), each with its arrival
-    time: the kernel's stamp (SO_TIMESTAMPNS, CLOCK_REALTIME) mapped onto the monotonic clock
-    (``realtime_to_monotonic_ns``), so that a loop that falls behind does not shift arrival times."""
-    realtime_to_monotonic = realtime_to_monotonic_ns()
-    out = []
-    for _ in range(limit):
-        try:
-            data, ancillary, _, address = sock.recvmsg(MAX_DATAGRAM, ANCILLARY_BYTES)
-        except (BlockingIOError, InterruptedError):
-            break
-        except OSError:  # e.g. ICMP errors reported on the socket: nothing to read
-            break
-        arrival_ns = 0
-        dropped = None
-        for level, kind, value in ancillary:
-            if level == socket.SOL_SOCKET and kind == SO_TIMESTAMPNS and len(value) >= 16:
-                sec, nsec = TIMESPEC.unpack_from(value)
-                arrival_ns = sec * NS_PER_S + nsec + realtime_to_monotonic
-            elif level == socket.SOL_SOCKET and kind == SO_RXQ_OVFL and len(value) >= 4:
-                dropped = int.from_bytes(value[:4], sys.byteorder)
-        out.append(Stamped(data, arrival_ns or time.monotonic_ns(), address, dropped))
-    return out
 
 
 def _is_loopback(address: str) -> bool:
@@ -508,6 +410,7 @@ def _run(
                 if now >= next_flush:
                     next_flush = now + nanoseconds(FLUSH_S)
                     sink.flush(_settled_ns(nodes, now, listen_ns))
+            _drain_at_stop(selector, start_ns, time.monotonic_ns())
             now = time.monotonic_ns()
             _release(nodes, now, sink, live, utc_ns, start_ns, final=True)
             status_line.end()
@@ -541,18 +444,36 @@ def _run(
     )
 
 
-def _drain(node: _Node, start_ns: int) -> None:
+def _drain(node: _Node, start_ns: int, before_ns: float = math.inf) -> int:
     """Read what waits on a node's socket, each datagram with its arrival time (host monotonic ns:
-    the kernel's stamp where there is one)."""
+    the kernel's stamp where there is one); those that arrived at or after ``before_ns`` are read
+    and left out. How many were taken."""
     sock = node.sock
     assert sock is not None
+    taken = 0
     for datagram in read_stamped(sock):
+        if datagram.arrival_ns >= before_ns:
+            continue
+        taken += 1
         if datagram.dropped is not None:
             node.host_dropped = datagram.dropped
         accepted = node.receive(datagram.data, datagram.arrival_ns, start_ns)
         node.last_read_ns = time.monotonic_ns()
         if accepted:
             node.last_sample_ns = node.last_read_ns
+    return taken
+
+
+def _drain_at_stop(selector: selectors.BaseSelector, start_ns: int, stopped_ns: int) -> int:
+    """What arrived before the stop and still waits in the OS, read (a loop behind the nodes on a
+    busy machine left a node's last datagram there), for at most STOP_DRAIN_S; how many."""
+    taken, until_ns = 0, stopped_ns + nanoseconds(STOP_DRAIN_S)
+    while time.monotonic_ns() < until_ns and (ready := selector.select(0)):
+        now_taken = sum(_drain(key.data, start_ns, stopped_ns) for key, _ in ready)
+        if not now_taken:
+            break  # only what came after the stop is left
+        taken += now_taken
+    return taken
 
 
 def _release(
@@ -797,4 +718,4 @@ def summary(result: AcquireResult) -> str:
     return "\n".join(lines)
 
 
-__all__ = ["AcquireResult", "AcquireSpec", "NodeResult", "Stamped", "acquire", "listen_udp", "read_stamped", "summary"]
+__all__ = ["AcquireResult", "AcquireSpec", "NodeResult", "acquire", "summary"]

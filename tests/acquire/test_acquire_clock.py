@@ -147,19 +147,19 @@ class _PausedClocks:
 
 
 def test_a_pause_between_the_two_clocks_readings_does_not_move_arrival_times(monkeypatch):
-    from pendsim_bridge.acquire import receiver
+    from pendsim_bridge.acquire import datagrams
 
     clocks = _PausedClocks(offset_ns=1_234_567_890, pause_ns=5_000_000)
-    monkeypatch.setattr(receiver.time, "monotonic_ns", clocks.monotonic_ns)
-    monkeypatch.setattr(receiver.time, "time_ns", clocks.time_ns)
+    monkeypatch.setattr(datagrams.time, "monotonic_ns", clocks.monotonic_ns)
+    monkeypatch.setattr(datagrams.time, "time_ns", clocks.time_ns)
     # read once, the 5 ms pause put every packet of the read 5 ms early; the narrowest of the
     # brackets is off by at most half its width (0.3 us here)
-    assert abs(receiver.realtime_to_monotonic_ns() - clocks.offset_ns) <= 1_000
+    assert abs(datagrams.realtime_to_monotonic_ns() - clocks.offset_ns) <= 1_000
     assert clocks.calls >= 2
 
 
 def test_loopback_arrival_stamps_lie_between_the_send_and_the_read():
-    from pendsim_bridge.acquire.receiver import listen_udp, read_stamped
+    from pendsim_bridge.acquire.datagrams import listen_udp, read_stamped
 
     sock = listen_udp("127.0.0.1", 0, what="the test", option="--port")
     sender = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)

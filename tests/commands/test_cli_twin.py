@@ -4,6 +4,7 @@ recording read back by pendsim's commands, and bad input refused before anything
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 
@@ -264,3 +265,24 @@ def test_the_summary_gives_the_models_value_and_says_when_a_parameter_is_where_n
     assert "the model's rig" not in rows["offset_m1_rad"]
     # the values line up under the longest name
     assert len({line.index(line.split()[1]) for line in rows.values()}) == 1
+
+
+def test_the_twins_result_is_json_that_every_parser_reads(replayed):
+    """Every JSON field of the twin's result metadata parses with NaN and Infinity refused (as
+    JavaScript's JSON.parse, and so Foxglove, refuses them): an alarm's evidence where none was
+    weighed, or a parameter not estimated, is null."""
+    from pendsim_bridge.acquire.twin.pipeline import _strict_json
+    from pendsim_mj.twin.health import Alarm
+
+    def refuse(constant: str) -> None:
+        raise ValueError(f"not JSON: {constant}")
+
+    out = replayed
+    with open(out, "rb") as f:
+        meta = {m.name: m.metadata for m in make_reader(f).iter_metadata()}[twin_topics.TWIN_RESULT_METADATA]
+    for text in meta.values():
+        if text[:1] in "[{":
+            json.loads(text, parse_constant=refuse)
+    went_on = Alarm("b1_n_m_s", "damping at M1's hinge", 32.0, 10.0, 7e-4, 1.1e-3, 4e-5, follows_s=17.0)
+    (read,) = json.loads(_strict_json([dataclasses.asdict(went_on)]), parse_constant=refuse)
+    assert read["evidence"] is None and read["value"] == 1.1e-3 and read["follows_s"] == 17.0

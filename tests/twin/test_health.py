@@ -326,3 +326,54 @@ def test_a_change_that_goes_on_into_the_law_an_alarm_left_open_is_said_on_that_l
     assert went_on.law_open == "friction1_n_m" and monitor.alarmed["b1_n_m_s"] is went_on
     assert monitor._follow_ups(40.0) == []  # said once
     assert "(b1_n_m_s 0.00084 N m s/rad as that law)" in first.describe()
+
+
+def _decided(loglik: list[float], *, after_s: float = 1.0):
+    """The attribution's verdict on a bank of H0, b1 and friction1 stepped, then b1 and friction1
+    still changing, whose summed log-likelihoods are ``loglik`` (in that order), ``after_s`` after
+    it started: the alarm, or None while it waits."""
+    estimator = RigEstimator(PAPER, track=TRACKED)
+    estimator.start(0.0, [0.3, -0.1, 0.0, 0.0])
+    monitor = HealthMonitor(estimator)
+    monitor._start_bank(["b1_n_m_s", "friction1_n_m"], 0.0)
+    bank = monitor._bank
+    assert bank is not None
+    assert bank.names == [UNCHANGED, "b1_n_m_s", "friction1_n_m", "b1_n_m_s", "friction1_n_m"]
+    assert bank.walking == [False, False, False, True, True]
+    bank.loglik = np.array(loglik, dtype=float)
+    alarms = monitor._decide(after_s)
+    return alarms[0] if alarms else None
+
+
+@pytest.mark.parametrize(
+    ("loglik", "named", "left_open"),
+    [
+        # the steps name dry friction by e^26, but a damping still rising fits better than any step by
+        # e^115 and leads the other law's by e^20: damping (a new user's live ramp)
+        ([0.0, 974.0, 1000.0, 1115.0, 1095.0], "b1_n_m_s", ""),
+        # a step of damping by e^7.8, the changes under way leaning to friction by e^1.2, no better than
+        # the steps: still damping (7.8 - 1.2 >= 5; a new user's live step)
+        ([0.0, 1000.0, 992.2, 999.0, 1000.2], "b1_n_m_s", ""),
+        # the steps say friction by e^7.2, the changes under way damping by e^3 and fit better: open
+        ([0.0, 992.8, 1000.0, 1010.0, 1007.0], "friction1_n_m", "b1_n_m_s"),
+        # the same leads, but the steps fit as well as any change under way: their law (a lean of
+        # e^1-3 against a step that the steps name by e^6-8 was seen on steps of damping)
+        ([0.0, 992.8, 1000.0, 999.0, 996.0], "friction1_n_m", ""),
+        # the steps undecided (e^2), a change under way clear on damping (e^8, better than the steps): damping now
+        ([0.0, 998.0, 1000.0, 1020.0, 1012.0], "b1_n_m_s", ""),
+        # both kinds agree on friction: friction
+        ([0.0, 990.0, 1000.0, 995.0, 1003.0], "friction1_n_m", ""),
+    ],
+)
+def test_a_hinges_law_is_left_open_where_a_change_under_way_fits_best_and_does_not_tell_it(loglik, named, left_open):
+    alarm = _decided(loglik)
+    assert alarm is not None and alarm.parameter == named and alarm.law_open == left_open, alarm
+    if left_open:
+        assert alarm.open_value is not None and "do not tell the two laws apart" in alarm.describe()
+
+
+def test_an_undecided_law_waits_for_more_data_then_is_left_open():
+    loglik = [0.0, 998.0, 1000.0, 999.0, 1001.0]  # the hinge changed; neither kind tells its law
+    assert _decided(loglik, after_s=10.0) is None
+    alarm = _decided(loglik, after_s=50.0)  # decide_s (45 s) passed
+    assert alarm is not None and alarm.parameter == "friction1_n_m" and alarm.law_open == "b1_n_m_s"

@@ -33,9 +33,10 @@ from pendsim_mj.twin.estimator import warm_up as estimator_warm_up
 
 from ...report.twin_views import TwinView
 from ...signals import interrupts_deferred
+from ..datagrams import listen_udp, read_stamped
 from ..packets import PacketError, StreamFormat
 from ..ports import DEFAULT_NODES, NodeSpec, check_nodes
-from ..receiver import listen_udp, read_stamped, say_on_stderr, stop_signals
+from ..receiver import say_on_stderr, stop_signals
 from ..udp_loop.node_view import NodeView, ViewCounters, model_frames
 from .pipeline import TwinPipeline, TwinResult, TwinSpec, close_sink, open_sink, status_text
 

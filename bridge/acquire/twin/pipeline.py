@@ -524,11 +524,11 @@ class TwinPipeline:
                     "within_3_sigma": [_finite_or_none(v) for v in score.within_3_sigma],
                 }
             ),
-            "alarms": json.dumps([dataclasses.asdict(a) | {"text": a.describe()} for a in summary.alarms]),
-            "parameters": json.dumps({k: list(v) for k, v in summary.parameters.items()}),
+            "alarms": _strict_json([dataclasses.asdict(a) | {"text": a.describe()} for a in summary.alarms]),
+            "parameters": _strict_json({k: list(v) for k, v in summary.parameters.items()}),
             "late": json.dumps([[n, nanoseconds(t)] for n, t in self.merger.late]),
             "latency_ms": json.dumps([_finite_or_none(v) for v in self.latency_ms()]),
-            "learned": json.dumps([_learned(n) for n in self.session.learned()]),
+            "learned": _strict_json([_learned(n) for n in self.session.learned()]),
             "events": json.dumps([[t, what] for t, what in self.session.events]),
         }
 
@@ -550,6 +550,23 @@ def _learned(learned: Learned) -> dict[str, object]:
 
 def _finite_or_none(value: float) -> float | None:
     return float(value) if math.isfinite(value) else None
+
+
+def _strict_json(value: object) -> str:
+    """JSON that every parser reads: a float that is not finite (an alarm's evidence where none
+    was weighed, a parameter not yet estimated) as null (Python's json writes NaN and Infinity,
+    which JavaScript's JSON.parse, and so Foxglove, refuse)."""
+
+    def finite(v: object) -> object:
+        if isinstance(v, float):
+            return _finite_or_none(v)
+        if isinstance(v, dict):
+            return {k: finite(x) for k, x in v.items()}
+        if isinstance(v, list | tuple):
+            return [finite(x) for x in v]
+        return v
+
+    return json.dumps(finite(value), allow_nan=False)
 
 
 def open_sink(

@@ -55,8 +55,8 @@ from pendsim_mj.sensors.bno055 import LiveImu, hinge_readings
 
 from ...io.outputs import atomic_output
 from ...signals import signal_handlers
+from ..datagrams import listen_udp, read_stamped
 from ..emulator import EmulatorSpec, NodeClock, sample_rows
-from ..receiver import listen_udp, read_stamped
 from .actuator import DEFAULT_ACTUATOR_PORT, Actuator, ActuatorSpec, Event
 from .packets import encode_status
 from .realtime import realtime

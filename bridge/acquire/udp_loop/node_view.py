@@ -1,7 +1,7 @@
 """What a controller sees of the rig's two nodes over UDP, sample by sample: the state it takes.
 
 Each node's datagrams are received as ``pendsim acquire`` receives them: stamped with the
-kernel's arrival time (``receiver.read_stamped``), decoded by the node's codec (every field
+kernel's arrival time (``datagrams.read_stamped``), decoded by the node's codec (every field
 range-checked; ``packets``) and handed to the node's trusted timeline (``timeline.Timeline``:
 its clock fit, from the packets that agree with their neighbours, maps device time onto the
 host's monotonic clock; packets off the timeline are counted as implausible when it decides

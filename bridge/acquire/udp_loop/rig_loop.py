@@ -39,9 +39,10 @@ from pendsim_mj.estimation.swing_frame import SwingFrame
 from pendsim_mj.rig.params import DEFAULT_PARAMS
 from pendsim_mj.sensors.bno055 import SAMPLE_RATE_HZ
 
+from ..datagrams import listen_udp, read_stamped
 from ..packets import StreamFormat
 from ..ports import DEFAULT_NODES, NodeSpec, check_nodes
-from ..receiver import listen_udp, read_stamped, say_on_stderr, stop_signals
+from ..receiver import say_on_stderr, stop_signals
 from .actuator import DEFAULT_ACTUATOR_PORT
 from .node_view import SILENT_S, VALUE_AGE_S, NodeView, ViewCounters, model_frames
 from .packets import MAX_TORQUE_N_M, ActuatorPacketError, Command, Status, decode_status, encode_command
