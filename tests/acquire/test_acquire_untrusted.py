@@ -359,11 +359,14 @@ def test_at_a_stop_the_datagrams_already_arrived_are_read_and_later_ones_left_ou
         address = node.sock.getsockname()
         for seq in range(3):
             sender.sendto(codec.encode(seq, 1_000_000 + 12_500 * seq, ROW), address)
-        time.sleep(0.01)
+        # arrived: the kernel stamps a loopback datagram when it delivers it, which on a loaded
+        # machine can be well after the send (seen: more than 10 ms)
+        assert selector.select(5.0)
+        time.sleep(0.05)
         stopped_ns = time.monotonic_ns()
         for seq in range(3, 5):
             sender.sendto(codec.encode(seq, 1_000_000 + 12_500 * seq, ROW), address)
-        time.sleep(0.01)
+        time.sleep(0.05)
         assert _drain_at_stop(selector, 0, stopped_ns) == 3
         node.settle(10**15, 0, final=True)
         assert node.stream.counters().received == 3
