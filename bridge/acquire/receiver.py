@@ -468,11 +468,11 @@ def _drain_at_stop(selector: selectors.BaseSelector, start_ns: int, stopped_ns: 
     """What arrived before the stop and still waits in the OS, read (a loop behind the nodes on a
     busy machine left a node's last datagram there), for at most STOP_DRAIN_S; how many."""
     taken, until_ns = 0, stopped_ns + nanoseconds(STOP_DRAIN_S)
-    while time.monotonic_ns() < until_ns and (ready := selector.select(0)):
+    while ready := selector.select(0):  # at least once, however late (a stalled process)
         now_taken = sum(_drain(key.data, start_ns, stopped_ns) for key, _ in ready)
-        if not now_taken:
-            break  # only what came after the stop is left
         taken += now_taken
+        if not now_taken or time.monotonic_ns() >= until_ns:
+            break  # only what came after the stop is left, or time is up
     return taken
 
 
