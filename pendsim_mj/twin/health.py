@@ -434,6 +434,7 @@ class HealthMonitor:
         what goes on may go there); alarmed once more, on the one that moved, as still changing."""
         out: list[Alarm] = []
         assert self.reference is not None
+        found = self.estimator.parameters() if self.alarmed else {}
         for name, alarm in list(self.alarmed.items()):
             if alarm.follows_s is not None or name not in WALK_PER_SQRT_S or name in self._followed:
                 self._moving_since.pop(name, None)
@@ -442,7 +443,7 @@ class HealthMonitor:
             if alarm.law_open:
                 watched.append((alarm.law_open, self.reference[alarm.law_open], 0.0))
             moved, before, z = max(
-                ((n, v, abs(self._estimate(n)[0] - v) / math.hypot(self._estimate(n)[1], s)) for n, v, s in watched),
+                ((n, v, abs(found[n][0] - v) / math.hypot(found[n][1], s)) for n, v, s in watched),
                 key=lambda row: row[2],
             )
             if z <= self.threshold:
@@ -453,7 +454,7 @@ class HealthMonitor:
                 continue
             other = OTHER_LAW.get(moved, "")  # a hinge's loss still changing: its law was told from a
             # step's hypotheses, which a change under way fools (a rising damping looks like dry friction)
-            value, sigma = self._estimate(moved)
+            value, sigma = found[moved]
             follow = dataclasses.replace(
                 alarm, parameter=moved, what=WHAT[moved], reference=self.reference[moved], t_s=t, value=value,
                 sigma=sigma, runner_up="", evidence=math.inf, follows_s=alarm.t_s, followed_value=before,
@@ -466,11 +467,6 @@ class HealthMonitor:
             self._moving_since.pop(name, None)
             out.append(follow)
         return out
-
-    def _estimate(self, name: str) -> tuple[float, float]:
-        """The estimator's value of a tracked parameter now and its standard deviation."""
-        i = NSTATE + self.estimator.track.index(name)
-        return float(self.estimator.x[i]), math.sqrt(float(self.estimator.p[i, i]))
 
     def _start_bank(self, ranked: list[str], since_s: float) -> None:
         """The bank of hypotheses (module docstring) from the estimator's state now."""
