@@ -48,6 +48,7 @@ def listen_udp(address: str, port: int, *, what: str, option: str) -> socket.soc
             with contextlib.suppress(OSError):
                 sock.setsockopt(socket.SOL_SOCKET, SO_TIMESTAMPNS, 1)
                 sock.setsockopt(socket.SOL_SOCKET, SO_RXQ_OVFL, 1)
+            _wait_for_stamps()  # before the bind: no datagram can come before the stamps are on
         sock.bind((address, port))
         sock.setblocking(False)
     except OSError as exc:
@@ -59,6 +60,42 @@ def listen_udp(address: str, port: int, *, what: str, option: str) -> socket.soc
         )
         raise ParameterError(f"cannot listen on {address}:{port} for {what}: {cause}") from None
     return sock
+
+
+STAMPS_ON_S = 0.5  # ``listen_udp`` waits at most this long for the kernel to stamp arrivals, s
+
+
+def _wait_for_stamps(timeout_s: float = STAMPS_ON_S) -> bool:
+    """Wait until the kernel stamps datagrams as they arrive (True), at most ``timeout_s``.
+
+    Linux switches arrival stamping on for the whole host when the first socket asks for it, and
+    lazily (a deferred work item); a datagram that arrives meanwhile is stamped when it is read
+    (the kernel's fill-in for that race), not when it arrived: on a host where no other socket had
+    stamps on, the first datagrams after ``listen_udp`` read after a 50 ms wait carried stamps
+    50 ms late (measured here), and a stop's drain took them for datagrams that came after the
+    stop. So a probe datagram goes to a socket of our own, with stamps on, until it comes back
+    stamped before its read began (1.5-1.7 ms on a host where stamps were off, 0.1 ms where on)."""
+    probe = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    try:
+        probe.setsockopt(socket.SOL_SOCKET, SO_TIMESTAMPNS, 1)
+        probe.bind(("127.0.0.1", 0))
+        probe.settimeout(timeout_s)
+        address = probe.getsockname()
+        until = time.monotonic() + timeout_s
+        while True:
+            probe.sendto(b"", address)
+            read_ns = time.time_ns()
+            _, ancillary, _, _ = probe.recvmsg(1, ANCILLARY_BYTES)
+            stamps = [TIMESPEC.unpack_from(v) for _, kind, v in ancillary if kind == SO_TIMESTAMPNS and len(v) >= 16]
+            if stamps and stamps[0][0] * NS_PER_S + stamps[0][1] < read_ns:
+                return True
+            if time.monotonic() >= until:
+                return False
+            time.sleep(0.001)
+    except OSError:  # no loopback, no stamps: the datagrams' arrivals are then when they are read
+        return False
+    finally:
+        probe.close()
 
 
 @dataclasses.dataclass(frozen=True)

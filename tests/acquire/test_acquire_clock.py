@@ -182,6 +182,33 @@ def test_loopback_arrival_stamps_lie_between_the_send_and_the_read():
         sender.close()
 
 
+def test_a_datagram_that_waited_since_just_after_the_socket_opened_keeps_its_arrival_stamp():
+    """Linux switches arrival stamps on for the whole host lazily, when the first socket asks: a
+    datagram that arrives before then is stamped when it is read. On a host with no other
+    stamping socket (a CI worker) the datagrams sent right after ``listen_udp`` and read 50 ms
+    later carried stamps 50 ms late, and a stop's drain took them for datagrams that came after
+    the stop (CI, three times). ``listen_udp`` returns with the stamps on."""
+    import selectors
+
+    from pendsim_bridge.acquire.datagrams import listen_udp, read_stamped
+
+    sock = listen_udp("127.0.0.1", 0, what="the test", option="--port")
+    sender = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    selector = selectors.DefaultSelector()
+    selector.register(sock, selectors.EVENT_READ)
+    try:
+        sender.sendto(b"x", sock.getsockname())
+        assert selector.select(5.0)
+        seen_ns = time.monotonic_ns()  # it had arrived by now
+        time.sleep(0.05)
+        (got,) = read_stamped(sock)
+        assert got.arrival_ns <= seen_ns + 50_000  # the mapping's error, a few us
+    finally:
+        selector.close()
+        sock.close()
+        sender.close()
+
+
 def test_a_stamp_maps_to_the_same_instant_as_a_float_and_in_an_array():
     """``ClockRelation.to_recorder`` on one float (the live loop, a packet at a time) gives a float,
     the same number as the array form gives for it."""
