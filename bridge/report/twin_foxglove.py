@@ -277,8 +277,8 @@ class TwinFoxgloveView(BufferedView):
         for alarm in batch.alarms:
             ns = self.utc_ns(alarm.t_s)
             log = Log(
-                timestamp=Timestamp(*divmod(ns, 1_000_000_000)), level=LogLevel.Warning, message=alarm.describe(),
-                name="pendsim.twin", file=alarm.parameter,
+                timestamp=Timestamp(*divmod(ns, 1_000_000_000)), level=LogLevel.Warning,
+                message=alarm.describe(self.start_utc_ns), name="pendsim.twin", file=alarm.parameter,
             )  # fmt: skip
             self.alarms.log(log, log_time=ns)
         diagnostics = self.channels["/diagnostics"]

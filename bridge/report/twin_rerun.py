@@ -289,7 +289,7 @@ class TwinRerunView(BufferedView):
                 "/twin/alarms",
                 indexes=[rr.TimeColumn(TIMELINE, duration=[a.t_s for a in batch.alarms])],
                 columns=rr.TextLog.columns(
-                    text=[a.describe() for a in batch.alarms], level=["WARN"] * len(batch.alarms)
+                    text=[a.describe(self.start_utc_ns) for a in batch.alarms], level=["WARN"] * len(batch.alarms)
                 ),
             )
         rows: list[tuple[float, str, str]] = []

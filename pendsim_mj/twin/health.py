@@ -75,6 +75,7 @@ makes the tails heavier, which is what the measurement is for.
 from __future__ import annotations
 
 import dataclasses
+import datetime
 import math
 
 import numpy as np
@@ -197,10 +198,23 @@ class Alarm:
         """The estimate minus the reference."""
         return self.value - self.reference
 
-    def describe(self) -> str:
+    def describe(self, start_utc_ns: int | None = None) -> str:
         """One line: what changed, by how much (2-sigma interval at the alarm, from the hypothesis
         that this parameter alone stepped: narrower than the estimate's later, with every
-        parameter free), since when and when it was alarmed (s on the twin's clock)."""
+        parameter free), since when and when it was alarmed (s on the twin's clock; with the
+        twin's start ``start_utc_ns``, UTC ns, also the time of day in UTC: the twin's clock
+        starts with the twin, not with the rig or the nodes, so its seconds match no one's log)."""
+
+        def utc(t_s: float) -> str:
+            if start_utc_ns is None:
+                return ""
+            when = datetime.datetime.fromtimestamp((start_utc_ns + round(t_s * 1e9)) // 10**9, datetime.UTC)
+            return f"{when:%H:%M:%S} UTC"
+
+        def at(t_s: float) -> str:
+            return f"{t_s:.1f} s ({utc(t_s)})" if start_utc_ns is not None else f"{t_s:.1f} s"
+
+        since = f"{utc(self.since_s)}; " if start_utc_ns is not None else ""
         unit = TRACKABLE[self.parameter][1]
         relative = (
             f" ({100 * self.change / self.reference:+.0f} %)" if self.reference and self.parameter in RELATIVE else ""
@@ -210,13 +224,13 @@ class Alarm:
         line = (
             f"{self.what}: {self.parameter} {self.reference:.4g} -> {self.value:.4g} {unit} "
             f"(+- {2 * self.sigma:.2g}, 2 sigma, at the alarm under this hypothesis){relative}; changing since "
-            f"{self.since_s:.1f} s (its last check within 2 sigma of the reference), "
-            f"alarm at {self.t_s:.1f} s"
+            f"{self.since_s:.1f} s ({since}its last check within 2 sigma of the reference), "
+            f"alarm at {at(self.t_s)}"
         )
         if self.follows_s is not None:
             line += (
                 f"; still changing: it moved on from {self.followed_value:.4g} {unit} at its alarm at "
-                f"{self.follows_s:.1f} s"
+                f"{at(self.follows_s)}"
             )
         other = f" ({self.law_open})"
         if self.law_open and self.open_value is not None:

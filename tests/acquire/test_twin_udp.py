@@ -127,12 +127,17 @@ def test_scripted_faults_sent_over_udp_are_alarmed_on_the_right_parameter_within
     its mount at 12 s and M1's clock jumps by 0.5 s at 16 s (``pendsim nodes --fault``); the live
     twin names each, on its own parameter or node, and nothing else."""
     faults = ["--fault", "stiffness:-5%@6", "--fault", "mount:m2=3deg@12", "--fault", "clock:m1=+0.5@16"]
+    began_s = time.time()
     twin = _live_twin(tmp_path, ["--duration-s", "20", "--hold-s", "1", "--seed", "3", *faults])
+    ended_s = time.time()
     meta = _metadata(tmp_path / "live.mcap")[twin_topics.TWIN_RESULT_METADATA]
     alarms = {a["parameter"]: a for a in json.loads(meta["alarms"])}
     assert set(alarms) == {"coupling_sin_n_m", "offset_m2_rad"}, alarms
     said = [line for line in twin.err if line.startswith("twin: alarm: ")]  # said while running (the summary: stdout)
     assert len(said) == 2 and "coupling_sin_n_m" in said[0] and "offset_m2_rad" in said[1], twin.err
+    for line in said:  # the alarm's time of day (UTC): while the twin ran (its seconds match no one's log)
+        of_day = sum(int(v) * k for v, k in zip(line.split(" UTC)")[-2][-8:].split(":"), (3600, 60, 1), strict=True))
+        assert (of_day - math.floor(began_s)) % 86400 <= ended_s - began_s + 1, (line, began_s, ended_s)
     assert any(" samples m1 " in line and " alarms " in line for line in twin.err)  # the status line, every 10 s
     springs, mount = alarms["coupling_sin_n_m"], alarms["offset_m2_rad"]
     assert springs["value"] / springs["reference"] - 1 == pytest.approx(-0.05, abs=0.01)
@@ -158,3 +163,5 @@ def test_scripted_faults_sent_over_udp_are_alarmed_on_the_right_parameter_within
     assert [a["parameter"] for a in json.loads(replayed["alarms"])] == [
         a["parameter"] for a in json.loads(meta["alarms"])
     ]
+    # the same times of day: the replay's clock starts where the recording's did
+    assert [a["text"] for a in json.loads(replayed["alarms"])] == [a["text"] for a in json.loads(meta["alarms"])]

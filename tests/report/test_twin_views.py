@@ -216,7 +216,8 @@ def test_a_foxglove_client_receives_every_record_as_given_with_its_utc_log_time(
     ((t_alarm, payload),) = frames["/twin/alarms"]
     log = _decode(channels["/twin/alarms"]["schema"], "foxglove.Log", payload)
     alarm = run.alarms[0]
-    assert t_alarm == _utc_ns(alarm.t_s) and log["message"] == alarm.describe() and log["level"] == 3  # WARNING
+    assert t_alarm == _utc_ns(alarm.t_s) and log["level"] == 3  # WARNING
+    assert log["message"] == alarm.describe(START_UTC_NS)  # with its times of day
     assert log["timestamp"]["seconds"] * 10**9 + log["timestamp"]["nanos"] == _utc_ns(alarm.t_s)
 
     # /diagnostics: the DiagnosticArray's fields
@@ -393,7 +394,7 @@ def test_the_rerun_view_records_every_stream_with_its_bands(run, mjcf, tmp_path)
             texts.setdefault(str(chunk.entity_path), []).extend(
                 zip(batch.column("TextLog:level").to_pylist(), batch.column("TextLog:text").to_pylist(), strict=True)
             )
-    assert texts["/twin/alarms"] == [(["WARN"], [run.alarms[0].describe()])]
+    assert texts["/twin/alarms"] == [(["WARN"], [run.alarms[0].describe(START_UTC_NS)])]
     # a status is logged when it changes: b1 ok, then changing at 2 s; node m1 ok once
     assert [text[0] for _, text in texts["/twin/diagnostics"]] == [
         "twin: b1_n_m_s: ok",

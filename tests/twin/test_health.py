@@ -247,6 +247,24 @@ def test_an_alarm_says_what_since_when_by_how_much_and_against_what():
     assert UNCHANGED == "unchanged"
 
 
+def test_an_alarm_gives_its_times_of_day_in_utc_from_the_twins_start():
+    """The twin's clock starts with the twin, so its seconds match no one's log: with the twin's
+    start, each instant also reads as the time of day (UTC)."""
+    import datetime
+
+    from pendsim_mj.twin.health import Alarm
+
+    start = datetime.datetime(2026, 11, 28, 23, 59, 50, 600_000, tzinfo=datetime.UTC)
+    start_ns = round(start.timestamp()) * 10**9 - 400_000_000  # .6 s past 23:59:50, exactly
+    first = Alarm("friction2_n_m", "dry friction at M2's hinge", 22.0, 8.0, 0.0, 2.0e-4, 2e-5, "b2_n_m_s", 7.2)
+    text = first.describe(start_ns)
+    assert "changing since 8.0 s (23:59:58 UTC; its last check within 2 sigma" in text  # 23:59:58.6
+    assert "alarm at 22.0 s (00:00:12 UTC)" in text  # past midnight
+    went_on = dataclasses.replace(first, t_s=40.0, follows_s=22.0, followed_value=2.0e-4, runner_up="")
+    assert "at its alarm at 22.0 s (00:00:12 UTC)" in went_on.describe(start_ns)
+    assert first.describe() == first.describe(None) and "UTC" not in first.describe()
+
+
 def test_a_change_to_a_value_the_rig_cannot_have_is_not_alarmed_and_is_left_free():
     """A negative dry friction (beyond 2 sigma) is no change of the rig but a model that does not fit
     the data (a new user's driven replay found -1.7e-4 N m): not alarmed, kept aside, and the

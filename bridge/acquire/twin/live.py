@@ -221,7 +221,7 @@ def run_twin_live(
                         view.settle(now)
                 if pipeline.tick(now, session.estimator.t_s):  # once a second: new alarms said, the status
                     for alarm in pipeline.alarms[alarms_said:]:
-                        say(f"twin: alarm: {alarm.describe()}")
+                        say(f"twin: alarm: {alarm.describe(start_utc_ns)}")
                     alarms_said = len(pipeline.alarms)
                     if status is not None:
                         status(status_text(pipeline, now))
@@ -246,7 +246,7 @@ def run_twin_live(
         packets = tuple(_packets(view.counters()) for view in node_views)
         return TwinResult(
             path, duration, stop, session.summary(), tuple(pipeline.merger.late), pipeline.latency_ms(), messages,
-            packets,
+            packets, start_utc_ns,
         )  # fmt: skip
     finally:
         selector.close()

@@ -135,6 +135,7 @@ class TwinResult:
       messages: messages written.
       packets: live, per node: (datagrams received, samples used, packets before its clock fit was
         established, others not used: stale, off time, malformed or implausible); () in a replay.
+      start_utc_ns: UTC of the twin's t = 0, ns (the alarms' times of day).
     """
 
     path: Path | None
@@ -145,6 +146,7 @@ class TwinResult:
     latency_ms: tuple[float, float]
     messages: int
     packets: tuple[tuple[int, int, int, int], ...] = ()
+    start_utc_ns: int | None = None
 
 
 class ViewFeeder:
@@ -404,7 +406,7 @@ class TwinPipeline:
             alarm = monitor.alarmed.get(name) if monitor else None
             level = 2 if alarm else (1 if abs(z) > 2 else 0)
             if alarm:
-                message = alarm.describe()
+                message = alarm.describe(self.start_utc_ns)
             elif name in NODE_PARAMETERS and not name.startswith("offset_m"):
                 message = "a state of the measurement, not monitored"
             elif math.isnan(z):
@@ -524,7 +526,9 @@ class TwinPipeline:
                     "within_3_sigma": [_finite_or_none(v) for v in score.within_3_sigma],
                 }
             ),
-            "alarms": _strict_json([dataclasses.asdict(a) | {"text": a.describe()} for a in summary.alarms]),
+            "alarms": _strict_json(
+                [dataclasses.asdict(a) | {"text": a.describe(self.start_utc_ns)} for a in summary.alarms]
+            ),
             "parameters": _strict_json({k: list(v) for k, v in summary.parameters.items()}),
             "late": json.dumps([[n, nanoseconds(t)] for n, t in self.merger.late]),
             "latency_ms": json.dumps([_finite_or_none(v) for v in self.latency_ms()]),
@@ -768,7 +772,7 @@ def summary_text(result: TwinResult) -> str:
         lines.append(line)
     if math.isnan(s.monitored_from_s):
         lines.append("health: never checked (the references were not taken: --baseline-s past the end?)")
-    lines.append(f"alarms: {len(s.alarms)}" + "".join(f"\n  {a.describe()}" for a in s.alarms))
+    lines.append(f"alarms: {len(s.alarms)}" + "".join(f"\n  {a.describe(result.start_utc_ns)}" for a in s.alarms))
     shown = [(t, what) for t, what in s.events if what != "tracking"]
     if shown:
         lines.append("events: " + "; ".join(f"{what} at {t:.1f} s" for t, what in shown[:10])

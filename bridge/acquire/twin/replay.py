@@ -307,5 +307,6 @@ def _run(
         messages = close_sink(pipeline, partial, output, replace=replace, stop_reason=stop, duration_s=duration)
         written = output
     return TwinResult(
-        written, duration, stop, session.summary(), tuple(pipeline.merger.late), (math.nan, math.nan), messages
-    )
+        written, duration, stop, session.summary(), tuple(pipeline.merger.late), (math.nan, math.nan), messages,
+        start_utc_ns=pipeline.start_utc_ns,
+    )  # fmt: skip
