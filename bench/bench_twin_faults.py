@@ -122,7 +122,8 @@ def main() -> None:
             first = after[0] if after else None
             verdict = "none in 70 s" if first is None else (
                 f"{first.t_s - fault_t:9.1f} s  {first.parameter} ({'right' if first.parameter == right else 'WRONG'}"
-                + (f", law left open: {first.law_open}" if first.law_open else "") + ")"
+                + (f", law left open: {first.law_open}" if first.law_open else "")
+                + (", WRONGLY said maybe from the start" if first.from_start else "") + ")"
                 + ("; then said still changing" if any(a.still_changing for a in after) else "")
             )  # fmt: skip
             early = [a.parameter for a in found if a.t_s < fault_t]

@@ -45,7 +45,8 @@ def register(sub: argparse._SubParsersAction[options.Parser]) -> None:
         "spatial model, with the support's tilt stiffness and damping), each recording with its own start state. "
         "Only what the recordings determine is fitted (from the Fisher information: its directions "
         "and intervals); the rest is held at the stated values and named. Writes DIR/params.json (for "
-        "--params-file of simulate, record, validate, identify, view and analyze), DIR/calibration.json, "
+        "--params-file of simulate, record, validate, identify, view, analyze, acquire and twin), "
+        "DIR/calibration.json, "
         "DIR/calibration.md and DIR/calibration.png: what was determined, to what interval, what was not and "
         "which recording would determine it, and the validation of each recording before and after (and left "
         "out). Exit 1 when the residual stays far above the noise (model error, named).",
@@ -164,6 +165,8 @@ def run(args: argparse.Namespace) -> int:
     written = write_outputs(report, out_dir, replace=args.force)
     spatial = " --model spatial" if args.model == "spatial" else ""
     use = f"pendsim validate {args.paths[0]} --params-file {out_dir / 'params.json'}{spatial}"
+    if not spatial:  # the twin models the planar rig
+        use += f"; the live twin: pendsim twin -o twin.mcap --params-file {out_dir / 'params.json'}"
     print(f"wrote {', '.join(str(p) for p in written)} (use: {use})")
     for line in report.model_error[:1]:
         print(f"pendsim: calibration: {line}", file=sys.stderr)

@@ -168,6 +168,18 @@ def _views_for(args: argparse.Namespace, params: RigParams) -> Callable[[int], t
     return open_views
 
 
+def _rig_of(args: argparse.Namespace) -> RigParams:
+    """The twin's rig: live, the paper's with --params-file/--set on top; a replay, the recording's
+    own with them on top (as ``validate`` takes it): a rig calibrated from its recordings
+    (``pendsim calibrate``) differs from what they state, and is given to replay them."""
+    if args.replay is None:
+        return options.params_from(args)
+    from ..io.measured import recorded_params
+    from ..io.recording import read_recording
+
+    return recorded_params(read_recording(args.replay, topics=())).with_mapping(options.overrides_from(args))
+
+
 def spec_from(args: argparse.Namespace) -> TwinSpec:
     """The twin the options describe (bad combinations refused first)."""
     from pendsim_mj.twin.session import RIG_PARAMETERS
@@ -183,7 +195,7 @@ def spec_from(args: argparse.Namespace) -> TwinSpec:
     elif args.speed is not None:
         raise options.UsageError("--speed is for --replay")
     return TwinSpec(
-        params=options.params_from(args),
+        params=_rig_of(args),
         track=args.track if args.track is not None else RIG_PARAMETERS,
         forecast_horizon_s=args.forecast_s,
         threshold=args.threshold_sigma,

@@ -89,6 +89,8 @@ DEFAULT_MARGIN = 5.0  # natural log of the likelihood ratio: 150 to 1
 DEFAULT_DECIDE_S = 45.0
 DEFAULT_CANDIDATES = 4
 SINCE_LEVEL = 2.0  # sigmas: "since when" is the last check below this before the alarm
+FROM_START_SIGMAS = SINCE_LEVEL + 1.0  # a change under this many of the sharpest calm check's sigma
+# may have been there at that check (``Alarm.from_start``)
 KEEP_S = 5.0  # samples the estimator keeps for the attribution's bank between two checks, s
 BANK_LATE_S = 0.0125  # the kept samples' instants interleave out of order as the estimator took them
 PIN_FRACTION = 1e-6  # a parameter held at its reference in a hypothesis: sigma = PRIOR_SIGMA * this
@@ -168,6 +170,10 @@ class Alarm:
         decides by ``decide_s``.
       open_value: with ``law_open`` on a first alarm, that law's value (its unit) under its own
         hypothesis at the alarm (None on a second alarm).
+      from_start: the change may have been there since the checks began: every check found it
+        at its reference only while the estimate was too uncertain to see it (its size under
+        ``FROM_START_SIGMAS`` of their sharpest sigma), so a rig that differs from its stated
+        parameters would look the same (set only where the references are the stated rig).
       follows_s, followed_value: a second alarm, raised when the change alarmed at ``follows_s``
         went on (``still_changing``): on the alarmed parameter, or, where that alarm left the law
         open, on whichever of the hinge's two moved on; ``followed_value`` its value at that alarm,
@@ -187,6 +193,7 @@ class Alarm:
     follows_s: float | None = None
     followed_value: float | None = None
     open_value: float | None = None
+    from_start: bool = False
 
     @property
     def still_changing(self) -> bool:
@@ -227,6 +234,12 @@ class Alarm:
             f"{self.since_s:.1f} s ({since}its last check within 2 sigma of the reference), "
             f"alarm at {at(self.t_s)}"
         )
+        if self.from_start:
+            line += (
+                "; it may have been so from the start (no check before could have seen it): a rig whose "
+                "parameters differ from those stated looks the same (if nothing changed, calibrate the rig: "
+                "'pendsim calibrate' on its recordings, then --params-file)"
+            )
         if self.follows_s is not None:
             line += (
                 f"; still changing: it moved on from {self.followed_value:.4g} {unit} at its alarm at "
@@ -346,6 +359,7 @@ class HealthMonitor:
         self._next_s = estimator.t_s + period_s
         self._above_since: float | None = None
         self._calm_s: dict[str, float] = dict.fromkeys(estimator.track, estimator.t_s)
+        self._calm_sigma: dict[str, float] = {}  # the sharpest sigma of a check at the reference, per parameter
         self._bank: _Bank | None = None
         self._taken = estimator.count  # samples the bank has seen (the estimator's count)
         self._quiet_until_s = -math.inf
@@ -362,6 +376,11 @@ class HealthMonitor:
     def statistics(self) -> dict[str, float]:
         """Each tracked parameter's g (module docstring) now; a parameter that has alarmed gets
         its marginal z and is left free in the others' g."""
+        return self._statistics()[0]
+
+    def _statistics(self) -> tuple[dict[str, float], dict[str, float]]:
+        """``statistics`` and each one's sigma: the change in the parameter alone that gives g = 1
+        (its unit)."""
         assert self.reference is not None
         est = self.estimator
         track = est.track
@@ -369,12 +388,14 @@ class HealthMonitor:
         p = est.p[NSTATE:, NSTATE:] + np.diag(self.reference_sigma**2)  # the references' spread: no change
         sigma = np.sqrt(np.diag(p))
         out = {name: float(delta[i] / sigma[i]) for i, name in enumerate(track) if name in PRIOR_SIGMA}
+        spread = {name: float(sigma[i]) for i, name in enumerate(track) if name in PRIOR_SIGMA}
         watched = [i for i, name in enumerate(track) if not self._is_free(name) and name in PRIOR_SIGMA]
         if watched:
             info = np.linalg.inv(p[np.ix_(watched, watched)])
             g = info @ delta[watched] / np.sqrt(np.diag(info))
             out.update({track[i]: float(gi) for i, gi in zip(watched, g, strict=True)})
-        return out
+            spread.update({track[i]: float(1 / math.sqrt(v)) for i, v in zip(watched, np.diag(info), strict=True)})
+        return out, spread
 
     def check(self) -> list[Alarm]:
         """Check at the estimator's current time (call after each update: it checks once per
@@ -398,11 +419,12 @@ class HealthMonitor:
         """The detection and attribution stages at a check (module docstring)."""
         est = self.estimator
         assert self.reference is not None
-        g = self.statistics()
+        g, spread = self._statistics()
         self.history.append((t, g))
         for name, gi in g.items():
             if abs(gi) < SINCE_LEVEL:
                 self._calm_s[name] = t
+                self._calm_sigma[name] = min(self._calm_sigma.get(name, math.inf), spread[name])
         watched = {name: abs(gi) for name, gi in g.items() if not self._is_free(name)}
         top = max(watched, key=watched.__getitem__) if watched else None
         if top is None or watched[top] <= self.threshold:
@@ -426,6 +448,10 @@ class HealthMonitor:
             self.impossible.append(alarm)  # a negative damping or friction: the model does not fit, no alarm
             self._aside.add(alarm.parameter)
             return []
+        stated = TRACKABLE[alarm.parameter][0] is not None and alarm.reference == self.estimator.stated(alarm.parameter)
+        if stated and alarm.follows_s is None:  # against the rig as stated (not the run's own, a node's)
+            seen = self._calm_sigma.get(alarm.parameter, math.inf)
+            alarm = dataclasses.replace(alarm, from_start=abs(alarm.change) < FROM_START_SIGMAS * seen)
         self.alarmed[alarm.parameter] = alarm
         i = self.estimator.track.index(alarm.parameter)
         if alarm.parameter in WALK_PER_SQRT_S:  # followed as closely as a change under way needs: a
@@ -642,6 +668,7 @@ class HealthMonitor:
         if self.reference is not None:
             self.reference[parameter] = value
         alarm = self.alarmed.pop(parameter, None)
+        self._calm_sigma.pop(parameter, None)  # a new reference: its checks begin again
         self._aside.discard(parameter)
         self._followed.discard(parameter)
         if alarm is not None and alarm.law_open:

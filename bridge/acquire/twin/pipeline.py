@@ -742,7 +742,8 @@ def summary_text(result: TwinResult) -> str:
         lines.append(
             f"warning: the model does not fit the data ({', '.join(unfit)}; 2 on a healthy rig): those estimates "
             "are less certain than their sigmas say (a node's timing the twin does not follow, a drive it is not "
-            "given, a rig unlike its model or a fault; docs/twin.md)"
+            "given, a fault, or a rig unlike its model: `pendsim calibrate` on its recordings, then --params-file; "
+            "docs/twin.md)"
         )
     f = s.forecast
     lows = [0.0, *f.horizon_s][: len(f.horizon_s)]  # each bin's lower edge

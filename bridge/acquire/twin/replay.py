@@ -13,9 +13,12 @@ The twin's recording keeps that clock (same UTC start). A recording written by t
 lists the samples that came too late live; they are left out here too. A driven recording's
 torques (``/drive``) are the motor torques the twin's model is given.
 
+The twin runs on the rig in ``spec`` (the command gives it the recording's own, with
+``--params-file``/``--set`` on top); where that differs from what the recording states
+(``pendsim/rig_parameters``), e.g. a rig calibrated from it, the differences are said.
+
 Refused (``RecordingError``, one line): a file that is not a readable recording, one without both
-nodes' IMU topics, a recording of another rig (its ``pendsim/rig_parameters`` differ from the
-twin's), a drive other than hinge torques.
+nodes' IMU topics, a run of the spatial model, a drive other than hinge torques.
 """
 
 from __future__ import annotations
@@ -46,21 +49,23 @@ from ...report.twin_views import TwinView
 from ..sink import RecordingSink
 from .pipeline import TwinPipeline, TwinResult, TwinSpec, close_sink, open_sink, status_text
 
-RIG_TOLERANCE = 1e-9  # relative: parameters that differ by more are another rig
+RIG_TOLERANCE = 1e-9  # relative: parameters that differ by more are said to differ
 
 
 def differing_parameters(recorded: RigParams, twin: RigParams) -> list[str]:
-    """The parameters in which two rigs differ (relative tolerance ``RIG_TOLERANCE``)."""
+    """The parameters in which two rigs differ (relative tolerance ``RIG_TOLERANCE``): "name
+    recorded -> twin's", the largest relative difference first."""
     a, b = recorded.as_dict(), twin.as_dict()
-    out = []
+    out: list[tuple[float, str]] = []  # (relative difference, text): the largest first
     for name, value in a.items():
         other = b.get(name)
         if isinstance(value, (int, float)) and isinstance(other, (int, float)):
-            if abs(value - other) > RIG_TOLERANCE * max(abs(value), abs(other), 1e-300):
-                out.append(f"{name} {value:.6g} (twin {other:.6g})")
+            relative = abs(value - other) / max(abs(value), abs(other), 1e-300)
+            if relative > RIG_TOLERANCE:
+                out.append((relative, f"{name} {value:.6g} -> {other:.6g}"))
         elif value != other:
-            out.append(f"{name} {value!r} (twin {other!r})")
-    return out
+            out.append((math.inf, f"{name} {value!r} -> {other!r}"))
+    return [text for _, text in sorted(out, key=lambda d: -d[0])]
 
 
 def _noted_events(metadata: dict[str, dict[str, str]]) -> list[tuple[float, str]]:
@@ -140,10 +145,10 @@ def replay(
         )
     if "pendsim/rig_parameters" in rec.metadata:
         differ = differing_parameters(rec.params(), spec.params)
-        if differ:
-            raise RecordingError(
-                f"{path} is a recording of another rig: {'; '.join(differ[:3])}"
-                f"{' ...' if len(differ) > 3 else ''}; give the twin that rig (--params-file) to replay it"
+        if differ:  # said, not refused: the rig given is the recording's better known (calibrated)
+            say(
+                f"twin: the rig given differs from the one {path.name} states ({'; '.join(differ[:3])}"
+                f"{f'; {len(differ)} in all' if len(differ) > 3 else ''}): the twin runs on the rig given"
             )
     m1, m2 = node_samples(rec)
     torque_t, torque = None, None
