@@ -167,6 +167,8 @@ def run(args: argparse.Namespace) -> int:
     use = f"pendsim validate {args.paths[0]} --params-file {out_dir / 'params.json'}{spatial}"
     if not spatial:  # the twin models the planar rig
         use += f"; the live twin: pendsim twin -o twin.mcap --params-file {out_dir / 'params.json'}"
+    if report.model_error:  # no rig fits: its params.json is no calibration to hand on
+        use = "none as a calibration: the model does not fit these recordings (below)"
     print(f"wrote {', '.join(str(p) for p in written)} (use: {use})")
     for line in report.model_error[:1]:
         print(f"pendsim: calibration: {line}", file=sys.stderr)

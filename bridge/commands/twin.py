@@ -206,7 +206,7 @@ def spec_from(args: argparse.Namespace) -> TwinSpec:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..acquire.twin.pipeline import summary_text
+    from ..acquire.twin.summary import summary_text
 
     spec = spec_from(args)
     views_for = _views_for(args, spec.params)

@@ -77,6 +77,7 @@ TICK_MISS_Z = 6.0  # ... and moved to the other tick when its angle misses by mo
 TICK_BETTER = 4.0  # ... and the other tick explains it this many times better
 HOLD_NIS = 20.0  # a node's recent mean NIS above this holds the health checks (``_checks_held``)
 HOLD_EVERY_S = 0.25
+FITTED_S = 10.0  # a run whose model fitted (recent NIS within MISFIT_NIS) this long before a hold: it changed
 RUN_MISFIT_NIS = 3.0  # a node's mean NIS over a whole run above this: its summary warns
 MISFIT_NIS = 6.0  # a node's recent mean NIS above this (three times chi^2's mean): the model does not fit
 RECENT_NIS = 160  # the status line's recent NIS: each node's last 2 s of updates at 80 Hz
@@ -268,6 +269,7 @@ class TwinSession:
         self._accel_nis_sum, self._accel_nis_count = [0.0, 0.0], [0, 0]
         self._accel_frames: list[SwingFrame | None] = [None, None]  # the frame each node's accelerometer is read in
         self._holding, self._hold_checked_s = False, -math.inf  # health checks held (``_checks_held``)
+        self._fitted_s = 0.0  # how long the model has fitted the data (``_checks_held``), s
         self._ticks_moved = [0, 0]  # samples whose value was moved to the tick on the sample's other side
         self._stated_coef = coefficients([params])[:, 0].copy()  # (NCOEF,): the stated rig's force law
         nbins = len(HORIZON_BINS_S)
@@ -618,19 +620,32 @@ class TwinSession:
         ``HOLD_NIS`` (ten times a healthy rig's), the estimate, its parameters included, is not the
         rig's (a timing the twin does not follow, a drive it is not given, a rig unlike the model),
         and an alarm on a parameter would name a change that did not happen. Said once as an
-        event each way; checked every ``HOLD_EVERY_S``."""
+        event each way, with what it most likely means: a model that fitted for ``FITTED_S`` or
+        more before (its recent NIS within ``MISFIT_NIS``) met a change it does not track (a
+        spring or inertia other than the tracked ones: no parameter alarms); one that never
+        fitted, a rig unlike its stated parameters (calibrate it). Checked every ``HOLD_EVERY_S``."""
         if t_v < self._hold_checked_s + HOLD_EVERY_S:
             return self._holding
         self._hold_checked_s = t_v
         recent = self.recent_nis()
         worst = max(recent) if all(len(v) == RECENT_NIS for v in self._nis) else math.nan
+        if worst <= MISFIT_NIS:
+            self._fitted_s += HOLD_EVERY_S
         holding = worst > HOLD_NIS
         if holding != self._holding:
             self._holding = holding
             if holding:
                 node = int(np.argmax(recent)) + 1
+                why = (
+                    f"after fitting it for {self._fitted_s:.0f} s: something the twin does not track changed (a "
+                    "spring or inertia other than the tracked ones, a node's mount or timing), or a hand is on the rig"
+                    if self._fitted_s >= FITTED_S
+                    else "and has not fitted it since the start: the rig most likely differs from its stated "
+                    "parameters (calibrate it: 'pendsim calibrate' on a recording of it, then --params-file), or a "
+                    "node's timing the twin does not follow"
+                )
                 self._event(
-                    t_v, f"health checks held: the model does not fit the data (M{node}'s mean NIS {worst:.0f})"
+                    t_v, f"health checks held: the model does not fit the data (M{node}'s mean NIS {worst:.0f}) {why}"
                 )
             else:
                 self._event(t_v, "health checks resumed")

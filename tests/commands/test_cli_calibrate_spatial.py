@@ -84,6 +84,8 @@ def test_a_spatial_recording_is_named_as_model_error_with_its_cause_tested(spati
     assert "the support tilts, spatial motion" in captured.out
     assert "dry friction does not explain it" in captured.out
     assert (out / "params.json").is_file()  # written: the report says what is wrong with it
+    assert "(use: none as a calibration: the model does not fit these recordings" in captured.out
+    assert "--params-file" not in captured.out.split("(use: ")[1]  # no command offered to hand it on
 
 
 @pytest.mark.parametrize(

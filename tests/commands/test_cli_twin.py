@@ -320,7 +320,8 @@ def test_the_live_views_see_the_twins_estimates_and_end_with_it(recording, repla
 
 
 def test_the_summary_gives_the_models_value_and_says_when_a_parameter_is_where_no_rig_can_be():
-    from pendsim_bridge.acquire.twin.pipeline import TwinResult, summary_text
+    from pendsim_bridge.acquire.twin.pipeline import TwinResult
+    from pendsim_bridge.acquire.twin.summary import summary_text
     from pendsim_mj.twin.session import ForecastScore, TwinSummary
 
     summary = TwinSummary(

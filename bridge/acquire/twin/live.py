@@ -38,7 +38,8 @@ from ..packets import PacketError, StreamFormat
 from ..ports import DEFAULT_NODES, NodeSpec, check_nodes
 from ..receiver import say_on_stderr, stop_signals
 from ..udp_loop.node_view import NodeView, ViewCounters, model_frames
-from .pipeline import TwinPipeline, TwinResult, TwinSpec, close_sink, open_sink, status_text
+from .pipeline import TwinPipeline, TwinResult, TwinSpec, close_sink, open_sink
+from .summary import status_text
 
 SETTLE_S = 0.05  # the nodes' timelines decide this often (``receiver.TICK_S``), s
 IDLE_WAIT_S = 0.05  # the loop's longest sleep with no packet and no sample due, s
@@ -116,8 +117,8 @@ def run_twin_live(
     """Run the twin on the nodes' packets until ``duration_s``, Ctrl-C, SIGTERM or ``should_stop``;
     ``views_for(start_utc_ns)`` opens the live views (closed at the end, on every exit path).
     ``say`` gets a line for each event as it happens (listening, a node's clock jump, each alarm,
-    within a second: "twin: alarm: ..."); ``status`` once a second the status line
-    (``pipeline.status_text``).
+    within a second: "twin: alarm: ...", the health checks held or resumed); ``status`` once a second the status line
+    (``summary.status_text``).
 
     Raises:
       ParameterError: a port cannot be bound (nothing is written).
@@ -173,7 +174,7 @@ def run_twin_live(
         )
         stop = "duration"
         next_settle_s = 0.0
-        alarms_said = 0
+        alarms_said = events_said = 0
 
         def take(key: selectors.SelectorKey, before_ns: float = math.inf) -> int:
             """The datagrams waiting on one node's socket into the pipeline (those that arrived
@@ -223,6 +224,10 @@ def run_twin_live(
                     for alarm in pipeline.alarms[alarms_said:]:
                         say(f"twin: alarm: {alarm.describe(start_utc_ns)}")
                     alarms_said = len(pipeline.alarms)
+                    for at_s, what in session.events[events_said:]:  # the health checks held or resumed
+                        if what.startswith("health checks"):
+                            say(f"twin: {what} (at {at_s:.1f} s)")
+                    events_said = len(session.events)
                     if status is not None:
                         status(status_text(pipeline, now))
         # what arrived before the stop and waits in the OS is taken in (a twin behind the nodes on a

@@ -47,7 +47,8 @@ from ...io.recording import read_recording
 from ...io.recording_layout import DRIVE_LAYOUT, DRIVE_TOPIC, imu_topic
 from ...report.twin_views import TwinView
 from ..sink import RecordingSink
-from .pipeline import TwinPipeline, TwinResult, TwinSpec, close_sink, open_sink, status_text
+from .pipeline import TwinPipeline, TwinResult, TwinSpec, close_sink, open_sink
+from .summary import status_text
 
 RIG_TOLERANCE = 1e-9  # relative: parameters that differ by more are said to differ
 
