@@ -77,7 +77,7 @@ TICK_MISS_Z = 6.0  # ... and moved to the other tick when its angle misses by mo
 TICK_BETTER = 4.0  # ... and the other tick explains it this many times better
 HOLD_NIS = 20.0  # a node's recent mean NIS above this holds the health checks (``_checks_held``)
 HOLD_EVERY_S = 0.25
-FITTED_S = 10.0  # a run whose model fitted (recent NIS within MISFIT_NIS) this long before a hold: it changed
+FITTED_S = 5.0  # a run whose model fitted (recent NIS within MISFIT_NIS) this long before a hold: it changed
 RUN_MISFIT_NIS = 3.0  # a node's mean NIS over a whole run above this: its summary warns
 MISFIT_NIS = 6.0  # a node's recent mean NIS above this (three times chi^2's mean): the model does not fit
 RECENT_NIS = 160  # the status line's recent NIS: each node's last 2 s of updates at 80 Hz
@@ -640,9 +640,14 @@ class TwinSession:
                     f"after fitting it for {self._fitted_s:.0f} s: something the twin does not track changed (a "
                     "spring or inertia other than the tracked ones, a node's mount or timing), or a hand is on the rig"
                     if self._fitted_s >= FITTED_S
-                    else "and has not fitted it since the start: the rig most likely differs from its stated "
-                    "parameters (calibrate it: 'pendsim calibrate' on a recording of it, then --params-file), or a "
-                    "node's timing the twin does not follow"
+                    else (
+                        f"and has fitted it for only {self._fitted_s:.0f} s"
+                        if self._fitted_s
+                        else "and has not fitted it"
+                    )
+                    + " since the start: the rig most likely differs from its stated parameters (calibrate it: "
+                    "'pendsim calibrate' on a recording of it, then --params-file), or a node's timing the twin does "
+                    "not follow"
                 )
                 self._event(
                     t_v, f"health checks held: the model does not fit the data (M{node}'s mean NIS {worst:.0f}) {why}"
