@@ -58,7 +58,8 @@ def register(sub: argparse._SubParsersAction[options.Parser]) -> None:
         "--replay",
         type=options.mcap_file,
         metavar="REC.mcap",
-        help="run on this recording instead of live packets (a recording of the twin's rig)",
+        help="run on this recording instead of live packets, on the rig it states (--params-file, --set on top: "
+        "e.g. the rig 'pendsim calibrate' found from it)",
     )
     p.add_argument(
         "--speed",
