@@ -8,11 +8,8 @@ import math
 
 import numpy as np
 import pytest
+from emulated_twin import twin_on_nodes
 
-from pendsim_bridge.acquire.emulator import plan
-from pendsim_bridge.acquire.packets import GROUP_SLICES
-from pendsim_bridge.cli import build_parser
-from pendsim_bridge.commands.nodes import spec_from
 from pendsim_mj.engines.simulation import simulate
 from pendsim_mj.estimation.planar_fit import ljung_box_p
 from pendsim_mj.rig.params import DEFAULT_PARAMS
@@ -27,14 +24,7 @@ IMPERFECT = ["--phi1-deg", "31.9", "--heading-deg", "230", "--mount-misalignment
 
 def _twin(duration_s: float, args: list[str]) -> TwinSession:
     """``pendsim nodes``'s samples (2 s held, then the release) fed in time order into a twin."""
-    p = plan(spec_from(build_parser().parse_args(["nodes", "--duration-s", str(duration_s), "--hold-s", "2", *args])))
-    session = TwinSession()
-    q, g, a = GROUP_SLICES["quat"], GROUP_SLICES["gyro"], GROUP_SLICES["accel"]
-    for t, k, i in p.sent_in_time_order():
-        row = p.streams[k].rows[i]
-        session.take(k, t, row[q], row[g], row[a])
-        session.drain()
-    return session
+    return twin_on_nodes(["--duration-s", str(duration_s), "--hold-s", "2", *args])
 
 
 @pytest.fixture(scope="module")

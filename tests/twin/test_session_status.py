@@ -6,6 +6,8 @@ from __future__ import annotations
 
 import math
 
+from emulated_twin import twin_on_nodes
+
 from pendsim_bridge.acquire.emulator import plan
 from pendsim_bridge.acquire.packets import GROUP_SLICES
 from pendsim_bridge.cli import build_parser
@@ -34,18 +36,6 @@ def test_before_the_start_the_twin_says_which_node_is_silent_and_then_what_it_le
     assert all("m2 fusion phase: " in text for text in held)
 
 
-def _twin_on(nodes: list[str]) -> TwinSession:
-    """The twin (the paper's rig) on ``pendsim nodes``'s data with these options, offline."""
-    p = plan(spec_from(build_parser().parse_args(["nodes", *nodes])))
-    session = TwinSession()
-    q, g, a = GROUP_SLICES["quat"], GROUP_SLICES["gyro"], GROUP_SLICES["accel"]
-    for t, k, i in p.sent_in_time_order():
-        row = p.streams[k].rows[i]
-        session.take(k, t, row[q], row[g], row[a])
-        session.drain()
-    return session
-
-
 def _held(session: TwinSession) -> list[str]:
     return [what for _, what in session.events if what.startswith("health checks held: the model does not fit")]
 
@@ -55,7 +45,7 @@ def test_a_change_the_twin_does_not_track_is_said_when_the_model_stops_fitting()
     parameter can take it in, so nothing is alarmed, but the model that fitted until then stops
     fitting, and the health checks' hold says that something the twin does not track changed (a
     new user's trial found only a bare "health checks held" among a hundred events)."""
-    session = _twin_on(["--duration-s", "32", "--hold-s", "1", "--seed", "3", "--fault", "stiffness:c2+5%@20"])
+    session = twin_on_nodes(["--duration-s", "32", "--hold-s", "1", "--seed", "3", "--fault", "stiffness:c2+5%@20"])
     held = _held(session)
     assert held and "something the twin does not track changed" in held[0], session.events
     fitted_s = float(held[0].split("after fitting it for ")[1].split(" s")[0])
@@ -66,6 +56,6 @@ def test_a_change_the_twin_does_not_track_is_said_when_the_model_stops_fitting()
 def test_a_rig_unlike_its_stated_parameters_where_none_is_tracked_is_said_to_need_a_calibration():
     """M2's inertia 4 % under the stated one (not tracked): the model never fits, and the hold says
     that the rig most likely differs from its stated parameters, naming the calibration."""
-    session = _twin_on(["--duration-s", "14", "--hold-s", "1", "--seed", "3", "--set", "j2_kg_m2=0.0210"])
+    session = twin_on_nodes(["--duration-s", "14", "--hold-s", "1", "--seed", "3", "--set", "j2_kg_m2=0.0210"])
     held = _held(session)
     assert held and "since the start: the rig most likely differs" in held[0] and "'pendsim calibrate'" in held[0], held
