@@ -82,6 +82,7 @@ import numpy as np
 
 from pendsim_mj.errors import ParameterError
 from pendsim_mj.twin.estimator import DIVERGED_RAD, NSTATE, TRACKABLE, RigEstimator
+from pendsim_mj.units import NS_PER_S, nanoseconds
 
 DEFAULT_THRESHOLD = 5.0  # sigmas
 DEFAULT_PERSIST_S = 3.0
@@ -215,7 +216,7 @@ class Alarm:
         def utc(t_s: float) -> str:
             if start_utc_ns is None:
                 return ""
-            when = datetime.datetime.fromtimestamp((start_utc_ns + round(t_s * 1e9)) // 10**9, datetime.UTC)
+            when = datetime.datetime.fromtimestamp((start_utc_ns + nanoseconds(t_s)) // NS_PER_S, datetime.UTC)
             return f"{when:%H:%M:%S} UTC"
 
         def at(t_s: float) -> str:
