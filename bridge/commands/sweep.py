@@ -122,7 +122,8 @@ def register(sub: argparse._SubParsersAction[options.Parser]) -> None:
         "--workers",
         type=options.int_in(1, 1024),
         metavar="N",
-        help="run on a local Dask cluster of N worker processes (loopback only)",
+        help="run on a local Dask cluster of N worker processes (loopback only); where this process's threads "
+        "already use the cores (the fast engine; the MuJoCo engines with N >= cores) the sweep runs here and says so",
     )
     where.add_argument("--scheduler", metavar="tcp://HOST:PORT", help="run on the Dask scheduler at this address")
     p.add_argument(

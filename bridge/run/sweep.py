@@ -160,15 +160,16 @@ def _run_into(
 ) -> SweepSummary:
     remaining = np.setdiff1d(np.arange(len(table)), store.finished_ids())
     resumed = len(table) - len(remaining)
-    parallel = workers or 1
-    if workers is not None and plan.engine == "fast":  # one machine: the kernel's threads already use every core
+    in_process = _in_process_instead(plan, workers)
+    if in_process is not None:  # one machine whose cores this process's threads already use
         workers = None  # and its tasks are a serial run's (smaller ones only add per-task work)
-        backend = (
-            f"this process (the fast engine threads over the cores; --workers {parallel} is for the MuJoCo engines)"
-        )
+        backend = f"this process ({in_process})"
     else:
+        plural = "s" if workers != 1 else ""
         backend = (
-            "serial" if workers is None and scheduler is None else (scheduler or f"LocalCluster ({workers} workers)")
+            "serial"
+            if workers is None and scheduler is None
+            else (scheduler or f"LocalCluster ({workers} worker{plural})")
         )
     if cases_per_task is None:
         split = 8 if scheduler is not None else (workers or 1)
@@ -213,6 +214,28 @@ def _run_into(
         maps=maps,
         sensitivity=sensitivity,
     )
+
+
+def _in_process_instead(plan: SweepPlan, workers: int | None) -> str | None:
+    """Why a LocalCluster of ``workers`` would only be slower than this process, or None.
+
+    The fast engine's kernel threads over every core; the MuJoCo engines run one share of a
+    task's cases per core on threads of their own (``sweep.run``), so N >= cores worker processes,
+    one thread each, only add their start-up and a copy of pendsim each (measured on 2 cores with
+    ``--workers 2``: 0.80x of this process at 1000 MuJoCo cases, 0.88x at 4000; docs/sweeps.md).
+    With fewer workers than cores each worker threads over its share of them (not measured here).
+    """
+    if workers is None:
+        return None
+    if plan.engine == "fast":
+        return f"the fast engine threads over the cores; --workers {workers} is for the MuJoCo engines"
+    cores = os.cpu_count() or 1
+    if workers >= cores:
+        return (
+            f"the MuJoCo engines run a thread per core; --workers {workers} on {cores} core{'s' if cores > 1 else ''} "
+            "would only add worker start-up"
+        )
+    return None
 
 
 DASK_GREETING_MAX_BYTES = 1 << 20  # a Dask comm's handshake is a few hundred bytes

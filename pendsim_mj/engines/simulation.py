@@ -7,6 +7,7 @@ step and re-pair them, so every row of the returned Trajectory belongs to one in
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import os
 from collections.abc import Iterator, Sequence
@@ -136,6 +137,101 @@ def simulate_batch(
     Returns:
       A batch Trajectory: arrays of shape (nbatch, n, ...); ``.member(i)`` gives one run.
     """
+    run = _rolled_out(params, phi0_rad, omega0_rad_s, duration_s, dt_s, nthread, clamp, variant, tilt0_rad, drive)
+    return _trajectory(
+        run.models, run.unique, run.param_list, run.states, run.sensordata, dt_s, run.nstep, clamp, run.inputs,
+        run.drives,
+    )  # fmt: skip
+
+
+@dataclasses.dataclass(frozen=True)
+class SampledMotion:
+    """What a sweep needs of a batch of MuJoCo runs, at every ``every``-th step (nsave samples,
+    from t = 0): no IMU, spring or per-step field is built (``simulate_batch_sampled``).
+
+    Attributes:
+      phi_rad, omega_rad_s, alpha_rad_s2: (nbatch, nsave, 2) as in Trajectory.
+      total_energy_j: (nbatch, nsave) kinetic + potential energy above rest, J (Trajectory's).
+      dissipated_j: (nbatch, nsave) energy taken by the hinge damping since t = 0, J, integrated
+        over every step (Trajectory's, at the saved samples).
+    """
+
+    phi_rad: np.ndarray
+    omega_rad_s: np.ndarray
+    alpha_rad_s2: np.ndarray
+    total_energy_j: np.ndarray
+    dissipated_j: np.ndarray
+
+
+def simulate_batch_sampled(
+    params: RigParams | Sequence[RigParams] = DEFAULT_PARAMS,
+    phi0_rad: ArrayLike = (math.pi / 6, 0.0),
+    omega0_rad_s: ArrayLike = (0.0, 0.0),
+    duration_s: float = 120.0,
+    dt_s: float = 0.01,
+    *,
+    every: int = 1,
+    nthread: int | None = None,
+    variant: Variant = PLANAR,
+    drive: Drive | Sequence[Drive | None] | None = None,
+) -> SampledMotion:
+    """``simulate_batch`` reduced to the angles, rates, accelerations and energies at every
+    ``every``-th step, computed from the rollout's states and sensors at those rows only (the
+    dissipated energy over every step): the values ``simulate_batch``'s Trajectory has there, at
+    a fraction of its cost (no IMU, spring or per-step energy arrays). A run whose energy grows
+    without input is not raised here: its ``total_energy_j`` shows it (``checks.energy_grew``).
+
+    Raises:
+      ParameterError: bad parameters, initial conditions or ``every``.
+      SimulationDiverged: a run reached non-finite values.
+    """
+    if isinstance(every, bool) or not isinstance(every, int) or every < 1:
+        raise ParameterError(f"every must be a whole number >= 1, got {every!r}")
+    run = _rolled_out(params, phi0_rad, omega0_rad_s, duration_s, dt_s, nthread, Clamp.NONE, variant, (0.0, 0.0), drive)
+    model = run.models[0]
+    phi, omega, _, tilt_rate = _hinge_states(model, run.states)
+    alpha = _hinge_accelerations(model, run.sensordata)
+    dissipated = _dissipated(run.param_list, Clamp.NONE, omega, alpha, tilt_rate, dt_s)
+    rows = slice(None, None, every)
+    support_pos, support_vel = _support_state(model, run.states[:, rows])
+    kinetic, potential = _energies(run.models, run.unique, run.sensordata[:, rows], support_pos, support_vel)
+    return SampledMotion(
+        phi_rad=phi[:, rows],
+        omega_rad_s=omega[:, rows],
+        alpha_rad_s2=alpha[:, rows],
+        total_energy_j=kinetic + potential,
+        dissipated_j=dissipated[:, rows],
+    )
+
+
+@dataclasses.dataclass(frozen=True)
+class _Rollout:
+    """A batch rolled out (``_rolled_out``): what ``_trajectory`` reads."""
+
+    models: list[mujoco.MjModel]
+    unique: dict[RigParams, mujoco.MjModel]
+    param_list: list[RigParams]
+    states: np.ndarray
+    sensordata: np.ndarray
+    inputs: np.ndarray
+    drives: Sequence[Drive | None] | None
+    nstep: int
+
+
+def _rolled_out(
+    params: RigParams | Sequence[RigParams],
+    phi0_rad: ArrayLike,
+    omega0_rad_s: ArrayLike,
+    duration_s: float,
+    dt_s: float,
+    nthread: int | None,
+    clamp: Clamp,
+    variant: Variant,
+    tilt0_rad: ArrayLike,
+    drive: Drive | Sequence[Drive | None] | None,
+) -> _Rollout:
+    """The checked batch on ``mujoco.rollout`` (``simulate_batch``'s arguments): its states
+    paired with their sensor rows, (nbatch, nstep + 1, ...)."""
     nstep = check_step(duration_s, dt_s)
     param_list = check_params(params)
     phi0, omega0 = check_initial(phi0_rad, omega0_rad_s, len(param_list) if len(param_list) > 1 else None)
@@ -181,9 +277,7 @@ def simulate_batch(
         )
     _check_warnings(datas, dt_s, warnings)
     states = _pair(initial, states, sensordata, dt_s)
-    return _trajectory(
-        models, unique, param_list, states, sensordata, dt_s, nstep, clamp, inputs, drives if targets else None
-    )
+    return _Rollout(models, unique, list(param_list), states, sensordata, inputs, drives if targets else None, nstep)
 
 
 def _check_warnings(datas: list[mujoco.MjData], dt_s: float, warnings: mujoco_warnings.Captured) -> None:
@@ -328,8 +422,9 @@ def variant_has_tilt(model: mujoco.MjModel) -> bool:
     return found >= 0
 
 
-def _rest_potential_j(model: mujoco.MjModel) -> float:
-    data = mujoco.MjData(model)
+def _rest_potential_j(model: mujoco.MjModel, data: mujoco.MjData) -> float:
+    """The potential energy (J) of the model's rest pose (``data``: one of its size, reset here)."""
+    mujoco.mj_resetData(model, data)
     mujoco.mj_forward(model, data)
     return float(data.energy[0])
 
@@ -361,6 +456,90 @@ def _weight_on_support_n(model: mujoco.MjModel) -> float:
     return float(data.energy[0]) - e0
 
 
+def _hinge_states(model: mujoco.MjModel, states: np.ndarray) -> tuple[np.ndarray, ...]:
+    """phi, omega, tilt, tilt rate (..., n, 2) from full physics states (..., n, size); zero
+    for a joint the model lacks (a clamped hinge, the planar variant's tilts)."""
+    qpos_at, qvel_at = _state_offsets(model)
+    out = [np.zeros((*states.shape[:-1], 2)) for _ in range(4)]
+    for k, joints in enumerate(zip(HINGES, TILTS, strict=True)):
+        for j, name in enumerate(joints):
+            jid = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, name)
+            if jid >= 0:
+                out[2 * j][..., k] = states[..., qpos_at + model.jnt_qposadr[jid]]
+                out[2 * j + 1][..., k] = states[..., qvel_at + model.jnt_dofadr[jid]]
+    phi, omega, tilt, tilt_rate = out
+    return phi, omega, tilt, tilt_rate
+
+
+def _hinge_accelerations(model: mujoco.MjModel, sensordata: np.ndarray) -> np.ndarray:
+    """(..., n, 2) each body's angular acceleration about the hinge axis, rad/s^2."""
+    return np.stack([_sensor(model, sensordata, f"{b}_angacc") @ HINGE_AXIS_WORLD for b in BODIES], axis=-1)
+
+
+def _energies(
+    models: Sequence[mujoco.MjModel],
+    unique: dict[RigParams, mujoco.MjModel],
+    sensordata: np.ndarray,
+    support_pos: np.ndarray,
+    support_vel: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Kinetic and potential energy (nbatch, n), J, relative to the support (its velocity
+    subtracted, its height removed from the potential, the potential above the rest pose): the
+    same in a driven and an undriven run, and the reference's.
+
+    The kinetic energy is sum 1/2 m v_com^2 + 1/2 w^T I w from per-body sensors at the same
+    instant (not MuJoCo's e_kinetic sensor, which it reads before mj_energyVel: one evaluation
+    stale)."""
+    model = models[0]
+    kinetic = np.zeros(sensordata.shape[:2])
+    for b in BODIES:
+        bid = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, b)
+        mass = np.array([m.body_mass[bid] for m in models])[:, None]
+        inertia = np.array([m.body_inertia[bid] for m in models])[:, None, :]  # principal, body axes
+        v = _sensor(model, sensordata, f"{b}_com_linvel") - support_vel
+        w_body = rotations.rotate_into_frame(
+            _sensor(model, sensordata, f"{b}_quat"), _sensor(model, sensordata, f"{b}_angvel")
+        )
+        kinetic += 0.5 * mass * np.sum(v * v, axis=-1) + 0.5 * np.sum(inertia * w_body * w_body, axis=-1)
+    data = mujoco.MjData(model)  # every model of a batch has the same sizes (rollout's own premise)
+    rest_energy = {id(m): _rest_potential_j(m, data) for m in unique.values()}
+    rest = np.array([rest_energy[id(m)] for m in models])
+    potential = _sensor(model, sensordata, "energy_potential")[..., 0] - rest[:, None]
+    if np.any(support_pos[..., 2]):
+        weight = np.array([_weight_on_support_n(m) for m in models])[:, None]
+        potential = potential - weight * support_pos[..., 2]
+    return kinetic, potential
+
+
+def _dissipated(
+    param_list: Sequence[RigParams],
+    clamp: Clamp,
+    omega: np.ndarray,
+    alpha: np.ndarray,
+    tilt_rate: np.ndarray,
+    dt_s: float,
+    dissipated0_j: float = 0.0,
+) -> np.ndarray:
+    """(nbatch, n) energy taken by the hinge (and tilt) damping since the first row, J, from
+    rates and accelerations (nbatch, n, 2) at every step.
+
+    The integral of the damping power P = sum b omega^2 by the corrected trapezoid rule
+    h/2 (P_k + P_k+1) + h^2/12 (P'_k - P'_k+1), P' = sum 2 b omega alpha (MuJoCo's own alpha at
+    the same instants): fourth order, like the RK4 step."""
+    damping = np.array([[p.b1_n_m_s, p.b2_n_m_s] for p in param_list])
+    if clamp is not Clamp.NONE:
+        damping[:, 0 if clamp is Clamp.M1 else 1] = 0.0
+    nbatch = len(omega)
+    power = np.einsum("bk,bnk->bn", damping, omega**2)
+    dpower = np.einsum("bk,bnk->bn", 2.0 * damping, omega * alpha)
+    interval = 0.5 * dt_s * (power[:, :-1] + power[:, 1:]) + dt_s**2 / 12.0 * (dpower[:, :-1] - dpower[:, 1:])
+    if np.any(tilt_rate):  # tilt damping: trapezoid (no tilt acceleration sensor), second order
+        tilt_b = np.array([p.tilt_damping_n_m_s_rad for p in param_list])[:, None, None]
+        tilt_power = np.sum(tilt_b * tilt_rate**2, axis=-1)
+        interval = interval + 0.5 * dt_s * (tilt_power[:, :-1] + tilt_power[:, 1:])
+    return dissipated0_j + np.concatenate([np.zeros((nbatch, 1)), np.cumsum(interval, axis=1)], axis=1)
+
+
 def _trajectory(
     models: Sequence[mujoco.MjModel],
     unique: dict[RigParams, mujoco.MjModel],
@@ -378,26 +557,13 @@ def _trajectory(
 ) -> Trajectory:
     model = models[0]
     nbatch, n = states.shape[:2]
-    qpos_at, qvel_at = _state_offsets(model)
     support_pos, support_vel = _support_state(model, states)  # (nbatch, n, 3) world
-    phi = np.zeros((nbatch, n, 2))
-    omega = np.zeros((nbatch, n, 2))
-    tilt = np.zeros((nbatch, n, 2))
-    tilt_rate = np.zeros((nbatch, n, 2))
-    for k, (hinge, tilt_joint) in enumerate(zip(HINGES, TILTS, strict=True)):
-        jid = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, hinge)
-        if jid >= 0:
-            phi[..., k] = states[..., qpos_at + model.jnt_qposadr[jid]]
-            omega[..., k] = states[..., qvel_at + model.jnt_dofadr[jid]]
-        tid = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, tilt_joint)
-        if tid >= 0:
-            tilt[..., k] = states[..., qpos_at + model.jnt_qposadr[tid]]
-            tilt_rate[..., k] = states[..., qvel_at + model.jnt_dofadr[tid]]
+    phi, omega, tilt, tilt_rate = _hinge_states(model, states)
 
     def sens(name: str) -> np.ndarray:
         return _sensor(model, sensordata, name)
 
-    alpha = np.stack([sens(f"{b}_angacc") @ HINGE_AXIS_WORLD for b in BODIES], axis=-1)
+    alpha = _hinge_accelerations(model, sensordata)
     accel = np.stack([sens(f"{s}_accel") for s in IMU_SITES], axis=-2)
     gyro = np.stack([sens(f"{s}_gyro") for s in IMU_SITES], axis=-2)
     quat = np.stack([sens(f"{s}_quat") for s in IMU_SITES], axis=-2)
@@ -405,15 +571,10 @@ def _trajectory(
     angacc = rotations.rotate_into_frame(quat, angacc_world)
     length = np.concatenate([sens(f"{s}_length") for s in SPRINGS], axis=-1)
 
-    # Per-run constants: stiffness (nbatch, 4), damping (nbatch, 2), rest potential (nbatch,).
+    # Per-run spring stiffness (nbatch, 4).
     tendon_ids = [mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_TENDON, s) for s in SPRINGS]
     stiffness_of = {id(m): m.tendon_stiffness[tendon_ids] for m in unique.values()}
     stiffness = np.array([stiffness_of[id(m)] for m in models])
-    damping = np.array([[p.b1_n_m_s, p.b2_n_m_s] for p in param_list])
-    if clamp is not Clamp.NONE:
-        damping[:, 0 if clamp is Clamp.M1 else 1] = 0.0
-    rest_energy = {id(m): _rest_potential_j(m) for m in unique.values()}
-    rest = np.array([rest_energy[id(m)] for m in models])
 
     force = stiffness[:, None, :] * length
     moment = np.zeros((nbatch, n, 2))
@@ -425,33 +586,8 @@ def _trajectory(
             if owner is not None:  # about the pivot O, which moves with the support
                 moment[..., owner] += np.cross(p_point - support_pos, f) @ HINGE_AXIS_WORLD
 
-    # Kinetic energy sum 1/2 m v_com^2 + 1/2 w^T I w from per-body sensors at the same instant
-    # (not MuJoCo's e_kinetic sensor, which it reads before mj_energyVel: one evaluation stale).
-    # Energies are those relative to the support (its velocity subtracted, its height removed
-    # from the potential): the same in a driven and an undriven run, and the reference's.
-    kinetic = np.zeros((nbatch, n))
-    for b in BODIES:
-        bid = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, b)
-        mass = np.array([m.body_mass[bid] for m in models])[:, None]
-        inertia = np.array([m.body_inertia[bid] for m in models])[:, None, :]  # principal, body axes
-        v = sens(f"{b}_com_linvel") - support_vel
-        w_body = rotations.rotate_into_frame(sens(f"{b}_quat"), sens(f"{b}_angvel"))
-        kinetic += 0.5 * mass * np.sum(v * v, axis=-1) + 0.5 * np.sum(inertia * w_body * w_body, axis=-1)
-    potential = sens("energy_potential")[..., 0] - rest[:, None]
-    if np.any(support_pos[..., 2]):
-        weight = np.array([_weight_on_support_n(m) for m in models])[:, None]
-        potential = potential - weight * support_pos[..., 2]
-    # Dissipated energy: integral of the damping power P = sum b omega^2 by the corrected
-    # trapezoid rule h/2 (P_k + P_k+1) + h^2/12 (P'_k - P'_k+1), P' = sum 2 b omega alpha
-    # (MuJoCo's own alpha at the same instants): fourth order, like the RK4 step.
-    power = np.einsum("bk,bnk->bn", damping, omega**2)
-    dpower = np.einsum("bk,bnk->bn", 2.0 * damping, omega * alpha)
-    interval = 0.5 * dt_s * (power[:, :-1] + power[:, 1:]) + dt_s**2 / 12.0 * (dpower[:, :-1] - dpower[:, 1:])
-    if np.any(tilt_rate):  # tilt damping: trapezoid (no tilt acceleration sensor), second order
-        tilt_b = np.array([p.tilt_damping_n_m_s_rad for p in param_list])[:, None, None]
-        tilt_power = np.sum(tilt_b * tilt_rate**2, axis=-1)
-        interval = interval + 0.5 * dt_s * (tilt_power[:, :-1] + tilt_power[:, 1:])
-    dissipated = dissipated0_j + np.concatenate([np.zeros((nbatch, 1)), np.cumsum(interval, axis=1)], axis=1)
+    kinetic, potential = _energies(models, unique, sensordata, support_pos, support_vel)
+    dissipated = _dissipated(param_list, clamp, omega, alpha, tilt_rate, dt_s, dissipated0_j)
 
     scale = np.array([p.m1_kg * p.g_m_s2 * p.oc1_m for p in param_list])
     if drives is None:  # a driven rig may gain energy from its input

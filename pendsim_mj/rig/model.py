@@ -225,6 +225,15 @@ def assignments(params: RigParams, timestep_s: float = 0.01, variant: Variant = 
     return out
 
 
+@functools.cache
+def _parsed_spec(targets: tuple[Target, ...]) -> mujoco.MjSpec:
+    """``_model_xml(targets)`` parsed, once per process (``build_spec`` edits a copy of it)."""
+    try:
+        return mujoco.MjSpec.from_string(_model_xml(targets))
+    except ValueError as exc:  # MuJoCo reports XML errors as ValueError
+        raise ModelError(f"{PENDULUMS_XML}: {exc}") from exc
+
+
 def build_spec(
     params: RigParams = DEFAULT_PARAMS,
     *,
@@ -249,10 +258,7 @@ def build_spec(
     targets = _drive_targets(drive_targets)
     if clamp is not Clamp.NONE and any(t.value == f"torque_{clamp.value}" for t in targets):
         raise ModelError(f"pendulum {clamp.value} is clamped: it cannot carry a torque drive")
-    try:
-        spec = mujoco.MjSpec.from_string(_model_xml(targets))
-    except ValueError as exc:  # MuJoCo reports XML errors as ValueError
-        raise ModelError(f"{PENDULUMS_XML}: {exc}") from exc
+    spec = _parsed_spec(targets).copy()  # parsing is a third of a build: once per structure
     spec.modelfiledir = str(MODELS_DIR)
     for a in assignments(params, timestep_s, variant):
         if a.tag == "option":

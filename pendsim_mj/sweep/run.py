@@ -6,14 +6,17 @@ result does not depend on where or with which other cases it ran: the fast kerne
 every member alone (bit for bit, see ``fast_planar``) and every feature is computed per row.
 
 Engines: ``fast`` (``fast_planar``, all cores through numba), ``mujoco`` (the planar MuJoCo
-model) and ``spatial`` (the spatial variant), both through ``simulation.simulate_batch``, i.e.
-``mujoco.rollout`` with one MjData per thread, one thread per core and one compiled model per
-distinct parameter set. MuJoCo is imported only for those two.
+model) and ``spatial`` (the spatial variant), both through ``simulation.simulate_batch_sampled``,
+i.e. ``mujoco.rollout`` with one MjData per thread, one thread per core and one compiled model per
+distinct parameter set, reduced to the saved samples without a Trajectory. MuJoCo is imported
+only for those two.
 """
 
 from __future__ import annotations
 
+import concurrent.futures
 import dataclasses
+import os
 
 import numpy as np
 from numpy.typing import NDArray
@@ -193,9 +196,15 @@ def _mujoco_motion(
     held: FloatArray | None,
     nthread: int | None,
 ) -> Motion:
-    """Run the batch on ``mujoco.rollout``; where it diverges, run the cases one by one to flag
-    exactly the ones that do (their motion is NaN)."""
-    from pendsim_mj.engines.simulation import simulate_batch  # start-up: MuJoCo, only for its engines
+    """Run the batch on ``mujoco.rollout``, reduced to the saved samples as it comes out
+    (``simulation.simulate_batch_sampled``: no per-case Trajectory); where it diverges, run the
+    cases one by one to flag exactly the ones that do (their motion is NaN).
+
+    The cases are split into one share per thread, each built, rolled out on one MuJoCo thread and
+    reduced in a Python thread of its own: MuJoCo and numpy release the GIL, so the model builds
+    and the reductions (a third of a task run serially) overlap the other share's rollout instead
+    of leaving a core idle."""
+    from pendsim_mj.engines.simulation import simulate_batch_sampled  # start-up: MuJoCo, only for its engines
     from pendsim_mj.rig.model import PLANAR, SPATIAL
 
     variant = SPATIAL if plan.engine == "spatial" else PLANAR
@@ -208,33 +217,44 @@ def _mujoco_motion(
     diverged = np.zeros(k, dtype=bool)
 
     def run(rows: NDArray[np.int64]) -> None:
-        traj = simulate_batch(
+        motion = simulate_batch_sampled(
             [params[i] for i in rows],
             phi0[rows],
             omega0[rows],
             plan.duration_s,
             plan.dt_s,
-            nthread=nthread,
+            every=plan.save_every,
+            nthread=1,
             variant=variant,
             drive=None if drives[0] is None else [drives[i] for i in rows],
         )
-        step = plan.save_every
-        arrays["phi"][rows] = traj.phi_rad[:, ::step]
-        arrays["omega"][rows] = traj.omega_rad_s[:, ::step]
-        arrays["alpha"][rows] = traj.alpha_rad_s2[:, ::step]
-        energy[rows] = traj.total_energy_j[:, ::step]
-        dissipated[rows] = traj.dissipated_j[:, ::step]
+        arrays["phi"][rows] = motion.phi_rad
+        arrays["omega"][rows] = motion.omega_rad_s
+        arrays["alpha"][rows] = motion.alpha_rad_s2
+        energy[rows] = motion.total_energy_j
+        dissipated[rows] = motion.dissipated_j
 
-    try:
-        run(np.arange(k))
-    except SimulationDiverged:
-        for i in range(k):
-            try:
-                run(np.array([i]))
-            except SimulationDiverged:
-                diverged[i] = True
+    def share(rows: NDArray[np.int64]) -> None:
+        try:
+            run(rows)
+        except SimulationDiverged:
+            for i in rows:
+                try:
+                    run(np.array([i]))
+                except SimulationDiverged:
+                    diverged[i] = True
+
+    shares = np.array_split(np.arange(k), max(1, min(nthread or os.cpu_count() or 1, k)))
+    if len(shares) == 1:
+        share(shares[0])
+    else:
+        with concurrent.futures.ThreadPoolExecutor(len(shares), thread_name_prefix="pendsim-mujoco") as pool:
+            for done in [pool.submit(share, rows) for rows in shares]:
+                done.result()
     scale = columns.column("m1_kg") * columns.column("g_m_s2") * columns.column("oc1_m")
     diverged |= energy_grew(energy, scale) & ~_driven(held, k)
+    for values in (*arrays.values(), energy, dissipated):  # a diverged run's motion is NaN
+        values[diverged] = np.nan
     return Motion(
         t_s=np.asarray(np.arange(nsave) * (plan.dt_s * plan.save_every), dtype=np.float64),
         phi_rad=arrays["phi"],

@@ -17,7 +17,7 @@ from pendsim_mj.engines import fast_planar, reference
 from pendsim_mj.errors import ParameterError
 from pendsim_mj.estimation.analysis import spectral_peak_hz
 from pendsim_mj.rig.params import DEFAULT_PARAMS, RigParams
-from pendsim_mj.sweep.plan import PARAMETER_NAMES, SweepPlan, elasticities, parse_vary
+from pendsim_mj.sweep.plan import PARAMETER_NAMES, CaseTable, SweepPlan, elasticities, parse_vary
 from pendsim_mj.sweep.run import run_task
 
 DEG = math.pi / 180
@@ -260,6 +260,31 @@ def test_a_diverging_case_is_flagged_and_its_features_are_nan():
     np.testing.assert_array_equal(feats.diverged, [False, True])
     assert np.all(np.isfinite(feats.values[0])) and np.all(np.isnan(feats.values[1]))
     assert len(feats.poincare.t_s[1]) == 0
+
+
+@pytest.mark.parametrize("engine", ["mujoco", "spatial"])
+def test_a_mujoco_case_gives_the_same_bits_on_one_thread_or_in_a_share_of_two(engine):
+    # the MuJoCo engines split a task's cases into one share per thread: a case's result must not
+    # depend on the split (nor on which cases share its rollout)
+    plan = _plan(vary={"c1_n_m": [4.0, 6.0, 8.0], "phi1_deg": [30.0, 100.0]}, duration_s=4.0, engine=engine,
+                 features=["frequency", "amplitude", "energy", "poincare"], trajectories=True)  # fmt: skip
+    table = plan.cases()
+    one = run_task(plan, table, np.arange(6), nthread=1, keep_trajectories=True)
+    two = run_task(plan, table, np.arange(6), nthread=2, keep_trajectories=True)
+    np.testing.assert_array_equal(one.features.values, two.features.values)
+    np.testing.assert_array_equal(one.trajectories, two.trajectories)
+    alone = run_task(plan, CaseTable(table.names, table.values[4:5]), np.array([4]), nthread=1).features
+    np.testing.assert_array_equal(alone.values[0], two.features.values[4])
+
+
+def test_a_diverging_mujoco_case_is_flagged_in_its_share_and_its_motion_is_nan():
+    # the spring of case 2 makes RK4 at 10 ms unstable; it lies in the second share of two
+    plan = _plan(vary={"c1_n_m": [6.0, 7.0, 1e6]}, duration_s=3.0, engine="mujoco",
+                 features=["frequency", "energy"], trajectories=True)  # fmt: skip
+    task = run_task(plan, plan.cases(), np.arange(3), nthread=2, keep_trajectories=True)
+    np.testing.assert_array_equal(task.features.diverged, [False, False, True])
+    assert np.all(np.isfinite(task.features.values[:2])) and np.all(np.isnan(task.features.values[2]))
+    assert np.all(np.isfinite(task.trajectories[:2])) and np.all(np.isnan(task.trajectories[2]))
 
 
 def test_mujoco_engines_give_the_features_of_the_fast_engine():

@@ -1,8 +1,9 @@
 """The Dask backend with real processes on loopback: a 10 000-case sweep run serially and on a
 running cluster reached by its address with one worker process killed (SIGKILL) mid-sweep, and a
-MuJoCo-engine sweep serially and on a LocalCluster of 2 workers (``pendsim sweep --workers 2``), give the same rows;
-the killed worker's task is retried, no case is written twice, and no process is left running,
-also when ``pendsim sweep --workers 2`` itself gets SIGTERM or SIGKILL."""
+MuJoCo-engine sweep serially and on a LocalCluster of fewer workers than cores (``pendsim sweep
+--workers N``), give the same rows; the killed worker's task is retried, no case is written twice,
+and no process is left running, also when ``pendsim sweep --workers N`` itself gets SIGTERM or
+SIGKILL. As many workers as cores run in this process (the engines' own threads)."""
 
 import logging
 import os
@@ -102,13 +103,18 @@ def _sweep_args(engine: str, out: Path, *more: str) -> list[str]:
     return [*args, "--cases-per-task", "25", "--no-plots", *more, "-o", str(out)]
 
 
-def test_pendsim_sweep_on_2_local_workers_gives_the_serial_rows_and_leaves_no_process(tmp_path, capsys):
-    # the MuJoCo engine: 400 cases in 16 tasks on two worker processes, the rows of a serial run
+CORES = os.cpu_count() or 1
+FEWER = max(1, CORES - 1)
+"""Local workers fewer than the cores (a LocalCluster; 1 on CI's 2 cores): as many or more run here."""
+
+
+def test_pendsim_sweep_on_local_workers_gives_the_serial_rows_and_leaves_no_process(tmp_path, capsys):
+    # the MuJoCo engine: 400 cases in 16 tasks on worker processes, the rows of a serial run
     assert main(_sweep_args("mujoco", tmp_path / "serial")) == 0
     assert "on serial: computed 400" in capsys.readouterr().out
     before = _children()
-    assert main(_sweep_args("mujoco", tmp_path / "local", "--workers", "2")) == 0
-    assert "on LocalCluster (2 workers): computed 400" in capsys.readouterr().out
+    assert main(_sweep_args("mujoco", tmp_path / "local", "--workers", str(FEWER))) == 0
+    assert f"on LocalCluster ({FEWER} worker{'s' if FEWER > 1 else ''}): computed 400" in capsys.readouterr().out
     expected, got = (pq.read_table(tmp_path / name / "results.parquet") for name in ("serial", "local"))
     _assert_same_rows(expected, got, 400)
     assert _all_gone(_children() - before)
@@ -122,6 +128,21 @@ def test_workers_on_the_fast_engine_run_in_this_process_on_the_kernels_threads(t
     out = capsys.readouterr().out
     assert "on this process (the fast engine threads over the cores; --workers 2 is for the MuJoCo engines)" in out
     assert "computed 400" in out and _children() == before
+
+
+def test_as_many_workers_as_cores_on_a_mujoco_engine_run_in_this_process_with_the_serial_rows(tmp_path, capsys):
+    # the MuJoCo engines run a thread per core here: worker processes, one thread each, measured
+    # slower on 2 cores (docs/sweeps.md); the rows are the serial run's and no process is started
+    assert main(_sweep_args("spatial", tmp_path / "serial")) == 0
+    capsys.readouterr()
+    before = _children()
+    assert main(_sweep_args("spatial", tmp_path / "here", "--workers", str(CORES))) == 0
+    out = capsys.readouterr().out
+    cores = f"{CORES} core{'s' if CORES > 1 else ''}"
+    assert f"on this process (the MuJoCo engines run a thread per core; --workers {CORES} on {cores} would" in out
+    assert "computed 400" in out and _children() == before
+    expected, got = (pq.read_table(tmp_path / name / "results.parquet") for name in ("serial", "here"))
+    _assert_same_rows(expected, got, 400)
 
 
 def test_a_worker_killed_mid_sweep_loses_only_its_task_which_is_retried(serial_rows, tmp_path):
@@ -188,7 +209,7 @@ def test_a_signal_to_pendsim_sweep_on_workers_leaves_no_process_running(tmp_path
     # caught, and the worker processes then notice that their parent is gone and exit
     out = tmp_path / "out"
     cmd = [sys.executable, "-m", "pendsim_bridge.cli", "sweep", "--engine", "mujoco", "--random", "400", "--vary",
-           "c1_n_m=4:8", "--duration-s", "30", "--cases-per-task", "5", "--workers", "2", "--no-plots",
+           "c1_n_m=4:8", "--duration-s", "30", "--cases-per-task", "5", "--workers", str(FEWER), "--no-plots",
            "-o", str(out)]  # fmt: skip
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
@@ -197,7 +218,7 @@ def test_a_signal_to_pendsim_sweep_on_workers_leaves_no_process_running(tmp_path
             time.sleep(0.05)
         assert list((out / "parts").glob("part-*.parquet")), "the sweep did not start"
         started = _tree(proc.pid)
-        assert len(started) >= 3  # pendsim, its two workers (and multiprocessing's tracker)
+        assert len(started) >= 1 + FEWER  # pendsim, its workers (and multiprocessing's tracker)
         proc.send_signal(sig)
         _, err = proc.communicate(timeout=60)
     finally:
