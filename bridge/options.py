@@ -24,7 +24,15 @@ from pendsim_mj.engines.dispatch import ENGINE_NAMES
 from pendsim_mj.errors import ParameterError
 from pendsim_mj.rig import drives
 from pendsim_mj.rig.checks import INPUT_RANGES, check_input, drive_amplitude_limit
-from pendsim_mj.rig.params import DEFAULT_PARAMS, PARAMETER_LIMITS, RigParams
+from pendsim_mj.rig.params import (
+    DEFAULT_PARAMS,
+    FIELD_NAMES,
+    PARAMETER_LIMITS,
+    RigParams,
+    check_field,
+    far_from_paper,
+    unknown_parameters,
+)
 
 from .errors import OutputError
 from .io.mcap.records import MCAP_MAGIC, import_hint
@@ -380,7 +388,9 @@ def _duplicate_keys(pairs: list[tuple[str, object]]) -> dict[str, object]:
 def read_params_file(path: Path) -> dict[str, float]:
     """A JSON object of parameter names to numbers: at most ``MAX_JSON_BYTES``, UTF-8, one level
     deep, each value a finite number (booleans, strings, null, arrays, objects and duplicate
-    names refused). Ranges are the parameters' own (``RigParams``)."""
+    names refused), each name a RigParams field (the file named in the error, with the likely
+    spelling). Ranges are the parameters' own (``RigParams``); a value more than 10 times from the
+    paper's rig is used but warned about on standard error (``far_from_paper``: a unit slip?)."""
     try:
         with open(path, "rb") as f:
             raw = f.read(MAX_JSON_BYTES + 1)
@@ -412,6 +422,15 @@ def read_params_file(path: Path) -> dict[str, float]:
         if not math.isfinite(number):
             raise UsageError(f"{path}: {name!r} must be a finite number, got {json.dumps(value)[:40]}")
         values[str(name)] = number
+    unknown = [name for name in values if name not in FIELD_NAMES]
+    if unknown:
+        raise UsageError(f"{path}: {unknown_parameters(unknown)}")
+    for name, number in values.items():  # each value's own range first: a bad file is one line, no warning
+        try:
+            check_field(name, number)
+        except ParameterError as exc:
+            raise UsageError(f"{path}: {exc}") from None
+    print_warnings([f"{path}: {line}: a unit slip? (used as given)" for line in far_from_paper(values)])
     return values
 
 

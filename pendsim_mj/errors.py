@@ -1,5 +1,8 @@
 """The few exception types of pendsim; the CLI turns each into a one-line message and exit 2."""
 
+import difflib
+from collections.abc import Iterable
+
 
 class PendsimError(Exception):
     """Base class: an error the user can fix, reported in one line."""
@@ -19,3 +22,10 @@ class ModelError(PendsimError):
 
 class RecordingError(PendsimError):
     """A recording file is missing, truncated, corrupted or not what was expected."""
+
+
+def did_you_mean(name: str, allowed: Iterable[str]) -> str:
+    """`` (did you mean 'c1_n_m'?)`` for a misspelt ``name`` close to one of ``allowed``
+    (``difflib``'s ratio >= 0.75), else "": the hint an unknown-name message carries."""
+    close = difflib.get_close_matches(name, list(allowed), n=1, cutoff=0.75)
+    return f" (did you mean {close[0]!r}?)" if close else ""

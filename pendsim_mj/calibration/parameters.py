@@ -23,7 +23,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from pendsim_mj.engines.fast_planar.closed_form import COEFFICIENTS, coefficients
-from pendsim_mj.errors import ParameterError
+from pendsim_mj.errors import ParameterError, did_you_mean
 from pendsim_mj.rig.params import FIELD_NAMES, ParamColumns, RigParams
 
 Floats = NDArray[np.float64]
@@ -298,6 +298,9 @@ def free_set(law: str, free: Sequence[str] | None, fixed: Mapping[str, float]) -
         raise ParameterError(f"law must be one of {', '.join(DAMPING_BY_LAW)}, got {law!r}")
     unknown = [n for n in fixed if n not in FIELD_NAMES]
     if unknown:
-        raise ParameterError(f"unknown parameter {unknown[0]!r} to fix; 'pendsim info' lists the names")
+        raise ParameterError(
+            f"unknown parameter {unknown[0]!r}{did_you_mean(unknown[0], FIELD_NAMES)} to fix; 'pendsim info' lists "
+            "the names"
+        )
     names = [*(DEFAULT_FREE if free is None else free), *DAMPING_BY_LAW[law]]
     return tuple(dict.fromkeys(n for n in names if n not in fixed))

@@ -36,7 +36,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from pendsim_mj.errors import ParameterError
+from pendsim_mj.errors import ParameterError, did_you_mean
 
 STEEL_DENSITY_KG_M3 = 7850.0
 
@@ -227,7 +227,7 @@ class RigParams:
         names = {f.name for f in dataclasses.fields(self)}
         unknown = sorted(set(overrides) - names)
         if unknown:
-            raise ParameterError(f"unknown parameter(s) {', '.join(unknown)}; allowed: {', '.join(sorted(names))}")
+            raise ParameterError(unknown_parameters(unknown))
         return dataclasses.replace(self, **{k: float(v) for k, v in overrides.items()})
 
     def as_dict(self) -> dict[str, float]:
@@ -322,6 +322,38 @@ def check_field(name: str, value: ArrayLike, *, case_ids: Sequence[int] | None =
         )
 
 
+PLAUSIBLE_FACTOR = 10.0
+"""A value more than this factor from the paper's rig (``DEFAULT_PARAMS``) is likely a unit slip."""
+_BUILT_UNITS = frozenset({"kg", "m", "kg m^2", "N/m", "m/s^2"})
+"""What the rig is built of (masses, lengths, inertias, springs, gravity): the losses (damping,
+friction) and the tilt bearings' constants differ by orders of magnitude between real rigs."""
+
+
+def far_from_paper(values: Mapping[str, float]) -> list[str]:
+    """For each named value of what the rig is built of (``_BUILT_UNITS``) more than
+    ``PLAUSIBLE_FACTOR`` times above or below the paper's rig (both non-zero), one line saying by
+    how much: allowed (another rig may differ that much), but a spring in N/mm or a mass in grams
+    is the likelier cause ("c1_n_m = 0.0064 N/m is 1/964.5 of the paper's rig's (6.173 N/m)")."""
+    lines = []
+    for name, value in values.items():
+        paper = getattr(DEFAULT_PARAMS, name, 0.0)
+        if not value or not paper or _UNITS.get(name) not in _BUILT_UNITS:
+            continue
+        ratio = value / paper
+        if ratio > PLAUSIBLE_FACTOR or ratio < 1 / PLAUSIBLE_FACTOR:
+            times = f"{ratio:.4g} times" if ratio > 1 else f"1/{1 / ratio:.4g} of"
+            unit = _UNITS[name]
+            lines.append(f"{name} = {value:.6g} {unit} is {times} the paper's rig's ({paper:.6g} {unit})")
+    return lines
+
+
+def unknown_parameters(unknown: Sequence[str]) -> str:
+    """The message for names that are not RigParams fields: each with its likely spelling, then
+    every allowed name ("unknown parameter(s) c1_nm (did you mean 'c1_n_m'?); allowed: ...")."""
+    names = ", ".join(f"{name}{did_you_mean(name, FIELD_NAMES)}" for name in unknown)
+    return f"unknown parameter(s) {names}; allowed: {', '.join(sorted(FIELD_NAMES))}"
+
+
 PLANE_OFFSET_PRESETS_M = (0.023, 0.050)  # paper: both values appear
 _UNITS = {f.name: f.metadata["unit"] for f in dataclasses.fields(RigParams)}
 FIELD_NAMES = tuple(_UNITS)
@@ -352,9 +384,7 @@ class ParamColumns:
         by ``check_values`` (the error names the case by ``case_ids``)."""
         unknown = sorted(set(columns) - set(FIELD_NAMES))
         if unknown:
-            raise ParameterError(
-                f"unknown parameter(s) {', '.join(unknown)}; allowed: {', '.join(sorted(FIELD_NAMES))}"
-            )
+            raise ParameterError(unknown_parameters(unknown))
         values = np.tile(np.array([getattr(base, n) for n in FIELD_NAMES], dtype=float), (ncases, 1))
         for name, column in columns.items():
             values[:, FIELD_NAMES.index(name)] = np.asarray(column, dtype=float)

@@ -48,7 +48,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from pendsim_mj.errors import ParameterError
+from pendsim_mj.errors import ParameterError, did_you_mean
 from pendsim_mj.rig.checks import check_input, check_step
 from pendsim_mj.rig.drives import Drive, Sine, Target
 from pendsim_mj.rig.params import DEFAULT_PARAMS, ParamColumns, RigParams
@@ -217,7 +217,10 @@ class SweepPlan:
                 raise ParameterError(f"relative_step must be in (0, 1), got {self.relative_step!r}")
             for name in self.parameters or ():
                 if name not in PARAMETER_NAMES:
-                    raise ParameterError(f"unknown parameter {name!r}; allowed: {', '.join(PARAMETER_NAMES)}")
+                    raise ParameterError(
+                        f"unknown parameter {name!r}{did_you_mean(name, PARAMETER_NAMES)}; "
+                        f"allowed: {', '.join(PARAMETER_NAMES)}"
+                    )
 
     @property
     def nstep(self) -> int:
@@ -558,7 +561,8 @@ def axis_mapping(axis: Axis) -> Any:
 def _check_input(name: str, where: str) -> None:
     if name not in INPUT_NAMES:
         raise ParameterError(
-            f"{where}: unknown input {name!r}; allowed: any RigParams field (pendsim info), "
+            f"{where}: unknown input {name!r}{did_you_mean(name, INPUT_NAMES)}; allowed: any RigParams field "
+            "(pendsim info), "
             f"{', '.join(STATE_INPUTS)}, or a drive's TARGET_amplitude_UNIT, TARGET_frequency_hz, TARGET_phase_rad "
             f"(TARGET: {', '.join(t.value for t in Target)})"
         )

@@ -151,6 +151,13 @@ NON_NEGATIVE = RELATIVE  # a rig cannot have these below zero: a change found th
 UNCHANGED = "unchanged"  # the name of H0 in ``Alarm.runner_up``
 
 
+def time_of_day_utc(start_utc_ns: int, t_s: float) -> str:
+    """An instant ``t_s`` (s on the twin's clock, which starts at ``start_utc_ns``, UTC ns) as the
+    time of day in UTC ("14:03:27 UTC"), to match the rig's own log."""
+    when = datetime.datetime.fromtimestamp((start_utc_ns + nanoseconds(t_s)) // NS_PER_S, datetime.UTC)
+    return f"{when:%H:%M:%S} UTC"
+
+
 @dataclasses.dataclass(frozen=True)
 class Alarm:
     """A parameter that changed.
@@ -214,10 +221,7 @@ class Alarm:
         starts with the twin, not with the rig or the nodes, so its seconds match no one's log)."""
 
         def utc(t_s: float) -> str:
-            if start_utc_ns is None:
-                return ""
-            when = datetime.datetime.fromtimestamp((start_utc_ns + nanoseconds(t_s)) // NS_PER_S, datetime.UTC)
-            return f"{when:%H:%M:%S} UTC"
+            return "" if start_utc_ns is None else time_of_day_utc(start_utc_ns, t_s)
 
         def at(t_s: float) -> str:
             return f"{t_s:.1f} s ({utc(t_s)})" if start_utc_ns is not None else f"{t_s:.1f} s"

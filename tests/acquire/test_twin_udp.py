@@ -139,6 +139,12 @@ def test_scripted_faults_sent_over_udp_are_alarmed_on_the_right_parameter_within
         of_day = sum(int(v) * k for v, k in zip(line.split(" UTC)")[-2][-8:].split(":"), (3600, 60, 1), strict=True))
         assert (of_day - math.floor(began_s)) % 86400 <= ended_s - began_s + 1, (line, began_s, ended_s)
     assert any(" samples m1 " in line and " alarms " in line for line in twin.err)  # the status line, every 10 s
+    # the session's events said as they happen (the clock jump once: said when seen)
+    starts = ("twin: the rig is swinging: tracking (at ", "twin: the rig was released: tracking (at ")
+    tracking = [line for line in twin.err if line.startswith(starts)]
+    assert len(tracking) == 1 and tracking[0].endswith(" UTC)"), twin.err
+    assert sum("its clock jumped" in line for line in twin.err) == 1, twin.err
+    assert any(line.startswith("twin: m2 angle jumped by +3.0") for line in twin.err), twin.err
     springs, mount = alarms["coupling_sin_n_m"], alarms["offset_m2_rad"]
     assert springs["value"] / springs["reference"] - 1 == pytest.approx(-0.05, abs=0.01)
     assert math.degrees(mount["value"] - mount["reference"]) == pytest.approx(3.0, abs=0.2)

@@ -175,6 +175,7 @@ def probe_dir(tmp_path_factory):
         "huge.json": '{"b1_n_m_s": 0.001, "pad": "' + "x" * 1_100_000 + '"}',
         "duplicate.json": '{"b1_n_m_s": 0.001, "b1_n_m_s": 0.002}',
         "unknown.json": '{"spring": 1.0}',
+        "misspelt.json": '{"c1_nm": 6.2, "om_1_m": 0.4, "b1_n_m_s": 0.0007}',
         "empty.json": "",
         "out_of_range.json": '{"c1_n_m": 1e300}',
     }
@@ -231,10 +232,24 @@ def test_parameter_files_name_what_is_wrong(workspace, capsys):
         "duplicate.json": "names 'b1_n_m_s' twice",
         "nan.json": "'b1_n_m_s' must be a finite number, got \"NaN\"",
         "out_of_range.json": "c1_n_m must be 0 or between 1e-09 and 1e+06 N/m, got 1e+300",
+        "unknown.json": "unknown.json: unknown parameter(s) spring; allowed: b1_n_m_s",
+        "misspelt.json": "misspelt.json: unknown parameter(s) c1_nm (did you mean 'c1_n_m'?), om_1_m (did you mean "
+        "'om1_m'?); allowed:",
     }
     for name, message in expected.items():
         assert main(["simulate", "--params-file", name]) == 2
         assert message in capsys.readouterr().err, name
+
+
+def test_a_parameter_file_in_other_units_runs_with_a_warning_naming_the_file(workspace, capsys):
+    # c1 given in N/mm: allowed (another rig), but said on standard error, once, before the run
+    Path("n_per_mm.json").write_text('{"c1_n_m": 0.006173, "b1_n_m_s": 0.0001}')
+    assert main(["simulate", "--params-file", "n_per_mm.json", "--duration-s", "1", "-o", "run.csv"]) == 0
+    err = capsys.readouterr().err.splitlines()
+    assert err == [
+        "pendsim: warning: n_per_mm.json: c1_n_m = 0.006173 N/m is 1/1000 of the paper's rig's (6.173 N/m): "
+        "a unit slip? (used as given)"
+    ]
 
 
 def test_a_file_name_with_a_newline_keeps_the_error_on_one_line(workspace, capsys):

@@ -61,6 +61,7 @@ def test_info_lists_every_parameter_with_unit_and_source(capsys):
         (["--set", "c1_n_m=-1"], "c1_n_m must be >= 0 N/m, got -1.0"),
         (["--set", "m2_kg=-0.1"], "m2_kg must be > 0 kg, got -0.1"),
         (["--set", "spring=1"], "unknown parameter(s) spring; allowed:"),
+        (["--set", "c2_nm=1"], "unknown parameter(s) c2_nm (did you mean 'c2_n_m'?); allowed:"),
         (["--set", "c1_n_m"], "expected NAME=VALUE"),
         (["--b1", "-0.001"], "--b1 must be a finite number >= 0 N m s/rad, got -0.001"),
         (["--duration-s", "0"], "--duration-s must be a finite number > 0 s, got 0.0"),

@@ -13,6 +13,7 @@ import pytest
 from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
 
+from pendsim_bridge.acquire.twin.summary import event_line
 from pendsim_bridge.cli import main
 from pendsim_bridge.io import twin_topics
 
@@ -363,3 +364,15 @@ def test_the_twins_result_is_json_that_every_parser_reads(replayed):
     went_on = Alarm("b1_n_m_s", "damping at M1's hinge", 32.0, 10.0, 7e-4, 1.1e-3, 4e-5, follows_s=17.0)
     (read,) = json.loads(_strict_json([dataclasses.asdict(went_on)]), parse_constant=refuse)
     assert read["evidence"] is None and read["value"] == 1.1e-3 and read["follows_s"] == 17.0
+
+
+def test_a_live_twin_says_its_sessions_events_in_words_with_their_time_of_day():
+    start = 1_790_000_000_000_000_000  # 2026-09-21 14:13:20 UTC
+    assert event_line(2.0, "held", start) == (
+        "twin: the rig is held still: the estimate waits for its release (at 2.0 s, 14:13:22 UTC)"
+    )
+    assert event_line(61.5, "touched", start).startswith("twin: touched: the rig stopped moving as its model does")
+    assert event_line(3.25, "m2 angle jumped by +3.00 deg", start) == (
+        "twin: m2 angle jumped by +3.00 deg (at 3.2 s, 14:13:23 UTC)"
+    )
+    assert event_line(9.0, "m1: its clock jumped by +0.500 s; its timeline restarted", start) is None  # said when seen

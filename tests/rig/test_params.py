@@ -11,7 +11,7 @@ from pendsim_mj.engines.simulation import simulate
 from pendsim_mj.errors import ParameterError
 from pendsim_mj.estimation.analysis import peak_amplitudes
 from pendsim_mj.rig.model import Clamp
-from pendsim_mj.rig.params import DEFAULT_PARAMS, RigParams
+from pendsim_mj.rig.params import DEFAULT_PARAMS, RigParams, far_from_paper
 
 
 def test_printed_values_are_the_papers():
@@ -139,3 +139,16 @@ def test_override_changes_only_the_named_field():
     assert {k: v for k, v in p.as_dict().items() if k != "c1_n_m"} == {
         k: v for k, v in DEFAULT_PARAMS.as_dict().items() if k != "c1_n_m"
     }
+
+
+def test_values_far_from_the_papers_rig_are_named_with_how_far():
+    # a spring in N/mm, a mass in grams: 10x and more from the paper's rig; losses may differ
+    # by orders of magnitude between real rigs, and a value 2x off is just another rig
+    lines = far_from_paper(
+        {"c1_n_m": 0.0064, "m2_kg": 194.6, "b1_n_m_s": 1e-7, "friction2_n_m": 0.5, "c2_n_m": 2 * DEFAULT_PARAMS.c2_n_m,
+         "b2_n_m_s": 0.0, "l24_m": 0.0}
+    )  # fmt: skip
+    assert lines == [
+        "c1_n_m = 0.0064 N/m is 1/964.5 of the paper's rig's (6.173 N/m)",
+        "m2_kg = 194.6 kg is 1000 times the paper's rig's (0.194584 kg)",
+    ]

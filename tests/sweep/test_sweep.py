@@ -537,6 +537,7 @@ def test_a_definition_file_runs_and_a_second_run_resumes(tmp_path, capsys):
     [
         ([], "nothing to sweep: give a definition file, --vary NAME=SPEC"),
         (["--vary", "spring=1:2:3"], "unknown input 'spring'"),
+        (["--vary", "phi_1_deg=1:2:3"], "unknown input 'phi_1_deg' (did you mean 'phi1_deg'?)"),
         (["--vary", "c1_n_m=1:x:3"], "vary c1_n_m: not a number: 'x'"),
         (["--vary", "c1_n_m"], "expected NAME=FROM:TO:NUM"),
         (["--vary", "c1_n_m=1:2", "--features", "colour"], "unknown feature 'colour'"),

@@ -39,7 +39,7 @@ from ..ports import DEFAULT_NODES, NodeSpec, check_nodes
 from ..receiver import say_on_stderr, stop_signals
 from ..udp_loop.node_view import NodeView, ViewCounters, model_frames
 from .pipeline import TwinPipeline, TwinResult, TwinSpec, close_sink, open_sink
-from .summary import status_text
+from .summary import event_line, status_text
 
 SETTLE_S = 0.05  # the nodes' timelines decide this often (``receiver.TICK_S``), s
 IDLE_WAIT_S = 0.05  # the loop's longest sleep with no packet and no sample due, s
@@ -224,9 +224,10 @@ def run_twin_live(
                     for alarm in pipeline.alarms[alarms_said:]:
                         say(f"twin: alarm: {alarm.describe(start_utc_ns)}")
                     alarms_said = len(pipeline.alarms)
-                    for at_s, what in session.events[events_said:]:  # the health checks held or resumed
-                        if what.startswith("health checks"):
-                            say(f"twin: {what} (at {at_s:.1f} s)")
+                    for at_s, what in session.events[events_said:]:  # held, released, touched, checks held...
+                        line = event_line(at_s, what, start_utc_ns)
+                        if line is not None:
+                            say(line)
                     events_said = len(session.events)
                     if status is not None:
                         status(status_text(pipeline, now))

@@ -8,7 +8,7 @@ from __future__ import annotations
 import math
 
 from pendsim_mj.twin.estimator import TRACKABLE
-from pendsim_mj.twin.health import NON_NEGATIVE
+from pendsim_mj.twin.health import NON_NEGATIVE, time_of_day_utc
 from pendsim_mj.twin.session import RUN_MISFIT_NIS
 
 from .pipeline import TwinPipeline, TwinResult
@@ -27,6 +27,24 @@ def status_text(pipeline: TwinPipeline, elapsed_s: float) -> str:
         f"{elapsed_s:6.1f} s  samples m1 {s.samples[0]} m2 {s.samples[1]}  {state}  "
         f"NIS {nis[0]:.2f}/{nis[1]:.2f}  alarms {alarms}"
     )
+
+
+EVENT_SAID = {
+    "held": "the rig is held still: the estimate waits for its release",
+    "released": "the rig was released: tracking",
+    "tracking": "the rig is swinging: tracking",
+    "touched": "touched: the rig stopped moving as its model does (a hand on it?): the estimate waits until "
+    "it swings free, the tracked parameters as before",
+}
+"""The session's own events (``TwinSession.events``) as a live twin says them; others as they are."""
+
+
+def event_line(at_s: float, what: str, start_utc_ns: int) -> str | None:
+    """What a live twin says of a session event at ``at_s`` (s on its clock, with the time of day
+    in UTC), or None for an event it has said already (a node's clock jump: said when seen)."""
+    if "its clock jumped" in what:
+        return None
+    return f"twin: {EVENT_SAID.get(what, what)} (at {at_s:.1f} s, {time_of_day_utc(start_utc_ns, at_s)})"
 
 
 STOPPED = {"duration": "--duration-s reached", "end of recording": "end of the recording"}
