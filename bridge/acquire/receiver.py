@@ -420,7 +420,7 @@ def _run(
                 "pendsim/acquisition_result", _result_metadata(results, seconds(now - start_ns), stop_reason)
             )
             sink.close()
-            if sink.messages == 0:  # nothing a recording could hold: no file, one line saying why
+            if sink.samples == 0:  # nothing a recording could hold: no file, one line saying why
                 partial.unlink(missing_ok=True)
                 raise RecordingError(_nothing_arrived(results, spec, seconds(now - start_ns)))
             if live is not None:

@@ -74,7 +74,8 @@ class RecordingSink:
     ) -> None:
         self.path = Path(path)
         self.groups = groups
-        self.messages = 0
+        self.messages = 0  # every message given (all topics; what the file holds once flushed)
+        self.samples = 0  # node samples taken (each is one message per topic of its groups)
         self.dropped = 0  # messages of other topics given older than what the file held (``add``)
         self.written_upto_ns = -1  # every message up to this log time is in the file
         self._imu_layout = {n: ros2.imu_layout(f"imu_{n}") for n in nodes}
@@ -121,6 +122,7 @@ class RecordingSink:
     def _add(self, channel: int, t_ns: NDArray[np.int64], payloads: NDArray[np.uint8]) -> None:
         if len(t_ns):
             self._buffer.setdefault(channel, []).append((t_ns, payloads))
+            self.messages += len(t_ns)
 
     def register(self, topic: str, schema: str) -> int:
         """Another topic of a ``ros2.SCHEMAS`` message type (CDR); its channel id for ``add``."""
@@ -135,7 +137,6 @@ class RecordingSink:
         taken = t_ns >= self.written_upto_ns
         self.dropped += int(np.sum(~taken))
         self._add(channel, t_ns[taken], payloads[taken])
-        self.messages += int(np.sum(taken))
 
     def add_samples(
         self, node: str, t_ns: NDArray[np.int64], rows: NDArray[np.float64], stamp_ns: NDArray[np.int64] | None = None
@@ -176,7 +177,7 @@ class RecordingSink:
                 self._add(self._channels[f"{group}_{node}"], t_ns, vec)
         if "calib" in groups:
             self._add_calibration(node, t_ns, rows[:, GROUP_SLICES["calib"]].astype(np.uint8))
-        self.messages += n
+        self.samples += n
         return taken
 
     def _add_calibration(self, node: str, t_ns: NDArray[np.int64], levels: NDArray[np.uint8]) -> None:

@@ -50,7 +50,7 @@ import pyarrow.parquet as pq
 from numpy.typing import NDArray
 
 from pendsim_mj.errors import ParameterError
-from pendsim_mj.sweep.features import FEATURE_GROUPS
+from pendsim_mj.sweep.features import FEATURE_GROUPS, UNRESOLVED_SHARE
 from pendsim_mj.sweep.plan import CaseTable, SweepPlan
 from pendsim_mj.sweep.run import TaskResult, light_path, run_task
 
@@ -78,6 +78,8 @@ class SweepSummary:
       ncases: cases in the sweep.
       computed: cases computed by this run; resumed: cases found finished before it.
       diverged: cases whose run diverged.
+      unresolved: cases whose step does not resolve their run (column ``unresolved``:
+        ``features.with_balance``); 0 for results written before that column.
       tasks: tasks this run sent out.
       backend: "serial", "LocalCluster (N workers)" or the scheduler address.
       elapsed_s: wall time of this run, s.
@@ -95,6 +97,7 @@ class SweepSummary:
     results: Path
     maps: tuple[Path, ...]
     sensitivity: Path | None
+    unresolved: int = 0
 
 
 def run_sweep(
@@ -200,7 +203,12 @@ def _run_into(
         if plots:
             store.will_create(store.root / "maps")
             maps = tuple(sweep_plots.draw_maps(results, plan, table, store.root / "maps"))
-    diverged = int(pq.read_table(results, columns=["diverged"]).column("diverged").to_numpy().sum())
+    flags = ["diverged", "unresolved"] if "unresolved" in pq.read_schema(results).names else ["diverged"]
+    counts = {
+        name: int(np.sum(column.to_numpy()))
+        for name, column in zip(flags, pq.read_table(results, columns=flags).columns, strict=True)
+    }
+    diverged = counts["diverged"]
     return SweepSummary(
         out_dir=store.root,
         ncases=len(table),
@@ -213,6 +221,7 @@ def _run_into(
         results=results,
         maps=maps,
         sensitivity=sensitivity,
+        unresolved=counts.get("unresolved", 0),
     )
 
 
@@ -689,6 +698,13 @@ def describe(summary: SweepSummary, plan: SweepPlan, *, top: int = 12) -> str:
         f"results: {summary.results} ({nrows} rows, {len(names)} columns: case_id, "
         f"{len(inputs)} input{'s' if len(inputs) != 1 else ''} ({_shorten(inputs)}), diverged, {', '.join(features)})",
     ]
+    if summary.unresolved:
+        lines.append(
+            f"warning: {summary.unresolved} case{'s' if summary.unresolved > 1 else ''} not resolved at dt_s = "
+            f"{plan.dt_s:g} s (column 'unresolved': the energy balance off by more than "
+            f"{100 * UNRESOLVED_SHARE:g} % of m1 g OC1, a stiff spring or a violent swing): their features are "
+            "not to be trusted; run them again with a smaller --dt-s"
+        )
     if plan.trajectories:
         lines.append(f"trajectories: {summary.out_dir / 'trajectories.zarr'}")
     if summary.maps:

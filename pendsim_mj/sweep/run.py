@@ -26,7 +26,15 @@ from pendsim_mj.errors import SimulationDiverged
 from pendsim_mj.rig.checks import energy_grew
 from pendsim_mj.rig.drives import Drive, drive_stage_inputs, stage_inputs_at_samples
 from pendsim_mj.rig.params import ParamColumns
-from pendsim_mj.sweep.features import Features, Motion, MotionSummary, compute, compute_summary, head_samples
+from pendsim_mj.sweep.features import (
+    Features,
+    Motion,
+    MotionSummary,
+    compute,
+    compute_summary,
+    head_samples,
+    with_balance,
+)
 from pendsim_mj.sweep.plan import CaseTable, SweepPlan
 
 FloatArray = NDArray[np.float64]
@@ -74,15 +82,26 @@ def run_task(
     # holds each step's midpoint value: only whether a case is driven is read from these there)
     held = drive_stage_inputs(drives, plan.nstep, plan.dt_s) if drives[0] is not None else None
     lyapunov = _fast_lyapunov(plan, params, phi0, omega0, nthread) if "lyapunov" in plan.features else None
+    # the energy balance is checked where every loss is in dissipated_j: undriven runs, and on the
+    # MuJoCo engines without dry friction (its frictionloss's work is not counted there)
+    checked = ~_driven(held, len(phi0))
+    if plan.engine != "fast":
+        checked &= (params.column("friction1_n_m") == 0) & (params.column("friction2_n_m") == 0)
+    scale = params.column("m1_kg") * params.column("g_m_s2") * params.column("oc1_m")
     if light_path(plan) and not keep_trajectories:
         summary = _fast_summary(plan, params, phi0, omega0, held, nthread)
         features = compute_summary(summary, plan.features, lyapunov_per_s=lyapunov, nthread=nthread)
+        features = with_balance(
+            features, summary.energy_start_j, summary.energy_end_j, summary.dissipated_j, scale, checked
+        )
         return TaskResult(case_ids=ids, features=features, trajectories=None)
     if plan.engine == "fast":
         motion = _fast_motion(plan, params, phi0, omega0, held, nthread)
     else:
         motion = _mujoco_motion(plan, params, phi0, omega0, drives, held, nthread)
     features = compute(motion, plan.features, lyapunov_per_s=lyapunov)
+    energy = motion.total_energy_j
+    features = with_balance(features, energy[:, 0], energy[:, -1], motion.dissipated_j[:, -1], scale, checked)
     traj = None
     if keep_trajectories:
         traj = np.concatenate([motion.phi_rad, motion.omega_rad_s], axis=2)

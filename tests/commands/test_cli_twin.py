@@ -376,3 +376,14 @@ def test_a_live_twin_says_its_sessions_events_in_words_with_their_time_of_day():
         "twin: m2 angle jumped by +3.00 deg (at 3.2 s, 14:13:23 UTC)"
     )
     assert event_line(9.0, "m1: its clock jumped by +0.500 s; its timeline restarted", start) is None  # said when seen
+
+
+def test_the_message_count_said_is_what_the_file_holds(recording, tmp_path, capsys):
+    # it counted the samples and forgot the twin's own topics and /diagnostics (a new user's
+    # live run said 8901 messages of a file holding 18 496)
+    out = tmp_path / "again.mcap"
+    assert main(["twin", "--replay", str(recording), "--speed", "0", "-o", str(out)]) == 0
+    said = [line for line in capsys.readouterr().out.splitlines() if line.startswith(f"wrote {out} (")]
+    with open(out, "rb") as f:
+        stats = make_reader(f).get_summary().statistics
+    assert said == [f"wrote {out} ({stats.message_count} messages)"]

@@ -17,6 +17,7 @@ from pendsim_mj.engines import fast_planar, reference
 from pendsim_mj.errors import ParameterError
 from pendsim_mj.estimation.analysis import spectral_peak_hz
 from pendsim_mj.rig.params import DEFAULT_PARAMS, RigParams
+from pendsim_mj.sweep.features import Features
 from pendsim_mj.sweep.plan import PARAMETER_NAMES, CaseTable, SweepPlan, elasticities, parse_vary
 from pendsim_mj.sweep.run import run_task
 
@@ -617,3 +618,45 @@ def test_a_release_in_one_mode_has_one_spectral_peak():
                                  duration_s=60.0)  # fmt: skip
     ratio = second_peak_ratio_batch(tr.t_s, tr.phi_rad[..., 1])
     assert np.all(ratio < 0.05)  # the Hann window's side lobes: 0.027
+
+
+@pytest.mark.parametrize("engine", ["fast", "mujoco"])
+def test_a_run_the_step_does_not_resolve_is_flagged_by_its_energy_balance_and_a_finer_step_changes_it(engine):
+    # a 3000 N/m spring at 10 ms: RK4 loses most of the energy without diverging and the features
+    # look plausible; its energy balance flags it, and a 1 ms step indeed gives other features,
+    # while the rig's own springs balance to 1e-6 of m1 g OC1 and keep theirs
+    def features(dt_s: float) -> Features:
+        plan = _plan(vary={"c1_n_m": [6.0, 3000.0]}, duration_s=4.0, dt_s=dt_s, engine=engine,
+                     features=["frequency", "amplitude", "energy"])  # fmt: skip
+        return run_task(plan, plan.cases(), np.arange(2)).features
+
+    coarse, fine = features(0.01), features(0.001)
+    scale = DEFAULT_PARAMS.m1_kg * DEFAULT_PARAMS.g_m_s2 * DEFAULT_PARAMS.oc1_m
+    residual = coarse.quality["energy_residual_j"]
+    assert coarse.quality["unresolved"].tolist() == [False, True] and not fine.quality["unresolved"][0]
+    assert abs(residual[0]) < 1e-5 * scale and abs(residual[1]) > 0.1 * scale
+    amp = coarse.names.index("amp2_end_rad")
+    assert coarse.values[0, amp] == pytest.approx(fine.values[0, amp], rel=1e-3)
+    assert abs(coarse.values[1, amp] - fine.values[1, amp]) > 0.1 * fine.values[1, amp]
+
+
+def test_the_energy_balance_is_not_checked_where_a_loss_or_an_input_is_not_counted():
+    # MuJoCo's dry friction (frictionloss) is not in dissipated_j; a drive's work is not counted
+    friction = _plan(vary={"friction1_n_m": [0.0, 2e-3]}, duration_s=3.0, engine="mujoco", features=["energy"])
+    quality = run_task(friction, friction.cases(), np.arange(2)).features.quality
+    assert np.isfinite(quality["energy_residual_j"][0]) and np.isnan(quality["energy_residual_j"][1])
+    assert not quality["unresolved"].any()
+    fast = _plan(vary={"friction1_n_m": [2e-3]}, duration_s=3.0, features=["energy"])  # counted on the fast engine
+    assert abs(run_task(fast, fast.cases(), np.arange(1)).features.quality["energy_residual_j"][0]) < 1e-6
+    base = {"support_x_amplitude_m_s2": 0.3, "support_x_frequency_hz": 0.87}
+    driven = _plan(vary={"phi1_deg": [0.0, 10.0]}, base=base, duration_s=3.0, features=["energy"])
+    quality = run_task(driven, driven.cases(), np.arange(2)).features.quality
+    assert np.isnan(quality["energy_residual_j"]).all() and not quality["unresolved"].any()
+
+
+def test_pendsim_sweep_warns_of_cases_its_step_does_not_resolve(tmp_path, capsys):
+    assert main(["sweep", "--vary", "c1_n_m=6,3000", "--duration-s", "3", "--no-plots", "-o", str(tmp_path / "s")]) == 0
+    out = capsys.readouterr().out
+    assert "warning: 1 case not resolved at dt_s = 0.01 s (column 'unresolved'" in out and "smaller --dt-s" in out
+    table = pq.read_table(tmp_path / "s" / "results.parquet")
+    assert table.column("unresolved").to_pylist() == [False, True]
