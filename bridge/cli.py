@@ -3,6 +3,7 @@ one place where errors a user can fix become one line ``pendsim: error: ...`` an
 
 from __future__ import annotations
 
+import argparse
 import contextlib
 import os
 import signal
@@ -10,11 +11,11 @@ import sys
 from collections.abc import Iterator, Sequence
 
 from pendsim_mj import __version__, compile_notice
-from pendsim_mj.errors import PendsimError
+from pendsim_mj.errors import ParameterError, PendsimError
 
 from . import heap
 from .io.outputs import describe_os_error, replace_hint_as
-from .options import Parser, UsageError
+from .options import Parser, UsageError, explained
 from .signals import interrupts_deferred, signal_handlers
 
 EXIT_USAGE = 2
@@ -75,6 +76,8 @@ def _say_compiling(line: str) -> None:
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``pendsim`` console script; returns the exit code."""
     compile_notice.set_notice(_say_compiling)
+    parser: Parser | None = None
+    args: argparse.Namespace | None = None
     try:
         with _termination_unwinds(), replace_hint_as("--force"):
             with interrupts_deferred():  # Ctrl-C while the commands' modules import: acted on after
@@ -86,7 +89,10 @@ def main(argv: Sequence[str] | None = None) -> int:
             code: int = args.handler(args)
             return code
     except (UsageError, PendsimError) as exc:
-        print(f"pendsim: error: {_one_line(exc)}", file=sys.stderr)
+        message = _one_line(exc)
+        if isinstance(exc, ParameterError):  # where its values came from, or the option meant
+            message = explained(message, args, _command_parser(parser, args))
+        print(f"pendsim: error: {message}", file=sys.stderr)
         return EXIT_USAGE
     except OSError as exc:
         if exc.filename is None or isinstance(exc, BrokenPipeError):  # standard output, perhaps: see _run
@@ -101,6 +107,16 @@ def main(argv: Sequence[str] | None = None) -> int:
     except Terminated as exc:
         print(f"pendsim: stopped by {exc}", file=sys.stderr)
         return EXIT_TERMINATED
+
+
+def _command_parser(parser: Parser | None, args: argparse.Namespace | None) -> argparse.ArgumentParser | None:
+    """The parser of the command that ran (None before one was chosen)."""
+    command = getattr(args, "command", None)
+    for action in parser._actions if parser is not None and command is not None else ():
+        if isinstance(action, argparse._SubParsersAction):
+            found: argparse.ArgumentParser | None = action.choices.get(str(command))
+            return found
+    return None
 
 
 def _run() -> None:  # pragma: no cover - console script wrapper

@@ -14,6 +14,7 @@ import ipaddress
 import json
 import math
 import os
+import re
 import stat
 import sys
 from collections.abc import Callable, Iterator
@@ -435,15 +436,44 @@ def read_params_file(path: Path) -> dict[str, float]:
 
 
 def overrides_from(args: argparse.Namespace) -> dict[str, float]:
-    """Parameter overrides from --params-file, then --set, then --b1/--b2 (later ones win)."""
+    """Parameter overrides from --params-file, then --set, then --b1/--b2 (later ones win). Where
+    each came from is kept on ``args`` (``parameter_sources``) for ``given_where``."""
     overrides: dict[str, float] = {}
+    sources: dict[str, str] = {}
     if getattr(args, "params_file", None) is not None:
-        overrides.update(read_params_file(args.params_file))
-    overrides.update(dict(getattr(args, "overrides", [])))
+        from_file = read_params_file(args.params_file)
+        overrides.update(from_file)
+        sources.update(dict.fromkeys(from_file, str(args.params_file)))
+    given = dict(getattr(args, "overrides", []))
+    overrides.update(given)
+    sources.update(dict.fromkeys(given, "--set"))
     for n in (1, 2):
         if getattr(args, f"b{n}", None) is not None:
             overrides[f"b{n}_n_m_s"] = getattr(args, f"b{n}")
+            sources[f"b{n}_n_m_s"] = f"--b{n}"
+    args.parameter_sources = sources
     return overrides
+
+
+def explained(message: str, args: argparse.Namespace | None, command: argparse.ArgumentParser | None) -> str:
+    """A parameter error's ``message`` with where the values it names were given ("j1_kg_m2 = ...
+    must exceed m1_kg * oc1_m^2 = ... (m1_kg from rig.json; the others are the rig's own)": a value
+    the rig's other values make impossible), or, for an unknown name that is an option of the
+    ``command`` (--set phi1_deg=10), that option ("unknown parameter(s) phi1_deg (this command's
+    --phi1-deg, not a rig parameter); allowed: ..."). ``parameter_sources``: ``overrides_from``."""
+    if args is None:
+        return message
+    if message.startswith("unknown parameter(s)") and command is not None:
+        head, sep, rest = message.partition("; allowed:")
+        names = re.findall(r"\b[a-z][a-z0-9_]*\b", head.removeprefix("unknown parameter(s)"))
+        flags = [f"--{name.replace('_', '-')}" for name in dict.fromkeys(names)]
+        found = [flag for flag in flags if flag in command._option_string_actions]
+        return f"{head} (this command's {', '.join(found)}, not a rig parameter){sep}{rest}" if found else message
+    sources: dict[str, str] = getattr(args, "parameter_sources", {})
+    named = [name for name in sources if re.search(rf"\b{re.escape(name)}\b", message)]
+    if not named:
+        return message
+    return f"{message} ({', '.join(f'{name} from {sources[name]}' for name in named)}; the others are the rig's own)"
 
 
 def params_from(args: argparse.Namespace) -> RigParams:

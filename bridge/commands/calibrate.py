@@ -45,7 +45,7 @@ def register(sub: argparse._SubParsersAction[options.Parser]) -> None:
         "spatial model, with the support's tilt stiffness and damping), each recording with its own start state. "
         "Only what the recordings determine is fitted (from the Fisher information: its directions "
         "and intervals); the rest is held at the stated values and named. Writes DIR/params.json (for "
-        "--params-file of simulate, record, validate, identify, view, analyze, acquire and twin), "
+        "--params-file of simulate, record, validate, identify, view, analyze, acquire, twin and sweep), "
         "DIR/calibration.json, "
         "DIR/calibration.md and DIR/calibration.png: what was determined, to what interval, what was not and "
         "which recording would determine it, and the validation of each recording before and after (and left "

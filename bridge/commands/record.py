@@ -139,6 +139,7 @@ def run(args: argparse.Namespace) -> int:
         print(f"wrote {args.rerun}")
     size_mb = result.size_bytes / 1e6
     print(f"wrote {args.output}: {result.recorded_s:g} s, {result.samples_text()}, {size_mb:.2f} MB")  # hold included
+    options.print_warnings(result.warnings)  # after the file is written: it says so in its metadata too
     return 0
 
 

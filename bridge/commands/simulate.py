@@ -38,7 +38,9 @@ def run(args: argparse.Namespace) -> int:
     phi0, omega0 = options.initial_state_from(args)
     drive = options.drive_from(args)
     traj = engines.run(args.engine, params, phi0, omega0, args.duration_s, args.dt_s, drive=drive)
-    print(run_summary(summarize(traj), args.engine))
+    summary = summarize(traj)
+    print(run_summary(summary, args.engine))
+    options.print_warnings([w for w in (summary.unresolved_warning(),) if w is not None])
     if args.rerun is not None:
         from ..report.rerun_view import view_trajectory  # start-up: Rerun, only with --rerun
 

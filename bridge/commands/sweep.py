@@ -53,6 +53,13 @@ def register(sub: argparse._SubParsersAction[options.Parser]) -> None:
         "append :log for geometric spacing; repeatable",
     )
     p.add_argument(
+        "--params-file",
+        type=options.input_file,
+        help="JSON object of the rig's parameters (SI names as in 'pendsim info'; e.g. the params.json of 'pendsim "
+        "calibrate' or 'pendsim identify --write'): every case's rig, under --set or the definition's base; "
+        "the inputs the sweep varies keep their values",
+    )
+    p.add_argument(
         "--set",
         dest="overrides",
         type=options.assignment,
@@ -152,6 +159,13 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _plan(args: argparse.Namespace) -> SweepPlan:
+    """The sweep from the definition file, or from the options (never both), on the rig of
+    --params-file if given."""
+    plan = _plan_of(args)
+    return plan.on_rig(options.read_params_file(args.params_file)) if args.params_file is not None else plan
+
+
+def _plan_of(args: argparse.Namespace) -> SweepPlan:
     """The sweep from the definition file, or from the options (never both)."""
     given = [name for name in PLAN_OPTIONS if getattr(args, name) not in (None, False, [])]
     if args.definition is not None:
@@ -170,8 +184,8 @@ def _plan(args: argparse.Namespace) -> SweepPlan:
         if twice:
             raise ParameterError(f"{', '.join(twice)} given more than once; vary each input once")
         data["vary"] = {a.name: axis_mapping(a) for a in axes}
-    except ParameterError as exc:
-        raise options.UsageError(f"argument --vary: {exc}") from None
+    except ParameterError as exc:  # the plan's "vary NAME: ..." said once as the option's
+        raise options.UsageError(f"argument --vary: {str(exc).removeprefix('vary').lstrip(': ')}") from None
     method = "random" if args.random else "lhs" if args.lhs else "csv" if args.cases else None
     method = "sensitivity" if args.sensitivity else method
     if method:

@@ -30,7 +30,8 @@ def run_summary(summary: RunSummary, engine: str) -> str:
     share = f" ({100 * abs(s.energy_lost_j) / e0:.1f} % of the initial {e0:.4g} J)" if e0 > 0 else ""
     change = "lost" if s.energy_lost_j >= 0 else "gained"
     lines.append(
-        f"energy {change} {abs(s.energy_lost_j):.6g} J{share}; dissipated by hinge damping {s.dissipated_j:.6g} J"
+        f"energy {change} {abs(s.energy_lost_j):.6g} J{share}; "
+        f"dissipated by the hinges (damping, friction) {s.dissipated_j:.6g} J"
     )
     if s.input_work_j:
         lines.append(f"work done by the drive {s.input_work_j:.6g} J")

@@ -50,7 +50,8 @@ import pyarrow.parquet as pq
 from numpy.typing import NDArray
 
 from pendsim_mj.errors import ParameterError
-from pendsim_mj.sweep.features import FEATURE_GROUPS, UNRESOLVED_SHARE
+from pendsim_mj.rig.checks import UNRESOLVED_SHARE
+from pendsim_mj.sweep.features import FEATURE_GROUPS
 from pendsim_mj.sweep.plan import CaseTable, SweepPlan
 from pendsim_mj.sweep.run import TaskResult, light_path, run_task
 

@@ -53,6 +53,7 @@ from typing import NamedTuple
 import numpy as np
 from numpy.typing import ArrayLike
 
+from pendsim_mj.engines.stability import step_advice
 from pendsim_mj.engines.trajectory import Trajectory, planar_imu_readings
 from pendsim_mj.errors import ParameterError, SimulationDiverged
 from pendsim_mj.rig.checks import (
@@ -243,9 +244,13 @@ def integrate(
         y = y + (h / 6.0) * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
         out[step] = y
         if step % 256 == 0 and not np.all(np.isfinite(y)):
-            raise SimulationDiverged(f"reference solver diverged at t = {step * h:g} s; reduce dt_s (now {h} s)")
+            bad = int(np.flatnonzero(~np.isfinite(y).all(axis=0))[0])
+            raise SimulationDiverged(
+                f"reference solver diverged at t = {step * h:g} s; {diverged_advice(params[bad], h)}"
+            )  # fmt: skip
     if not np.all(np.isfinite(out)):
-        raise SimulationDiverged(f"reference solver produced non-finite values; reduce dt_s (now {h} s)")
+        bad = int(np.flatnonzero(~np.isfinite(out).all(axis=(0, 1)))[0])
+        raise SimulationDiverged(f"reference solver produced non-finite values; {diverged_advice(params[bad], h)}")
     return out
 
 
@@ -318,6 +323,25 @@ def solve_blocks(
         yield first, block.member(0)
 
 
+def rest_jacobian(params: RigParams, eps: float = 1e-7) -> np.ndarray:
+    """(4, 4) d(phi1, phi2, omega1, omega2)/dt of these equations linearised at rest (central
+    differences of ``derivative``; dry friction's smoothed sign counts as the damping it is near
+    zero rate): what ``stability.step_advice`` reads."""
+    k = _coefficients([params])
+    jacobian = np.zeros((4, 4))
+    for j in range(4):
+        plus, minus = np.zeros((5, 1)), np.zeros((5, 1))
+        plus[j], minus[j] = eps, -eps
+        jacobian[:, j] = (derivative(plus, k)[:4, 0] - derivative(minus, k)[:4, 0]) / (2 * eps)
+    return jacobian
+
+
+def diverged_advice(params: RigParams, dt_s: float) -> str:
+    """What a run of this rig at ``dt_s`` (s) that diverged is told (``stability.step_advice`` on
+    ``rest_jacobian``); the MuJoCo and compiled engines say the same (the same planar equations)."""
+    return step_advice(params, dt_s, rest_jacobian(params))
+
+
 def _trajectory(
     plist: list[RigParams],
     states: np.ndarray,
@@ -359,7 +383,7 @@ def _trajectory(
     potential = k.gravity1 * (1 - np.cos(y[0])) + k.gravity2 * (1 - np.cos(y[1])) + spring_energy - rest_spring_energy
     kinetic = 0.5 * (k.j1 * y[2] ** 2 + k.j2 * y[3] ** 2)
     if drives is None:  # a driven rig may gain energy from its input
-        check_energy_bounded((kinetic + potential).T, k.gravity1, dt_s)
+        check_energy_bounded((kinetic + potential).T, k.gravity1, dt_s, lambda i: diverged_advice(plist[i], dt_s))
     support = np.zeros((nbatch, n, 2))
     if stages is not None and np.any(stages[..., 2:]):
         support, _ = stage_support_motion(stages[..., 2:], dt_s)

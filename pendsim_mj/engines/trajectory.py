@@ -47,7 +47,7 @@ class Trajectory:
         M1 and M2 (positive about paper +z), N m.
       kinetic_j: (..., n) kinetic energy, J.
       potential_j: (..., n) gravity + spring potential energy above the rest pose, J.
-      dissipated_j: (..., n) energy dissipated by the hinge damping since t = 0, J.
+      dissipated_j: (..., n) energy dissipated by the hinges' damping and dry friction since t = 0, J.
       engine: "mujoco", "reference" or "fast" (the compiled planar kernel, ``fast_planar``).
       dt_s: integration step, s.
       params: the RigParams used (a tuple of them for a batch).

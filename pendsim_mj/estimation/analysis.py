@@ -11,8 +11,11 @@ import math
 
 import numpy as np
 
+from pendsim_mj.engines.linearised import linear_modes
 from pendsim_mj.engines.trajectory import Trajectory
 from pendsim_mj.errors import ParameterError
+from pendsim_mj.rig.checks import UNRESOLVED_SHARE, unresolved_balance
+from pendsim_mj.rig.params import RigParams
 
 
 def _check_series(t_s: np.ndarray, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -445,8 +448,12 @@ class RunSummary:
       start_amplitude_rad, end_amplitude_rad: (2,) first and last half-cycle amplitude of each
         angle (|phi| at the start or end where no half-cycle peak exists), rad.
       energy_start_j, energy_end_j: total energy above rest at the first and last instant, J.
-      dissipated_j: energy dissipated by hinge damping over the run, J.
+      dissipated_j: energy dissipated by the hinges (damping and dry friction) over the run, J.
       input_work_j: work done on the pendulums by the drive over the run (``input_work_j``), J.
+      energy_scale_j: m1 g OC1, J (what ``unresolved`` compares the balance with).
+      driven: the run had a drive (its balance is not checked: the drive's work is integrated by
+        the trapezoid rule, second order).
+      fastest_mode_hz: the rig's fastest normal mode at rest, Hz (``linearised.linear_modes``).
     """
 
     duration_s: float
@@ -459,10 +466,26 @@ class RunSummary:
     energy_end_j: float
     dissipated_j: float
     input_work_j: float = 0.0
+    energy_scale_j: float = math.nan
+    driven: bool = False
+    fastest_mode_hz: float = math.nan
 
     @property
     def energy_lost_j(self) -> float:
         return self.energy_start_j - self.energy_end_j
+
+    @property
+    def unresolved(self) -> bool:
+        """The step does not resolve this undriven run: its energy balance is off by more than
+        ``checks.UNRESOLVED_SHARE`` of m1 g OC1 (as a sweep's ``unresolved`` column)."""
+        return not self.driven and bool(unresolved_balance(self.balance_residual_j, self.energy_scale_j))
+
+    def unresolved_warning(self) -> str | None:
+        """What to tell the user about an ``unresolved`` run (None: resolved or not checked):
+        ``unresolved_warning``."""
+        if self.driven:
+            return None
+        return unresolved_warning(self.balance_residual_j, self.energy_scale_j, self.dt_s, self.fastest_mode_hz)
 
     @property
     def balance_residual_j(self) -> float:
@@ -480,6 +503,7 @@ def summarize(traj: Trajectory) -> RunSummary:
         starts.append(float(amps[0]) if len(amps) else abs(float(x[0])))
         ends.append(float(amps[-1]) if len(amps) else abs(float(x[-1])))
     energy = traj.total_energy_j
+    params = traj.params if isinstance(traj.params, RigParams) else traj.params[0]
     return RunSummary(
         duration_s=float(traj.t_s[-1]),
         dt_s=traj.dt_s,
@@ -491,7 +515,35 @@ def summarize(traj: Trajectory) -> RunSummary:
         energy_end_j=float(energy[-1]),
         dissipated_j=float(traj.dissipated_j[-1]),
         input_work_j=float(input_work_j(traj)[-1]),
+        energy_scale_j=params.m1_kg * params.g_m_s2 * params.oc1_m,
+        driven=bool(np.any(traj.drive_input)),
+        fastest_mode_hz=float(np.max(linear_modes(params).frequency_hz)),
     )
+
+
+def unresolved_warning(residual_j: float, energy_scale_j: float, dt_s: float, fastest_mode_hz: float) -> str | None:
+    """What to tell the user about a run whose energy balance is off by ``residual_j`` (J) at the
+    step ``dt_s`` (s), None where it is within ``checks.UNRESOLVED_SHARE`` of ``energy_scale_j``
+    (m1 g OC1, J): the balance's error, the fastest mode's steps per period (``fastest_mode_hz``,
+    the rig at rest) and a step to try (a 1-2-5 value at most a fifth of dt_s and 1/50 of the
+    fastest period)."""
+    if not unresolved_balance(residual_j, energy_scale_j):
+        return None
+    known = math.isfinite(fastest_mode_hz) and fastest_mode_hz > 0  # NaN: not known (the spatial model's tilts)
+    finer = _one_two_five_below(min(dt_s / 5, 1.0 / (50 * fastest_mode_hz)) if known else dt_s / 5)
+    per_period = 1.0 / (fastest_mode_hz * dt_s)
+    mode = f"; the fastest mode, {fastest_mode_hz:.3g} Hz at rest, gets {per_period:.3g} steps a period"
+    return (
+        f"dt_s = {dt_s:g} s does not resolve this run: its energy balance is off by {residual_j:.3g} J, "
+        f"{abs(residual_j) / energy_scale_j:.2g} of m1 g OC1 (the limit {UNRESOLVED_SHARE:g}{mode if known else ''}): "
+        f"its numbers are not to be trusted; run it again with --dt-s {finer:g} and compare"
+    )
+
+
+def _one_two_five_below(value: float) -> float:
+    """The largest of 1, 2, 5 times a power of ten that is at most ``value`` (> 0)."""
+    decade = 10.0 ** math.floor(math.log10(value))
+    return max(m * decade for m in (1.0, 2.0, 5.0) if m * decade <= value * (1 + 1e-12))
 
 
 def input_work_j(traj: Trajectory) -> np.ndarray:

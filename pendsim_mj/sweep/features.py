@@ -41,6 +41,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from pendsim_mj.errors import ParameterError
+from pendsim_mj.rig.checks import unresolved_balance
 
 FloatArray = NDArray[np.float64]
 
@@ -59,9 +60,6 @@ QUALITY_COLUMNS: dict[str, tuple[str, ...]] = {
 AMBIGUOUS_PEAK_RATIO = 0.8  # a second spectral peak within 20 % of the first: the frequency is ambiguous
 BALANCE_COLUMNS = ("energy_residual_j", "unresolved")
 """Quality columns of every sweep (after the features): ``with_balance``."""
-UNRESOLVED_SHARE = 1e-3
-"""A run whose energy balance is off by more than this share of m1 g OC1 is not resolved by its
-step (healthy planar runs at 10 ms: below 2e-6 of it; a 3000 N/m spring at 10 ms: 10)."""
 DEFAULT_GROUPS = ("frequency", "amplitude", "energy")
 LIST_GROUPS = frozenset({"poincare"})  # groups whose columns hold one list per case
 WINDOW_SHARE = 0.2  # head and tail windows of amplitude and decay: a fifth of the run
@@ -286,12 +284,12 @@ def with_balance(
     """``features`` with the energy balance of each run as quality columns: ``energy_residual_j``,
     the energy lost less the energy the losses took (start - end - dissipated, J: the integration
     error; NaN where not ``checked`` or diverged) and ``unresolved`` (bool): that error is more than
-    ``UNRESOLVED_SHARE`` of the run's energy scale (m1 g OC1): the step does not resolve this run
+    ``checks.UNRESOLVED_SHARE`` of the run's energy scale (m1 g OC1): the step does not resolve this run
     (a stiff spring, a violent swing) and its features are not to be trusted (rerun it with a
     smaller dt_s). ``checked``: (m,) runs whose every loss is in ``dissipated_j`` and that take no
     input (a drive's work is not counted here)."""
     residual = np.where(checked & ~features.diverged, energy_start_j - energy_end_j - dissipated_j, np.nan)
-    unresolved = np.abs(np.nan_to_num(residual)) > UNRESOLVED_SHARE * energy_scale_j
+    unresolved = unresolved_balance(np.nan_to_num(residual), energy_scale_j)
     quality = {**features.quality, "energy_residual_j": residual, "unresolved": unresolved}
     return dataclasses.replace(features, quality=quality)
 

@@ -226,6 +226,15 @@ class SweepPlan:
     def nstep(self) -> int:
         return check_step(self.duration_s, self.dt_s)
 
+    def on_rig(self, values: Mapping[str, float]) -> SweepPlan:
+        """This plan on a rig given as parameter values (one the user calibrated or identified:
+        ``pendsim sweep --params-file``): they become base values under the plan's own base,
+        except for the inputs the plan varies (its axes, its CSV's columns), which keep theirs."""
+        varied = {a.name for a in self.axes} | set(self.csv_cases.names if self.csv_cases is not None else ())
+        own = dict(self.base)
+        rig = {name: float(v) for name, v in values.items() if name not in varied and name not in own}
+        return dataclasses.replace(self, base=(*rig.items(), *self.base))
+
     def base_params(self) -> RigParams:
         """RigParams of the base case (defaults, the spatial engine's plane offset, then ``base``)."""
         values = dict(self.base)

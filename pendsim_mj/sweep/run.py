@@ -82,11 +82,8 @@ def run_task(
     # holds each step's midpoint value: only whether a case is driven is read from these there)
     held = drive_stage_inputs(drives, plan.nstep, plan.dt_s) if drives[0] is not None else None
     lyapunov = _fast_lyapunov(plan, params, phi0, omega0, nthread) if "lyapunov" in plan.features else None
-    # the energy balance is checked where every loss is in dissipated_j: undriven runs, and on the
-    # MuJoCo engines without dry friction (its frictionloss's work is not counted there)
+    # the energy balance is checked where every loss and input is counted: undriven runs
     checked = ~_driven(held, len(phi0))
-    if plan.engine != "fast":
-        checked &= (params.column("friction1_n_m") == 0) & (params.column("friction2_n_m") == 0)
     scale = params.column("m1_kg") * params.column("g_m_s2") * params.column("oc1_m")
     if light_path(plan) and not keep_trajectories:
         summary = _fast_summary(plan, params, phi0, omega0, held, nthread)

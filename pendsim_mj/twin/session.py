@@ -428,7 +428,10 @@ class TwinSession:
             self.estimator.x[NSTATE:], self.estimator.p[NSTATE:, NSTATE:] = kept[1], kept[2]
         self._tracking = True
         self._recent_nis.clear()
-        self._event(t0, "released" if self.events else "tracking")
+        # "released" after a hold or a touch; the first start is "tracking", whatever events a
+        # caller noted before it (a replay notes the recorded run's clock jumps at its start)
+        held_before = any(what == "held" for _, what in self.events)
+        self._event(t0, "released" if restart or held_before else "tracking")
         if not restart:
             self.started_s = t0
             if self.estimator.track:

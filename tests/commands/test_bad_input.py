@@ -252,6 +252,31 @@ def test_a_parameter_file_in_other_units_runs_with_a_warning_naming_the_file(wor
     ]
 
 
+def test_a_rig_made_impossible_by_a_given_value_names_where_it_was_given(workspace, capsys):
+    # a mass in grams: warned about, then the paper's inertia cannot hold it; the error says which
+    # value came from which file or option
+    Path("grams.json").write_text('{"m1_kg": 150}')
+    assert main(["simulate", "--params-file", "grams.json", "--duration-s", "1", "-o", "grams_run.csv"]) == 2
+    err = capsys.readouterr().err.splitlines()
+    assert len(err) == 2 and err[0].startswith("pendsim: warning: grams.json: m1_kg = 150 kg is 710.1 times")
+    assert err[1].startswith("pendsim: error: j1_kg_m2 = 0.02592 must exceed m1_kg * oc1_m^2")
+    assert err[1].endswith("(m1_kg from grams.json; the others are the rig's own)")
+    assert main(["simulate", "--params-file", "grams.json", "--set", "j1_kg_m2=10", "--set", "m1_kg=160"]) == 2
+    last = capsys.readouterr().err.splitlines()[-1]
+    assert last.endswith("(m1_kg from --set, j1_kg_m2 from --set; the others are the rig's own)")
+    assert not Path("grams_run.csv").exists()
+
+
+def test_a_run_option_given_as_a_parameter_is_named(workspace, capsys):
+    assert main(["simulate", "--set", "phi1_deg=10"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1
+    assert "unknown parameter(s) phi1_deg (this command's --phi1-deg, not a rig parameter); allowed: b1_n_m_s" in err
+    assert main(["validate", "missing.mcap", "--set", "phi1_deg=10"]) == 2  # the file is checked first
+    assert main(["simulate", "--set", "c1_nm=3"]) == 2  # a misspelt parameter is not an option: no such hint
+    assert "not a rig parameter" not in capsys.readouterr().err
+
+
 def test_a_file_name_with_a_newline_keeps_the_error_on_one_line(workspace, capsys):
     assert main(["inspect", "two\nlines.mcap"]) == 2
     err = capsys.readouterr().err

@@ -23,7 +23,7 @@ def test_simulate_on_defaults_prints_frequencies_amplitudes_and_energy(capsys):
     # lies just below 30 deg (energy already lost to damping)
     assert 0.8 < freq < 0.95
     assert 28.5 < start_deg < 30.0
-    assert "energy lost" in out and "dissipated by hinge damping" in out
+    assert "energy lost" in out and "dissipated by the hinges (damping, friction)" in out
 
 
 def test_simulate_writes_npz_that_matches_the_reference_engine(tmp_path, capsys):

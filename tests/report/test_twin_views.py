@@ -13,6 +13,7 @@ import struct
 import threading
 import time
 
+import mujoco
 import numpy as np
 import pytest
 import rerun as rr
@@ -381,6 +382,17 @@ def test_the_rerun_view_records_every_stream_with_its_bands(run, mjcf, tmp_path)
     # the rig posed at every sample, its geometry once
     assert rows["/rig/m1"] == rows["/rig/m2"] == len(est)
     assert static["/rig/m1/geoms"] == static["/rig/frame/geoms"] == 1
+    model = mujoco.MjModel.from_xml_string(mjcf)
+    for k, body in enumerate(("m1", "m2")):  # each body turned about the hinge by its swing angle
+        quats, positions = [], []
+        for chunk in rr.chunk.RrdReader(str(rrd)).stream():
+            if str(chunk.entity_path) == f"/rig/{body}" and not chunk.is_static:
+                batch = chunk.to_record_batch()
+                quats += [q[0] for q in batch.column("Transform3D:quaternion").to_pylist()]
+                positions += [p[0] for p in batch.column("Transform3D:translation").to_pylist()]
+        xyzw = np.array(quats)
+        np.testing.assert_allclose(np.linalg.norm(xyzw[:, :3], axis=1), np.abs(np.sin(est.state[:, k] / 2)), atol=1e-6)
+        np.testing.assert_allclose(positions, np.repeat(model.body(body).pos[None], len(est), axis=0), atol=1e-6)
     # parameters with their references; z-scores; the latest forecast ahead; alarms and health
     t, b1 = series["/twin/parameters/b1_n_m_s"]
     np.testing.assert_array_equal(t, [c.t_s for c in run.checks])

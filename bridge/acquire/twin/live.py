@@ -39,7 +39,7 @@ from ..ports import DEFAULT_NODES, NodeSpec, check_nodes
 from ..receiver import say_on_stderr, stop_signals
 from ..udp_loop.node_view import NodeView, ViewCounters, model_frames
 from .pipeline import TwinPipeline, TwinResult, TwinSpec, close_sink, open_sink
-from .summary import event_line, status_text
+from .summary import Narrator, status_text
 
 SETTLE_S = 0.05  # the nodes' timelines decide this often (``receiver.TICK_S``), s
 IDLE_WAIT_S = 0.05  # the loop's longest sleep with no packet and no sample due, s
@@ -174,7 +174,7 @@ def run_twin_live(
         )
         stop = "duration"
         next_settle_s = 0.0
-        alarms_said = events_said = 0
+        narrate = Narrator(say, start_utc_ns)
 
         def take(key: selectors.SelectorKey, before_ns: float = math.inf) -> int:
             """The datagrams waiting on one node's socket into the pipeline (those that arrived
@@ -220,15 +220,8 @@ def run_twin_live(
                     next_settle_s = now + SETTLE_S
                     for view in node_views:
                         view.settle(now)
-                if pipeline.tick(now, session.estimator.t_s):  # once a second: new alarms said, the status
-                    for alarm in pipeline.alarms[alarms_said:]:
-                        say(f"twin: alarm: {alarm.describe(start_utc_ns)}")
-                    alarms_said = len(pipeline.alarms)
-                    for at_s, what in session.events[events_said:]:  # held, released, touched, checks held...
-                        line = event_line(at_s, what, start_utc_ns)
-                        if line is not None:
-                            say(line)
-                    events_said = len(session.events)
+                if pipeline.tick(now, session.estimator.t_s):  # once a second: new alarms, events; the status
+                    narrate(pipeline)
                     if status is not None:
                         status(status_text(pipeline, now))
         # what arrived before the stop and waits in the OS is taken in (a twin behind the nodes on a
@@ -239,6 +232,7 @@ def run_twin_live(
                 break
             pipeline.step(now_s(), clock=now_s)
         pipeline.finish()
+        narrate(pipeline)  # what came after the last second's
         duration = now_s()
         messages = 0
         path = None

@@ -48,7 +48,7 @@ from ...io.recording_layout import DRIVE_LAYOUT, DRIVE_TOPIC, imu_topic
 from ...report.twin_views import TwinView
 from ..sink import RecordingSink
 from .pipeline import TwinPipeline, TwinResult, TwinSpec, close_sink, open_sink
-from .summary import status_text
+from .summary import Narrator, status_text
 
 RIG_TOLERANCE = 1e-9  # relative: parameters that differ by more are said to differ
 
@@ -279,6 +279,7 @@ def _run(
         + (f", {speed:g}x its pace)" if speed else ", as fast as it can)")
         + (f"; writing {partial} until done, then {output}" if output is not None else "")
     )
+    narrate = Narrator(say, pipeline.start_utc_ns)
     wall0 = time.monotonic()
     t_first = float(times[order[0]]) if len(order) else 0.0
     stop = "end of recording"
@@ -299,9 +300,12 @@ def _run(
                 if drive is not None:
                     drive.upto(t + 1.0)  # ahead of what the file is given (its flushes trail)
                 pipeline.step(t)
-                if pipeline.tick(time.monotonic() - wall0 if speed else t, session.estimator.t_s) and status:
-                    status(status_text(pipeline, t - t_first))
+                if pipeline.tick(time.monotonic() - wall0 if speed else t, session.estimator.t_s):
+                    narrate(pipeline)  # as live: new alarms and events, once a second
+                    if status is not None:
+                        status(status_text(pipeline, t - t_first))
         pipeline.finish()
+        narrate(pipeline)  # what came after the last second's
         if drive is not None:
             drive.upto(math.inf)
     finally:

@@ -6,6 +6,7 @@ and events, the packets, latency)."""
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 
 from pendsim_mj.twin.estimator import TRACKABLE
 from pendsim_mj.twin.health import NON_NEGATIVE, time_of_day_utc
@@ -45,6 +46,27 @@ def event_line(at_s: float, what: str, start_utc_ns: int) -> str | None:
     if "its clock jumped" in what:
         return None
     return f"twin: {EVENT_SAID.get(what, what)} (at {at_s:.1f} s, {time_of_day_utc(start_utc_ns, at_s)})"
+
+
+class Narrator:
+    """What a running twin (live or replayed) says as it happens: each new alarm and session event
+    once (``event_line``), with the twin's seconds and the time of day in UTC (a replay's: that of
+    the recorded run). Called with the pipeline's alarms and the session's events so far."""
+
+    def __init__(self, say: Callable[[str], None], start_utc_ns: int) -> None:
+        self.say, self.start_utc_ns = say, start_utc_ns
+        self.alarms = self.events = 0
+
+    def __call__(self, pipeline: TwinPipeline) -> None:
+        for alarm in pipeline.alarms[self.alarms :]:
+            self.say(f"twin: alarm: {alarm.describe(self.start_utc_ns)}")
+        self.alarms = len(pipeline.alarms)
+        events = pipeline.session.events
+        for at_s, what in events[self.events :]:  # held, released, touched, checks held...
+            line = event_line(at_s, what, self.start_utc_ns)
+            if line is not None:
+                self.say(line)
+        self.events = len(events)
 
 
 STOPPED = {"duration": "--duration-s reached", "end of recording": "end of the recording"}

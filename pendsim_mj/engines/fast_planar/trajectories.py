@@ -22,6 +22,7 @@ from pendsim_mj.engines.fast_planar.closed_form import (
     spring_lengths,
     spring_moments,
 )
+from pendsim_mj.engines.reference import diverged_advice
 from pendsim_mj.engines.trajectory import Trajectory, planar_imu_readings
 from pendsim_mj.errors import ParameterError, SimulationDiverged
 from pendsim_mj.rig.checks import (
@@ -77,9 +78,17 @@ def solve_batch(
     stages = drive_stage_inputs(drives, nstep, dt_s, sampling) if targets else None  # (nbatch, nstep, NSTAGE, NINPUT)
     k = coefficients(plist)
     states = integrate(k, phi0, omega0, nstep, dt_s, inputs=stages, nthread=nthread)
-    if not np.all(np.isfinite(states)):
-        raise SimulationDiverged(f"fast planar solver diverged (non-finite values); reduce dt_s (now {dt_s} s)")
+    _check_finite(states, plist, dt_s)
     return _trajectory(plist, k, states, dt_s, stages, drives if targets else None, sampling)
+
+
+def _check_finite(states: np.ndarray, plist: Sequence[RigParams], dt_s: float) -> None:
+    """Raise SimulationDiverged where a run's states (n, 5, nbatch) are not all finite, with what
+    to change for the first such run (``reference.diverged_advice``)."""
+    if not np.all(np.isfinite(states)):
+        bad = int(np.flatnonzero(~np.isfinite(states).all(axis=(0, 1)))[0])
+        advice = diverged_advice(plist[bad], dt_s)
+        raise SimulationDiverged(f"fast planar solver diverged (non-finite values); {advice}")
 
 
 def solve_blocks(
@@ -105,8 +114,7 @@ def solve_blocks(
     for first in range(0, nstep, block_steps):
         steps = min(block_steps, nstep - first)
         states = _run(k, y0, _UNDRIVEN, first, steps, float(dt_s), 1, 1)
-        if not np.all(np.isfinite(states)):
-            raise SimulationDiverged(f"fast planar solver diverged (non-finite values); reduce dt_s (now {dt_s} s)")
+        _check_finite(states, plist, dt_s)
         y0 = np.ascontiguousarray(states[-1])
         block = _trajectory(plist, k, states, dt_s, None, None)
         yield first, dataclasses.replace(block, t_s=np.arange(first, first + len(states)) * dt_s).member(0)
@@ -135,7 +143,7 @@ def _trajectory(
     kinetic = kinetic_energy(omega1, omega2, k)
     potential = potential_energy(phi1, phi2, k)
     if drives is None:  # a driven rig may gain energy from its input
-        check_energy_bounded((kinetic + potential).T, k[_G1], dt_s)
+        check_energy_bounded((kinetic + potential).T, k[_G1], dt_s, lambda i: diverged_advice(plist[i], dt_s))
     support = np.zeros((nbatch, n, 2))
     if stages is not None and np.any(stages[..., 2:]):
         support, _ = stage_support_motion(stages[..., 2:], dt_s)
