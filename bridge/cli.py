@@ -90,7 +90,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             return code
     except (UsageError, PendsimError) as exc:
         message = _one_line(exc)
-        if isinstance(exc, ParameterError):  # where its values came from, or the option meant
+        if isinstance(exc, (ParameterError, UsageError)):  # where its values came from, or the option meant
             message = explained(message, args, _command_parser(parser, args))
         print(f"pendsim: error: {message}", file=sys.stderr)
         return EXIT_USAGE

@@ -463,9 +463,11 @@ def explained(message: str, args: argparse.Namespace | None, command: argparse.A
     --phi1-deg, not a rig parameter); allowed: ..."). ``parameter_sources``: ``overrides_from``."""
     if args is None:
         return message
-    if message.startswith("unknown parameter(s)") and command is not None:
+    unknown = re.search(r"unknown (?:parameter\(s\) ([^;]*)|input '([a-z0-9_]+)')", message)
+    if unknown is not None and command is not None:
         head, sep, rest = message.partition("; allowed:")
-        names = re.findall(r"\b[a-z][a-z0-9_]*\b", head.removeprefix("unknown parameter(s)"))
+        entries = (unknown.group(1) or unknown.group(2) or "").split(", ")
+        names = [e.strip() for e in entries if e.strip() and "did you mean" not in e]  # a misspelling: its own hint
         flags = [f"--{name.replace('_', '-')}" for name in dict.fromkeys(names)]
         found = [flag for flag in flags if flag in command._option_string_actions]
         return f"{head} (this command's {', '.join(found)}, not a rig parameter){sep}{rest}" if found else message

@@ -26,6 +26,12 @@ class RecordingError(PendsimError):
 
 def did_you_mean(name: str, allowed: Iterable[str]) -> str:
     """`` (did you mean 'c1_n_m'?)`` for a misspelt ``name`` close to one of ``allowed``
-    (``difflib``'s ratio >= 0.75), else "": the hint an unknown-name message carries."""
-    close = difflib.get_close_matches(name, list(allowed), n=1, cutoff=0.75)
-    return f" (did you mean {close[0]!r}?)" if close else ""
+    (``difflib``'s ratio >= 0.75, case aside), or the only one it begins (``b1`` for
+    ``b1_n_m_s``: the unit left out), else "": the hint an unknown-name message carries."""
+    names = list(allowed)
+    lower = {n.lower(): n for n in names}
+    close = difflib.get_close_matches(name.lower(), list(lower), n=1, cutoff=0.75)
+    if close:
+        return f" (did you mean {lower[close[0]]!r}?)"
+    begun = [n for n in names if name and n.lower().startswith(name.lower() + "_")]
+    return f" (did you mean {begun[0]!r}?)" if len(begun) == 1 else ""

@@ -109,4 +109,6 @@ def run(args: argparse.Namespace) -> int:
     failures = gate_failures(report, Gates(args.max_delta, args.max_iae, args.max_error_phi1))
     for f in failures:
         print(f"pendsim: validation failed: {f}", file=sys.stderr)
-    return 1 if failures or misfit else 0
+    if report.model_warnings:  # its step does not resolve the rig: no verdict to trust (exit 1)
+        print("pendsim: validate: the model's run is not resolved by its step (warning above)", file=sys.stderr)
+    return 1 if failures or misfit or report.model_warnings else 0

@@ -76,11 +76,14 @@ class ValidationReport:
     drive: Drive | None = None  # a driven recording's drive from the start on (every model run has it)
     lines: dict[tuple[str, str, str], DrawnLines] = dataclasses.field(default_factory=dict)
     """What the whole-run figures draw: (engine, release, quantity) -> its lines (``FIGURES``)."""
+    model_warnings: tuple[str, ...] = ()
+    """The model's own: its run not resolved by its step (``analysis.BlockBalance``)."""
 
     @property
     def warnings(self) -> tuple[str, ...]:
-        """One-line warnings: the alignment's and, with an identified damping, the fit's."""
-        return self.identification.warnings if self.identification is not None else self.run.warnings
+        """One-line warnings: the alignment's and, with an identified damping, the fit's; the model's."""
+        found = self.identification.warnings if self.identification is not None else self.run.warnings
+        return found + self.model_warnings
 
     @functools.cached_property
     def model_run(self) -> Trajectory:

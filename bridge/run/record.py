@@ -23,10 +23,9 @@ import numpy as np
 
 from pendsim_mj import __version__
 from pendsim_mj.engines import dispatch as engines
-from pendsim_mj.engines.linearised import linear_modes
 from pendsim_mj.engines.trajectory import Trajectory
 from pendsim_mj.errors import ParameterError
-from pendsim_mj.estimation.analysis import unresolved_warning
+from pendsim_mj.estimation.analysis import BlockBalance
 from pendsim_mj.rig.checks import check_step
 from pendsim_mj.rig.drives import Drive
 from pendsim_mj.rig.model import PLANAR, SPATIAL, exact_mjcf
@@ -236,7 +235,7 @@ def record(
             control=spec.control,
         )  # fmt: skip
         given = 0  # samples of a block handed to the writer in full, not yet counted
-        balance = _Balance()
+        balance = BlockBalance()
         per_node = np.zeros(2, dtype=int)  # messages written per node (lost packets are not)
         pieces = _blocks(sampler, blocks, spec, block_s)
         try:
@@ -258,7 +257,7 @@ def record(
             interrupted = True
         if interrupted and given:  # the block was given in full: finishing writes it out
             written.add(given)
-        warning = None if interrupted else balance.warning(spec)
+        warning = None if interrupted else balance.warning(spec.params, spec.dt_s, planar=spec.model != "spatial")
         if warning is not None:
             w.add_metadata("pendsim/unresolved", {"warning": warning, "energy_residual_j": repr(balance.residual_j)})
         if interrupted:
@@ -287,35 +286,6 @@ def _signals_set(stop: threading.Event) -> Iterator[None]:
 
     with signal_handlers(dict.fromkeys((signal.SIGINT, signal.SIGTERM), handler)):
         yield
-
-
-class _Balance:
-    """A recorded run's energy balance over its blocks: the energy at its first and last row, and
-    what its losses took (``Trajectory.dissipated_j``, cumulative over the blocks)."""
-
-    def __init__(self) -> None:
-        self.start_j = self.end_j = self.dissipated_j = math.nan
-        self.driven = False
-
-    def add(self, traj: Trajectory, first: int) -> None:
-        energy = traj.total_energy_j
-        if first == 0:
-            self.start_j = float(energy[0])
-        self.end_j, self.dissipated_j = float(energy[-1]), float(traj.dissipated_j[-1])
-        self.driven = self.driven or bool(np.any(traj.drive_input))
-
-    @property
-    def residual_j(self) -> float:
-        return self.start_j - self.end_j - self.dissipated_j
-
-    def warning(self, spec: RecordSpec) -> str | None:
-        """``analysis.unresolved_warning`` for an undriven run (a drive's work is not counted here);
-        the fastest mode is the planar rig's (not said for the spatial model: its tilts)."""
-        if self.driven or math.isnan(self.start_j):
-            return None
-        p = spec.params
-        fastest = math.nan if spec.model == "spatial" else float(np.max(linear_modes(p).frequency_hz))
-        return unresolved_warning(self.residual_j, p.m1_kg * p.g_m_s2 * p.oc1_m, spec.dt_s, fastest)
 
 
 FLUSH_MARGIN_S = 1.0  # messages of the last second of a block wait for the next flush (clock skew)

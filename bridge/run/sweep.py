@@ -355,6 +355,25 @@ def default_cases_per_task(plan: SweepPlan, ncases: int, parallel: int) -> int:
 # -- the results folder ----------------------------------------------------------------------
 
 
+def _differences(found: object, wanted: object, at: str = "") -> str:
+    """Where two sweep definitions (parsed JSON) differ: the keys, dotted ("plan.base.c1_n_m: 6.5
+    there, absent here"), at most three."""
+    if isinstance(found, dict) and isinstance(wanted, dict):
+        parts = []
+        keys = sorted(k for k in set(found) | set(wanted) if found.get(k) != wanted.get(k))
+        if len(keys) > 1:  # the cases' hash: said only when nothing else differs
+            keys = [k for k in keys if f"{at}{k}" != "cases_sha256"]
+        for key in keys:
+            if key in found and key in wanted:
+                parts.append(_differences(found[key], wanted[key], f"{at}{key}."))
+            else:
+                side = "there, absent here" if key in found else "here, absent there"
+                value = found.get(key, wanted.get(key))
+                parts.append(f"{at}{key}: {json.dumps(value)[:40]} {side}")
+        return "; ".join(parts[:3]) + (f"; {len(parts) - 3} more" if len(parts) > 3 else "")
+    return f"{at.rstrip('.')}: {json.dumps(found)[:40]} there, {json.dumps(wanted)[:40]} here"
+
+
 class SweepStore:
     """The results folder of one sweep (layout in the module docstring). Only the process that
     runs the sweep writes to it."""
@@ -414,10 +433,11 @@ class SweepStore:
                 found = json.loads(meta.read_text())
             except (OSError, ValueError) as exc:
                 raise OutputError(f"{str(meta)!r} is unreadable ({exc}); delete the folder to start again") from None
-            if found != json.loads(json.dumps(store.definition)):
+            wanted = json.loads(json.dumps(store.definition))
+            if found != wanted:
                 raise OutputError(
-                    f"{str(root)!r} holds a different sweep (its sweep.json does not match this definition); "
-                    "give another folder, or delete this one to start again"
+                    f"{str(root)!r} holds a different sweep (its sweep.json differs from this definition in "
+                    f"{_differences(found, wanted)}); give another folder, or delete this one to start again"
                 )
         elif root.exists() and any(root.iterdir()):
             raise OutputError(f"{str(root)!r} exists and is not a sweep's results folder; give a new or empty folder")

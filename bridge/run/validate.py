@@ -31,6 +31,7 @@ from pendsim_mj.engines import dispatch as engines
 from pendsim_mj.engines.dispatch import whole_steps_s
 from pendsim_mj.errors import ParameterError, RecordingError
 from pendsim_mj.estimation.alignment import MeasuredRun
+from pendsim_mj.estimation.analysis import BlockBalance
 from pendsim_mj.estimation.identification import (
     LogDecrement,
     ModalDecrement,
@@ -58,6 +59,12 @@ from ..report.validation_report import ValidationReport as ValidationReport  # w
 from . import spatial_validate
 
 MODEL_BLOCK_STEPS = 6000  # model steps simulated at once (60 s at 0.01 s)
+MODEL_DT_S = 0.01  # the model runs' step, s (``model_series``'s default)
+UNRESOLVED_REMEDY = (
+    "validate runs its model at 0.01 s and cannot judge this rig there (its comparison and damping fit would "
+    "blame the model for its step): see the rig's motion resolved with 'pendsim simulate --dt-s' and a step "
+    "small enough"
+)
 
 
 def model_series(
@@ -65,18 +72,20 @@ def model_series(
     params: RigParams,
     start: tuple[tuple[float, float], tuple[float, float]],
     duration_s: float,
-    dt_s: float = 0.01,
+    dt_s: float = MODEL_DT_S,
     *,
     block_steps: int = MODEL_BLOCK_STEPS,
     drive: Drive | None = None,
     dtype: DTypeLike = np.float64,
+    balance: BlockBalance | None = None,
 ) -> tuple[np.ndarray, dict[str, np.ndarray]]:
     """One model run from a start state (angles, rates), simulated block by block and reduced to
     what is compared: its instants (n,) s and each ``VALIDATED`` quantity there (n,). Memory is
     these arrays and one block, never the whole run's Trajectory (a driven run: see
     ``engines.run_blocks``); the rows equal one run's. The planar reference runs on its compiled
     kernel (``engines.FAST_PATH``). ``drive``: the run's inputs, time 0 at the start; ``dtype``:
-    of the quantities (float32: half the memory of a long run; the instants stay float64)."""
+    of the quantities (float32: half the memory of a long run; the instants stay float64);
+    ``balance``: gathers the run's energy balance (is the run resolved by its step?)."""
     engine = engines.FAST_PATH.get(engine, engine)
     total_s = whole_steps_s(duration_s, dt_s)
     n = check_step(total_s, dt_s) + 1
@@ -84,6 +93,8 @@ def model_series(
     values = {q.name: np.empty(n, dtype=dtype) for q in VALIDATED}
     blocks = engines.run_blocks(engine, params, start[0], start[1], total_s, dt_s, block_steps=block_steps, drive=drive)
     for first, block in blocks:
+        if balance is not None:
+            balance.add(block, first)
         rows = slice(first, first + len(block.t_s))
         t[rows] = block.t_s
         for q in VALIDATED:
@@ -236,6 +247,7 @@ def validate(
         raise ParameterError(f"damping must be 'identified', 'recorded' or (b1, b2), got {damping!r}")
     duration = run.duration_s
     cases = []
+    model_warnings: tuple[str, ...] = ()
     start = run.start
     starts = {"estimated": (start.phi_rad, start.omega_rad_s)}
     if max(abs(w) for w in start.omega_rad_s) < AT_REST_RAD_S:
@@ -246,7 +258,12 @@ def validate(
     for engine in ("mujoco", "reference"):
         for release_name, state in starts.items():
             # the model's quantities in float32 (its errors against the IMUs are 1e4 times larger)
-            t_model, values = model_series(engine, model_params, state, duration + 0.02, drive=drive, dtype=np.float32)
+            balance = BlockBalance() if (engine, release_name) == ("mujoco", "estimated") else None
+            t_model, values = model_series(
+                engine, model_params, state, duration + 0.02, drive=drive, dtype=np.float32, balance=balance
+            )
+            unresolved = balance.warning(model_params, MODEL_DT_S, remedy=UNRESOLVED_REMEDY) if balance else None
+            model_warnings += (f"the model: {unresolved}",) if unresolved is not None else ()
             by_window: dict[str, dict[str, Comparison]] = {name: {} for name, _ in windows}
             # phi1 last: its swing stays resolved longest (the angle's noise is the smallest), so
             # its comparison's whole-run transients meet no model series but its own
@@ -295,7 +312,7 @@ def validate(
         choice["plane_offset_m"] = spatial.plane_offset_m
         choice["spatial_params"] = {n: getattr(spatial, n) for n in spatial_validate.NAMES}
     return ValidationReport(
-        Path(path), model_params, source, identification, run, cases, mjcf_xml, choice, drive, lines
+        Path(path), model_params, source, identification, run, cases, mjcf_xml, choice, drive, lines, model_warnings
     )
 
 

@@ -55,7 +55,7 @@ def step_advice(params: RigParams, dt_s: float, jacobian: NDArray[np.float64]) -
         rates = [params.b1_n_m_s / params.j1_kg_m2, params.b2_n_m_s / params.j2_kg_m2]
         k = int(np.argmax(rates))
         b = (params.b1_n_m_s, params.b2_n_m_s)[k]
-        cause = f"M{k + 1}'s damping (b{k + 1}_n_m_s = {b:g} N m s: a decay rate b/J of {rates[k]:.3g} 1/s)"
+        cause = f"M{k + 1}'s damping (b{k + 1}_n_m_s = {b:g} N m s/rad: a decay rate b/J of {rates[k]:.3g} 1/s)"
     else:
         cause = f"the springs and gravity (the fastest mode at {abs(fastest.imag) / (2 * math.pi):.3g} Hz)"
     return f"reduce dt_s (now {dt_s:g} s) below {limit:.2g} s, the largest step RK4 keeps stable here, set by {cause}"

@@ -521,23 +521,72 @@ def summarize(traj: Trajectory) -> RunSummary:
     )
 
 
-def unresolved_warning(residual_j: float, energy_scale_j: float, dt_s: float, fastest_mode_hz: float) -> str | None:
+def unresolved_warning(
+    residual_j: float, energy_scale_j: float, dt_s: float, fastest_mode_hz: float, *, remedy: str | None = None
+) -> str | None:
     """What to tell the user about a run whose energy balance is off by ``residual_j`` (J) at the
     step ``dt_s`` (s), None where it is within ``checks.UNRESOLVED_SHARE`` of ``energy_scale_j``
     (m1 g OC1, J): the balance's error, the fastest mode's steps per period (``fastest_mode_hz``,
-    the rig at rest) and a step to try (a 1-2-5 value at most a fifth of dt_s and 1/50 of the
-    fastest period)."""
+    the rig at rest; NaN: not said) and ``remedy``, by default a step to try (``finer_step_s``)."""
     if not unresolved_balance(residual_j, energy_scale_j):
         return None
     known = math.isfinite(fastest_mode_hz) and fastest_mode_hz > 0  # NaN: not known (the spatial model's tilts)
-    finer = _one_two_five_below(min(dt_s / 5, 1.0 / (50 * fastest_mode_hz)) if known else dt_s / 5)
     per_period = 1.0 / (fastest_mode_hz * dt_s)
     mode = f"; the fastest mode, {fastest_mode_hz:.3g} Hz at rest, gets {per_period:.3g} steps a period"
+    if remedy is None:
+        remedy = (
+            f"run it again with --dt-s {finer_step_s(residual_j, energy_scale_j, dt_s, fastest_mode_hz):g} and compare"
+        )
+    share = abs(residual_j) / energy_scale_j
     return (
-        f"dt_s = {dt_s:g} s does not resolve this run: its energy balance is off by {residual_j:.3g} J, "
-        f"{abs(residual_j) / energy_scale_j:.2g} of m1 g OC1 (the limit {UNRESOLVED_SHARE:g}{mode if known else ''}): "
-        f"its numbers are not to be trusted; run it again with --dt-s {finer:g} and compare"
+        f"dt_s = {dt_s:g} s does not resolve this run: its energy balance is off by {residual_j:.3g} J, {share:.2g} "
+        f"times m1 g OC1 (the limit {UNRESOLVED_SHARE:g}{mode if known else ''}): its numbers are not to be trusted; "
+        f"{remedy}"
     )
+
+
+def finer_step_s(residual_j: float, energy_scale_j: float, dt_s: float, fastest_mode_hz: float) -> float:
+    """A step (s, 1, 2 or 5 times a power of ten) to try after a balance off by ``residual_j`` at
+    ``dt_s``: RK4 takes energy from a mode at a rate that goes as h^5, so the step that brings the
+    error to a third of the limit is dt_s (limit / 3 / |residual|)^(1/5); where the run lost most
+    of its energy that law no longer holds, and the step is also at most 1/50 of the fastest mode's
+    period (``fastest_mode_hz``, NaN: not known) and a fifth of dt_s."""
+    limit = UNRESOLVED_SHARE * energy_scale_j
+    scaled = dt_s * (limit / 3.0 / max(abs(residual_j), limit)) ** 0.2
+    known = math.isfinite(fastest_mode_hz) and fastest_mode_hz > 0
+    return _one_two_five_below(min(scaled, dt_s / 5, 1.0 / (50 * fastest_mode_hz) if known else math.inf))
+
+
+class BlockBalance:
+    """A run's energy balance gathered block by block (``engines.run_blocks``: memory flat): the
+    energy at its first and last row and what its losses took (``Trajectory.dissipated_j``,
+    cumulative over the blocks); ``warning`` as ``unresolved_warning`` for an undriven run (a
+    drive's work is not counted here)."""
+
+    def __init__(self) -> None:
+        self.start_j = self.end_j = self.dissipated_j = math.nan
+        self.driven = False
+
+    def add(self, traj: Trajectory, first: int) -> None:
+        """A block of a single run whose first row is the run's row ``first``."""
+        energy = traj.total_energy_j
+        if first == 0:
+            self.start_j = float(energy[0])
+        self.end_j, self.dissipated_j = float(energy[-1]), float(traj.dissipated_j[-1])
+        self.driven = self.driven or bool(np.any(traj.drive_input))
+
+    @property
+    def residual_j(self) -> float:
+        return self.start_j - self.end_j - self.dissipated_j
+
+    def warning(self, params: RigParams, dt_s: float, *, planar: bool = True, remedy: str | None = None) -> str | None:
+        """``unresolved_warning`` of the run so far (None: resolved, driven or empty); ``planar``
+        False: the spatial model (its fastest mode, a tilt's perhaps, is not said)."""
+        if self.driven or math.isnan(self.start_j):
+            return None
+        fastest = float(np.max(linear_modes(params).frequency_hz)) if planar else math.nan
+        scale = params.m1_kg * params.g_m_s2 * params.oc1_m
+        return unresolved_warning(self.residual_j, scale, dt_s, fastest, remedy=remedy)
 
 
 def _one_two_five_below(value: float) -> float:

@@ -106,7 +106,11 @@ def check_step(duration_s: float, dt_s: float) -> int:
         )
     nstep = round(duration_s / dt_s)
     if abs(nstep * dt_s - duration_s) > 1e-9 * max(1.0, duration_s):
-        raise ParameterError(f"duration_s = {duration_s} s must be a whole number of steps of dt_s = {dt_s} s")
+        fitting = duration_s / math.ceil(duration_s / dt_s)  # the largest step below dt_s that fits
+        raise ParameterError(
+            f"duration_s = {duration_s} s must be a whole number of steps of dt_s = {dt_s} s "
+            f"(e.g. dt_s = {fitting:.12g} s: {math.ceil(duration_s / dt_s)} steps)"
+        )
     return nstep
 
 
@@ -230,8 +234,9 @@ def check_energy_bounded(
         i = int(np.flatnonzero(bad)[0])
         e0 = total_energy_j[i, 0]
         top = np.max(total_energy_j[i])
+        which = f" of run {i}" if len(bad) > 1 else ""
         raise SimulationDiverged(
-            f"simulation diverged: the energy of run {i} grew from {e0:.4g} J to {top:.4g} J "
+            f"simulation diverged: the energy{which} grew from {e0:.4g} J to {top:.4g} J "
             f"without any input; "
             + (advice(i) if advice is not None else f"reduce dt_s (now {dt_s} s) or the stiffness")
         )

@@ -275,6 +275,19 @@ def test_a_run_option_given_as_a_parameter_is_named(workspace, capsys):
     assert main(["validate", "missing.mcap", "--set", "phi1_deg=10"]) == 2  # the file is checked first
     assert main(["simulate", "--set", "c1_nm=3"]) == 2  # a misspelt parameter is not an option: no such hint
     assert "not a rig parameter" not in capsys.readouterr().err
+    Path("start.json").write_text('{"phi1_deg": 10}')  # in a parameter file, and a sweep's fixed input
+    assert main(["simulate", "--params-file", "start.json"]) == 2
+    assert "start.json: unknown parameter(s) phi1_deg (this command's --phi1-deg, not a rig parameter)" in (
+        capsys.readouterr().err
+    )
+    assert main(["sweep", "--vary", "c1_n_m=5,6", "--set", "dt_s=0.001", "-o", "never"]) == 2
+    assert "unknown input 'dt_s' (this command's --dt-s, not a rig parameter)" in capsys.readouterr().err
+    # a name without its unit, or in capitals: its likely spelling, not an option (--b1 sets b1_n_m_s)
+    for given, meant in (("b1", "b1_n_m_s"), ("C1_N_M", "c1_n_m")):
+        assert main(["simulate", "--set", f"{given}=0.001"]) == 2
+        err = capsys.readouterr().err
+        assert f"unknown parameter(s) {given} (did you mean {meant!r}?); allowed:" in err, err
+    assert not Path("never").exists()
 
 
 def test_a_file_name_with_a_newline_keeps_the_error_on_one_line(workspace, capsys):

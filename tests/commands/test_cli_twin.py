@@ -391,3 +391,17 @@ def test_the_message_count_said_is_what_the_file_holds(recording, tmp_path, caps
     with open(out, "rb") as f:
         stats = make_reader(f).get_summary().statistics
     assert said == [f"wrote {out} ({stats.message_count} messages)"]
+
+
+def test_a_rig_the_model_cannot_follow_is_said_so_not_blamed_on_the_baseline(tmp_path, capsys):
+    # a 3000 N/m spring recorded at 10 ms: the twin's model never tracks it for long (it is
+    # "touched" again and again); the summary says the model does not fit, not "--baseline-s past
+    # the end?", which was given to nothing
+    rec = tmp_path / "stiff.mcap"
+    assert main(["record", "-o", str(rec), "--set", "c1_n_m=3000", "--duration-s", "30", "--hold-s", "2"]) == 0
+    capsys.readouterr()
+    assert main(["twin", "--replay", str(rec), "--speed", "0", "-o", str(tmp_path / "twin.mcap")]) == 0
+    said = capsys.readouterr().out
+    health = [line for line in said.splitlines() if line.startswith("health: never checked")]
+    assert len(health) == 1 and "touched" in health[0] and "does not fit this rig" in health[0], said
+    assert "--baseline-s" not in said and "warning: the model does not fit the data" in said

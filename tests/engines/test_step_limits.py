@@ -110,3 +110,26 @@ def test_pendsim_record_warns_of_a_run_its_step_does_not_resolve_and_the_file_sa
     assert float(unresolved["energy_residual_j"]) > 0.1 and unresolved["warning"] in err
     assert main(["record", "-o", str(paper), "--duration-s", "4"]) == 0
     assert "warning" not in capsys.readouterr().err and "pendsim/unresolved" not in metadata(paper)
+
+
+def test_following_the_suggested_steps_resolves_a_very_stiff_spring_in_two_reruns():
+    stiff = dataclasses.replace(DEFAULT_PARAMS, c1_n_m=1e6)
+    start = (np.radians([5.0, 0.0]), np.zeros(2))
+    dt_s, reruns = 0.002, 0
+    while (warning := summarize(dispatch.run("fast", stiff, *start, 1.0, dt_s)).unresolved_warning()) is not None:
+        dt_s, reruns = float(warning.split("--dt-s ")[1].split(" ")[0]), reruns + 1
+        assert reruns <= 2, warning
+    assert reruns >= 1 and dt_s <= 1e-4
+
+
+def test_pendsim_validate_gives_no_verdict_where_its_model_step_does_not_resolve_the_rig(tmp_path, capsys):
+    stiff, paper = tmp_path / "stiff.mcap", tmp_path / "paper.mcap"
+    assert main(["record", "-o", str(stiff), "--set", "c1_n_m=3000", "--duration-s", "6", "--hold-s", "1"]) == 0
+    assert main(["record", "-o", str(paper), "--duration-s", "6", "--hold-s", "1"]) == 0
+    capsys.readouterr()
+    assert main(["validate", str(stiff), "-o", str(tmp_path / "v1"), "--no-plots"]) == 1
+    err = capsys.readouterr().err
+    assert "pendsim: warning: the model: dt_s = 0.01 s does not resolve this run" in err
+    assert "the model's run is not resolved by its step" in err
+    assert main(["validate", str(paper), "-o", str(tmp_path / "v2"), "--no-plots"]) == 0
+    assert "does not resolve" not in capsys.readouterr().err

@@ -373,8 +373,10 @@ def test_a_folder_holding_another_sweep_is_refused_and_left_untouched(tmp_path):
     run_sweep(_plan(**SMALL), tmp_path / "out", progress=False, plots=False)
     before = {p: p.read_bytes() for p in (tmp_path / "out").rglob("*") if p.is_file()}
     other = _plan(**{**SMALL, "seed": 1})
-    with pytest.raises(OutputError, match="holds a different sweep"):
+    with pytest.raises(OutputError, match="holds a different sweep") as refused:
         run_sweep(other, tmp_path / "out", progress=False, plots=False)
+    assert "differs from this definition in plan.seed: 0 there, 1 here" in str(refused.value)  # what differs
+    assert "sha256" not in str(refused.value)
     assert {p: p.read_bytes() for p in (tmp_path / "out").rglob("*") if p.is_file()} == before
     (tmp_path / "stuff").mkdir()
     (tmp_path / "stuff" / "notes.txt").write_text("mine")

@@ -194,8 +194,15 @@ def summary_text(result: TwinResult) -> str:
             )
         lines.append(line)
     held = [what for _, what in s.events if what.startswith("health checks held")]
+    touched = sum(what == "touched" for _, what in s.events)
     if math.isnan(s.monitored_from_s) and held:
         lines.append("health: never checked: the model never fitted the data well enough to check (events below)")
+    elif math.isnan(s.monitored_from_s) and touched:
+        lines.append(
+            f"health: never checked: the estimate stopped {touched} time{'s' if touched > 1 else ''} (touched: the rig "
+            "did not move as its model does) before its references were taken: the model most likely does not "
+            "fit this rig (events below)"
+        )
     elif math.isnan(s.monitored_from_s):
         lines.append("health: never checked (the references were not taken: --baseline-s past the end?)")
     lines.append(f"alarms: {len(s.alarms)}" + "".join(f"\n  {a.describe(result.start_utc_ns)}" for a in s.alarms))
