@@ -437,7 +437,7 @@ def read_params_file(path: Path) -> dict[str, float]:
 
 def overrides_from(args: argparse.Namespace) -> dict[str, float]:
     """Parameter overrides from --params-file, then --set, then --b1/--b2 (later ones win). Where
-    each came from is kept on ``args`` (``parameter_sources``) for ``given_where``."""
+    each came from is kept on ``args`` (``parameter_sources``) for ``explained``."""
     overrides: dict[str, float] = {}
     sources: dict[str, str] = {}
     if getattr(args, "params_file", None) is not None:

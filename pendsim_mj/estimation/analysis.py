@@ -531,7 +531,7 @@ def unresolved_warning(
     if not unresolved_balance(residual_j, energy_scale_j):
         return None
     known = math.isfinite(fastest_mode_hz) and fastest_mode_hz > 0  # NaN: not known (the spatial model's tilts)
-    per_period = 1.0 / (fastest_mode_hz * dt_s)
+    per_period = 1.0 / (fastest_mode_hz * dt_s) if known else math.nan
     mode = f"; the fastest mode, {fastest_mode_hz:.3g} Hz at rest, gets {per_period:.3g} steps a period"
     if remedy is None:
         remedy = (

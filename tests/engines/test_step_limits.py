@@ -133,3 +133,12 @@ def test_pendsim_validate_gives_no_verdict_where_its_model_step_does_not_resolve
     assert "the model's run is not resolved by its step" in err
     assert main(["validate", str(paper), "-o", str(tmp_path / "v2"), "--no-plots"]) == 0
     assert "does not resolve" not in capsys.readouterr().err
+
+
+def test_an_unknown_or_zero_fastest_mode_leaves_it_out_of_the_warning():
+    from pendsim_mj.estimation.analysis import unresolved_warning
+
+    for fastest in (0.0, math.nan):  # a rig without springs or gravity; the spatial model
+        warning = unresolved_warning(1.0, 0.5, 0.01, fastest)
+        assert warning is not None and "fastest mode" not in warning and "--dt-s 0.001" in warning
+    assert unresolved_warning(1e-4, 0.5, 0.01, 1.0) is None  # within 1e-3 of the scale
