@@ -191,6 +191,11 @@ def assignment(text: str) -> tuple[str, float]:
     try:
         number = finite_float(value)
     except argparse.ArgumentTypeError as exc:
+        if name not in INPUT_RANGES and name not in PARAMETER_LIMITS:  # e.g. --set engine=fast: a run setting
+            raise argparse.ArgumentTypeError(
+                f"{name}={value.strip()}: not a number; --set takes a rig parameter's value in SI units (names: "
+                "'pendsim info'), and a run setting is an option of its own (see --help)"
+            ) from None
         raise argparse.ArgumentTypeError(f"{name}: {exc}") from None
     try:
         check_input(name, number)

@@ -155,7 +155,19 @@ def run(args: argparse.Namespace) -> int:
         plots=not args.no_plots,
     )
     print(describe(summary, plan))
+    if args.params_file is not None:
+        print(_rig_line(args.params_file, plan))
     return 0
+
+
+def _rig_line(path: Path, plan: SweepPlan) -> str:
+    """What the sweep took from its --params-file (the plan on that rig: ``SweepPlan.on_rig``)."""
+    given = options.read_params_file(path)
+    base = dict(plan.base)
+    taken = [name for name, value in given.items() if base.get(name) == float(value)]
+    others = [name for name in given if name not in taken]
+    line = f"rig: {path}: {', '.join(taken) or 'nothing'}"
+    return line + (f" (not {', '.join(others)}: the sweep's own values or axes)" if others else "")
 
 
 def _plan(args: argparse.Namespace) -> SweepPlan:

@@ -22,8 +22,7 @@ FIGURES = (
 """The paper's Figures 9-13 and 15 (``plots.validation_figures``): (file stem, quantity, window).
 The whole-run comparisons keep their metrics only; of the quantities a whole-run figure draws,
 the lines it draws are kept, reduced to their envelopes when compared (``drawn_lines``, in
-``ValidationReport.lines``; not of the planar reference from the nominal start, which no figure
-draws), so a long run's memory holds none of its whole-run series."""
+``ValidationReport.lines``), so a long run's memory holds none of its whole-run series."""
 
 
 Line = tuple[np.ndarray, np.ndarray]

@@ -81,10 +81,10 @@ def allan_plot(
 
 def validation_figures(report, directory: str | Path) -> list[Path]:
     """The paper's Figures 9-15 for a ValidationReport: measured against computed (MuJoCo and
-    the planar reference, from the estimated start; MuJoCo from the nominal 30 deg dashed when
-    the run starts from rest). Lines break at gaps in the samples; a long run's lines are drawn as
-    their envelopes (``figure_lines.envelope``; the whole run's as ``validate`` kept them:
-    ``ValidationReport.lines``)."""
+    the planar reference, from the estimated start; the reference from the nominal 30 deg, the
+    paper's simulation, dashed when the run starts from rest). Lines break at gaps in the
+    samples; a long run's lines are drawn as their envelopes (``figure_lines.envelope``; the
+    whole run's as ``validate`` kept them: ``ValidationReport.lines``)."""
     directory = Path(directory)
     directory.mkdir(parents=True, exist_ok=True)
     short = next(c.window for c in report.cases if c.window != "whole")
@@ -112,15 +112,15 @@ def validation_figures(report, directory: str | Path) -> list[Path]:
         ax.plot(*m_lines.measured, color="black", linewidth=1.0, label="measured (IMU)")
         label = "computed: MuJoCo, estimated start"
         ax.plot(*m_lines.computed, color="tab:orange", linewidth=1.0, label=label)
-        label = "computed: planar reference"
+        label = "computed: planar reference, estimated start"
         ax.plot(*r_lines.computed, color="tab:blue", linewidth=0.8, linestyle=":", label=label)
         if report.has_nominal:
             if window == "whole":
-                n_line = report.lines[("mujoco", "nominal", quantity)].computed
+                n_line = report.lines[("reference", "nominal", quantity)].computed
             else:
-                n = report.case("mujoco", "nominal", window).comparisons[quantity]
+                n = report.case("reference", "nominal", window).comparisons[quantity]
                 n_line = drawn_lines(n.t_s, n.measured, n.computed, gap).computed
-            label = "computed: MuJoCo, nominal 30 deg"
+            label = "computed: planar reference, nominal 30 deg"
             ax.plot(*n_line, color="tab:green", linewidth=0.8, linestyle="--", label=label)
         ax.set_ylabel(f"{q.label} ({q.unit})")
         ax.set_title(f"{q.description}, {'first ' + window if window != 'whole' else 'whole run'}")

@@ -298,10 +298,11 @@ def table(report: ValidationReport) -> str:
     if report.model_choice is not None:
         lines += choice_lines(report.model_choice, report.model_choice["plane_offset_m"])
     if report.has_nominal:
-        nominal = report.case("mujoco", "nominal", "whole").comparisons["phi1"]
+        nominal = report.case("reference", "nominal", "whole").comparisons["phi1"]
         lines.append("")
         lines.append(
-            "from the nominal 30 deg at rest instead (the paper's simulation; compared because the estimated start "
+            "from the nominal 30 deg at rest instead (the paper's simulation, on the planar reference; compared "
+            "because the estimated start "
             f"is at rest within {AT_REST_RAD_S:g} rad/s): phi1 max|Delta| {nominal.max_abs:.4g} rad, "
             f"IAE {nominal.iae:.4g} rad s over the whole run"
         )

@@ -255,47 +255,51 @@ def validate(
     plotted = {q for _, q, window in FIGURES if window == "whole"}
     lines: dict[tuple[str, str, str], DrawnLines] = {}
     windows = ((f"{short_window_s:g} s", short_window_s), ("whole", math.inf))
-    for engine in ("mujoco", "reference"):
-        for release_name, state in starts.items():
-            # the model's quantities in float32 (its errors against the IMUs are 1e4 times larger)
-            balance = BlockBalance() if (engine, release_name) == ("mujoco", "estimated") else None
-            t_model, values = model_series(
-                engine, model_params, state, duration + 0.02, drive=drive, dtype=np.float32, balance=balance
-            )
-            unresolved = balance.warning(model_params, MODEL_DT_S, remedy=UNRESOLVED_REMEDY) if balance else None
-            model_warnings += (f"the model: {unresolved}",) if unresolved is not None else ()
-            by_window: dict[str, dict[str, Comparison]] = {name: {} for name, _ in windows}
-            # phi1 last: its swing stays resolved longest (the angle's noise is the smallest), so
-            # its comparison's whole-run transients meet no model series but its own
-            for q in reversed(VALIDATED):
-                t, measured, at = run.series(q)
-                computed = resample(t_model, values.pop(q.name), at, clip_s=(0.0, t_model[-1]))
-                if not values:  # the last quantity: the model's grid goes before its comparison
-                    t_model = np.empty(0)
-                for window_name, limit in windows:
-                    # a long run's series: none stay, and its errors go window by window
-                    inside = _window(t <= limit + 1e-9, t, measured, computed)
-                    cmp = compare(*inside, max_gap_s=max_gap_s, series=None if window_name != "whole" else ())
-                    by_window[window_name][q.name] = cmp
-                    drawn = q.name in plotted and (engine, release_name) != ("reference", "nominal")
-                    if window_name == "whole" and drawn:
-                        # the lines a whole-run figure draws: their envelopes (the computed line float32)
-                        main = (engine, release_name) == ("mujoco", "estimated")
-                        lines[(engine, release_name, q.name)] = drawn_lines(
-                            t,
-                            measured,
-                            computed.astype(np.float32),
-                            run.max_gap_s,
-                            with_measured=main,
-                            with_difference=release_name == "estimated",
-                        )
-                del computed, inside  # (the whole window's are the arrays themselves)
-                heap.trim()  # the comparison's transients go back to the system (not kept as heap)
-            del t_model, values
-            cases += [
-                CaseResult(engine, release_name, name, {q.name: by_window[name][q.name] for q in VALIDATED})
-                for name, _ in windows
-            ]
+    # MuJoCo and the planar reference from the estimated start; from the nominal start, the paper's
+    # simulation: its planar equations, the reference alone (MuJoCo from there too was a second
+    # whole-record MuJoCo run, 4-5 s of a 1 h validate's CPU)
+    for engine, release_name in [("mujoco", "estimated"), ("reference", "estimated"), ("reference", "nominal")]:
+        if release_name not in starts:
+            continue
+        state = starts[release_name]
+        # the model's quantities in float32 (its errors against the IMUs are 1e4 times larger)
+        balance = BlockBalance() if (engine, release_name) == ("mujoco", "estimated") else None
+        t_model, values = model_series(
+            engine, model_params, state, duration + 0.02, drive=drive, dtype=np.float32, balance=balance
+        )
+        unresolved = balance.warning(model_params, MODEL_DT_S, remedy=UNRESOLVED_REMEDY) if balance else None
+        model_warnings += (f"the model: {unresolved}",) if unresolved is not None else ()
+        by_window: dict[str, dict[str, Comparison]] = {name: {} for name, _ in windows}
+        # phi1 last: its swing stays resolved longest (the angle's noise is the smallest), so
+        # its comparison's whole-run transients meet no model series but its own
+        for q in reversed(VALIDATED):
+            t, measured, at = run.series(q)
+            computed = resample(t_model, values.pop(q.name), at, clip_s=(0.0, t_model[-1]))
+            if not values:  # the last quantity: the model's grid goes before its comparison
+                t_model = np.empty(0)
+            for window_name, limit in windows:
+                # a long run's series: none stay, and its errors go window by window
+                inside = _window(t <= limit + 1e-9, t, measured, computed)
+                cmp = compare(*inside, max_gap_s=max_gap_s, series=None if window_name != "whole" else ())
+                by_window[window_name][q.name] = cmp
+                if window_name == "whole" and q.name in plotted:
+                    # the lines a whole-run figure draws: their envelopes (the computed line float32)
+                    main = (engine, release_name) == ("mujoco", "estimated")
+                    lines[(engine, release_name, q.name)] = drawn_lines(
+                        t,
+                        measured,
+                        computed.astype(np.float32),
+                        run.max_gap_s,
+                        with_measured=main,
+                        with_difference=release_name == "estimated",
+                    )
+            del computed, inside  # (the whole window's are the arrays themselves)
+            heap.trim()  # the comparison's transients go back to the system (not kept as heap)
+        del t_model, values
+        cases += [
+            CaseResult(engine, release_name, name, {q.name: by_window[name][q.name] for q in VALIDATED})
+            for name, _ in windows
+        ]
     choice = None
     if model == "spatial":
         case, spatial = spatial_validate.spatial_case(

@@ -63,6 +63,7 @@ from pendsim_mj.rig.checks import (
     check_initial,
     check_params,
     check_step,
+    first_nonfinite_run,
 )
 from pendsim_mj.rig.drives import (
     NSTAGE,
@@ -246,11 +247,9 @@ def integrate(
             out[step] = y
             if step % 256 == 0 and not np.all(np.isfinite(y)):
                 break
-    if not np.all(np.isfinite(y)):
-        bad = int(np.flatnonzero(~np.isfinite(y).all(axis=0))[0])
+    if (bad := first_nonfinite_run(y, run_axis=1)) is not None:
         raise SimulationDiverged(f"reference solver diverged at t = {step * h:g} s; {diverged_advice(params[bad], h)}")
-    if not np.all(np.isfinite(out)):
-        bad = int(np.flatnonzero(~np.isfinite(out).all(axis=(0, 1)))[0])
+    if (bad := first_nonfinite_run(out, run_axis=2)) is not None:
         raise SimulationDiverged(f"reference solver produced non-finite values; {diverged_advice(params[bad], h)}")
     return out
 

@@ -28,6 +28,7 @@ from pendsim_mj.rig.checks import (
     check_initial,
     check_params,
     check_step,
+    first_nonfinite_run,
 )
 from pendsim_mj.rig.drives import Drive, Target, inputs_at_samples, stack_inputs, support_initial_velocity
 from pendsim_mj.rig.model import (
@@ -276,7 +277,9 @@ def _rolled_out(
         states, sensordata = rollout.rollout(
             models if len(unique) > 1 else model, datas, initial, control, nstep=nstep + 1, persistent_pool=False
         )
-    _check_warnings(datas, dt_s, warnings, lambda: _advice(model, param_list[_first_unfinished(states)], dt_s))
+    _check_warnings(
+        datas, dt_s, warnings, lambda: _advice(model, param_list[first_nonfinite_run(states, 0) or 0], dt_s)
+    )
     states = _pair(initial, states, sensordata, dt_s)
     return _Rollout(models, unique, list(param_list), states, sensordata, inputs, drives if targets else None, nstep)
 
@@ -305,12 +308,6 @@ def _advice(model: mujoco.MjModel, params: RigParams, dt_s: float) -> str:
         if tilts
         else ""
     )
-
-
-def _first_unfinished(states: np.ndarray) -> int:
-    """The first run (axis 0 of a rollout's states) whose states are not all finite (0 if none)."""
-    bad = np.flatnonzero(~np.isfinite(states).reshape(len(states), -1).all(axis=1))
-    return int(bad[0]) if len(bad) else 0
 
 
 def _pair(initial: np.ndarray, states: np.ndarray, sensordata: np.ndarray, dt_s: float) -> np.ndarray:

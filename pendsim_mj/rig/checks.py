@@ -200,6 +200,14 @@ def unresolved_balance(residual_j: ArrayLike, energy_scale_j: ArrayLike) -> np.n
     return out
 
 
+def first_nonfinite_run(values: np.ndarray, run_axis: int) -> int | None:
+    """The first run (an index along ``run_axis`` of ``values``, any shape) with a value that is
+    not finite, or None where all are: which run a diverged batch's message speaks of."""
+    runs = np.moveaxis(np.asarray(values), run_axis, 0)
+    bad = np.flatnonzero(~np.isfinite(runs.reshape(len(runs), -1)).all(axis=1))
+    return int(bad[0]) if len(bad) else None
+
+
 def energy_grew(total_energy_j: np.ndarray, energy_scale_j: np.ndarray) -> np.ndarray:
     """(nbatch,) True where a run's total energy (nbatch, n) grew past the limit, or is not finite.
 
@@ -218,7 +226,7 @@ def check_energy_bounded(
     total_energy_j: np.ndarray,
     energy_scale_j: np.ndarray,
     dt_s: float,
-    advice: Callable[[int], str] | None = None,
+    advice: Callable[[int], str],
 ) -> None:
     """Raise SimulationDiverged where the total energy (..., n) grew past the limit.
 
@@ -227,7 +235,7 @@ def check_energy_bounded(
       energy_scale_j: (nbatch,) a natural energy scale of each run (m1 g OC1), J.
       dt_s: the step, named in the message.
       advice: what to change for run i (``engines.reference.diverged_advice``: the stable step and
-        what sets it); None: reduce dt_s or the stiffness.
+        what sets it).
     """
     bad = energy_grew(total_energy_j, energy_scale_j)
     if np.any(bad):
@@ -237,6 +245,5 @@ def check_energy_bounded(
         which = f" of run {i}" if len(bad) > 1 else ""
         raise SimulationDiverged(
             f"simulation diverged: the energy{which} grew from {e0:.4g} J to {top:.4g} J "
-            f"without any input; "
-            + (advice(i) if advice is not None else f"reduce dt_s (now {dt_s} s) or the stiffness")
+            f"without any input; " + advice(i)
         )

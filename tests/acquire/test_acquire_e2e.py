@@ -172,9 +172,30 @@ def test_counters_in_the_file_equal_what_the_emulator_did(tmp_path):
         # The log times follow the node's sample instants (its clock mapped to the host's).
         gaps = np.diff(imu.t_ns) * 1e-9 - np.diff(stream.t_s[written])
         assert np.max(np.abs(gaps)) < 3e-3
-    drift = {n: float(final[n]["drift_ppm"]) for n in ("m1", "m2")}
-    # 3 s of a loaded machine: tens of ppm (bench_acquire.py measures long runs; test_acquire_clock the fit)
-    assert drift["m1"] == pytest.approx(300, abs=60) and drift["m2"] == pytest.approx(-200, abs=60)
+    for node, nominal_ppm in (("m1", 300.0), ("m2", -200.0)):
+        # The truth is what the emulator did: its log's send instants against the device times it
+        # stamped (on a busy machine its sends run late, and the host sees that as drift; 3 s of a
+        # loaded machine moved the fit 65 ppm from the nominal -200). The arrival stamps are the
+        # kernel's, microseconds after the send.
+        sent_ppm = _lower_envelope_drift_ppm(rows, node)
+        assert float(final[node]["drift_ppm"]) == pytest.approx(sent_ppm, abs=25), (node, nominal_ppm)
+        assert sent_ppm == pytest.approx(nominal_ppm, abs=500)  # the drift, with what lateness added
+
+
+def _lower_envelope_drift_ppm(rows, node):
+    """The drift (ppm, node clock against the host's) of the line under every valid datagram the
+    emulator sent (device time x, send instant y) that is closest to them all: maximise a + b mean(x)
+    subject to a + b x_i <= y_i, by scipy's linear programming (an independent solution of the
+    problem acquire's ``ClockFit`` solves incrementally on the arrivals)."""
+    from scipy.optimize import linprog
+
+    sent = [r for r in rows if r["node"] == node and r["sent"] and r["kind"] != "malformed"]
+    x = np.array([r["device_time_us"] for r in sent], dtype=float) * 1e-6
+    y = np.array([r["t_s"] for r in sent], dtype=float)
+    x -= x[0]
+    fit = linprog([-1.0, -x.mean()], A_ub=np.column_stack([np.ones_like(x), x]), b_ub=y, bounds=[(None, None)] * 2)
+    assert fit.status == 0, fit.message
+    return (1.0 / fit.x[1] - 1.0) * 1e6
 
 
 def test_sigkill_after_three_seconds_leaves_at_least_two_recoverable(tmp_path):

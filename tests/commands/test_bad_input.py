@@ -288,6 +288,10 @@ def test_a_run_option_given_as_a_parameter_is_named(workspace, capsys):
         err = capsys.readouterr().err
         assert f"unknown parameter(s) {given} (did you mean {meant!r}?); allowed:" in err, err
     assert not Path("never").exists()
+    assert main(["simulate", "--set", "engine=fast"]) == 2  # a run setting's value is not a number
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "engine=fast: not a number; --set takes a rig parameter's value" in err
+    assert "a run setting is an option of its own (see --help)" in err
 
 
 def test_a_file_name_with_a_newline_keeps_the_error_on_one_line(workspace, capsys):

@@ -219,7 +219,7 @@ def test_whole_run_figure_lines_kept_when_compared_are_the_envelopes_of_the_whol
     run = align_recording(read32, PARAMS, float32_values=True)
     gap = run.max_gap_s
     starts = {"estimated": (run.start.phi_rad, run.start.omega_rad_s), "nominal": ((math.pi / 6, 0.0), (0.0, 0.0))}
-    drawn = {("mujoco", "estimated"), ("reference", "estimated"), ("mujoco", "nominal")}
+    drawn = {("mujoco", "estimated"), ("reference", "estimated"), ("reference", "nominal")}
     assert set(report.lines) == {(e, r, q) for e, r in drawn for q in ("phi1", "omega2")}
     models = {}  # each model run (20 minutes) computed once, for both of its quantities
     for (engine, release, quantity), lines in report.lines.items():

@@ -32,6 +32,7 @@ from pendsim_mj.rig.checks import (
     check_initial,
     check_params,
     check_step,
+    first_nonfinite_run,
 )
 from pendsim_mj.rig.drives import Drive, Sampling, drive_stage_inputs, stage_inputs_at_samples, stage_support_motion
 from pendsim_mj.rig.params import DEFAULT_PARAMS, RigParams
@@ -85,8 +86,7 @@ def solve_batch(
 def _check_finite(states: np.ndarray, plist: Sequence[RigParams], dt_s: float) -> None:
     """Raise SimulationDiverged where a run's states (n, 5, nbatch) are not all finite, with what
     to change for the first such run (``reference.diverged_advice``)."""
-    if not np.all(np.isfinite(states)):
-        bad = int(np.flatnonzero(~np.isfinite(states).all(axis=(0, 1)))[0])
+    if (bad := first_nonfinite_run(states, run_axis=2)) is not None:
         advice = diverged_advice(plist[bad], dt_s)
         raise SimulationDiverged(f"fast planar solver diverged (non-finite values); {advice}")
 
