@@ -183,7 +183,10 @@ def argument(parse: Callable[[str], T], name: str) -> Callable[[str], T]:
 
 def assignment(text: str) -> tuple[str, float]:
     """NAME=VALUE with a finite number in the range of NAME (a rig parameter's, ``RigParams``, or
-    an input's, ``pendsim_mj.rig.checks.INPUT_RANGES``); an unknown NAME is left to the command."""
+    an input's, ``pendsim_mj.rig.checks.INPUT_RANGES``); an unknown NAME is left to the command,
+    whatever its value (NaN where it is not a number: every command refuses an unknown name
+    before it reads a value, and says the option it may be: --set engine=fast, "this command's
+    --engine")."""
     name, sep, value = text.partition("=")
     if not sep:
         raise argparse.ArgumentTypeError(f"expected NAME=VALUE, got {text!r}")
@@ -191,11 +194,8 @@ def assignment(text: str) -> tuple[str, float]:
     try:
         number = finite_float(value)
     except argparse.ArgumentTypeError as exc:
-        if name not in INPUT_RANGES and name not in PARAMETER_LIMITS:  # e.g. --set engine=fast: a run setting
-            raise argparse.ArgumentTypeError(
-                f"{name}={value.strip()}: not a number; --set takes a rig parameter's value in SI units (names: "
-                "'pendsim info'), and a run setting is an option of its own (see --help)"
-            ) from None
+        if name not in INPUT_RANGES and name not in PARAMETER_LIMITS:
+            return name, math.nan
         raise argparse.ArgumentTypeError(f"{name}: {exc}") from None
     try:
         check_input(name, number)
@@ -475,7 +475,13 @@ def explained(message: str, args: argparse.Namespace | None, command: argparse.A
         names = [e.strip() for e in entries if e.strip() and "did you mean" not in e]  # a misspelling: its own hint
         flags = [f"--{name.replace('_', '-')}" for name in dict.fromkeys(names)]
         found = [flag for flag in flags if flag in command._option_string_actions]
-        return f"{head} (this command's {', '.join(found)}, not a rig parameter){sep}{rest}" if found else message
+        if found:
+            return f"{head} (this command's {', '.join(found)}, not a rig parameter){sep}{rest}"
+        inputs = [name for name in names if name in INPUT_RANGES]
+        if inputs and "--vary" in command._option_string_actions and "unknown parameter" in head:
+            what = "a sweep's input" + ("s" if len(inputs) > 1 else "")
+            return f"{head} ({what}, not a rig parameter: --set or --vary){sep}{rest}"
+        return message
     sources: dict[str, str] = getattr(args, "parameter_sources", {})
     named = [name for name in sources if re.search(rf"\b{re.escape(name)}\b", message)]
     if not named:

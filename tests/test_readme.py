@@ -44,7 +44,7 @@ def test_the_commands_most_people_need_run_as_shown(tmp_path, monkeypatch, capsy
         assert main(words[1:]) == 0, words
         text = capsys.readouterr().out
         if words[1] == "validate":
-            assert "no hold before the release (the recording starts in motion or at its release)" in text
+            assert "no hold before the release: the recording starts at its release (at rest within 0.1" in text
             assert "covered: m1 100.0 %" in text
     report = json.loads((tmp_path / "run_validation" / "report.json").read_text())
     assert report["release"]["kind"] == "in motion" and report["release"]["time_s"] == 0.0

@@ -166,8 +166,8 @@ def _rig_line(path: Path, plan: SweepPlan) -> str:
     base = dict(plan.base)
     taken = [name for name, value in given.items() if base.get(name) == float(value)]
     others = [name for name in given if name not in taken]
-    line = f"rig: {path}: {', '.join(taken) or 'nothing'}"
-    return line + (f" (not {', '.join(others)}: the sweep's own values or axes)" if others else "")
+    line = f"rig: from {path}: {', '.join(taken) or 'nothing'}"
+    return line + (f"; not taken: {', '.join(others)} (the sweep varies or sets it itself)" if others else "")
 
 
 def _plan(args: argparse.Namespace) -> SweepPlan:

@@ -207,29 +207,34 @@ def spec_from(args: argparse.Namespace) -> TwinSpec:
 
 
 def run(args: argparse.Namespace) -> int:
+    import time
+
+    from ..acquire.receiver import StatusLine
     from ..acquire.twin.summary import summary_text
 
     spec = spec_from(args)
     views_for = _views_for(args, spec.params)
-    if args.replay is not None:
-        from ..acquire.twin.replay import replay
+    # live and replayed alike: events and alarms as they come, and the status line, on stderr (in place
+    # on a terminal, every 10 s otherwise); the summary on stdout
+    line, started = StatusLine(None), time.monotonic()
+    try:
+        if args.replay is not None:
+            from ..acquire.twin.replay import replay
 
-        speed = 1.0 if args.speed is None else args.speed
-        result = replay(spec, args.replay, output=args.output, replace=args.force, speed=speed, views_for=views_for)
-    else:
-        import time
+            speed = 1.0 if args.speed is None else args.speed
+            result = replay(
+                spec, args.replay, output=args.output, replace=args.force, speed=speed, views_for=views_for,
+                say=line.say, status=lambda text: line.show(text, time.monotonic() - started),
+            )  # fmt: skip
+        else:
+            from ..acquire.twin.live import run_twin_live
 
-        from ..acquire.receiver import StatusLine
-        from ..acquire.twin.live import run_twin_live
-
-        line, started = StatusLine(None), time.monotonic()  # in place on a terminal, every 10 s otherwise
-        try:
             result = run_twin_live(
                 spec, output=args.output, replace=args.force, nodes=nodes_from(args), bind=args.bind,
                 stream=stream_from(args), rate_hz=args.rate_hz, duration_s=args.duration_s, views_for=views_for,
                 say=line.say, status=lambda text: line.show(text, time.monotonic() - started),
             )  # fmt: skip
-        finally:
-            line.end()
+    finally:
+        line.end()
     print(summary_text(result))
     return 0

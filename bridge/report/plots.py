@@ -130,7 +130,8 @@ def validation_figures(report, directory: str | Path) -> list[Path]:
             assert m_lines.difference is not None and r_lines.difference is not None
             label = "MuJoCo, estimated start"
             low.plot(*m_lines.difference, color="tab:orange", linewidth=0.8, label=label)
-            low.plot(*r_lines.difference, color="tab:blue", linewidth=0.6, linestyle=":", label="planar reference")
+            label = "planar reference, estimated start"
+            low.plot(*r_lines.difference, color="tab:blue", linewidth=0.6, linestyle=":", label=label)
             low.axhline(0.0, color="black", linewidth=0.6)
             low.set_ylabel(f"computed - measured ({q.unit})", fontsize=8)
             low.grid(True, alpha=0.3)

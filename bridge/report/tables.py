@@ -11,11 +11,13 @@ from pendsim_mj.units import seconds
 
 from ..io.mcap.reader import McapContents
 from ..io.recording_layout import UNIX_2000_S, utc_iso
-from .validation_report import Identification
+from .validation_report import Identification, start_words
 
 
-def run_summary(summary: RunSummary, engine: str) -> str:
-    """``pendsim simulate``: frequencies, amplitudes and the energy balance."""
+def run_summary(summary: RunSummary, engine: str, *, soft_friction: bool = False) -> str:
+    """``pendsim simulate``: frequencies, amplitudes and the energy balance (``soft_friction``:
+    MuJoCo's dry friction, a soft constraint, which the dissipation's ideal law counts only
+    nearly: its part of the residual is named)."""
     s = summary
     lines = [
         f"engine {engine}, {s.duration_s:g} s at dt = {s.dt_s:g} s ({s.samples} samples)",
@@ -35,7 +37,10 @@ def run_summary(summary: RunSummary, engine: str) -> str:
     )
     if s.input_work_j:
         lines.append(f"work done by the drive {s.input_work_j:.6g} J")
-    lines.append(f"energy balance residual {s.balance_residual_j:.3g} J (integration error; large means reduce --dt-s)")
+    what = "integration error" + (
+        ", and MuJoCo's soft dry friction against the ideal law the dissipation counts" if soft_friction else ""
+    )
+    lines.append(f"energy balance residual {s.balance_residual_j:.3g} J ({what}; large means reduce --dt-s)")
     return "\n".join(lines)
 
 
@@ -72,13 +77,8 @@ def contents_table(contents: McapContents) -> str:
 
 def identification_table(path: str | Path, result: Identification) -> str:
     """``pendsim identify``: the release, the log decrement and the least-squares fit."""
-    phi1, phi2 = (math.degrees(a) for a in result.release_angle_rad)
-    start = "release" if result.start_kind == "release" else f"start ({result.start_kind})"
-    rates = ""
-    if result.start_kind != "release":
-        w1, w2 = (math.degrees(w) for w in result.release_rate_rad_s)
-        rates = f" at {w1:.2f} deg/s, {w2:.2f} deg/s"
-    lines = [f"{path}: {start} at {result.release_time_s:.3f} s, from {phi1:.2f} deg, {phi2:.2f} deg{rates}"]
+    how, state = start_words(result.start_kind, result.release_angle_rad, result.release_rate_rad_s)
+    lines = [f"{path}: {how}, at {result.release_time_s:.3f} s; from {state}"]
     if result.driven:
         lines.append(
             "driven recording: log and per-mode decrement skipped (they assume a free decay); "

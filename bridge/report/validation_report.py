@@ -10,6 +10,7 @@ import dataclasses
 import functools
 import json
 import math
+from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -232,25 +233,38 @@ def report_json(report: ValidationReport) -> dict[str, Any]:
     }
 
 
-def start_line(path: str | Path, run: MeasuredRun) -> str:
-    """Where the run starts, how, and from what state; one line."""
-    s = run.start
-    phi1, phi2 = (math.degrees(a) for a in s.phi_rad)
+def start_words(kind: str, phi_rad: Sequence[float], omega_rad_s: Sequence[float]) -> tuple[str, str]:
+    """How a run starts ("release" found after a hold, "in motion" at the first samples, "given"),
+    in words, and the state it starts from, each value named: what validate and identify say.
+    A start "in motion" slower than ``AT_REST_RAD_S`` on both hinges is a release at the
+    recording's start (``pendsim record``'s default: no hold)."""
+    at_rest = max(abs(w) for w in omega_rad_s) < AT_REST_RAD_S
     how = {
         "release": "release from rest found",
         "in motion": (
-            "no hold before the release (the recording starts in motion or at its release); "
-            "the model starts from the state at its first samples"
+            "no hold before the release: the recording starts at its release (at rest within "
+            f"{AT_REST_RAD_S:g} rad/s); the model starts from its first samples"
+            if at_rest
+            else "no hold before the release: the recording starts in motion; the model starts from its first samples"
         ),
         "given": "start given",
-    }[s.kind]
-    rates = ""
-    if s.kind != "release":
-        rates = f", {math.degrees(s.omega_rad_s[0]):.2f} deg/s, {math.degrees(s.omega_rad_s[1]):.2f} deg/s"
+    }[kind]
+
+    def deg(value: float) -> str:
+        return f"{round(math.degrees(value), 2) + 0.0:.2f}"  # no "-0.00"
+
+    state = f"phi1 {deg(phi_rad[0])} deg, phi2 {deg(phi_rad[1])} deg"
+    if kind != "release":
+        state += f", omega1 {deg(omega_rad_s[0])} deg/s, omega2 {deg(omega_rad_s[1])} deg/s"
+    return how, state
+
+
+def start_line(path: str | Path, run: MeasuredRun) -> str:
+    """Where the run starts, how, and from what state; one line."""
+    s = run.start
+    how, state = start_words(s.kind, s.phi_rad, s.omega_rad_s)
     note = f"; {s.fit_note()}" if s.poor_fit else ""
-    return (
-        f"{path}: {how} at {s.time_s:.3f} s on the recording's clock; from {phi1:.2f} deg, {phi2:.2f} deg{rates}{note}"
-    )
+    return f"{path}: {how}, at {s.time_s:.3f} s on the recording's clock; from {state}{note}"
 
 
 def _before(count: int) -> str:

@@ -711,9 +711,10 @@ def describe(summary: SweepSummary, plan: SweepPlan, *, top: int = 12) -> str:
     first = names.index("diverged")
     inputs = [c for c in names[1:first] if c not in ("varied", "relative_change")]
     features = names[first + 1 :]
+    where = "in this process, serially" if summary.backend == "serial" else f"on {summary.backend}"
     lines = [
         f"sweep of {summary.ncases} cases ({plan.method}, {plan.engine} engine, {plan.duration_s:g} s at "
-        f"{plan.dt_s:g} s) on {summary.backend}: computed {summary.computed} in {summary.elapsed_s:.1f} s"
+        f"{plan.dt_s:g} s) {where}: computed {summary.computed} in {summary.elapsed_s:.1f} s"
         + (f", {summary.resumed} already done" if summary.resumed else "")
         + f", {summary.diverged} diverged",
         f"results: {summary.results} ({nrows} rows, {len(names)} columns: case_id, "

@@ -402,6 +402,8 @@ class SweepPlan:
             base = data["base"]
             if not isinstance(base, Mapping):
                 raise ParameterError("base must be a table of NAME = value")
+            for k in base:  # a name first: an option's text there (engine = "fast") is not a number's fault
+                _check_input(str(k), "base")
             kw["base"] = tuple((str(k), _check_number(v, f"base {k}")) for k, v in base.items())
         if "vary" in data:
             vary = data["vary"]

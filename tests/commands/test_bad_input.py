@@ -280,6 +280,10 @@ def test_a_run_option_given_as_a_parameter_is_named(workspace, capsys):
     assert "start.json: unknown parameter(s) phi1_deg (this command's --phi1-deg, not a rig parameter)" in (
         capsys.readouterr().err
     )
+    assert main(["sweep", "--vary", "c1_n_m=5,6", "--params-file", "start.json", "-o", "never"]) == 2
+    assert "start.json: unknown parameter(s) phi1_deg (a sweep's input, not a rig parameter: --set or --vary)" in (
+        capsys.readouterr().err
+    )
     assert main(["sweep", "--vary", "c1_n_m=5,6", "--set", "dt_s=0.001", "-o", "never"]) == 2
     assert "unknown input 'dt_s' (this command's --dt-s, not a rig parameter)" in capsys.readouterr().err
     # a name without its unit, or in capitals: its likely spelling, not an option (--b1 sets b1_n_m_s)
@@ -288,10 +292,13 @@ def test_a_run_option_given_as_a_parameter_is_named(workspace, capsys):
         err = capsys.readouterr().err
         assert f"unknown parameter(s) {given} (did you mean {meant!r}?); allowed:" in err, err
     assert not Path("never").exists()
-    assert main(["simulate", "--set", "engine=fast"]) == 2  # a run setting's value is not a number
-    err = capsys.readouterr().err
-    assert err.count("\n") == 1 and "engine=fast: not a number; --set takes a rig parameter's value" in err
-    assert "a run setting is an option of its own (see --help)" in err
+    for value in ("fast", "1"):  # a run setting given as a parameter, whatever its value
+        assert main(["simulate", "--set", f"engine={value}"]) == 2
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and "unknown parameter(s) engine (this command's --engine, not a rig" in err
+        assert main(["sweep", "--vary", "c1_n_m=5,6", "--set", f"engine={value}", "-o", "never"]) == 2
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and "unknown input 'engine' (this command's --engine, not a rig" in err
 
 
 def test_a_file_name_with_a_newline_keeps_the_error_on_one_line(workspace, capsys):

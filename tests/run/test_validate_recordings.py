@@ -48,7 +48,7 @@ def test_a_hold_with_hand_wobble_and_a_replay_cut_6_s_after_the_release_validate
     )
     report, text = _validate(path, capsys, "--no-plots")
     assert report["release"]["kind"] == "release" and report["release"]["time_s"] == pytest.approx(2.0, abs=0.005)
-    assert "release from rest found at" in text
+    assert "release from rest found, at" in text
     _assert_validates(report)
     cut = tmp_path / "cut.mcap"
     assert main(["replay", str(path), "--start", "8", "-o", str(cut)]) == 0
@@ -81,7 +81,7 @@ def test_a_start_mid_swing_validates_from_the_state_at_the_first_samples(tmp_pat
 def test_identify_and_view_take_a_recording_without_a_hold_and_a_given_release(tmp_path, capsys):
     path = _record(tmp_path / "short.mcap", "--duration-s", "10", "--hold-s", "1")
     assert main(["identify", str(path), "--release-s", "1.0"]) == 0
-    assert "start (given) at 1.000 s" in capsys.readouterr().out
+    assert "start given, at 1.000 s" in capsys.readouterr().out
     assert main(["view", str(path), "--save", str(tmp_path / "short.rrd"), "--max-gap-s", "0.05"]) == 0
     assert (tmp_path / "short.rrd").stat().st_size > 0
 

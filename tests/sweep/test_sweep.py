@@ -514,7 +514,7 @@ def test_the_sensitivity_of_the_phi1_frequency_at_30_deg_runs_from_one_command_a
     assert ranking[0]["parameter"] == "j1_kg_m2" and -0.55 < ranking[0]["elasticity"] < -0.45
     assert {r["parameter"] for r in ranking[1:4]} == {"m1_kg", "oc1_m", "g_m_s2"}
     lines = text.splitlines()
-    assert lines[0].startswith("sweep of 59 cases (sensitivity, fast engine, 30 s at 0.01 s) on serial")
+    assert lines[0].startswith("sweep of 59 cases (sensitivity, fast engine, 30 s at 0.01 s) in this process, serially")
     assert (
         "sensitivity of freq1_hz" in text
         and lines[lines.index(next(x for x in lines if x.startswith("sensitivity of"))) + 1].split()[0] == "j1_kg_m2"

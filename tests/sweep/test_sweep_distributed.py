@@ -111,7 +111,7 @@ FEWER = max(1, CORES - 1)
 def test_pendsim_sweep_on_local_workers_gives_the_serial_rows_and_leaves_no_process(tmp_path, capsys):
     # the MuJoCo engine: 400 cases in 16 tasks on worker processes, the rows of a serial run
     assert main(_sweep_args("mujoco", tmp_path / "serial")) == 0
-    assert "on serial: computed 400" in capsys.readouterr().out
+    assert "in this process, serially: computed 400" in capsys.readouterr().out
     before = _children()
     assert main(_sweep_args("mujoco", tmp_path / "local", "--workers", str(FEWER))) == 0
     assert f"on LocalCluster ({FEWER} worker{'s' if FEWER > 1 else ''}): computed 400" in capsys.readouterr().out

@@ -46,7 +46,9 @@ def test_a_sweep_definition_file_takes_a_parameter_file_too(tmp_path, capsys):
     out = tmp_path / "out"
     assert main(["sweep", str(definition), "--params-file", str(tmp_path / "rig.json"), "-o", str(out)]) == 0
     said = capsys.readouterr().out.splitlines()[-1]  # what of the file the sweep ran on
-    assert said == f"rig: {tmp_path / 'rig.json'}: b1_n_m_s, m1_kg (not c1_n_m: the sweep's own values or axes)"
+    rig = tmp_path / "rig.json"
+    taken = "b1_n_m_s, m1_kg; not taken: c1_n_m (the sweep varies or sets it itself)"
+    assert said == f"rig: from {rig}: {taken}"
     assert json.loads((out / "sweep.json").read_text())["plan"]["base"] == {"b1_n_m_s": 0.0009, "m1_kg": 0.215}
     (tmp_path / "bad.json").write_text('{"c1_nm": 6.5}')
     capsys.readouterr()
