@@ -186,6 +186,9 @@ class Alarm:
         went on (``still_changing``): on the alarmed parameter, or, where that alarm left the law
         open, on whichever of the hinge's two moved on; ``followed_value`` its value at that alarm,
         ``value`` where it has got to now (None on a first alarm).
+      per_spring_m2: for the coupling springs' moment constant K_s = 2 c1 l01 l04 (what the model
+        tracks), K_s per unit of c1 at the rig's anchors (2 l01 l04, m^2), so that the alarm also
+        gives the springs' stiffness c1_n_m, as the rig's parameters and the emulator's faults say it.
     """
 
     parameter: str
@@ -202,6 +205,7 @@ class Alarm:
     followed_value: float | None = None
     open_value: float | None = None
     from_start: bool = False
+    per_spring_m2: float | None = None
 
     @property
     def still_changing(self) -> bool:
@@ -233,6 +237,9 @@ class Alarm:
         )
         if unit == "rad":  # a node's turn, in degrees too
             relative = f" (turned {math.degrees(self.change):+.2f} deg)"
+        if self.per_spring_m2:  # the coupling springs: their stiffness c1 too
+            k = self.per_spring_m2
+            relative += f"; the springs' c1_n_m {self.reference / k:.4g} -> {self.value / k:.4g} N/m"
         line = (
             f"{self.what}: {self.parameter} {self.reference:.4g} -> {self.value:.4g} {unit} "
             f"(+- {2 * self.sigma:.2g}, 2 sigma, at the alarm under this hypothesis){relative}; changing since "
@@ -457,6 +464,9 @@ class HealthMonitor:
         if stated and alarm.follows_s is None:  # against the rig as stated (not the run's own, a node's)
             seen = self._calm_sigma.get(alarm.parameter, math.inf)
             alarm = dataclasses.replace(alarm, from_start=abs(alarm.change) < FROM_START_SIGMAS * seen)
+        if alarm.parameter == "coupling_sin_n_m":
+            p = self.estimator.params
+            alarm = dataclasses.replace(alarm, per_spring_m2=2.0 * p.l01_m * p.l04_m)
         self.alarmed[alarm.parameter] = alarm
         i = self.estimator.track.index(alarm.parameter)
         if alarm.parameter in WALK_PER_SQRT_S:  # followed as closely as a change under way needs: a

@@ -7,6 +7,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
+import re
 
 import numpy as np
 import pytest
@@ -266,6 +267,10 @@ def test_a_rig_calibrated_from_a_recording_is_given_to_replay_it(stiffer, tmp_pa
     (alarm,) = json.loads(result["alarms"])
     assert rig.c1_n_m == 6.173 and alarm["parameter"] == "coupling_sin_n_m" and alarm["from_start"]
     assert alarm["value"] / alarm["reference"] - 1 == pytest.approx(0.06, abs=0.01)
+    # ... and in the springs' own stiffness, as the rig's parameters give it (the rig's: 6.543 N/m)
+    springs = re.search(r"the springs' c1_n_m ([0-9.]+) -> ([0-9.]+) N/m", alarm["text"])
+    assert springs is not None, alarm["text"]
+    assert float(springs[1]) == pytest.approx(6.173, rel=1e-3) and float(springs[2]) == pytest.approx(6.543, rel=0.01)
     assert "it may have been so from the start" in alarm["text"] and "'pendsim calibrate'" in alarm["text"]
     assert main(["calibrate", str(stiffer), "-o", str(tmp_path / "cal")]) == 0
     calibrated = json.loads((tmp_path / "cal" / "params.json").read_text())
