@@ -39,8 +39,8 @@ def run(args: argparse.Namespace) -> int:
     drive = options.drive_from(args)
     traj = engines.run(args.engine, params, phi0, omega0, args.duration_s, args.dt_s, drive=drive)
     summary = summarize(traj)
-    dry = args.engine == "mujoco" and (params.friction1_n_m > 0 or params.friction2_n_m > 0)
-    print(run_summary(summary, args.engine, soft_friction=dry))
+    dry = params.friction1_n_m > 0 or params.friction2_n_m > 0
+    print(run_summary(summary, args.engine, dry_friction=dry))
     options.print_warnings([w for w in (summary.unresolved_warning(),) if w is not None])
     if args.rerun is not None:
         from ..report.rerun_view import view_trajectory  # start-up: Rerun, only with --rerun

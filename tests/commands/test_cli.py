@@ -25,6 +25,7 @@ def test_simulate_on_defaults_prints_frequencies_amplitudes_and_energy(capsys):
     assert 28.5 < start_deg < 30.0
     assert "energy lost" in out and "dissipated by the hinges (damping, friction)" in out
     assert "(integration error; large means reduce --dt-s)" in out  # no dry friction: the step's error alone
+    assert "dry friction:" not in out
 
 
 def test_a_mujoco_run_with_dry_friction_names_its_soft_constraint_in_the_balance(capsys):
@@ -32,8 +33,13 @@ def test_a_mujoco_run_with_dry_friction_names_its_soft_constraint_in_the_balance
     # (7e-5 J of the 0.107 J lost here; the fast engine's smooth law closes it to 2e-7 J)
     for engine in ("mujoco", "fast"):
         assert main(["simulate", "--duration-s", "20", "--set", "friction1_n_m=0.01", "--engine", engine]) == 0
-        balance = next(line for line in capsys.readouterr().out.splitlines() if line.startswith("energy balance"))
+        out = capsys.readouterr().out
+        balance = next(line for line in out.splitlines() if line.startswith("energy balance"))
         assert ("MuJoCo's soft dry friction" in balance) == (engine == "mujoco"), balance
+        assert (
+            "dry friction: MuJoCo's soft constraint holds a pendulum off-centre" in out
+            and f"(this run: {engine};" in out
+        )
         residual = abs(float(balance.split()[3]))
         assert residual < (1e-3 if engine == "mujoco" else 1e-5) * 0.107, balance
 
