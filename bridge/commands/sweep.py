@@ -166,7 +166,9 @@ def _rig_line(path: Path, plan: SweepPlan) -> str:
     base = dict(plan.base)
     taken = [name for name, value in given.items() if base.get(name) == float(value)]
     others = [name for name in given if name not in taken]
-    line = f"rig: from {path}: {', '.join(taken) or 'nothing'}"
+    from ..run.sweep import shorten
+
+    line = f"rig: from {path}: {shorten(taken, keep=6) if taken else 'nothing'}"
     return line + (f"; not taken: {', '.join(others)} (the sweep varies or sets it itself)" if others else "")
 
 

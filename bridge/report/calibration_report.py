@@ -143,7 +143,7 @@ def write_outputs(report: CalibrationReport, out_dir: str | Path, *, replace: bo
     together (``atomic_directory``). Returns the paths written."""
     out = Path(out_dir)
     with atomic_directory(out, replace=replace) as tmp:
-        (tmp / "params.json").write_text(json.dumps(report.calibration.overrides(), indent=1) + "\n")
+        (tmp / "params.json").write_text(json.dumps(report.calibration.parameter_file(), indent=1) + "\n")
         (tmp / "calibration.json").write_text(json.dumps(report_json(report), indent=1) + "\n")
         (tmp / "calibration.md").write_text(report_text(report))
         figure(report, tmp / "calibration.png")

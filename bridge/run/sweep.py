@@ -699,7 +699,8 @@ def read_results(path: str | Path) -> tuple[pa.Table, dict[str, Any]]:
     return table, json.loads(meta)
 
 
-def _shorten(names: list[str], keep: int = 4) -> str:
+def shorten(names: list[str], keep: int = 4) -> str:
+    """The names joined, at most ``keep`` of them and then how many more."""
     return ", ".join(names) if len(names) <= keep else ", ".join(names[:keep]) + f", ... {len(names) - keep} more"
 
 
@@ -718,7 +719,7 @@ def describe(summary: SweepSummary, plan: SweepPlan, *, top: int = 12) -> str:
         + (f", {summary.resumed} already done" if summary.resumed else "")
         + f", {summary.diverged} diverged",
         f"results: {summary.results} ({nrows} rows, {len(names)} columns: case_id, "
-        f"{len(inputs)} input{'s' if len(inputs) != 1 else ''} ({_shorten(inputs)}), diverged, {', '.join(features)})",
+        f"{len(inputs)} input{'s' if len(inputs) != 1 else ''} ({shorten(inputs)}), diverged, {', '.join(features)})",
     ]
     if summary.unresolved:
         lines.append(

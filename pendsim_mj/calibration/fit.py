@@ -222,6 +222,14 @@ class Calibration:
             out["plane_offset_m"] = values["plane_offset_m"]
         return out
 
+    def parameter_file(self) -> dict[str, float]:
+        """Every parameter of the calibrated rig (the free ones as calibrated, the others as the
+        stated rig held them): what ``params.json`` holds, so that the file stands on its own. A
+        command puts a parameter file on top of its own base (validate and a replay: the rig a
+        recording states), and the free values alone, on a recording that states another rig than
+        the one they were calibrated on, counted that difference twice."""
+        return self.params.as_dict()
+
     def quantity(self, name: str) -> Determination:
         for q in self.quantities:
             if q.name == name:

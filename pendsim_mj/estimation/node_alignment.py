@@ -183,7 +183,7 @@ def detect_start(nodes: Sequence[AlignedNode]) -> tuple[StartKind, float]:
     if max(top) < MIN_MOTION_RAD_S:
         raise RecordingError(
             f"no motion found: both gyros stay below {MIN_MOTION_RAD_S} rad/s (99th percentile "
-            f"{max(top):.3g} rad/s); a static recording has no swing to validate"
+            f"{max(top):.3g} rad/s); a static recording has no swing to fit or compare (its noise: 'pendsim allan')"
         )
     # The pendulum that swings most was let go: its motion marks the start (a held one's wobble
     # could otherwise be taken for it).

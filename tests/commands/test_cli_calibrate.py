@@ -45,6 +45,7 @@ def test_calibrate_closes_the_gap_the_papers_parameters_leave(recording, tmp_pat
         "params.json",
     ]
     params = json.loads((out / "params.json").read_text())
+    assert set(params) == set(PAPER.as_dict())  # every parameter: the file stands on its own
     # the recording carries its own rig; the paper's values on top make it the paper's rig again
     assert main(["identify", str(rec), "--params-file", str(paper)]) == 1
     err = capsys.readouterr().err.strip().splitlines()
@@ -62,6 +63,24 @@ def test_calibrate_closes_the_gap_the_papers_parameters_leave(recording, tmp_pat
         true = PAPER.as_dict()[f"b{n}_n_m_s"] / j_true
         got = b[f"b{n}_n_m_s"] / params.get(f"j{n}_kg_m2", PAPER.as_dict()[f"j{n}_kg_m2"])
         assert got == pytest.approx(true, rel=0.02)
+
+
+def test_the_parameter_file_validates_a_recording_that_states_a_held_parameter_of_its_own(tmp_path, capsys):
+    # A recording that states a rig whose mass is not the paper's: calibrate starts from the
+    # paper's rig and holds m1_kg there; validate puts the file on top of the rig the recording
+    # states. The free values alone left m1_kg at the recording's 0.22 under values calibrated
+    # for 0.2112 (a new user's run: phi1 0.476 rad off, "508 gyro noise sigmas", exit 1).
+    rec = tmp_path / "rig.mcap"
+    assert main(["record", "-o", str(rec), "--set", "m1_kg=0.22", "--set", "c1_n_m=6.5", "--duration-s", "40"]) == 0
+    assert main(["calibrate", str(rec), "-o", str(tmp_path / "cal"), "--no-checks"]) == 0
+    params = json.loads((tmp_path / "cal" / "params.json").read_text())
+    assert params["m1_kg"] == PAPER.m1_kg  # held at the stated (paper's) rig, and said so in the file
+    capsys.readouterr()
+    out = tmp_path / "v"
+    file = str(tmp_path / "cal" / "params.json")
+    assert main(["validate", str(rec), "--params-file", file, "--no-plots", "-o", str(out)]) == 0
+    whole = next(c for c in json.loads((out / "report.json").read_text())["cases"] if c["window"] == "whole")
+    assert whole["metrics"]["phi1"]["max_abs"] < 0.02, whole["metrics"]["phi1"]
 
 
 def test_the_commands_parameter_list_is_the_librarys():
