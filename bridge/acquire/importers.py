@@ -41,7 +41,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from pendsim_mj import __version__
-from pendsim_mj.errors import ParameterError, RecordingError
+from pendsim_mj.errors import ParameterError, RecordingError, did_you_mean
 from pendsim_mj.estimation.timing import nominal_rate_hz
 from pendsim_mj.rig.params import DEFAULT_PARAMS, RigParams
 from pendsim_mj.sensors.bno055 import ACCEL_LSB_M_S2
@@ -144,6 +144,11 @@ def format_of(path: Path, given: str | None) -> str:
 # -- the column map ---------------------------------------------------------------------------
 
 _NAME = re.compile(r"^(?:(m[12])\.)?([a-z_]+)$")
+KNOWN_COLUMNS = (
+    *TIME_COLUMNS,
+    *(f"m{n}.{name}" for n in (1, 2) for name in COLUMN_NAMES if name not in (*TIME_COLUMNS, "seq", "node", "_")),
+)
+"""Every column name a table may carry (a misspelt one is told its likely spelling)."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -172,7 +177,8 @@ def map_columns(names: tuple[str, ...], columns: tuple[str, ...] | None, node: s
         prefix, name = (m.group(1), m.group(2)) if m else (None, entry)
         if m is None or name not in COLUMN_NAMES or name in ("seq", "node", "_"):
             hint = "" if columns is not None else "; give --columns (one name per column, _ to skip)"
-            raise ParameterError(f"column {i + 1} {entry!r} is not a pendsim name (t_s, m1.gx, ...){hint}")
+            spelt = did_you_mean(entry, KNOWN_COLUMNS)
+            raise ParameterError(f"column {i + 1} {entry!r} is not a pendsim name{spelt} (t_s, m1.gx, ...){hint}")
         owner = prefix or node
         if name in TIME_COLUMNS:
             if owner is None:
@@ -403,7 +409,11 @@ def import_file(
     source, output = Path(source), Path(output)
     fmt = format_of(source, spec.format)
     table = READERS[fmt](source)
-    mapped = map_columns(table.names, spec.columns, spec.node)
+    try:
+        mapped = map_columns(table.names, spec.columns, spec.node)
+    except ParameterError as exc:  # the file's own header (or --columns against it): name the file
+        where = "" if spec.columns is None else " (--columns)"
+        raise ParameterError(f"{source}{where}: {exc}") from None
     per_node = {c.node: node_samples(source, table, c, spec.units, spec.rate_hz) for c in mapped}
     t0 = min(float(t[0]) for t, _, _ in per_node.values())
     timings = {node: how for node, (_, _, how) in per_node.items()}

@@ -197,7 +197,9 @@ def groups_of(names: tuple[str, ...] | list[str]) -> tuple[str, ...]:
             found.append(group)
         elif have:
             missing = [m for m in members if m not in present]
-            raise ParameterError(f"the map has {', '.join(have)} but not {', '.join(missing)}")
+            raise ParameterError(
+                f"the columns have {', '.join(have)} but not {', '.join(missing)} (a quantity needs all of its columns)"
+            )
     return tuple(found)
 
 

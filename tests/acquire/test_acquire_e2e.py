@@ -266,7 +266,7 @@ def _error(capsys) -> str:
         (["--node", "m1=70000"], "port of m1 must be in [1, 65535]"),
         (["--node", "m1=5601", "--node", "m1=5602"], "node m1 given twice"),
         (["--node", "m1=5601", "--node", "m2=5601"], "port 5601 given twice"),
-        (["--format", "csv", "--columns", "t_ms,gx,gy"], "the map has gx, gy but not gz"),
+        (["--format", "csv", "--columns", "t_ms,gx,gy"], "the columns have gx, gy but not gz"),
         (["--format", "csv", "--columns", "gx,gy,gz"], "needs exactly one time column"),
         (["--format", "csv", "--units", "gyro=rpm"], "unknown gyro unit 'rpm'"),
         (["--format", "json", "--fields", "t_us=time,gx"], "expected NAME=PATH"),

@@ -226,7 +226,7 @@ def test_no_input_makes_a_decoder_raise_anything_but_packet_error():
 @pytest.mark.parametrize(
     ("text", "message"),
     [
-        ("t_ms,ax,ay", "the map has ax, ay but not az"),
+        ("t_ms,ax,ay", "the columns have ax, ay but not az"),
         ("t_ms,gx,gy,gz,t_us", "exactly one time column"),
         ("gx,gy,gz", "exactly one time column"),
         ("t_ms,gx,gy,gz,gx", "'gx' appears twice"),

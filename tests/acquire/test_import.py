@@ -156,10 +156,19 @@ def _error(capsys) -> str:
 @pytest.mark.parametrize(
     ("content", "args", "message"),
     [
-        ("t_s,m1.gx,m1.gy\n0,1,2\n", [], "the map has gx, gy but not gz"),
+        ("t_s,m1.gx,m1.gy\n0,1,2\n", [], "lab.csv: m1: the columns have gx, gy but not gz (a quantity needs all"),
+        (
+            "t_s,m1.gx,m1.gy,m1.gZ\n0,1,2,3\n",
+            [],
+            "lab.csv: column 4 'm1.gZ' is not a pendsim name (did you mean 'm1.gz'?)",
+        ),
         ("t_s,AccX\n0,1\n", [], "column 2 'AccX' is not a pendsim name (t_s, m1.gx, ...); give --columns"),
         ("t_s,gx,gy,gz\n0,1,2,3\n", [], "say which node (m1.gx or m2.gx), or give --node"),
-        ("a,b,c,d\n0,1,2,3\n", ["--columns", "t_s,m1.gx,m1.gy"], "the column map has 3 entries, the file 4 columns"),
+        (
+            "a,b,c,d\n0,1,2,3\n",
+            ["--columns", "t_s,m1.gx,m1.gy"],
+            "lab.csv (--columns): the column map has 3 entries, the file 4",
+        ),
         ("t_s,m1.gx,m1.gy,m1.gz\n0,1,2,3\n1,x,2,3\n", [], "line 3, column 2 ('m1.gx'): 'x' is not a number"),
         ("t_s,m1.gx,m1.gy,m1.gz,\n0,1,2,3,\n1,,2,3,\n2,1,2,3,\n", [], "line 3, column 2 ('m1.gx'): '' is not a number"),
         ("t_s,m1.gx,m1.gy,m1.gz\n0,1,2,3\n1,1,2\n2,1,2,3\n", [], "line 3 has 3 fields, the header 4"),
