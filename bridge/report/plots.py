@@ -50,12 +50,14 @@ def allan_plot(
         ax.loglog(curve.tau_s, curve.adev, color=colour, linewidth=1.4, label=label)
         ax.plot(curve.tau_s[0], curve.adev[0], "o", color=colour, markersize=6, markeredgecolor="black")
         parts = []
+        # each term in its unit (as the table's): N = sigma sqrt(tau), B the data's, K = sigma / sqrt(tau)
         if term.white is not None:
-            parts.append(f"N={term.white:.3g}")
+            white_unit = {"m/s^2": "m/s/sqrt(s)", "rad/s": "rad/sqrt(s)"}.get(unit, f"{unit} sqrt(s)")
+            parts.append(f"N={term.white:.3g} {white_unit}")
         if term.bias_instability is not None:
-            parts.append(f"B={term.bias_instability:.3g}")
+            parts.append(f"B={term.bias_instability:.3g} {unit}")
         if term.rate_random_walk is not None:
-            parts.append(f"K={term.rate_random_walk:.3g}")
+            parts.append(f"K={term.rate_random_walk:.3g} {unit}/sqrt(s)")
         if parts:
             ax.plot([], [], " ", label=f"  {label}: " + ", ".join(parts))
     tau0 = curves[0].tau_s[0]
