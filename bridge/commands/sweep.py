@@ -143,7 +143,8 @@ def register(sub: argparse._SubParsersAction[options.Parser]) -> None:
 def run(args: argparse.Namespace) -> int:
     from ..run.sweep import describe, run_sweep  # start-up: numba, scipy and pyarrow, when the command runs
 
-    plan = _plan(args)
+    rig = options.read_params_file(args.params_file) if args.params_file is not None else None
+    plan = _plan(args, rig)
     if args.output.exists() and not args.output.is_dir():
         raise options.UsageError(f"output {str(args.output)!r} is a file; give a folder for the sweep's results")
     summary = run_sweep(
@@ -155,28 +156,29 @@ def run(args: argparse.Namespace) -> int:
         plots=not args.no_plots,
     )
     print(describe(summary, plan))
-    if args.params_file is not None:
-        print(_rig_line(args.params_file, plan))
+    if rig is not None:
+        print(_rig_line(args.params_file, rig, plan))
     return 0
 
 
-def _rig_line(path: Path, plan: SweepPlan) -> str:
-    """What the sweep took from its --params-file (the plan on that rig: ``SweepPlan.on_rig``)."""
-    given = options.read_params_file(path)
+def _rig_line(path: Path, given: dict[str, float], plan: SweepPlan) -> str:
+    """What the sweep took from its --params-file's values ``given`` (the plan on that rig:
+    ``SweepPlan.on_rig``)."""
+    from ..run.sweep import shorten
+
     base = dict(plan.base)
     taken = [name for name, value in given.items() if base.get(name) == float(value)]
     others = [name for name in given if name not in taken]
-    from ..run.sweep import shorten
 
     line = f"rig: from {path}: {shorten(taken, keep=6) if taken else 'nothing'}"
     return line + (f"; not taken: {', '.join(others)} (the sweep varies or sets it itself)" if others else "")
 
 
-def _plan(args: argparse.Namespace) -> SweepPlan:
+def _plan(args: argparse.Namespace, rig: dict[str, float] | None) -> SweepPlan:
     """The sweep from the definition file, or from the options (never both), on the rig of
-    --params-file if given."""
+    --params-file (its values ``rig``) if given."""
     plan = _plan_of(args)
-    return plan.on_rig(options.read_params_file(args.params_file)) if args.params_file is not None else plan
+    return plan.on_rig(rig) if rig is not None else plan
 
 
 def _plan_of(args: argparse.Namespace) -> SweepPlan:

@@ -471,6 +471,7 @@ def plots(report: AllanReport, directory: str | Path, *, replace: bool = False) 
                         [a.axis for a in chosen],
                         f"{report.path.name}: {node} {name}, {duration} at {report.rate_hz:g} Hz",
                         unit,
+                        TERM_UNITS[sensor],
                         tmp / names[-1],
                     )
                 )
@@ -482,5 +483,5 @@ def plots(report: AllanReport, directory: str | Path, *, replace: bool = False) 
 def _render(job) -> Path:
     from .plots import allan_plot  # start-up: matplotlib, only when the plots are drawn
 
-    curves, terms, labels, title, unit, path = job
-    return allan_plot(curves, terms, labels, title=title, unit=unit, path=path)
+    curves, terms, labels, title, unit, term_units, path = job
+    return allan_plot(curves, terms, labels, title=title, unit=unit, term_units=term_units, path=path)

@@ -31,6 +31,7 @@ def allan_plot(
     *,
     title: str,
     unit: str,
+    term_units: tuple[str, str, str],
     path: str | Path,
 ) -> Path:
     """Log-log Allan deviation of several axes with confidence bands; tau = 1/fs marked.
@@ -39,6 +40,7 @@ def allan_plot(
       curves, terms, labels: one per axis.
       title: figure title.
       unit: the data's unit, for the y label (e.g. "m/s^2").
+      term_units: the noise terms' units (N, B, K), for the legend (``allan_report.TERM_UNITS``).
       path: output .png.
     """
     fig, ax = plt.subplots(figsize=(7.5, 5.5), dpi=110)
@@ -50,14 +52,13 @@ def allan_plot(
         ax.loglog(curve.tau_s, curve.adev, color=colour, linewidth=1.4, label=label)
         ax.plot(curve.tau_s[0], curve.adev[0], "o", color=colour, markersize=6, markeredgecolor="black")
         parts = []
-        # each term in its unit (as the table's): N = sigma sqrt(tau), B the data's, K = sigma / sqrt(tau)
+        n_unit, b_unit, k_unit = term_units
         if term.white is not None:
-            white_unit = {"m/s^2": "m/s/sqrt(s)", "rad/s": "rad/sqrt(s)"}.get(unit, f"{unit} sqrt(s)")
-            parts.append(f"N={term.white:.3g} {white_unit}")
+            parts.append(f"N={term.white:.3g} {n_unit}")
         if term.bias_instability is not None:
-            parts.append(f"B={term.bias_instability:.3g} {unit}")
+            parts.append(f"B={term.bias_instability:.3g} {b_unit}")
         if term.rate_random_walk is not None:
-            parts.append(f"K={term.rate_random_walk:.3g} {unit}/sqrt(s)")
+            parts.append(f"K={term.rate_random_walk:.3g} {k_unit}")
         if parts:
             ax.plot([], [], " ", label=f"  {label}: " + ", ".join(parts))
     tau0 = curves[0].tau_s[0]

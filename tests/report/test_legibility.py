@@ -17,7 +17,7 @@ import rerun as rr
 import pendsim_bridge.report.plots as plots
 from pendsim_bridge.cli import main
 from pendsim_bridge.report import figures, sweep_plots
-from pendsim_bridge.report.allan_report import analyse
+from pendsim_bridge.report.allan_report import TERM_UNITS, analyse
 from pendsim_bridge.report.rerun_view import PHASE_DRAW_ORDER, SERIES_STYLE
 from pendsim_bridge.run.validate import validate
 from pendsim_mj.estimation.comparison import compare_planar_spatial
@@ -79,6 +79,7 @@ def test_every_png_legend_lies_outside_the_plot_areas(recordings, validated, tmp
         [a.axis for a in node_axes],
         title="m1 gyroscope",
         unit="rad/s",
+        term_units=TERM_UNITS["gyro"],
         path=tmp_path / "allan.png",
     )
     x = np.array([[1.0, 10.0], [2.0, 20.0], [3.0, 30.0]])
