@@ -310,7 +310,7 @@ def _axis_results(
                 sigma=sigma,
                 std=std,
                 mean=mean,
-                cv_percent=sigma / abs(mean) * 100 if mean != 0 else math.nan,  # no mean: no CV
+                cv_percent=cv_percent(sigma, mean),
                 curve=curve,
                 terms=noise_terms(curve),
             )
@@ -325,6 +325,20 @@ def duration_text(duration_s: float) -> str:
     if duration_s < 2 * 3600:
         return f"{duration_s / 60:.1f} min"
     return f"{duration_s / 3600:.2f} h"
+
+
+CV_LARGEST_PERCENT = 100.0
+"""The largest CV given: above it an axis' mean is smaller than its one-sample noise (a gyro at
+rest reads its small bias, an accelerometer axis across gravity nearly 0), and sigma / |mean| is
+a ratio to what is mostly noise (thousands of percent that say nothing); such a CV is "-"."""
+
+
+def cv_percent(sigma: float, mean: float) -> float:
+    """The paper's coefficient of variation sigma / |mean| x 100 %, or NaN where the mean is
+    below the one-sample noise (``CV_LARGEST_PERCENT``)."""
+    if not abs(mean) * CV_LARGEST_PERCENT > sigma * 100.0:
+        return math.nan
+    return sigma / abs(mean) * 100.0
 
 
 def table(report: AllanReport) -> str:
@@ -363,6 +377,11 @@ def table(report: AllanReport) -> str:
             continue
         cv = f"{a.cv_percent:9.3g}" if math.isfinite(a.cv_percent) else f"{'-':>9}"
         lines.append(f"{a.node:4} {sensor:13} {a.axis:4} {a.sigma:17.5g} {a.mean:12.5g} {cv} {a.std:11.5g}  {a.unit}")
+    if any(a.provided and not math.isfinite(a.cv_percent) for a in report.axes):
+        lines.append(
+            "CV '-': the axis' mean is below its one-sample noise (a gyro at rest, an axis across gravity), "
+            "so sigma / |mean| would say nothing"
+        )
     lines.append("")
     lines.append(f"{head} {'N (white)':>12} {'B (bias inst.)':>15} {'at tau (s)':>10} {'K (rate RW)':>12}")
     for a in report.axes:

@@ -14,7 +14,7 @@ from mcap_ros2.writer import Writer as Ros2Writer
 from pendsim_bridge.cli import main
 from pendsim_bridge.io import ros2
 from pendsim_bridge.io.recording import RunInfo, read_recording, write_recording
-from pendsim_bridge.report.allan_report import duration_text
+from pendsim_bridge.report.allan_report import cv_percent, duration_text
 from pendsim_mj.allan.deviation import (
     MIN_MOTION_RAD_S,
     MOTION_MARGIN_S,
@@ -172,6 +172,12 @@ def test_allan_command_prints_the_papers_table_and_the_noise_terms(static_record
         y_row = rows[(node, "accelerometer", "y")]
         assert float(y_row[4]) == pytest.approx(DEFAULT_PARAMS.g_m_s2, abs=0.01)
         assert float(y_row[5]) == pytest.approx(100 * noise.accel_sigma_m_s2[1] / DEFAULT_PARAMS.g_m_s2, rel=0.05)
+        # a gyro at rest reads its small bias, below its noise: no CV (it would be thousands of %)
+        for axis in "xyz":
+            gyro_row = rows[(node, "gyroscope", axis)]
+            assert abs(float(gyro_row[4])) < float(gyro_row[3])
+            assert gyro_row[5] == "-"
+    assert "CV '-': the axis' mean is below its one-sample noise" in out
     assert "N (white)" in out and "B (bias inst.)" in out
 
 
@@ -190,6 +196,17 @@ def test_allan_command_writes_a_plot_per_node_and_sensor_and_json(static_recordi
     curve = gyro_x["curve"]
     assert len(curve["tau_s"]) == len(curve["adev"]) == len(curve["low"]) > 40
     assert all(lo <= a <= hi for lo, a, hi in zip(curve["low"], curve["adev"], curve["high"], strict=True))
+    assert gyro_x["cv_percent"] is None  # its mean below its noise: no ratio to it
+    accel_y = next(a for a in result["axes"] if a["node"] == "m1" and a["sensor"] == "accel" and a["axis"] == "y")
+    assert accel_y["cv_percent"] == pytest.approx(100 * accel_y["sigma"] / accel_y["mean"])
+
+
+def test_cv_is_given_only_where_the_mean_stands_above_the_noise():
+    assert cv_percent(0.01, 9.81) == pytest.approx(0.01 / 9.81 * 100)
+    assert cv_percent(0.01, -0.02) == pytest.approx(50.0)  # |mean|: a negative mean as well
+    assert cv_percent(0.01, 0.0101) == pytest.approx(0.01 / 0.0101 * 100)  # just below 100 %
+    for mean in (0.0099, 0.0, -0.001, math.nan):
+        assert math.isnan(cv_percent(0.01, mean))
 
 
 def test_a_recording_with_a_gap_is_reported_not_silently_analysed(tmp_path, capsys):
