@@ -142,12 +142,13 @@ def run(args: argparse.Namespace) -> int:
     from pendsim_mj.rig.params import RigParams
 
     from ..report.calibration_report import report_text, write_outputs  # start-up: numba, when it runs
-    from ..run.calibrate import calibrate_recordings
+    from ..run.calibrate import calibrate_recordings, stated_elsewhere
 
     fixed = _checked(args)
     out_dir = args.out_dir or args.paths[0].with_name(f"{args.paths[0].stem}_calibration")
     options.check_output_dir(out_dir, OUTPUTS, force=args.force)
-    params = RigParams().with_mapping(options.overrides_from(args))
+    overrides = options.overrides_from(args)
+    params = RigParams().with_mapping(overrides)
     report = calibrate_recordings(
         args.paths,
         params,
@@ -162,6 +163,8 @@ def run(args: argparse.Namespace) -> int:
         model=args.model,
     )
     print(report_text(report), end="")
+    for line in stated_elsewhere(args.paths, params, given=set(overrides)):  # after the input's checks
+        print(line, file=sys.stderr)
     written = write_outputs(report, out_dir, replace=args.force)
     spatial = " --model spatial" if args.model == "spatial" else ""
     use = f"pendsim validate {args.paths[0]} --params-file {out_dir / 'params.json'}{spatial}"

@@ -194,12 +194,7 @@ class Recording:
 
     def params(self) -> RigParams:
         """The rig parameters recorded in the metadata (RecordingError if they are not valid)."""
-        raw = self._metadata("pendsim/rig_parameters")
-        values = {k: _finite(self.path, "pendsim/rig_parameters", k, v) for k, v in raw.items()}
-        try:
-            return RigParams().with_mapping(values)
-        except ParameterError as exc:
-            raise RecordingError(f"{self.path}: metadata pendsim/rig_parameters: {exc}") from None
+        return stated_rig(self.path, self._metadata("pendsim/rig_parameters"))
 
     def run_info(self) -> RunInfo:
         """How the run was made (RecordingError if the metadata are not valid)."""
@@ -276,6 +271,16 @@ def _tuple(value: Any) -> Any:
     if isinstance(value, list):
         return tuple(_tuple(v) for v in value)
     return value
+
+
+def stated_rig(path: Path, raw: dict[str, str]) -> RigParams:
+    """The rig a recording states (its ``pendsim/rig_parameters`` metadata, ``raw``), on top of
+    the paper's for what it leaves out (RecordingError naming the file if a value is not valid)."""
+    values = {k: _finite(path, "pendsim/rig_parameters", k, v) for k, v in raw.items()}
+    try:
+        return RigParams().with_mapping(values)
+    except ParameterError as exc:
+        raise RecordingError(f"{path}: metadata pendsim/rig_parameters: {exc}") from None
 
 
 def _finite(path: Path, where: str, key: str, text: str | None, *, low: float = -1e300, high: float = 1e300) -> float:

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Collection, Mapping, Sequence
 from pathlib import Path
 
 import numpy as np
@@ -25,8 +25,9 @@ from pendsim_mj.estimation.alignment import DEFAULT_MAX_GAP_S
 from pendsim_mj.estimation.measured_run import MeasuredRun
 from pendsim_mj.rig.params import RigParams
 
+from ..io.mcap.reader import scan_mcap
 from ..io.measured import align_recording, node_samples, recording_drive
-from ..io.recording import DRIVE_TOPIC, NODES, imu_topic, read_recording
+from ..io.recording import DRIVE_TOPIC, NODES, imu_topic, read_recording, stated_rig
 from ..report.calibration_report import CalibrationReport, Metrics
 from .spatial_validate import RELEASE_AT_START_RAD_S, gyro_in_swing_frames, spatial_params, tilt_start_of
 from .validate import validate
@@ -327,6 +328,35 @@ def _model_error(
         else:
             lines.append(f"tested: no spatial motion in {Path(name).name} (across the hinge: {sigmas:.1f} sigmas)")
     lines.append("not tested: spring nonlinearity (the model's springs are linear, zero free length)")
+    return lines
+
+
+def stated_elsewhere(paths: Sequence[Path], start: RigParams, given: Collection[str]) -> list[str]:
+    """Lines saying which recordings state a rig other than the calibration's ``start`` (their
+    ``pendsim/rig_parameters``: what ``validate`` takes as the rig) in parameters not ``given``
+    on the command line: calibrate starts from and holds the paper's rig unless told, so that a
+    rig the recording states (the values a user gave ``acquire``, a simulated recording's own) is
+    never taken silently, nor left silently (``docs/calibration.md``)."""
+    lines = []
+    ours = start.as_dict()
+    for path in paths:
+        mcap = scan_mcap(path)
+        try:
+            raw = mcap.metadata.get("pendsim/rig_parameters")
+        finally:
+            mcap.close()
+        if raw is None:
+            continue  # another tool's recording: it states no rig
+        theirs = stated_rig(path, raw).as_dict()
+        differ = [name for name, value in theirs.items() if name not in given and value != ours[name]]
+        if differ:
+            shown = ", ".join(f"{name} {theirs[name]:.6g} (here {ours[name]:.6g})" for name in differ[:4])
+            more = f" and {len(differ) - 4} more" if len(differ) > 4 else ""
+            lines.append(
+                f"calibrate: {path} states another rig: {shown}{more}; calibrating from the paper's rig with "
+                "--params-file/--set on top (give those values with --set or --params-file to start from them "
+                "and hold them)"
+            )
     return lines
 
 

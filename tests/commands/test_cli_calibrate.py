@@ -72,10 +72,18 @@ def test_the_parameter_file_validates_a_recording_that_states_a_held_parameter_o
     # for 0.2112 (a new user's run: phi1 0.476 rad off, "508 gyro noise sigmas", exit 1).
     rec = tmp_path / "rig.mcap"
     assert main(["record", "-o", str(rec), "--set", "m1_kg=0.22", "--set", "c1_n_m=6.5", "--duration-s", "40"]) == 0
+    capsys.readouterr()
     assert main(["calibrate", str(rec), "-o", str(tmp_path / "cal"), "--no-checks"]) == 0
     params = json.loads((tmp_path / "cal" / "params.json").read_text())
     assert params["m1_kg"] == PAPER.m1_kg  # held at the stated (paper's) rig, and said so in the file
-    capsys.readouterr()
+    # ... and the recording's own rig is not left silently: named with its values and how to take them
+    said = [line for line in capsys.readouterr().err.splitlines() if "states another rig" in line]
+    assert len(said) == 1 and "m1_kg 0.22 (here 0.2" in said[0] and "c1_n_m 6.5 (here" in said[0], said
+    assert "--set or --params-file to start from them" in said[0]
+    # given on the command line, a value is the user's choice: not named again
+    assert main(["calibrate", str(rec), "-o", str(tmp_path / "cal2"), "--no-checks", "--set", "m1_kg=0.22"]) == 0
+    said = [line for line in capsys.readouterr().err.splitlines() if "states another rig" in line]
+    assert len(said) == 1 and "m1_kg" not in said[0] and "c1_n_m 6.5" in said[0], said
     out = tmp_path / "v"
     file = str(tmp_path / "cal" / "params.json")
     assert main(["validate", str(rec), "--params-file", file, "--no-plots", "-o", str(out)]) == 0
