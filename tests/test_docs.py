@@ -26,7 +26,8 @@ def _commands() -> list[tuple[str, str]]:
                         found.append((page.name, shlex.join(words[1:])))
         for span in re.findall(r"`(pendsim [^`]+)`", page.read_text()):
             if not any(mark in span for mark in ("|", "[", "...")):
-                found.append((page.name, shlex.join(shlex.split(span)[1:])))
+                command = span.split(" > ")[0]  # a redirection is the shell's
+                found.append((page.name, shlex.join(shlex.split(command)[1:])))
     return found
 
 

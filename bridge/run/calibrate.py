@@ -354,8 +354,8 @@ def stated_elsewhere(paths: Sequence[Path], start: RigParams, given: Collection[
             more = f" and {len(differ) - 4} more" if len(differ) > 4 else ""
             lines.append(
                 f"calibrate: {path} states another rig: {shown}{more}; calibrating from the paper's rig with "
-                "--params-file/--set on top (give those values with --set or --params-file to start from them "
-                "and hold them)"
+                "--params-file/--set on top (to start from the recording's and hold it: "
+                f"pendsim info {path} --json > rig.json, then --params-file rig.json)"
             )
     return lines
 

@@ -1,5 +1,6 @@
 """The pendsim command line: summaries, outputs, and one-line errors with exit code 2."""
 
+import json
 import math
 import shutil
 import subprocess
@@ -69,6 +70,49 @@ def test_info_lists_every_parameter_with_unit_and_source(capsys):
     for name, unit, source in RigParams.describe():
         line = next(line for line in out.splitlines() if line.split()[:1] == [name])
         assert unit in line and source in line
+
+
+def test_info_of_a_recording_lists_the_rig_it_states_and_its_json_is_a_parameter_file(tmp_path, capsys):
+    rec = tmp_path / "rig.mcap"
+    assert main(["record", "-o", str(rec), "--set", "c1_n_m=6.5", "--set", "m1_kg=0.22", "--duration-s", "2"]) == 0
+    capsys.readouterr()
+    assert main(["info", str(rec)]) == 0
+    out = capsys.readouterr().out
+    assert out.splitlines()[0].startswith(f"Rig parameters stated by {rec}: 2 not the paper's")
+    rows = {line.split()[0]: line for line in out.splitlines()[1:]}
+    assert set(rows) == {name for name, _, _ in RigParams.describe()}
+    assert "6.5" in rows["c1_n_m"] and f"(the paper's: {RigParams().c1_n_m:.6g})" in rows["c1_n_m"]
+    assert "(the paper's" not in rows["c2_n_m"]  # as the paper's: its own source
+    assert main(["info", str(rec), "--json"]) == 0
+    stated = json.loads(capsys.readouterr().out)
+    assert stated == RigParams().with_mapping({"c1_n_m": 6.5, "m1_kg": 0.22}).as_dict()
+    rig = tmp_path / "rig.json"
+    rig.write_text(json.dumps(stated))
+    assert main(["info", str(rig)]) == 0  # a parameter file, read as --params-file reads it
+    assert "2 not the paper's" in capsys.readouterr().out.splitlines()[0]
+
+
+def test_info_refuses_a_file_that_states_no_rig_in_one_line(tmp_path, capsys):
+    from mcap.writer import Writer
+
+    other = tmp_path / "other.mcap"  # another tool's recording: no pendsim metadata
+    with open(other, "wb") as f:
+        w = Writer(f)
+        w.start()
+        w.finish()
+    rec = tmp_path / "rig.mcap"
+    assert main(["record", "-o", str(rec), "--duration-s", "2"]) == 0
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(rec.read_bytes()[:1000])
+    bad = tmp_path / "bad.json"
+    bad.write_text('{"c1_nm": 6.5}')
+    capsys.readouterr()
+    for path, message in ((other, "states no rig"), (cut, "truncated"), (bad, "did you mean 'c1_n_m'"),
+                          (tmp_path / "none.mcap", "no such file")):  # fmt: skip
+        assert main(["info", str(path)]) == 2
+        captured = capsys.readouterr()
+        err = captured.err.strip().splitlines()
+        assert not captured.out and len(err) == 1 and err[0].startswith("pendsim: error: ") and message in err[0], err
 
 
 @pytest.mark.parametrize(

@@ -79,7 +79,7 @@ def test_the_parameter_file_validates_a_recording_that_states_a_held_parameter_o
     # ... and the recording's own rig is not left silently: named with its values and how to take them
     said = [line for line in capsys.readouterr().err.splitlines() if "states another rig" in line]
     assert len(said) == 1 and "m1_kg 0.22 (here 0.2" in said[0] and "c1_n_m 6.5 (here" in said[0], said
-    assert "--set or --params-file to start from them" in said[0]
+    assert f"pendsim info {rec} --json > rig.json, then --params-file rig.json" in said[0]
     # given on the command line, a value is the user's choice: not named again
     assert main(["calibrate", str(rec), "-o", str(tmp_path / "cal2"), "--no-checks", "--set", "m1_kg=0.22"]) == 0
     said = [line for line in capsys.readouterr().err.splitlines() if "states another rig" in line]
