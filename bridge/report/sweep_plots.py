@@ -101,7 +101,7 @@ def draw_maps(results: Path, plan: SweepPlan, table: CaseTable, directory: Path)
             shape = tuple(len(a.grid_values()) for a in plan.axes)
             written.append(_heat(path, x, values[:, j], shape, table.names, feature, title, logs, marks))
         elif len(table.names) == 2:
-            written.append(_scatter(path, x, values[:, j], table.names, feature, title, logs, marks))
+            written.append(_scatter(path, x, values[:, j], table.names, feature, title, logs, marks, diverged))
         else:
             written.append(_panels(path, x, values[:, j], table.names, feature, title, logs, marks))
     if len(table.names) == 1 and "poincare_phi2_rad" in columns:
@@ -283,6 +283,13 @@ def _two_inputs_drawn(
     return figures.save_figure(fig, path, replace=True, crop=False)
 
 
+NO_VALUE = {
+    **dict.fromkeys(("freq1_hz", "freq2_hz"), "no swing frequency (turned over, or < 1 cycle)"),
+    **dict.fromkeys(("decay1_per_s", "decay2_per_s"), "no decay (at rest)"),
+}
+"""The legend of a scatter map's cases without a value that did not diverge, by feature."""
+
+
 def _scatter(
     path: Path,
     x: NDArray[np.float64],
@@ -292,12 +299,18 @@ def _scatter(
     title: str,
     logs: tuple[bool, ...],
     marks: NDArray[np.bool_] | None = None,
+    diverged: NDArray[np.bool_] | None = None,
 ) -> Path:
     fig, ax = plt.subplots(figsize=(7.5, 5.5), dpi=110)
     ok = np.isfinite(y)
     points = ax.scatter(x[ok, 1], x[ok, 0], c=y[ok], s=12, cmap="viridis")
+    broke = ~ok & (diverged if diverged is not None else True)
+    blank = ~ok & ~broke  # a value the feature does not have (a turned-over pendulum's frequency), not a failure
+    if blank.any():
+        ax.scatter(x[blank, 1], x[blank, 0], marker=".", color="0.7", s=8, label=NO_VALUE.get(feature, "no value"))
+    if broke.any():
+        ax.scatter(x[broke, 1], x[broke, 0], marker="x", color="tab:red", s=14, label="diverged")
     if (~ok).any():
-        ax.scatter(x[~ok, 1], x[~ok, 0], marker="x", color="tab:red", s=14, label="diverged")
         ax.legend(loc="upper left", bbox_to_anchor=(1.25, 1.0), fontsize=8)
     _ring(ax, x[:, 1], x[:, 0], marks, 1.25)
     fig.colorbar(points, ax=ax, label=label(feature))

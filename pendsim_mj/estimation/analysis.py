@@ -66,6 +66,18 @@ def spectral_peak_hz(t_s: np.ndarray, x: np.ndarray, max_hz: float = np.inf, min
     return float(spectral_peak_hz_batch(t, y[None, :], max_hz, min_hz)[0])
 
 
+def swing_frequency_hz(peak_hz: np.ndarray, duration_s: float, largest_abs_rad: np.ndarray) -> np.ndarray:
+    """The dominant frequency where it is a swing's, NaN elsewhere (arrays of one shape, Hz and rad):
+    below one cycle in the run the spectrum's largest peak is a decay's or a drift's (an overdamped
+    hinge gave 4.6e-6 Hz), and a pendulum that went over the top (|phi| beyond pi at some instant)
+    turned rather than swung: its angle's spectrum is the ramp of its turns, whose peak sits just
+    above one cycle in the run (0.033-0.05 Hz on 30 s runs released near the top, a new user's sweep
+    map coloured by them) whatever it did."""
+    peak = np.asarray(peak_hz, dtype=float)
+    swung = (peak * duration_s >= 1.0) & (np.asarray(largest_abs_rad) <= math.pi)
+    return np.where(swung, peak, np.nan)
+
+
 def padded_length(n: int) -> int:
     """FFT length for n samples: the power of two at or above 8 n (zero-padded 8x: a fine
     frequency grid to interpolate peaks on)."""
@@ -447,6 +459,7 @@ class RunSummary:
       dominant_hz: (2,) spectral peak of phi1, phi2, Hz.
       start_amplitude_rad, end_amplitude_rad: (2,) first and last half-cycle amplitude of each
         angle (|phi| at the start or end where no half-cycle peak exists), rad.
+      largest_rad: (2,) largest |phi| over the run, rad (beyond pi: the pendulum went over the top).
       energy_start_j, energy_end_j: total energy above rest at the first and last instant, J.
       dissipated_j: energy dissipated by the hinges (damping and dry friction) over the run, J.
       input_work_j: work done on the pendulums by the drive over the run (``input_work_j``), J.
@@ -469,6 +482,12 @@ class RunSummary:
     energy_scale_j: float = math.nan
     driven: bool = False
     fastest_mode_hz: float = math.nan
+    largest_rad: tuple[float, float] = (0.0, 0.0)
+
+    def swing_hz(self, k: int) -> float:
+        """Pendulum k's (0, 1) swing frequency: ``dominant_hz`` where it is a swing's, else NaN
+        (``swing_frequency_hz``)."""
+        return float(swing_frequency_hz(np.array(self.dominant_hz[k]), self.duration_s, np.array(self.largest_rad[k])))
 
     @property
     def energy_lost_j(self) -> float:
@@ -518,6 +537,7 @@ def summarize(traj: Trajectory) -> RunSummary:
         energy_scale_j=params.m1_kg * params.g_m_s2 * params.oc1_m,
         driven=bool(np.any(traj.drive_input)),
         fastest_mode_hz=float(np.max(linear_modes(params).frequency_hz)),
+        largest_rad=(float(np.max(np.abs(traj.phi_rad[:, 0]))), float(np.max(np.abs(traj.phi_rad[:, 1])))),
     )
 
 

@@ -11,8 +11,10 @@ MuJoCo Trajectory) and gets the same features. Feature groups and the columns th
   for a pure sine: the window's side lobes), and ``freq1_ambiguous``, ``freq2_ambiguous`` (bool):
   that ratio is at least ``AMBIGUOUS_PEAK_RATIO``, so that which peak the frequency is can flip
   with a small change (M2 released at 0 swings in both modes about equally: 0.97 to 1). A peak
-  below one cycle in the run (f < 1 / duration) is no swing's frequency (an overdamped hinge, a
-  pendulum that creeps or goes over the top): NaN, with a NaN ratio and not ambiguous.
+  below one cycle in the run (f < 1 / duration: an overdamped hinge, a pendulum that creeps), and
+  the peak of a pendulum that went over the top (``amp > pi``: its angle's spectrum is its turns'
+  ramp, whose peak sits just above one cycle), are no swing's frequency
+  (``analysis.swing_frequency_hz``): NaN, with a NaN ratio and not ambiguous.
 - ``amplitude``: ``amp1_rad``, ``amp2_rad``: largest |phi| over the run; ``amp1_end_rad``,
   ``amp2_end_rad``: largest |phi| over its last fifth (what is left at the end).
 - ``decay``: ``decay1_per_s``, ``decay2_per_s``: ln(A_head / A_tail) / (t_tail - t_head), where
@@ -233,17 +235,17 @@ def compute_summary(
     if "frequency" in groups:
         if summary.phi_rad is None:
             raise ParameterError("the frequency feature needs the sampled angles (phi_rad)")
+        from pendsim_mj.estimation.analysis import swing_frequency_hz
         from pendsim_mj.estimation.spectral_peaks import peaks_and_ratios  # start-up: numba and scipy.fft
 
         freq, ratio = (
             v.reshape(m, 2) for v in peaks_and_ratios(t, summary.phi_rad.reshape(2 * m, -1), nthread=nthread)
         )
-        # below one cycle in the run the largest peak is the window's view of a decay or a drift, not
-        # a swing (an overdamped hinge gave 4.6e-6 Hz): no frequency
+        # a decay's or a drift's peak (below one cycle in the run), or the ramp of a pendulum that
+        # went over the top: no swing frequency (``analysis.swing_frequency_hz``)
         duration_s = float(t[-1] - t[0]) if len(t) > 1 else 0.0
-        slow = freq * duration_s < 1.0
-        freq[slow] = np.nan
-        ratio[slow] = np.nan
+        freq = swing_frequency_hz(freq, duration_s, summary.amp_rad)
+        ratio[np.isnan(freq)] = np.nan
         columns["freq1_hz"], columns["freq2_hz"] = freq[:, 0], freq[:, 1]
         ratio[summary.diverged] = np.nan
         for k in (0, 1):

@@ -249,6 +249,19 @@ def test_pendsim_simulate_runs_on_the_fast_engine_and_writes_the_reference_traje
     assert np.max(np.abs(np.load(out)["phi_rad"] - expected.phi_rad)) < 1e-12
 
 
+def test_pendsim_simulate_gives_no_frequency_for_a_pendulum_that_goes_over_the_top(capsys):
+    """Released at 121.9 and 146.6 deg, M1 turns over and over (the reference run's phi1 passes
+    pi): the peak of its angle's spectrum, the ramp of its turns, was printed as a swing's 0.0333 Hz."""
+    from pendsim_bridge.cli import main
+
+    args = ["simulate", "--engine", "fast", "--duration-s", "30", "--phi1-deg", "121.9159", "--phi2-deg", "146.6202"]
+    assert main(args) == 0
+    rows = {line.split()[0]: line for line in capsys.readouterr().out.splitlines() if line.startswith("phi")}
+    assert "n/a (turned over)" in rows["phi1"]
+    run = reference.solve(DEFAULT_PARAMS, (121.9159 * DEG, 146.6202 * DEG), (0.0, 0.0), 30.0)
+    assert np.max(np.abs(run.phi_rad[:, 0])) > np.pi
+
+
 def test_pendsim_simulate_gives_no_frequency_for_a_pendulum_that_does_not_complete_a_cycle(capsys):
     """M1 on an overdamped hinge (0.5 N m s/rad) creeps back to rest: its spectrum's largest peak is
     the lowest bin (a few micro-hertz), which was printed as 0.0000 Hz; M2, still swinging, keeps its

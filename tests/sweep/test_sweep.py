@@ -15,7 +15,7 @@ from pendsim_bridge.errors import OutputError
 from pendsim_bridge.run.sweep import run_sweep
 from pendsim_mj.engines import fast_planar, reference
 from pendsim_mj.errors import ParameterError
-from pendsim_mj.estimation.analysis import spectral_peak_hz
+from pendsim_mj.estimation.analysis import spectral_peak_hz, swing_frequency_hz
 from pendsim_mj.rig.params import DEFAULT_PARAMS, RigParams
 from pendsim_mj.sweep.features import Features
 from pendsim_mj.sweep.plan import PARAMETER_NAMES, CaseTable, SweepPlan, elasticities, parse_vary
@@ -475,6 +475,32 @@ def test_a_run_without_a_full_cycle_has_no_frequency():
     assert not feats.quality["freq1_ambiguous"][1]
 
 
+def test_a_pendulum_that_goes_over_the_top_has_no_swing_frequency():
+    """Released near the top (phi2 at 146.6 deg as in a new user's random sweep, phi1 at 170 deg)
+    M1 turns over and over: the reference run's phi1 passes pi many times, and the peak of its
+    angle's spectrum is the ramp of the turns, just above one cycle in 30 s (1.11 cycles on the
+    fast engine, 2026-11-28): it passed the one-cycle rule and coloured the map's corners. No
+    swing frequency there; the case beside it, released at 30 deg, keeps the reference's own."""
+    plan = _plan(vary={"phi1_deg": [30.0, 170.0]}, base={"phi2_deg": 146.6202}, duration_s=30.0, features=["frequency"])
+    table, ref = _reference_runs(plan)
+    feats = run_task(plan, table, np.arange(2)).features
+    assert np.max(np.abs(ref.member(1).phi_rad[:, 0])) > 4 * np.pi  # turned over, again and again
+    freq = feats.column("freq1_hz")
+    assert np.isnan(freq[1]) and np.isnan(feats.quality["freq1_peak_ratio"][1])
+    assert not feats.quality["freq1_ambiguous"][1]
+    swinging = ref.member(0)
+    assert np.max(np.abs(swinging.phi_rad[:, 0])) < np.pi
+    assert freq[0] == pytest.approx(spectral_peak_hz(swinging.t_s, swinging.phi_rad[:, 0]), abs=1e-9)
+
+
+def test_a_swing_frequency_needs_a_full_cycle_and_no_turn():
+    peak = np.array([0.8, 0.02, 0.8, 0.05, np.nan])
+    largest = np.array([0.5, 0.5, np.pi + 1e-9, 4.0, 0.5])
+    got = swing_frequency_hz(peak, 30.0, largest)
+    assert got[0] == 0.8 and np.all(np.isnan(got[1:]))  # < 1 cycle in 30 s; over the top (just, far); none
+    assert swing_frequency_hz(np.array(0.8), 30.0, np.array(np.pi)) == 0.8  # at the top exactly: not over it
+
+
 def test_frequency_maps_ring_the_cases_whose_frequency_is_ambiguous(tmp_path, monkeypatch):
     from pendsim_bridge.report import figures
 
@@ -497,6 +523,31 @@ def test_frequency_maps_ring_the_cases_whose_frequency_is_ambiguous(tmp_path, mo
     assert "3 ambiguous: ringed" in title and ringed == [(5.0, 20.0, 40.0)]
     title, ringed = rings["freq1_hz"]
     assert "ambiguous" not in title and ringed == []
+
+
+def test_a_random_map_marks_a_turned_over_pendulum_as_no_frequency_not_as_diverged(tmp_path, monkeypatch):
+    # a new user's random map of releases up to the top drew every turning case as a red "diverged"
+    # cross (the run said 0 diverged): a value the feature does not have is not a failure
+    from pendsim_bridge.report import figures
+
+    legends = {}
+    save = figures.save_figure
+
+    def keep_legend(fig, path, **kw):
+        legend = fig.axes[0].get_legend()
+        legends[Path(path).stem] = [t.get_text() for t in legend.get_texts()] if legend else []
+        return save(fig, path, **kw)
+
+    monkeypatch.setattr(figures, "save_figure", keep_legend)
+    plan = _plan(method="random", samples=30, seed=3, duration_s=10.0, features=["frequency", "amplitude"],
+                 vary={"phi1_deg": {"from": 100, "to": 180}, "phi2_deg": {"from": -180, "to": 180}})  # fmt: skip
+    out = tmp_path / "turns"
+    run_sweep(plan, out, progress=False)
+    rows = pq.read_table(out / "results.parquet").to_pydict()
+    turned = [a > np.pi for a in rows["amp1_rad"]]
+    assert any(turned) and not any(rows["diverged"])
+    assert all(math.isnan(f) for f, t in zip(rows["freq1_hz"], turned, strict=True) if t)
+    assert legends["freq1_hz"] == ["no swing frequency (turned over, or < 1 cycle)"]
 
 
 # -- the command ----------------------------------------------------------------------------
