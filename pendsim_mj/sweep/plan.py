@@ -194,6 +194,18 @@ class SweepPlan:
         fixed = sorted({name for name, _ in self.base} & set(names))
         if fixed:
             raise ParameterError(f"{', '.join(fixed)} both set (base) and varied; give each input one or the other")
+        given = [name for name, _ in self.base] + names
+        for index in range(4):  # a release state in two units (phi1_deg and phi1_rad): which one is meant?
+            units = [name for name in given if name in STATE_INPUTS and STATE_INPUTS[name][0] == index]
+            if len(units) > 1:
+                raise ParameterError(f"{' and '.join(units)} give the same release state; give it once, in one unit")
+        if self.method == "sensitivity" and self.axes:
+            raise ParameterError(
+                "a sensitivity sweep steps each parameter about its base: vary does not apply to it (give the base "
+                "with --set, or base in a file)"
+            )
+        for axis in self.axes:
+            self._check_spread(axis)
         if self.method in ("random", "lhs") and (
             not isinstance(self.samples, int) or isinstance(self.samples, bool) or self.samples < 1
         ):
@@ -221,6 +233,30 @@ class SweepPlan:
                         f"unknown parameter {name!r}{did_you_mean(name, PARAMETER_NAMES)}; "
                         f"allowed: {', '.join(PARAMETER_NAMES)}"
                     )
+
+    def _check_spread(self, axis: Axis) -> None:
+        """Refuse a range that cannot mean what it says: random draws from a high to a low bound
+        (a descending grid runs in its order, a draw has none), and cases that repeat themselves
+        (a zero-width range, a list naming a value twice)."""
+        if axis.values is not None:
+            repeated = sorted({v for v in axis.values if list(axis.values).count(v) > 1})
+            if repeated:
+                raise ParameterError(
+                    f"vary {axis.name}: the list names {repeated[0]:g} more than once (the same cases twice)"
+                )
+            return
+        if axis.low is None or axis.high is None:
+            return
+        if self.method in ("random", "lhs") and axis.low > axis.high:
+            raise ParameterError(
+                f"vary {axis.name}: {self.method} draws between from and to, low to high: give "
+                f"{axis.high:g}:{axis.low:g} (got {axis.low:g}:{axis.high:g})"
+            )
+        if axis.low == axis.high and (self.method in ("random", "lhs") or (axis.num or 1) > 1):
+            raise ParameterError(
+                f"vary {axis.name}: a range of zero width ({axis.low:g}:{axis.high:g}) gives one case again and again; "
+                f"set {axis.name} instead (--set {axis.name}={axis.low:g})"
+            )
 
     @property
     def nstep(self) -> int:
@@ -398,6 +434,12 @@ class SweepPlan:
             kw["features"] = check_groups(_names(data["features"], "features"))
         if "parameters" in data:
             kw["parameters"] = tuple(_names(data["parameters"], "parameters"))
+        stray = [key for key in ("relative_step", "parameters") if key in data]
+        if stray and data.get("method", "grid") != "sensitivity":
+            raise ParameterError(
+                f"{stray[0]} (--{stray[0].replace('_', '-')}) applies to a sensitivity sweep only (--sensitivity, "
+                f"method sensitivity); this one is {data.get('method', 'grid')}"
+            )
         if "base" in data:
             base = data["base"]
             if not isinstance(base, Mapping):
