@@ -396,7 +396,12 @@ def table(report: AllanReport) -> str:
             continue
         lines.append(
             f"{a.node:4} {sensor:13} {a.axis:4} {fmt(t.white, 12)} {fmt(t.bias_instability, 15)} "
-            f"{fmt(t.bias_instability_tau_s, 10)} {fmt(t.rate_random_walk, 12)}"
+            f"{fmt(t.bias_instability_tau_s, 10)} {fmt(t.rate_random_walk, 12)}" + ("  B or K?" if t.unresolved else "")
+        )
+    if any(a.provided and a.terms.unresolved for a in report.axes):
+        lines.append(
+            "B or K?: the curve rises above its white noise at long tau, but this record cannot tell bias "
+            "instability from a rate random walk (each fits the rise alike); a longer record can"
         )
     lines.append(
         "units: N "
@@ -453,6 +458,7 @@ def as_json(report: AllanReport) -> dict:
                 "bias_instability_B": num(a.terms.bias_instability),
                 "bias_instability_tau_s": num(a.terms.bias_instability_tau_s),
                 "rate_random_walk_K": num(a.terms.rate_random_walk),
+                "terms_unresolved": a.terms.unresolved,
                 "curve": {
                     "tau_s": a.curve.tau_s.tolist(),
                     "adev": a.curve.adev.tolist(),

@@ -16,12 +16,12 @@
   and ``allantools.confidence_interval`` bit for bit (tests/allan/test_allan.py), without importing
   allantools and scipy.stats (1.3 s of CPU at start-up, for two small functions): the intervals
   need only ``scipy.special.gammaincinv``.
-- **Noise terms** read from the curve: white noise N (velocity or angle random walk) as the value
-  at tau = 1 s of the slope -1/2 line through the points where the slope is -1/2; rate random
-  walk K as the value at tau = 3 s of the slope +1/2 line (sigma = K sqrt(tau / 3)); bias
-  instability B as the flat part (slope within +-0.15, where the estimate is reliable, with the
-  N and K contributions subtracted) divided by 0.664 (= sqrt(2 ln 2 / pi)). A term whose slope
-  the curve never shows is None.
+- **Noise terms** fitted to the curve (IEEE 952 annex C): sigma^2(tau) = 3 Q^2 / tau^2 + N^2 / tau
+  + 0.664^2 B^2 + K^2 tau / 3 + R^2 tau^2 / 2 with non-negative coefficients, each point weighted
+  by its estimate's spread: white noise N (velocity or angle random walk), bias instability B
+  (0.664 = sqrt(2 ln 2 / pi)), rate random walk K; Q and R so that they do not pass for N or K. A
+  term the record does not resolve (not significant, or nowhere dominant) is None
+  (``noise_terms``).
 - **Sampling**: Allan deviation assumes uniform sampling; ``check_sampling`` finds gaps and
   irregular timestamps so that they are reported, not silently analysed.
 """
@@ -306,54 +306,94 @@ def _sw(t: float, alpha: int) -> float:
 
 @dataclasses.dataclass(frozen=True)
 class NoiseTerms:
-    """IEEE 952 terms read from one curve (None where the curve shows no such slope).
+    """IEEE 952 terms of one curve (None where the record does not resolve the term: ``noise_terms``).
 
-    white: N, units/sqrt(Hz) = units*sqrt(s) (velocity or angle random walk): adev at tau = 1 s
-      on the -1/2 line.
-    bias_instability: B, units: flat level / 0.664.
-    bias_instability_tau_s: where the flat part is (its middle), s.
-    rate_random_walk: K, units/sqrt(s): adev at tau = 3 s on the +1/2 line.
+    white: N, units/sqrt(Hz) = units*sqrt(s) (velocity or angle random walk): adev N / sqrt(tau).
+    bias_instability: B, units: the flat level adev 0.664 B.
+    bias_instability_tau_s: where the flat part shows most (B's largest share of the curve), s.
+    rate_random_walk: K, units/sqrt(s): adev K sqrt(tau / 3).
+    unresolved: the curve rises above the white noise at long tau, but the record cannot tell
+      bias instability from a random walk (either one fits it alike): neither is given.
     """
 
     white: float | None
     bias_instability: float | None
     bias_instability_tau_s: float | None
     rate_random_walk: float | None
+    unresolved: bool = False
 
 
-def noise_terms(curve: AllanCurve, *, slope_tolerance: float = 0.15, min_edf: float = 30.0) -> NoiseTerms:
-    """Read N, B and K from a curve (see the module docstring)."""
+# The noise model fitted to the Allan variance (IEEE 952 annex C): sigma^2(tau) = 3 Q^2 / tau^2
+# (quantisation) + N^2 / tau + (2 ln 2 / pi) B^2 + K^2 tau / 3 + R^2 tau^2 / 2 (rate ramp); Q and R
+# are fitted so that they do not pass for N or K, and not reported.
+_TERMS = ("Q", "N", "B", "K", "R")
+SIGNIFICANT_CHI2 = 9.0
+"""A term is given only if the best fit without it is worse by this much (the weighted squared
+residual, scaled by the fit's own residual per degree of freedom where that exceeds 1: the curve's
+points overlap and are correlated): about three standard deviations."""
+DOMINANT_SHARE = 0.5  # ... and only if it makes at least this share of the curve's variance at some tau
+
+
+def _basis(tau: np.ndarray) -> np.ndarray:
+    """(k, 5) each term's Allan variance per unit coefficient (``_TERMS``) at tau (k,) s."""
+    return np.stack([3.0 / tau**2, 1.0 / tau, np.full_like(tau, BIAS_INSTABILITY_FACTOR**2), tau / 3.0,
+                     tau**2 / 2.0], axis=1)  # fmt: skip
+
+
+def _best_fit(a: np.ndarray, b: np.ndarray, allowed: tuple[int, ...]) -> tuple[float, np.ndarray]:
+    """Non-negative least squares of a[:, allowed] c = b by trying every subset of the allowed
+    columns (five at most: exact, and no scipy.optimize at start-up); (residual, c (5,))."""
+    best, coef = math.inf, np.zeros(a.shape[1])
+    for mask in range(1, 1 << len(allowed)):
+        cols = [j for k, j in enumerate(allowed) if mask >> k & 1]
+        c, *_ = np.linalg.lstsq(a[:, cols], b, rcond=None)
+        if np.any(c < 0):
+            continue
+        residual = float(np.sum((a[:, cols] @ c - b) ** 2))
+        if residual < best:
+            best, coef = residual, np.zeros(a.shape[1])
+            coef[cols] = c
+    return best, coef
+
+
+def noise_terms(curve: AllanCurve) -> NoiseTerms:
+    """N, B and K of a curve: the noise model above fitted to its Allan variance with non-negative
+    coefficients, each point weighted by its estimate's relative spread (sqrt(edf / 2) / sigma^2).
+    A term is given where the record resolves it: significant (``SIGNIFICANT_CHI2``) and dominant
+    somewhere (``DOMINANT_SHARE``). Where the long-tau rise is significant but neither bias
+    instability nor a random walk alone is (each fits it as well as the other), ``unresolved``.
+
+    Reading each term off the slope lines of the curve (IEEE 952's graphical method, pendsim's
+    until 2026-11-28) took the crossover of a weak random walk for bias instability: a record with
+    white noise and K = 5e-6 rad/s/sqrt(s), no B, reported B on 10 of 12 axes and K on 2."""
     tau, dev = curve.tau_s, curve.adev
-    if np.any(dev <= 0):
+    if len(tau) < 3 or np.any(dev <= 0):
         return NoiseTerms(None, None, None, None)
-    slopes = local_slopes(tau, dev)
-    reliable = ~(curve.edf < min_edf)  # NaN edf counts as reliable (it is only for constant data)
+    variance = dev**2
+    edf = np.where(np.isfinite(curve.edf), curve.edf, 1e6)  # NaN edf: constant data (no spread)
+    weight = np.sqrt(edf / 2.0) / variance
+    basis = _basis(tau)
+    a, b = basis * weight[:, None], variance * weight
+    everything = tuple(range(len(_TERMS)))
+    residual, coef = _best_fit(a, b, everything)
+    scale = max(1.0, residual / max(1, len(b) - int(np.count_nonzero(coef))))
+    parts = basis * coef
+    share = parts / parts.sum(axis=1, keepdims=True)
 
-    def line_value(target: float, at_tau: float) -> float | None:
-        near = (np.abs(slopes - target) <= slope_tolerance / 2) & reliable
-        if not np.any(near):
-            near = (np.abs(slopes - target) <= slope_tolerance) & reliable
-        if not np.any(near):
-            return None
-        # the fixed-slope line through those points, in log space: log dev = c + target log tau
-        c = np.mean(np.log(dev[near]) - target * np.log(tau[near]))
-        return float(math.exp(c + target * math.log(at_tau)))
+    def resolved(j: int) -> bool:
+        if coef[j] <= 0 or not np.any(share[:, j] >= DOMINANT_SHARE):
+            return False
+        without, _ = _best_fit(a, b, tuple(i for i in everything if i != j))
+        return (without - residual) / scale > SIGNIFICANT_CHI2
 
-    white = line_value(-0.5, 1.0)
-    rrw = line_value(0.5, 3.0)
-    flat = (np.abs(slopes) <= slope_tolerance) & reliable
-    b, b_tau = None, None
-    if np.any(flat):
-        # The flat level with the white and random-walk parts removed: sigma_B^2 =
-        # sigma^2 - N^2/tau - K^2 tau/3. Where little is left, the "flat" points are only the
-        # crossover from -1/2 to +1/2, not bias instability.
-        variance = dev[flat] ** 2
-        rest = variance - (white or 0.0) ** 2 / tau[flat] - (rrw or 0.0) ** 2 * tau[flat] / 3
-        level = float(np.median(rest))
-        if level > 0.25 * float(np.median(variance)):
-            b = math.sqrt(level) / BIAS_INSTABILITY_FACTOR
-            b_tau = float(np.exp(np.median(np.log(tau[flat]))))
-    return NoiseTerms(white, b, b_tau, rrw)
+    found = {name: math.sqrt(coef[j]) if resolved(j) else None for j, name in enumerate(_TERMS)}
+    rising = [j for j in (2, 3, 4) if coef[j] > 0]
+    unresolved = False
+    if rising and all(found[_TERMS[j]] is None for j in rising):
+        white_only, _ = _best_fit(a, b, (0, 1))
+        unresolved = (white_only - residual) / scale > SIGNIFICANT_CHI2
+    b_tau = float(tau[int(np.argmax(share[:, 2]))]) if found["B"] is not None else None
+    return NoiseTerms(found["N"], found["B"], b_tau, found["K"], unresolved)
 
 
 @dataclasses.dataclass(frozen=True)
