@@ -28,7 +28,8 @@ def register(sub: argparse._SubParsersAction[options.Parser]) -> None:
     p.add_argument(
         "--longest-segment",
         action="store_true",
-        help="if the timestamps have gaps or irregular intervals, analyse the longest uniform stretch",
+        help="if the timestamps have gaps or irregular intervals, or a node moves (a swing before or after a "
+        "static stretch), analyse the longest static, uniformly sampled stretch",
     )
     p.set_defaults(handler=run)
 
@@ -40,7 +41,10 @@ def run(args: argparse.Namespace) -> int:
 
     plot_dir = args.plot_dir or args.path.with_name(f"{args.path.stem}_allan")
     if not args.no_plots:
-        options.check_output_dir(plot_dir, USUAL_PLOTS, force=args.force)
+        try:
+            options.check_output_dir(plot_dir, USUAL_PLOTS, force=args.force)
+        except options.UsageError as exc:  # a second run: the table alone needs no plots
+            raise options.UsageError(f"{exc}, or --no-plots for the table alone") from None
     with tqdm(
         total=args.path.stat().st_size, unit="B", unit_scale=True, desc="reading", disable=None, leave=False
     ) as bar:

@@ -238,7 +238,10 @@ def _in_process_instead(plan: SweepPlan, workers: int | None) -> str | None:
     if workers is None:
         return None
     if plan.engine == "fast":
-        return f"the fast engine threads over the cores; --workers {workers} is for the MuJoCo engines"
+        return (
+            f"the fast engine threads over the cores; --workers {workers} splits a MuJoCo sweep over fewer "
+            "workers than cores, --scheduler over more machines"
+        )
     cores = os.cpu_count() or 1
     if workers >= cores:
         return (

@@ -326,6 +326,39 @@ def signal_values(signal: Signal, t_s: ArrayLike) -> NDArray[np.float64]:
     return np.asarray(signal.amplitude * np.sin(phase_rad(signal, t)), dtype=np.float64)
 
 
+def highest_frequency_hz(signal: Signal) -> float | None:
+    """The highest frequency a signal reaches, Hz (None for a time series: its own samples)."""
+    if isinstance(signal, Sine):
+        return signal.frequency_hz
+    if isinstance(signal, SteppedSine):
+        return max(signal.frequencies_hz)
+    if isinstance(signal, Chirp):
+        return max(signal.f0_hz, signal.f1_hz)
+    return None
+
+
+def check_followed(drive: Drive | None, dt_s: float) -> None:
+    """Refuse a drive faster than the step can follow: above 1 / (2 dt) a sine is sampled at the
+    step's instants, not followed (aliased: a new user's 1000 Hz torque at dt 0.01 s fell on its
+    zeros and did 1.4e-14 J of work, without a word).
+
+    Raises:
+      ParameterError: naming the target, its frequency, the limit and a step that follows it.
+    """
+    if drive is None or not drive:
+        return
+    limit_hz = 0.5 / dt_s
+    for target in drive.targets:
+        signal = drive.signal(target)
+        f = highest_frequency_hz(signal) if signal is not None else None
+        if f is not None and f > limit_hz:
+            raise ParameterError(
+                f"the {target.value} drive reaches {f:g} Hz, above the {limit_hz:g} Hz a step of {dt_s:g} s can "
+                f"follow (two steps a period): it would be sampled, not followed; use a step of at most "
+                f"{1.0 / (20.0 * f):.2g} s (20 steps a period)"
+            )
+
+
 def step_midpoints_s(nstep: int, dt_s: float, t0_s: float = 0.0) -> NDArray[np.float64]:
     """(nstep,) the instants t0 + (k + 1/2) dt at which the held inputs are sampled."""
     return np.asarray(t0_s + (np.arange(nstep) + 0.5) * dt_s, dtype=np.float64)
@@ -338,11 +371,13 @@ def held_inputs(drive: Drive | None, nstep: int, dt_s: float, *, t0_s: float = 0
     undriven channels are 0.
 
     Raises:
-      ParameterError: a time series does not cover the steps' midpoints.
+      ParameterError: a time series does not cover the steps' midpoints, or a signal is faster
+        than the step can follow (``check_followed``).
     """
     out = np.zeros((nstep, NCHANNEL))
     if drive is None or not drive:
         return out
+    check_followed(drive, dt_s)
     t_mid = step_midpoints_s(nstep, dt_s, t0_s)
     for target in drive.targets:
         signal = drive.signal(target)
@@ -367,11 +402,13 @@ def stage_inputs(drive: Drive | None, nstep: int, dt_s: float, *, t0_s: float = 
     channels are 0. The midpoints equal ``held_inputs``' values bit for bit.
 
     Raises:
-      ParameterError: a time series does not cover [t0, t0 + nstep dt].
+      ParameterError: a time series does not cover [t0, t0 + nstep dt], or a signal is faster
+        than the step can follow (``check_followed``).
     """
     out = np.zeros((nstep, NSTAGE, NCHANNEL))
     if drive is None or not drive:
         return out
+    check_followed(drive, dt_s)
     t_half = t0_s + np.arange(2 * nstep + 1) * (0.5 * dt_s)  # (2 nstep + 1,): t0 + j dt/2
     for target in drive.targets:
         signal = drive.signal(target)

@@ -1,5 +1,7 @@
 """pendsim record / inspect / recover: outputs, summaries, one-line errors, data never lost."""
 
+import re
+
 import numpy as np
 import pytest
 
@@ -104,7 +106,7 @@ def test_inspect_and_recover_handle_a_truncated_recording(tmp_path, capsys):
     capsys.readouterr()
     assert main(["inspect", str(cut)]) == 2
     line = _one_error_line(capsys)
-    assert "cut.mcap:" in line and "chunks intact" in line and "pendsim recover" in line
+    assert "cut.mcap:" in line and re.search(r"chunks? intact", line) and "pendsim recover" in line
     fixed = tmp_path / "fixed.mcap"
     assert main(["recover", str(cut), str(fixed)]) == 0
     assert "wrote" in capsys.readouterr().out

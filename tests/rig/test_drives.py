@@ -185,6 +185,23 @@ def test_energy_gained_equals_the_work_of_the_drive_minus_the_damping(engine):
     assert 3.5 < coarse / fine < 4.5, coarse / fine
 
 
+@pytest.mark.parametrize("engine", ["reference", "fast", "mujoco"])
+def test_a_drive_faster_than_the_step_can_follow_is_refused_on_every_engine(engine):
+    # a new user's 1000 Hz torque at dt 0.01 s fell on its zeros (1.4e-14 J of work), without a word
+    from pendsim_mj.engines.dispatch import run
+
+    phi0 = (0.5, 0.0)
+    fast = Drive(torque_m1=Sine(0.01, 1000.0))
+    with pytest.raises(ParameterError, match=r"torque_m1 drive reaches 1000 Hz, above the 50 Hz a step of 0.01 s"):
+        run(engine, DEFAULT_PARAMS, phi0, duration_s=1.0, dt_s=0.01, drive=fast)
+    for signal in (SteppedSine(0.01, (10.0, 60.0), 1.0), Chirp(0.01, 1.0, 51.0, 1.0)):
+        with pytest.raises(ParameterError, match=r"reaches (60|51) Hz"):
+            run(engine, DEFAULT_PARAMS, phi0, duration_s=1.0, dt_s=0.01, drive=Drive(support_x=signal))
+    # at the limit, and with a step that follows it, the same drive runs
+    run(engine, DEFAULT_PARAMS, phi0, duration_s=0.2, dt_s=0.01, drive=Drive(torque_m1=Sine(0.01, 50.0)))
+    assert np.all(np.isfinite(run(engine, DEFAULT_PARAMS, phi0, duration_s=0.01, dt_s=5e-5, drive=fast).phi_rad))
+
+
 def test_midpoint_sampling_keeps_a_sine_in_phase():
     # The held staircase of A sin(2 pi f t + p) sampled at step midpoints has the fundamental
     # A sinc(pi f dt) sin(2 pi f t + p): no phase lag (sampling at the step start would lag pi f dt).

@@ -126,7 +126,7 @@ def test_workers_on_the_fast_engine_run_in_this_process_on_the_kernels_threads(t
     before = _children()
     assert main(_sweep_args("fast", tmp_path / "fast", "--workers", "2")) == 0
     out = capsys.readouterr().out
-    assert "on this process (the fast engine threads over the cores; --workers 2 is for the MuJoCo engines)" in out
+    assert "on this process (the fast engine threads over the cores; --workers 2 splits a MuJoCo sweep" in out
     assert "computed 400" in out and _children() == before
 
 

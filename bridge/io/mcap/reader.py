@@ -229,19 +229,33 @@ class McapFile:
         """How much of the file is readable: the chunks that inflate and pass their CRC (each
         inflated once more here, on the way to an error: a damaged chunk is not counted even when
         only the data section's CRC found the damage), their messages as their indexes list them."""
-        intact = []
+        intact, n = [], 0
         for ref in self.chunk_refs:
-            if self._buf is None or not isinstance(inflate(self._buf, ref), Exception):
+            raw = inflate(self._buf, ref) if self._buf is not None else None
+            if not isinstance(raw, Exception):
                 intact.append(ref)
+                n += _messages_in(ref, raw)
             if self._buf is not None:
                 release(self._buf, ref.offset, ref.offset + ref.length)
-        n = sum(r.index_count(c) for r in intact for c in r.index)
         t0 = min((r.start_ns for r in intact), default=0)
         t_end = max((r.end_ns for r in intact), default=0)
         return (
-            f"{n} messages in {len(intact)} chunks intact, {seconds(t_end - t0):.3f} s of log time "
-            f"({self.bytes_read} of {self.file_size} bytes)"
+            f"{n} messages in {len(intact)} chunk{'s' if len(intact) != 1 else ''} intact, "
+            f"{seconds(t_end - t0):.3f} s of log time ({self.bytes_read} of {self.file_size} bytes)"
         )
+
+
+def _messages_in(ref: ChunkRef, raw: bytes | None) -> int:
+    """A chunk's messages as ``recover`` counts them: its records walked where they are at hand
+    (a cut file's last chunk may have lost its message index, which then lists fewer), else as its
+    index lists them."""
+    if raw is None:
+        return sum(ref.index_count(c) for c in ref.index)
+    try:
+        _, messages = chunk_messages(raw, None)
+    except ValueError:
+        return sum(ref.index_count(c) for c in ref.index)
+    return sum(len(m) for m in messages.values())
 
 
 def scan_mcap(path: str | Path, *, recover: bool = True) -> McapFile:
@@ -337,8 +351,8 @@ class McapContents:
         t0 = min((int(m.log_time_ns[0]) for m in self.messages.values() if len(m)), default=0)
         t_end = max((int(m.log_time_ns[-1]) for m in self.messages.values() if len(m)), default=0)
         return (
-            f"{self.message_count} messages in {self.chunks} chunks intact, {seconds(t_end - t0):.3f} s of log "
-            f"time ({self.bytes_read} of {self.file_size} bytes)"
+            f"{self.message_count} messages in {self.chunks} chunk{'s' if self.chunks != 1 else ''} intact, "
+            f"{seconds(t_end - t0):.3f} s of log time ({self.bytes_read} of {self.file_size} bytes)"
         )
 
 
