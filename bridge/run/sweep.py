@@ -39,6 +39,7 @@ import shutil
 import signal
 import socket
 import struct
+import threading
 import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
@@ -610,6 +611,23 @@ def _task(
     return run_task(plan, rows, ids, nthread=nthread, keep_trajectories=plan.trajectories if keep is None else keep)
 
 
+@contextlib.contextmanager
+def _workers_leave_interrupts_to_this_process() -> Iterator[None]:
+    """SIGINT ignored while the worker processes start, so that they inherit it ignored (Python
+    leaves an inherited ignore in place): a Ctrl-C at the terminal reaches the whole process group,
+    and each worker answered it with a KeyboardInterrupt traceback (about 40 lines of them) while
+    this process closed them anyway. This process takes SIGINT again once they have started (a
+    Ctrl-C in the second or two before is not seen)."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
+
+
 def _run_dask(
     plan: SweepPlan,
     table: CaseTable,
@@ -623,16 +641,17 @@ def _run_dask(
 
     with contextlib.ExitStack() as stack:
         if workers is not None:
-            cluster = stack.enter_context(
-                LocalCluster(
-                    n_workers=workers,
-                    threads_per_worker=1,
-                    processes=True,
-                    host="127.0.0.1",
-                    dashboard_address=None,
-                    silence_logs=logging.ERROR,
+            with _workers_leave_interrupts_to_this_process():
+                cluster = stack.enter_context(
+                    LocalCluster(
+                        n_workers=workers,
+                        threads_per_worker=1,
+                        processes=True,
+                        host="127.0.0.1",
+                        dashboard_address=None,
+                        silence_logs=logging.ERROR,
+                    )
                 )
-            )
             client = stack.enter_context(Client(cluster))
             nthread: int | None = max(1, (os.cpu_count() or 1) // workers)
         else:

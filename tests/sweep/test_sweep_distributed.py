@@ -203,15 +203,17 @@ def test_a_worker_killed_mid_sweep_loses_only_its_task_which_is_retried(serial_r
     assert _all_gone(_children() - before)
 
 
-@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGKILL], ids=["SIGTERM", "SIGKILL"])
+@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGKILL, signal.SIGINT], ids=["SIGTERM", "SIGKILL", "Ctrl-C"])
 def test_a_signal_to_pendsim_sweep_on_workers_leaves_no_process_running(tmp_path, sig):
     # SIGTERM: the sweep stops cleanly (exit 130) and closes its cluster; SIGKILL cannot be
-    # caught, and the worker processes then notice that their parent is gone and exit
+    # caught, and the worker processes then notice that their parent is gone and exit. Ctrl-C at a
+    # terminal reaches the whole process group: the workers leave it to pendsim, which says one
+    # line (each worker printed a KeyboardInterrupt traceback, 34 lines in all, in a new user's trial)
     out = tmp_path / "out"
     cmd = [sys.executable, "-m", "pendsim_bridge.cli", "sweep", "--engine", "mujoco", "--random", "400", "--vary",
            "c1_n_m=4:8", "--duration-s", "30", "--cases-per-task", "5", "--workers", str(FEWER), "--no-plots",
            "-o", str(out)]  # fmt: skip
-    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)
     try:
         deadline = time.monotonic() + 240  # the workers may compile MuJoCo models first
         while time.monotonic() < deadline and not list((out / "parts").glob("part-*.parquet")):
@@ -219,13 +221,18 @@ def test_a_signal_to_pendsim_sweep_on_workers_leaves_no_process_running(tmp_path
         assert list((out / "parts").glob("part-*.parquet")), "the sweep did not start"
         started = _tree(proc.pid)
         assert len(started) >= 1 + FEWER  # pendsim, its workers (and multiprocessing's tracker)
-        proc.send_signal(sig)
+        if sig == signal.SIGINT:
+            os.killpg(proc.pid, sig)  # as a terminal's Ctrl-C: to every process of the group
+        else:
+            proc.send_signal(sig)
         _, err = proc.communicate(timeout=60)
     finally:
         proc.kill()
         proc.wait()
     if sig == signal.SIGTERM:
         assert proc.returncode == 130 and "pendsim: interrupted" in err
+    elif sig == signal.SIGINT:
+        assert proc.returncode == 130 and err.strip().splitlines() == ["pendsim: interrupted"], err
     else:
         assert proc.returncode == -signal.SIGKILL
     assert _all_gone(started, timeout_s=30), [p for p in started if psutil.pid_exists(p)]
