@@ -125,10 +125,11 @@ def message(dispatcher: Any) -> str:
     """The line said on a cold compile, naming where the result is kept."""
     if not _kept:
         return (
-            f"compiling pendsim's numba kernels ({COLD_COMPILE_S}; not kept: no writable cache folder, "
+            f"compiling the numba kernels this command needs ({COLD_COMPILE_S}; not kept: no writable cache folder, "
             "set NUMBA_CACHE_DIR to one)"
         )
-    return f"compiling pendsim's numba kernels once ({COLD_COMPILE_S}; cached in {_cache_folder(dispatcher)})"
+    folder = _cache_folder(dispatcher)
+    return f"compiling the numba kernels this command needs, once ({COLD_COMPILE_S}; cached in {folder})"
 
 
 def watch() -> None:

@@ -4,7 +4,7 @@ source, unless ``NUMBA_CACHE_DIR`` says otherwise.
 
 ``pendsim allan`` (whose kernels compile in a few seconds) runs twice in a subprocess whose
 standard output and error are a pseudo-terminal, with ``NUMBA_CACHE_DIR`` an empty folder: the
-first run compiles and prints ``pendsim: compiling pendsim's numba kernels once (...; cached in
+first run compiles and prints ``pendsim: compiling the numba kernels this command needs, once (...; cached in
 DIR)`` before its table, the second loads the cache and prints no such line. numba's
 "numba:compile" event (what the line hangs on) fires only for a real compile, so the test takes
 its truth from numba, not from time. The cache folder's rule is checked on the smallest kernel
@@ -70,7 +70,7 @@ def test_a_cold_cache_says_it_compiles_once_and_a_warm_one_says_nothing(tmp_path
     lines = _stderr_on_a_terminal(args, env).splitlines()
     cold = [line for line in lines if "compiling" in line]
     assert len(cold) == 1, cold
-    assert cold[0].startswith("pendsim: compiling pendsim's numba kernels once (about ")
+    assert cold[0].startswith("pendsim: compiling the numba kernels this command needs, once (about ")
     assert cold[0].endswith(f"cached in {cache})")
     table = next(i for i, line in enumerate(lines) if line.startswith("m1"))  # the first result row
     assert lines.index(cold[0]) < table, lines  # said before the results, while compiling
@@ -97,7 +97,7 @@ def test_the_line_is_also_said_when_standard_error_is_a_pipe(tmp_path):
     done = _allan_on_a_pipe(static, env)
     assert done.returncode == 0, done.stderr
     lines = done.stderr.splitlines()
-    assert len(lines) == 1 and lines[0].startswith("pendsim: compiling pendsim's numba kernels once"), lines
+    assert len(lines) == 1 and lines[0].startswith("pendsim: compiling the numba kernels this command needs"), lines
     assert lines[0].endswith(f"cached in {cache})") and "\r" not in done.stderr
     again = _allan_on_a_pipe(static, env)
     assert again.returncode == 0 and again.stderr == ""  # warm: nothing on a pipe either

@@ -343,10 +343,15 @@ def cv_percent(sigma: float, mean: float) -> float:
 
 def table(report: AllanReport) -> str:
     """The paper's table (sigma, mean, CV per axis) and the noise terms, as text."""
-    lines = [
-        f"{report.path}: {duration_text(report.duration_s)} at {report.rate_hz:g} Hz "
-        f"({', '.join(f'{n}: {c} samples' for n, c in report.n_samples.items())})"
-    ]
+    spans = {n: end - start for n, (start, end) in report.segment.items()}
+    if max(spans.values()) - min(spans.values()) > 1.5 / report.rate_hz:  # the nodes' stretches differ
+        each = "; ".join(f"{n}: {c} samples, {duration_text(spans[n])}" for n, c in report.n_samples.items())
+        lines = [f"{report.path}: at {report.rate_hz:g} Hz ({each})"]
+    else:
+        lines = [
+            f"{report.path}: {duration_text(report.duration_s)} at {report.rate_hz:g} Hz "
+            f"({', '.join(f'{n}: {c} samples' for n, c in report.n_samples.items())})"
+        ]
     for node, clock in report.clocks.items():
         if clock.name != "log times":
             lines.append(f"{node}: sampled by its {clock.name} (by its log times: {clock.other})")

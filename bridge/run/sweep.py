@@ -764,5 +764,11 @@ def describe(summary: SweepSummary, plan: SweepPlan, *, top: int = 12) -> str:
             for row in entry["ranking"][:top]:
                 value = row["elasticity"]
                 lines.append(f"  {row['parameter']:<28} {'n/a' if value is None else f'{value:+.4f}'}")
+        zero = plan.unscaled()
+        if zero:
+            lines.append(
+                f"not stepped: {', '.join(zero)} (0 in the base: a relative step of 0 is none; --set a value to "
+                "include one)"
+            )
         lines.append(f"every feature's full ranking: {summary.sensitivity}")
     return "\n".join(lines)

@@ -260,6 +260,7 @@ def compute_summary(
                 t[summary.tail_index] - t[summary.head_index]
             )
         decay[~np.isfinite(decay)] = np.nan  # a pendulum at rest has no decay
+        decay += 0.0  # no -0.0 (ln 1 over a negative span rounds to it): 0.0
         columns["decay1_per_s"], columns["decay2_per_s"] = decay[:, 0], decay[:, 1]
     if "energy" in groups:
         columns["energy_j"] = summary.energy_start_j

@@ -302,6 +302,14 @@ class SweepPlan:
             return self.csv_cases
         return self._sensitivity_cases()
 
+    def unscaled(self) -> tuple[str, ...]:
+        """A sensitivity sweep's parameters left out: zero in the base (a relative step of zero
+        is none: dry friction, the planes' offset of the planar model)."""
+        if self.method != "sensitivity":
+            return ()
+        base = self.base_params()
+        return tuple(n for n in (self.parameters or PARAMETER_NAMES) if getattr(base, n) == 0)
+
     def _sensitivity_cases(self) -> CaseTable:
         base = self.base_params()
         names = tuple(n for n in (self.parameters or PARAMETER_NAMES) if getattr(base, n) != 0)

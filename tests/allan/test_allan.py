@@ -286,6 +286,16 @@ def test_a_recording_with_a_gap_is_reported_not_silently_analysed(tmp_path, caps
         "analysed the longest uniform stretch 0.000-249.988 s" in out
         or "analysed the longest uniform stretch 255.000-600.000 s" in out
     )
+    # nodes whose stretches differ (a gap on one node only): the header gives each its own span
+    # (it gave the longest node's span beside both counts)
+    from pendsim_bridge.report.allan_report import analyse, table
+
+    report = analyse(path, longest_segment=True)
+    start, end = report.segment["m2"]
+    shorter = dataclasses.replace(report, segment={**report.segment, "m2": (start, start + 100.0)})
+    head = table(shorter).splitlines()[0]
+    n1, n2 = report.n_samples["m1"], report.n_samples["m2"]
+    assert f"m1: {n1} samples, {(end - start) / 60:.1f} min; m2: {n2} samples, 100.0 s" in head, head
 
 
 def test_allan_on_a_missing_or_broken_file_is_one_line_exit_2(tmp_path, capsys):

@@ -574,6 +574,9 @@ def test_the_sensitivity_of_the_phi1_frequency_at_30_deg_runs_from_one_command_a
         and lines[lines.index(next(x for x in lines if x.startswith("sensitivity of"))) + 1].split()[0] == "j1_kg_m2"
     )
     assert (out / "maps" / "sensitivity_freq1_hz.png").read_bytes().startswith(PNG_MAGIC)
+    # the parameters a relative step cannot move are named, not left out in silence (59 = 1 + 2 x 29)
+    zero = [name for name, value in RigParams().as_dict().items() if value == 0]
+    assert len(zero) == 3 and f"not stepped: {', '.join(zero)} (0 in the base" in text
 
 
 def test_a_definition_file_runs_and_a_second_run_resumes(tmp_path, capsys):
