@@ -15,6 +15,8 @@
 - ``health``: ``HealthMonitor``, detects a change by the likelihood ratio of one tracked parameter
   changed, and attributes it by a bank of filters, one per hypothesis, over the data that follow
   (``Alarm``: which parameter, what it means on the rig, since when, by how much, against what).
+- ``walks``: ``AdaptiveWalks``, the rig's parameters' random walks slow while the rig looks healthy
+  (white innovations) and fast from a suspicion of a change on (the monitor's speed and attribution).
 - ``whiteness``: ``Whiteness``, the Ljung-Box test of a series that never ends (the innovations of
   a live run of any length) from running sums, in constant memory.
 - ``merge``, ``session``, ``outputs``: both nodes in one time order, the twin sample by sample, what

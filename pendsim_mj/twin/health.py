@@ -385,6 +385,11 @@ class HealthMonitor:
         self._followed: set[str] = set()  # alarms whose change has been said to go on
         self.history: list[tuple[float, dict[str, float]]] = []  # (t_s, g per parameter)
 
+    @property
+    def attributing(self) -> bool:
+        """Whether a bank of hypotheses runs now (a detection being attributed)."""
+        return self._bank is not None
+
     def statistics(self) -> dict[str, float]:
         """Each tracked parameter's g (module docstring) now; a parameter that has alarmed gets
         its marginal z and is left free in the others' g."""

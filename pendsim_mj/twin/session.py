@@ -41,6 +41,7 @@ from pendsim_mj.twin.health import DEFAULT_PERSIST_S, DEFAULT_THRESHOLD, Alarm, 
 from pendsim_mj.twin.measurement import FALLBACK_S, TWIST_SIGMA_RAD, Learned, NodeMeasurement, NodeSample, Waiting
 from pendsim_mj.twin.outputs import Estimates, ParameterCheck
 from pendsim_mj.twin.unscented import accelerations_at
+from pendsim_mj.twin.walks import DEFAULT_CALM_SCALE, AdaptiveWalks
 from pendsim_mj.twin.whiteness import Whiteness
 
 Floats = NDArray[np.float64]
@@ -178,6 +179,8 @@ class TwinSession:
       forecast_every_s: how often a forecast is made, s.
       threshold, persist_s, baseline_s: the health monitor's (``HealthMonitor``).
       settle_s: innovations before this long after the start are left out of the whiteness test.
+      calm_walks: the rig's parameters' random walks while the rig looks healthy, over their own
+        (``twin.walks.AdaptiveWalks``: their own from a suspicion of a change on; 1: always their own).
       start_frames: each node's frame to start from (default: the model's mount); the measurement
         learns the real one from the first second of swinging (``measurement.NodeMeasurement``).
       fusion_rate_hz: the nodes' fusion rate (their values' timing is learned); None for nodes
@@ -203,6 +206,7 @@ class TwinSession:
         persist_s: float = DEFAULT_PERSIST_S,
         baseline_s: float = 0.0,
         settle_s: float = 2.0,
+        calm_walks: float = DEFAULT_CALM_SCALE,
     ) -> None:
         if start_frames is not None and len(start_frames) != 2:
             raise ParameterError(f"the twin needs both nodes' frames, got {len(start_frames)}")
@@ -235,6 +239,10 @@ class TwinSession:
         ]  # fmt: skip
         self.threshold, self.persist_s, self.baseline_s = threshold, persist_s, baseline_s
         self.monitor: HealthMonitor | None = None
+        if not (math.isfinite(calm_walks) and 0 < calm_walks <= 1):
+            raise ParameterError(f"calm_walks must be in (0, 1], got {calm_walks!r}")
+        self.calm_walks = float(calm_walks)
+        self._walks: AdaptiveWalks | None = None  # the rig's parameters' walks, calm or alert (``twin.walks``)
         self.forecast_horizon_s, self.forecast_every_s = float(forecast_horizon_s), float(forecast_every_s)
         self.settle_s = float(settle_s)
         self.started_s = math.nan
@@ -328,6 +336,8 @@ class TwinSession:
             self._jumped(node, t_v)
             return False
         self._recent_z[node].clear()
+        if self._walks is not None:
+            self._walks.take(t_v, node, update.nis)
         accel = self._take_accel(node, t_v, got, torques_n_m)
         after1, after2 = self.estimator.x[:2].tolist()
         moved = max(abs(after1 - before1), abs(after2 - before2))
@@ -382,6 +392,8 @@ class TwinSession:
             self._all_alarms += alarms
             if len(self.monitor.history) > before:
                 self._checks.append(self._parameter_check())
+                if self._walks is not None:
+                    self._walks.at_check(t_v)
         if t_v >= self._next_forecast_s:
             self._next_forecast_s = t_v + self.forecast_every_s
             forecast = self.estimator.forecast(self.forecast_horizon_s, step_s=FORECAST_STEP_S, drive=self._drive)
@@ -438,6 +450,9 @@ class TwinSession:
                 self.monitor = HealthMonitor(
                     self.estimator, baseline_s=self.baseline_s, threshold=self.threshold, persist_s=self.persist_s
                 )
+                adapted = tuple(name for name in self.estimator.track if name in RIG_PARAMETERS)
+                if adapted and self.calm_walks < 1:
+                    self._walks = AdaptiveWalks(self.monitor, adapted, self.calm_walks)
         else:
             self._checks_from_s = t0 + 1.0  # the health checks wait for the estimate to settle again
         if self.forecast_horizon_s > 0:
