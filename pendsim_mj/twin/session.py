@@ -133,7 +133,7 @@ class TwinSummary:
       started_s: when the estimator started (NaN: never).
       nis_mean: per node, the mean normalised innovation squared (2 on a healthy rig).
       whiteness_p: per node, the Ljung-Box p-values of its normalised angle and rate innovations
-        after ``settle_s`` (``whiteness.Whiteness``, 20 lags, over the whole run; NaN: too few).
+        from ``whiteness_from_s`` on (``whiteness.Whiteness``, 20 lags, over the whole run; NaN: too few).
       accel_nis_mean: per node, the accelerometer's mean normalised innovation squared (2 on a
         healthy rig; NaN: none fused).
       stated: each tracked rig parameter's value in the rig the twin was given (its model's).
@@ -178,7 +178,13 @@ class TwinSession:
       forecast_horizon_s: how far each forecast reaches, s (0: none).
       forecast_every_s: how often a forecast is made, s.
       threshold, persist_s, baseline_s: the health monitor's (``HealthMonitor``).
-      settle_s: innovations before this long after the start are left out of the whiteness test.
+      settle_s: innovations before this long after the start are left out of the mean NIS and the
+        model-fit checks.
+      whiteness_from_s: ... and out of the whiteness tests before this long (at least ``settle_s``):
+        the start's settling (the learned frame's, M2's delay's prior) ends by the time the node
+        states take their references (``NODE_BASELINE_S``). From 2 s M2's angle was white on 17 of 24
+        healthy seeds (its delay swinging from +8 to -1 ms in the first 2.5 s, NIS about 100), from
+        10 s on 22 (docs/twin.md, Whiteness on the whole twin).
       calm_walks: the rig's parameters' random walks while the rig looks healthy, over their own
         (``twin.walks.AdaptiveWalks``: their own from a suspicion of a change on; 1: always their own).
       start_frames: each node's frame to start from (default: the model's mount); the measurement
@@ -206,6 +212,7 @@ class TwinSession:
         persist_s: float = DEFAULT_PERSIST_S,
         baseline_s: float = 0.0,
         settle_s: float = 2.0,
+        whiteness_from_s: float = NODE_BASELINE_S,
         calm_walks: float = DEFAULT_CALM_SCALE,
     ) -> None:
         if start_frames is not None and len(start_frames) != 2:
@@ -245,6 +252,9 @@ class TwinSession:
         self._walks: AdaptiveWalks | None = None  # the rig's parameters' walks, calm or alert (``twin.walks``)
         self.forecast_horizon_s, self.forecast_every_s = float(forecast_horizon_s), float(forecast_every_s)
         self.settle_s = float(settle_s)
+        if not (math.isfinite(whiteness_from_s) and whiteness_from_s >= 0):
+            raise ParameterError(f"whiteness_from_s must be a finite number >= 0, got {whiteness_from_s!r}")
+        self.whiteness_from_s = max(float(whiteness_from_s), self.settle_s)
         self.started_s = math.nan
         self._recent: list[collections.deque[tuple[float, float, float]]] = [
             collections.deque(maxlen=FREE_WINDOW) for _ in range(2)
@@ -355,13 +365,16 @@ class TwinSession:
             self._nis[node].append(update.nis)
             self._nis_sum[node] += update.nis
             self._nis_count[node] += 1
-            for series, nu, s in zip(self._whiteness[node], innovation, s_sigma, strict=True):
-                series.add(nu / s)
+            white = t_v - self.started_s >= self.whiteness_from_s
+            if white:
+                for series, nu, s in zip(self._whiteness[node], innovation, s_sigma, strict=True):
+                    series.add(nu / s)
             if math.isfinite(accel[-1]):
                 self._accel_nis_sum[node] += accel[-1]
                 self._accel_nis_count[node] += 1
-                for series, nu, s in zip(self._accel_whiteness[node], accel[2:4], accel[4:6], strict=True):
-                    series.add(nu / s)
+                if white:
+                    for series, nu, s in zip(self._accel_whiteness[node], accel[2:4], accel[4:6], strict=True):
+                        series.add(nu / s)
         z_rate = innovation[1] / s_sigma[1]
         self._recent_nis.append(z_rate * z_rate)
         recent = self._recent_nis
