@@ -481,6 +481,16 @@ def explained(message: str, args: argparse.Namespace | None, command: argparse.A
         if inputs and "--vary" in command._option_string_actions and "unknown parameter" in head:
             what = "a sweep's input" + ("s" if len(inputs) > 1 else "")
             return f"{head} ({what}, not a rig parameter: --set or --vary){sep}{rest}"
+        drives = [  # a sweep's drive input (torque_m1_frequency_hz) on a command that takes a drive as a signal
+            flag
+            for flag, target, _ in DRIVE_OPTIONS
+            if flag in command._option_string_actions and any(name.startswith(f"{target}_") for name in names)
+        ]
+        if drives and "unknown parameter" in head:
+            return (
+                f"{head} (a sweep's drive input; here a drive is one option and a signal: {drives[0]} "
+                f"sine:AMP,FREQ_HZ, docs/excitation.md){sep}{rest}"
+            )
         return message
     sources: dict[str, str] = getattr(args, "parameter_sources", {})
     named = [name for name in sources if re.search(rf"\b{re.escape(name)}\b", message)]

@@ -286,6 +286,10 @@ def test_a_run_option_given_as_a_parameter_is_named(workspace, capsys):
     )
     assert main(["sweep", "--vary", "c1_n_m=5,6", "--set", "dt_s=0.001", "-o", "never"]) == 2
     assert "unknown input 'dt_s' (this command's --dt-s, not a rig parameter)" in capsys.readouterr().err
+    # a sweep's drive input on a command that takes a drive as one option and a signal
+    assert main(["simulate", "--set", "torque_m1_frequency_hz=1", "--set", "torque_m1_amplitude_n_m=0.01"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "(a sweep's drive input; here a drive is one option and a signal: --torque1" in err
     # a name without its unit, or in capitals: its likely spelling, not an option (--b1 sets b1_n_m_s)
     for given, meant in (("b1", "b1_n_m_s"), ("C1_N_M", "c1_n_m")):
         assert main(["simulate", "--set", f"{given}=0.001"]) == 2
