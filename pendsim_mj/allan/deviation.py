@@ -332,6 +332,9 @@ SIGNIFICANT_CHI2 = 9.0
 residual, scaled by the fit's own residual per degree of freedom where that exceeds 1: the curve's
 points overlap and are correlated): about three standard deviations."""
 DOMINANT_SHARE = 0.5  # ... and only if it makes at least this share of the curve's variance at some tau
+DOMINANT_EDF = 10.0  # ... where the curve's estimate has at least this many degrees of freedom: on white noise
+# alone (a new user's recordings) a flat part "dominated" the last tau of a 1 h record (T / tau = 10, about 5
+# degrees of freedom) and gave B there
 
 
 def _basis(tau: np.ndarray) -> np.ndarray:
@@ -379,9 +382,10 @@ def noise_terms(curve: AllanCurve) -> NoiseTerms:
     scale = max(1.0, residual / max(1, len(b) - int(np.count_nonzero(coef))))
     parts = basis * coef
     share = parts / parts.sum(axis=1, keepdims=True)
+    firm = edf >= DOMINANT_EDF  # a term's dominance counts where the curve's estimate is firm
 
     def resolved(j: int) -> bool:
-        if coef[j] <= 0 or not np.any(share[:, j] >= DOMINANT_SHARE):
+        if coef[j] <= 0 or not np.any((share[:, j] >= DOMINANT_SHARE) & firm):
             return False
         without, _ = _best_fit(a, b, tuple(i for i in everything if i != j))
         return (without - residual) / scale > SIGNIFICANT_CHI2
@@ -391,7 +395,8 @@ def noise_terms(curve: AllanCurve) -> NoiseTerms:
     unresolved = False
     if rising and all(found[_TERMS[j]] is None for j in rising):
         white_only, _ = _best_fit(a, b, (0, 1))
-        unresolved = (white_only - residual) / scale > SIGNIFICANT_CHI2
+        rise = np.any((parts[:, 2:].sum(axis=1) >= DOMINANT_SHARE * parts.sum(axis=1)) & firm)
+        unresolved = bool(rise) and (white_only - residual) / scale > SIGNIFICANT_CHI2
     b_tau = float(tau[int(np.argmax(share[:, 2]))]) if found["B"] is not None else None
     return NoiseTerms(found["N"], found["B"], b_tau, found["K"], unresolved)
 
