@@ -622,7 +622,7 @@ def test_a_definition_file_runs_and_a_second_run_resumes(tmp_path, capsys):
         (["--vary", "phi1_deg=10,10,20"], "vary phi1_deg: the list names 10 more than once"),
         (
             ["--vary", "c1_n_m=5,6", "--set", "torque_m1_frequency_hz=1000", "--set", "torque_m1_amplitude_n_m=0.01"],
-            "the torque_m1 drive reaches 1000 Hz, above the 50 Hz a step of 0.01 s can follow",
+            "the torque_m1 drive reaches 1000 Hz: a step of 0.01 s gives it 0.1 steps a period",
         ),
         (["--vary", "c1_n_m=1:2:3:lin"], "expected FROM:TO[:log] or FROM:TO:NUM[:log], got '1:2:3:lin'"),
         (["--vary", "c1_nm=1,2"], "argument --vary: unknown input 'c1_nm' (did you mean 'c1_n_m'?); allowed:"),
