@@ -338,8 +338,8 @@ def highest_frequency_hz(signal: Signal) -> float | None:
 
 
 STEPS_PER_PERIOD = 10
-"""The fewest steps a period of a drive's sine that a run follows: the response's error grows as
-(2 pi f dt)^4 (a new user's torque at 10 ms: 7 % of the drive's work off at 20 Hz, 5 steps a
+"""The fewest steps a period of a drive's sine that a run follows: the response's error grows
+with f dt (a new user's torque at 10 ms: 7 % of the drive's work off at 20 Hz, 5 steps a
 period, 50 % at 49 Hz; at 10 steps 1.6 %: 10 Hz over 10 s, against 1 ms and 0.2 ms), and below 2
 the sine is aliased (1000 Hz fell on its zeros and did 1e-14 J of work)."""
 
@@ -360,8 +360,8 @@ def check_followed(drive: Drive | None, dt_s: float) -> None:
         if f is not None and f > limit_hz:
             raise ParameterError(
                 f"the {target.value} drive reaches {f:g} Hz: a step of {dt_s:g} s gives it {1.0 / (f * dt_s):.2g} "
-                f"steps a period, and a run follows a drive with {STEPS_PER_PERIOD} or more (the error grows as "
-                f"(2 pi f dt)^4; fewer than 2 alias it); use a step (dt_s, --dt-s) of at most {1.0 / (20.0 * f):.2g} "
+                f"steps a period, and a run follows a drive with {STEPS_PER_PERIOD} or more (its error grows with "
+                f"f dt; fewer than 2 alias it); use a step (dt_s, --dt-s) of at most {1.0 / (20.0 * f):.2g} "
                 "s (20 steps a period)"
             )
 
