@@ -101,8 +101,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             f"pendsim: error: {_one_line(repr(os.fsdecode(exc.filename)))}: {describe_os_error(exc)}", file=sys.stderr
         )
         return EXIT_USAGE
-    except KeyboardInterrupt:
-        print("pendsim: interrupted", file=sys.stderr)
+    except KeyboardInterrupt as exc:  # a command may say what it kept (``str(exc)``: a sweep's saved cases)
+        print(f"pendsim: interrupted{': ' + str(exc) if str(exc) else ''}", file=sys.stderr)
         return EXIT_INTERRUPTED
     except Terminated as exc:
         print(f"pendsim: stopped by {exc}", file=sys.stderr)

@@ -149,6 +149,16 @@ def run_sweep(
     except Exception:  # a failure (a full disk, ...): what this run started goes; Ctrl-C keeps it to resume
         store.withdraw()
         raise
+    except KeyboardInterrupt:  # Ctrl-C or SIGTERM: said with what is kept, and how to go on
+        try:
+            saved = len(store.finished_ids())
+        except OutputError:  # a part that cannot be read: the next run names it
+            raise KeyboardInterrupt from None
+        raise KeyboardInterrupt(
+            f"{saved} of {len(table)} cases saved in {out_dir}; the same command resumes"
+            if saved
+            else f"no case finished yet in {out_dir}"
+        ) from None
 
 
 def _run_into(
