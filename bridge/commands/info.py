@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 from pathlib import Path
 
 from pendsim_mj.errors import RecordingError
@@ -49,6 +50,8 @@ def stated_by(path: Path) -> RigParams:
         mcap.close()
     if raw is None and damaged:  # cut before its metadata, or its metadata damaged
         raise RecordingError(damaged)
+    if damaged:  # its rig is read; the rest is not whole, which the commands that read it will refuse
+        print(f"warning: {damaged}", file=sys.stderr)
     if raw is None:
         raise RecordingError(
             f"{path} states no rig (no pendsim/rig_parameters metadata: another tool's recording, or an import); "

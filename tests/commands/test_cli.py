@@ -107,6 +107,13 @@ def test_info_refuses_a_file_that_states_no_rig_in_one_line(tmp_path, capsys):
     bad = tmp_path / "bad.json"
     bad.write_text('{"c1_nm": 6.5}')
     capsys.readouterr()
+    later = tmp_path / "later.mcap"  # cut after its metadata: the rig is read, and the damage said
+    later.write_bytes(rec.read_bytes()[: rec.stat().st_size * 4 // 5])
+    assert main(["info", str(later)]) == 0
+    captured = capsys.readouterr()
+    assert captured.out.startswith(f"Rig parameters stated by {later}: 0 not the paper's")
+    warning = captured.err.strip().splitlines()
+    assert len(warning) == 1 and warning[0].startswith(f"warning: {later}: ") and "pendsim recover" in warning[0]
     for path, message in ((other, "states no rig"), (cut, "truncated"), (bad, "did you mean 'c1_n_m'"),
                           (tmp_path / "none.mcap", "no such file")):  # fmt: skip
         assert main(["info", str(path)]) == 2
