@@ -402,6 +402,10 @@ def read_params_file(path: Path) -> dict[str, float]:
             raw = f.read(MAX_JSON_BYTES + 1)
     except OSError as exc:
         raise UsageError(f"cannot read {path}: {exc.strerror}") from None
+    if raw.startswith(b"\x89MCAP"):  # a recording given for its rig: the one command that reads it so
+        raise UsageError(
+            f"{path} is a recording, not a parameter file; its rig as one: pendsim info {path} --json > rig.json"
+        )
     if len(raw) > MAX_JSON_BYTES:
         raise UsageError(f"{path} is over {MAX_JSON_BYTES} bytes; a parameter file is a small JSON object")
     example = '{"b1_n_m_s": 0.0007}'
@@ -468,6 +472,11 @@ def explained(message: str, args: argparse.Namespace | None, command: argparse.A
     --phi1-deg, not a rig parameter); allowed: ..."). ``parameter_sources``: ``overrides_from``."""
     if args is None:
         return message
+    drive = re.search(r"the (\w+) drive reaches", message)  # a drive faster than the step: by its option
+    if drive is not None and command is not None:
+        flag = next((f for f, target, _ in DRIVE_OPTIONS if target == drive.group(1)), None)
+        if flag is not None and flag in command._option_string_actions:
+            return message.replace(f"the {drive.group(1)} drive", f"the {drive.group(1)} drive ({flag})", 1)
     unknown = re.search(r"unknown (?:parameter\(s\) ([^;]*)|input '([a-z0-9_]+)')", message)
     if unknown is not None and command is not None:
         head, sep, rest = message.partition("; allowed:")

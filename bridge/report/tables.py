@@ -25,11 +25,13 @@ def run_summary(summary: RunSummary, engine: str, *, dry_friction: bool = False)
     ]
     for k, name in enumerate(("phi1", "phi2")):
         start, end = math.degrees(s.start_amplitude_rad[k]), math.degrees(s.end_amplitude_rad[k])
+        turned = s.largest_rad[k] > math.pi  # |phi| then counts its turns (11397 deg after 31): no swing's peak
         # a decay's or a drift's peak (below one cycle), or the ramp of a pendulum that turned over
         swing = s.swing_hz(k)
         why = "n/a (turned over)" if s.largest_rad[k] > math.pi else "n/a (< 1 cycle)"
         f = f"{swing:16.4f}" if math.isfinite(swing) else f"{why:>16}"
-        lines.append(f"{name:6} {f} {start:17.3f} {end:16.3f}")
+        peaks = f"{start:17.3f} {end:16.3f}" if not turned else f"{'n/a':>17} {'n/a':>16}"
+        lines.append(f"{name:6} {f} {peaks}")
     e0 = s.energy_start_j
     share = f" ({100 * abs(s.energy_lost_j) / e0:.1f} % of the initial {e0:.4g} J)" if e0 > 0 else ""
     change = "lost" if s.energy_lost_j >= 0 else "gained"

@@ -746,7 +746,8 @@ def describe(summary: SweepSummary, plan: SweepPlan, *, top: int = 12) -> str:
     features = names[first + 1 :]
     where = "in this process, serially" if summary.backend == "serial" else f"on {summary.backend}"
     lines = [
-        f"sweep of {summary.ncases} cases ({plan.method}, {plan.engine} engine, {plan.duration_s:g} s at "
+        f"sweep of {summary.ncases} case{'s' if summary.ncases != 1 else ''} ({plan.method}, {plan.engine} engine, "
+        f"{plan.duration_s:g} s at "
         f"{plan.dt_s:g} s) {where}: computed {summary.computed} in {summary.elapsed_s:.1f} s"
         + (f", {summary.resumed} already done" if summary.resumed else "")
         + f", {summary.diverged} diverged",

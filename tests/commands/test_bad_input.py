@@ -286,6 +286,17 @@ def test_a_run_option_given_as_a_parameter_is_named(workspace, capsys):
     )
     assert main(["sweep", "--vary", "c1_n_m=5,6", "--set", "dt_s=0.001", "-o", "never"]) == 2
     assert "unknown input 'dt_s' (this command's --dt-s, not a rig parameter)" in capsys.readouterr().err
+    # a recording given as a parameter file: said so, with the command that makes one of its rig
+    Path("r.mcap").write_bytes(b"\x89MCAP0\r\n" + bytes(2_000_000))
+    assert main(["simulate", "--params-file", "r.mcap"]) == 2
+    assert "r.mcap is a recording, not a parameter file; its rig as one: pendsim info r.mcap --json" in (
+        capsys.readouterr().err
+    )
+    # a drive faster than the step: named by this command's option
+    assert main(["simulate", "--torque1-n-m", "sine:0.01,49"]) == 2
+    assert "the torque_m1 drive (--torque1-n-m) reaches 49 Hz: a step of 0.01 s gives it 2 steps a period" in (
+        capsys.readouterr().err
+    )
     # a sweep's drive input on a command that takes a drive as one option and a signal
     assert main(["simulate", "--set", "torque_m1_frequency_hz=1", "--set", "torque_m1_amplitude_n_m=0.01"]) == 2
     err = capsys.readouterr().err
