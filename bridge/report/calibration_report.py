@@ -87,6 +87,22 @@ def report_json(report: CalibrationReport) -> dict[str, Any]:
     }
 
 
+WORSE_BY = 1.2  # a calibrated rig whose IAE of phi1 exceeds the stated rig's by this factor is said to be worse
+
+
+def _worse(before: Metrics, after: Metrics) -> str:
+    """A line where the calibrated rig validates a recording worse than the stated one (a stated rig
+    that was already right: a simulated recording's own, calibrated from it), else ""."""
+    if not after.iae_phi1_rad_s > WORSE_BY * before.iae_phi1_rad_s:
+        return ""
+    return (
+        f"\n{Path(before.path).name}: the calibrated rig validates worse than the stated one (IAE phi1 "
+        f"{after.iae_phi1_rad_s:.4f} against {before.iae_phi1_rad_s:.4f} rad s, max abs dphi1 "
+        f"{after.max_abs_phi1_rad:.4f} against {before.max_abs_phi1_rad:.4f} rad): the stated rig already fits "
+        "it; keep the stated rig unless other recordings need the calibration"
+    )
+
+
 def report_text(report: CalibrationReport) -> str:
     """The plain-words report (printed, and calibration.md)."""
     cal = report.calibration
@@ -132,6 +148,7 @@ def report_text(report: CalibrationReport) -> str:
                 f"| {Path(m.path).name} | {m.rig} | {m.max_abs_phi1_rad:.4f} | {m.max_abs_omega2_rad_s:.4f} | "
                 f"{m.iae_phi1_rad_s:.4f} | {100 * m.delta_f_phi1:+.3f} |"
             )
+        out += [line for b, a in zip(report.before, report.after, strict=True) if (line := _worse(b, a))]
     if report.model_error:
         out += ["", "## Model error", ""]
         out += [f"- {line}" for line in report.model_error]
