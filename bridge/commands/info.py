@@ -37,27 +37,21 @@ def stated_by(path: Path) -> RigParams:
     """The rig a recording's metadata or a parameter file states, on top of the paper's."""
     if path.suffix.lower() != ".mcap":
         return RigParams().with_mapping(options.read_params_file(path))
-    from ..io.mcap.reader import scan_mcap  # start-up: with a recording only
-    from ..io.recording import stated_rig
+    from ..io.recording import rig_stated_in  # start-up: with a recording only
 
     if not path.is_file():
         raise options.UsageError(f"{path}: no such file")
-    mcap = scan_mcap(path)
-    try:
-        raw = mcap.metadata.get("pendsim/rig_parameters")
-        damaged = mcap.error_text() if mcap.problems else ""
-    finally:
-        mcap.close()
-    if raw is None and damaged:  # cut before its metadata, or its metadata damaged
+    rig, damaged = rig_stated_in(path)
+    if rig is None and damaged:  # cut before its metadata, or its metadata damaged
         raise RecordingError(damaged)
     if damaged:  # its rig is read; the rest is not whole, which the commands that read it will refuse
         print(f"warning: {damaged}", file=sys.stderr)
-    if raw is None:
+    if rig is None:
         raise RecordingError(
             f"{path} states no rig (no pendsim/rig_parameters metadata: another tool's recording, or an import); "
             f"its contents: pendsim inspect {path}"
         )
-    return stated_rig(path, raw)
+    return rig
 
 
 def run(args: argparse.Namespace) -> int:

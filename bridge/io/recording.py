@@ -273,6 +273,18 @@ def _tuple(value: Any) -> Any:
     return value
 
 
+def rig_stated_in(path: Path) -> tuple[RigParams | None, str]:
+    """The rig a recording's metadata state (None: none, e.g. another tool's file) and its damage in
+    one line ("" where its structure is whole), from the file's structure alone (no chunk inflated)."""
+    mcap = scan_mcap(path)
+    try:
+        raw = mcap.metadata.get("pendsim/rig_parameters")
+        damaged = mcap.error_text() if mcap.problems else ""
+    finally:
+        mcap.close()
+    return (None if raw is None else stated_rig(path, raw)), damaged
+
+
 def stated_rig(path: Path, raw: dict[str, str]) -> RigParams:
     """The rig a recording states (its ``pendsim/rig_parameters`` metadata, ``raw``), on top of
     the paper's for what it leaves out (RecordingError naming the file if a value is not valid)."""

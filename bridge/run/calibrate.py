@@ -25,9 +25,8 @@ from pendsim_mj.estimation.alignment import DEFAULT_MAX_GAP_S
 from pendsim_mj.estimation.measured_run import MeasuredRun
 from pendsim_mj.rig.params import RigParams
 
-from ..io.mcap.reader import scan_mcap
 from ..io.measured import align_recording, node_samples, recording_drive
-from ..io.recording import DRIVE_TOPIC, NODES, imu_topic, read_recording, stated_rig
+from ..io.recording import DRIVE_TOPIC, NODES, imu_topic, read_recording, rig_stated_in
 from ..report.calibration_report import CalibrationReport, Metrics
 from .spatial_validate import RELEASE_AT_START_RAD_S, gyro_in_swing_frames, spatial_params, tilt_start_of
 from .validate import validate
@@ -340,14 +339,10 @@ def stated_elsewhere(paths: Sequence[Path], start: RigParams, given: Collection[
     lines = []
     ours = start.as_dict()
     for path in paths:
-        mcap = scan_mcap(path)
-        try:
-            raw = mcap.metadata.get("pendsim/rig_parameters")
-        finally:
-            mcap.close()
-        if raw is None:
+        rig, _ = rig_stated_in(path)  # (a damaged file was refused by the read before)
+        if rig is None:
             continue  # another tool's recording: it states no rig
-        theirs = stated_rig(path, raw).as_dict()
+        theirs = rig.as_dict()
         differ = [name for name, value in theirs.items() if name not in given and value != ours[name]]
         if differ:
             shown = ", ".join(f"{name} {theirs[name]:.6g} (here {ours[name]:.6g})" for name in differ[:4])

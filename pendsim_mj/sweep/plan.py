@@ -239,7 +239,8 @@ class SweepPlan:
         (a descending grid runs in its order, a draw has none), and cases that repeat themselves
         (a zero-width range, a list naming a value twice)."""
         if axis.values is not None:
-            repeated = sorted({v for v in axis.values if list(axis.values).count(v) > 1})
+            values, counts = np.unique(np.asarray(axis.values, dtype=float), return_counts=True)
+            repeated = values[counts > 1].tolist()  # (a count per value would be quadratic in a long list)
             if repeated:
                 raise ParameterError(
                     f"vary {axis.name}: the list names {repeated[0]:g} more than once (the same cases twice)"
